@@ -1,0 +1,44 @@
+#!/usr/bin/env bash
+# Installs every Debian package glissade's build and tests need. Idempotent, no stdin, run as root.
+# Takes seconds when everything is present; fails loudly when something cannot be installed.
+set -euo pipefail
+
+PACKAGES=(
+  build-essential pkg-config ca-certificates
+  mpich libmpich-dev          # MPI (hydra mpiexec), rsmpi links against it
+  libhdf5-dev                 # HDF5 field output (hdf5-metno finds it through pkg-config)
+  protobuf-compiler           # protoc for tonic/prost code generation
+  libclang-dev                # bindgen, used by mpi-sys
+  python3 python3-venv        # the Python gRPC example client and the HDF5 reader check
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  # dpkg-query prints "install ok installed" only for a fully installed package.
+  if [[ "$(dpkg-query -W -f='${Status}' "$p" 2>/dev/null || true)" != "install ok installed" ]]; then
+    missing+=("$p")
+  fi
+done
+
+if ((${#missing[@]} == 0)); then
+  echo "install-deps: all ${#PACKAGES[@]} packages present"
+else
+  if [[ $(id -u) -ne 0 ]]; then
+    echo "install-deps: missing packages (${missing[*]}) and not root; rerun as root" >&2
+    exit 1
+  fi
+  echo "install-deps: installing ${missing[*]}"
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -q
+  apt-get install -y -q --no-install-recommends "${missing[@]}"
+fi
+
+# Check the tools the build actually calls, so a broken install fails here and not mid-build.
+for tool in mpiexec mpicc protoc pkg-config; do
+  command -v "$tool" >/dev/null || { echo "install-deps: '$tool' not found after install" >&2; exit 1; }
+done
+pkg-config --exists hdf5 || { echo "install-deps: pkg-config cannot find hdf5" >&2; exit 1; }
+# Hydra's `mpiexec --version` starts with "HYDRA build details:"; the MPI version is on its
+# "Version:" line.
+mpi_version=$(mpiexec --version 2>/dev/null | awk '$1 == "Version:" {print $2; exit}')
+echo "install-deps: ok (MPICH ${mpi_version:-unknown version}, $(protoc --version), HDF5 $(pkg-config --modversion hdf5))"

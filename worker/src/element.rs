@@ -1,0 +1,345 @@
+//! Isoparametric Lagrange elements of order 1, generic over the dimension `D`:
+//! 2-node bars (D = 1), 4-node quads (D = 2, plane strain), 8-node hexahedra (D = 3).
+//!
+//! Local nodes are in tensor order: bit `d` of the local index is the node's side along
+//! reference axis `d` (0 -> xi_d = -1, 1 -> xi_d = +1). Full 2-point Gauss integration (METHOD.md 2).
+
+/// Isotropic linear elastic material.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Material {
+    /// Young's modulus E (Pa)
+    pub young: f64,
+    /// Poisson's ratio nu
+    pub poisson: f64,
+    /// density rho (kg/m^3)
+    pub density: f64,
+}
+
+impl Material {
+    /// Lamé constants (lambda, mu) of the dimension: uniaxial stress for bars (lambda = 0,
+    /// 2 mu = E), plane strain in 2D, full 3D otherwise.
+    pub fn lame(&self, dim: usize) -> (f64, f64) {
+        if dim == 1 {
+            return (0.0, 0.5 * self.young);
+        }
+        let (e, nu) = (self.young, self.poisson);
+        (
+            e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
+            e / (2.0 * (1.0 + nu)),
+        )
+    }
+
+    /// Bar impedance sqrt(rho E): the search direction k0 of METHOD.md 3.
+    pub fn impedance(&self) -> f64 {
+        (self.density * self.young).sqrt()
+    }
+
+    /// Dilatational (bar) wave speed sqrt(E / rho).
+    pub fn bar_wave_speed(&self) -> f64 {
+        (self.young / self.density).sqrt()
+    }
+}
+
+const GAUSS: [f64; 2] = [-0.577_350_269_189_625_8, 0.577_350_269_189_625_8];
+
+/// Number of nodes of the D-dimensional element.
+pub const fn nodes_per_element(dim: usize) -> usize {
+    1 << dim
+}
+
+/// Gauss points (reference coordinates, weight) of a `k`-dimensional reference cube.
+pub fn gauss_points(k: usize) -> Vec<(Vec<f64>, f64)> {
+    (0..1usize << k)
+        .map(|g| ((0..k).map(|d| GAUSS[(g >> d) & 1]).collect(), 1.0))
+        .collect()
+}
+
+/// Shape functions of the `k`-dimensional multilinear element at `xi` and their reference
+/// derivatives `dn[a][d]`.
+pub fn shape(xi: &[f64]) -> (Vec<f64>, Vec<Vec<f64>>) {
+    let k = xi.len();
+    let nn = 1usize << k;
+    let mut n = vec![1.0; nn];
+    let mut dn = vec![vec![1.0; k]; nn];
+    for a in 0..nn {
+        for d in 0..k {
+            let s = if (a >> d) & 1 == 1 { 1.0 } else { -1.0 };
+            let f = 0.5 * (1.0 + s * xi[d]);
+            n[a] *= f;
+            for (e, dne) in dn[a].iter_mut().enumerate() {
+                *dne *= if e == d { 0.5 * s } else { f };
+            }
+        }
+    }
+    (n, dn)
+}
+
+/// Determinant and inverse of a D x D matrix (D <= 3), padded with the identity.
+fn det_inv<const D: usize>(j: &[[f64; D]; D]) -> (f64, [[f64; D]; D]) {
+    let mut m = [[0.0; 3]; 3];
+    for (i, row) in m.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    for i in 0..D {
+        for k in 0..D {
+            m[i][k] = j[i][k];
+        }
+    }
+    let c = |r: usize, s: usize| {
+        let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
+        let (s1, s2) = ((s + 1) % 3, (s + 2) % 3);
+        m[r1][s1] * m[r2][s2] - m[r1][s2] * m[r2][s1]
+    };
+    let det = m[0][0] * c(0, 0) + m[0][1] * c(0, 1) + m[0][2] * c(0, 2);
+    let mut inv = [[0.0; D]; D];
+    for i in 0..D {
+        for k in 0..D {
+            inv[i][k] = c(k, i) / det;
+        }
+    }
+    (det, inv)
+}
+
+/// Consistent stiffness and mass matrices of one element (dense, `(a*D + i, b*D + j)` order),
+/// from its node coordinates in tensor order.
+pub fn element_matrices<const D: usize>(
+    x: &[[f64; D]],
+    mat: &Material,
+) -> Result<(Vec<f64>, Vec<f64>), f64> {
+    let nn = nodes_per_element(D);
+    let nd = nn * D;
+    let (lambda, mu) = mat.lame(D);
+    let mut k = vec![0.0; nd * nd];
+    let mut m = vec![0.0; nd * nd];
+    for (xi, w) in gauss_points(D) {
+        let (n, dn) = shape(&xi);
+        // J[i][d] = dx_i / dxi_d
+        let mut jac = [[0.0; D]; D];
+        for a in 0..nn {
+            for i in 0..D {
+                for d in 0..D {
+                    jac[i][d] += x[a][i] * dn[a][d];
+                }
+            }
+        }
+        let (det, inv) = det_inv(&jac);
+        if det <= 0.0 || !det.is_finite() {
+            return Err(det);
+        }
+        // physical gradients g[a][i] = sum_d dn[a][d] * (J^-1)[d][i]
+        let g: Vec<[f64; D]> = (0..nn)
+            .map(|a| {
+                let mut gi = [0.0; D];
+                for (i, gii) in gi.iter_mut().enumerate() {
+                    for d in 0..D {
+                        *gii += dn[a][d] * inv[d][i];
+                    }
+                }
+                gi
+            })
+            .collect();
+        let wd = w * det;
+        for a in 0..nn {
+            for b in 0..nn {
+                let gab: f64 = (0..D).map(|l| g[a][l] * g[b][l]).sum();
+                for i in 0..D {
+                    for j in 0..D {
+                        let mut v = lambda * g[a][i] * g[b][j] + mu * g[a][j] * g[b][i];
+                        if i == j {
+                            v += mu * gab;
+                            m[(a * D + i) * nd + b * D + j] += wd * mat.density * n[a] * n[b];
+                        }
+                        k[(a * D + i) * nd + b * D + j] += wd * v;
+                    }
+                }
+            }
+        }
+    }
+    Ok((k, m))
+}
+
+/// Local nodes of the face of the reference element normal to axis `axis` on side `side`,
+/// in the tensor order of the (D-1)-dimensional face element.
+pub fn face_local_nodes(dim: usize, axis: usize, side: usize) -> Vec<usize> {
+    (0..nodes_per_element(dim))
+        .filter(|a| (a >> axis) & 1 == side)
+        .collect()
+}
+
+/// Integral of each face shape function over a face (lumped interface "mass" M_Gamma:
+/// the nodal area), and the face's unit normal at its centre pointing away from `inside`.
+pub fn face_area_and_normal<const D: usize>(
+    x: &[[f64; D]],
+    inside: [f64; D],
+) -> (Vec<f64>, [f64; D]) {
+    let k = D - 1;
+    let nn = 1usize << k;
+    let mut area = vec![0.0; nn];
+    // tangents at the face centre, for the normal
+    let (_, dn0) = shape(&vec![0.0; k]);
+    let tangent = |dn: &Vec<Vec<f64>>, d: usize| {
+        let mut t = [0.0; D];
+        for a in 0..nn {
+            for i in 0..D {
+                t[i] += x[a][i] * dn[a][d];
+            }
+        }
+        t
+    };
+    for (xi, w) in gauss_points(k) {
+        let (n, dn) = shape(&xi);
+        let jac = match k {
+            0 => 1.0,
+            1 => norm(&tangent(&dn, 0)),
+            _ => norm(&cross(&tangent(&dn, 0), &tangent(&dn, 1))),
+        };
+        for a in 0..nn {
+            area[a] += w * jac * n[a];
+        }
+    }
+    let mut normal = match k {
+        0 => [1.0; D],
+        1 => {
+            let t = tangent(&dn0, 0);
+            let mut nrm = [0.0; D];
+            nrm[0] = t[1];
+            nrm[1] = -t[0];
+            nrm
+        }
+        _ => cross(&tangent(&dn0, 0), &tangent(&dn0, 1)),
+    };
+    let centre: Vec<f64> = (0..D)
+        .map(|i| x.iter().map(|p| p[i]).sum::<f64>() / nn as f64)
+        .collect();
+    let outward: f64 = (0..D).map(|i| normal[i] * (centre[i] - inside[i])).sum();
+    let len = norm(&normal);
+    for v in normal.iter_mut() {
+        *v *= outward.signum() / len;
+    }
+    (area, normal)
+}
+
+fn norm<const D: usize>(v: &[f64; D]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// Cross product, defined for D = 3 (the only dimension with 2D faces).
+fn cross<const D: usize>(a: &[f64; D], b: &[f64; D]) -> [f64; D] {
+    let mut c = [0.0; D];
+    if D == 3 {
+        c[0] = a[1] * b[2] - a[2] * b[1];
+        c[1] = a[2] * b[0] - a[0] * b[2];
+        c[2] = a[0] * b[1] - a[1] * b[0];
+    }
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit_box<const D: usize>(h: [f64; D]) -> Vec<[f64; D]> {
+        (0..nodes_per_element(D))
+            .map(|a| {
+                let mut p = [0.0; D];
+                for d in 0..D {
+                    p[d] = if (a >> d) & 1 == 1 { h[d] } else { 0.0 };
+                }
+                p
+            })
+            .collect()
+    }
+
+    /// Total mass = rho V and rigid translations produce no force, in every dimension.
+    fn check_mass_and_rigid_modes<const D: usize>(h: [f64; D]) {
+        let mat = Material {
+            young: 2.0e11,
+            poisson: 0.3,
+            density: 7800.0,
+        };
+        let x = unit_box(h);
+        let (k, m) = element_matrices(&x, &mat).unwrap();
+        let nd = nodes_per_element(D) * D;
+        let vol: f64 = h.iter().product();
+        for i in 0..D {
+            let t: Vec<f64> = (0..nd)
+                .map(|r| if r % D == i { 1.0 } else { 0.0 })
+                .collect();
+            let total: f64 = (0..nd)
+                .map(|r| (0..nd).map(|c| t[r] * m[r * nd + c] * t[c]).sum::<f64>())
+                .sum();
+            assert!((total - mat.density * vol).abs() < 1e-12 * mat.density * vol);
+            let kmax = k.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+            for r in 0..nd {
+                let f: f64 = (0..nd).map(|c| k[r * nd + c] * t[c]).sum();
+                assert!(
+                    f.abs() < 1e-13 * kmax,
+                    "rigid translation gives force {f} (max entry {kmax})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn mass_and_rigid_modes_all_dimensions() {
+        check_mass_and_rigid_modes::<1>([0.3]);
+        check_mass_and_rigid_modes::<2>([0.3, 0.2]);
+        check_mass_and_rigid_modes::<3>([0.3, 0.2, 0.1]);
+    }
+
+    #[test]
+    fn bar_stiffness_is_ea_over_l() {
+        let mat = Material {
+            young: 7.0,
+            poisson: 0.25,
+            density: 1.0,
+        };
+        let (k, m) = element_matrices::<1>(&[[0.0], [2.0]], &mat).unwrap();
+        assert!((k[0] - 3.5).abs() < 1e-14 && (k[1] + 3.5).abs() < 1e-14);
+        // consistent bar mass rho L / 6 [2 1; 1 2]
+        assert!((m[0] - 2.0 / 3.0).abs() < 1e-14 && (m[1] - 1.0 / 3.0).abs() < 1e-14);
+    }
+
+    #[test]
+    fn uniaxial_strain_energy_matches_3d_with_nu_zero() {
+        // Stretch a hexahedron along x by strain e: energy 1/2 E e^2 V when nu = 0.
+        let mat = Material {
+            young: 3.0,
+            poisson: 0.0,
+            density: 1.0,
+        };
+        let h = [2.0, 0.5, 0.25];
+        let x = unit_box(h);
+        let (k, _) = element_matrices(&x, &mat).unwrap();
+        let e = 0.01;
+        let u: Vec<f64> = (0..24)
+            .map(|r| if r % 3 == 0 { e * x[r / 3][0] } else { 0.0 })
+            .collect();
+        let energy: f64 = 0.5
+            * (0..24)
+                .map(|r| (0..24).map(|c| u[r] * k[r * 24 + c] * u[c]).sum::<f64>())
+                .sum::<f64>();
+        let exact = 0.5 * mat.young * e * e * h.iter().product::<f64>();
+        assert!((energy - exact).abs() < 1e-13, "{energy} vs {exact}");
+    }
+
+    #[test]
+    fn face_areas_and_normals() {
+        let x = [
+            [0.0, 0.0, 1.0],
+            [2.0, 0.0, 1.0],
+            [0.0, 3.0, 1.0],
+            [2.0, 3.0, 1.0],
+        ];
+        let (a, n) = face_area_and_normal::<3>(&x, [1.0, 1.5, 0.0]);
+        assert!(a.iter().all(|v| (v - 1.5).abs() < 1e-14), "{a:?}");
+        assert_eq!(n, [0.0, 0.0, 1.0]);
+        let (a, n) = face_area_and_normal::<2>(&[[1.0, 0.0], [1.0, 2.0]], [2.0, 1.0]);
+        assert!(a.iter().all(|v| (v - 1.0).abs() < 1e-14));
+        assert!((n[0] + 1.0).abs() < 1e-14 && n[1].abs() < 1e-14);
+        let (a, n) = face_area_and_normal::<1>(&[[4.0]], [3.0]);
+        assert_eq!((a, n), (vec![1.0], [1.0]));
+        let (_, n) = face_area_and_normal::<1>(&[[4.0]], [5.0]);
+        assert_eq!(n, [-1.0]);
+    }
+}

@@ -1,0 +1,618 @@
+//! The LATIN mixed domain-decomposition solver (METHOD.md 3): linear stage (substructures),
+//! relaxation, local stage (interfaces), error indicator — iterated over the whole time interval.
+
+pub mod field;
+pub mod linear_stage;
+pub mod local_stage;
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::model::{Model, QoiTarget};
+use crate::scene::Scale;
+use crate::sparse::SparseError;
+
+use field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
+use linear_stage::{Stage, SubstructureOperators};
+use local_stage::{GapRule, NodeInput, apply_law};
+
+/// Errors of a LATIN solve.
+#[derive(Debug, thiserror::Error)]
+pub enum SolverError {
+    #[error("substructure {substructure}: {source}")]
+    Factorisation {
+        substructure: usize,
+        source: SparseError,
+    },
+    #[error(
+        "{stage} stage, iteration {iteration}: error indicator is {eta} (the iterations diverged; try a smaller k0_factor or time step)"
+    )]
+    NonFinite {
+        stage: &'static str,
+        iteration: usize,
+        eta: f64,
+    },
+    #[error("initial solution does not fit this model: {0}")]
+    IncompatibleInit(String),
+    #[error("{0}")]
+    Unsupported(String),
+}
+
+/// Iteration record of one stage.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct StageReport {
+    pub iterations: usize,
+    pub converged: bool,
+    pub error_indicator: f64,
+    /// eta after each iteration
+    pub history: Vec<f64>,
+}
+
+/// A quantity of interest as a time series over t_0 .. t_N.
+#[derive(Debug, Clone, Serialize)]
+pub struct QoiSeries {
+    pub name: String,
+    pub times: Vec<f64>,
+    pub values: Vec<f64>,
+}
+
+/// Displacements and velocities of every substructure node at every step (for field output and
+/// comparison with the monolithic reference): `[substructure][step][dof]`.
+#[derive(Debug, Clone, Default)]
+pub struct FieldHistory {
+    pub displacement: Vec<Vec<Vec<f64>>>,
+    pub velocity: Vec<Vec<Vec<f64>>>,
+}
+
+/// Wall-clock split of a solve, in seconds.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Timings {
+    pub factorisation: f64,
+    pub linear_stage: f64,
+    pub local_stage: f64,
+    pub post_processing: f64,
+}
+
+/// Everything a solve produces.
+#[derive(Debug, Clone)]
+pub struct SolveReport {
+    pub static_stage: Option<StageReport>,
+    pub dynamic: StageReport,
+    pub solution: InterfaceSolution,
+    pub qoi: Vec<QoiSeries>,
+    pub fields: Option<FieldHistory>,
+    pub timings: Timings,
+}
+
+impl SolveReport {
+    pub fn converged(&self) -> bool {
+        self.dynamic.converged && self.static_stage.as_ref().is_none_or(|s| s.converged)
+    }
+
+    pub fn iterations(&self) -> usize {
+        self.dynamic.iterations + self.static_stage.as_ref().map_or(0, |s| s.iterations)
+    }
+}
+
+/// What a solve is asked for beyond the model.
+#[derive(Debug, Clone, Default)]
+pub struct SolveOptions {
+    /// record every node's displacement and velocity at every step
+    pub record_fields: bool,
+}
+
+/// A LATIN solver over one model: the substructure operators are factorised once in `new` and
+/// reused by every `solve` (a warm-started design point does not refactorise).
+pub struct LatinSolver<'m, const D: usize> {
+    model: &'m Model<D>,
+    ops: Vec<SubstructureOperators>,
+    factorisation_seconds: f64,
+}
+
+impl<'m, const D: usize> LatinSolver<'m, D> {
+    pub fn new(model: &'m Model<D>) -> Result<Self, SolverError> {
+        if model.settings.scale == Scale::Multi {
+            return Err(SolverError::Unsupported(
+                "scale = multi: the macro problem is not implemented yet; use scale = single"
+                    .into(),
+            ));
+        }
+        let start = Instant::now();
+        let with_static = model.needs_static_stage();
+        let ops = (0..model.substructures.len())
+            .map(|s| {
+                SubstructureOperators::new(model, s, with_static).map_err(|source| {
+                    SolverError::Factorisation {
+                        substructure: s,
+                        source,
+                    }
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            model,
+            ops,
+            factorisation_seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+
+    fn zero_stage(&self, steps: usize) -> StageSolution {
+        StageSolution {
+            interfaces: self
+                .model
+                .interfaces
+                .iter()
+                .map(|itf| InterfaceField::zeros(itf.sides.len(), steps * itf.n_nodes() * D))
+                .collect(),
+        }
+    }
+
+    fn check_init(
+        &self,
+        stage: &StageSolution,
+        steps: usize,
+        what: &str,
+    ) -> Result<(), SolverError> {
+        let m = self.model;
+        if stage.interfaces.len() != m.interfaces.len() {
+            return Err(SolverError::IncompatibleInit(format!(
+                "{what}: {} interfaces, the model has {}",
+                stage.interfaces.len(),
+                m.interfaces.len()
+            )));
+        }
+        for (f, itf) in stage.interfaces.iter().zip(&m.interfaces) {
+            let len = steps * itf.n_nodes() * D;
+            let ok = f.s.len() == itf.sides.len()
+                && f.hat.len() == itf.sides.len()
+                && f.s
+                    .iter()
+                    .chain(&f.hat)
+                    .all(|sf| sf.force.len() == len && sf.velocity.len() == len);
+            if !ok {
+                return Err(SolverError::IncompatibleInit(format!(
+                    "{what}: interface '{}' has other sizes",
+                    itf.name
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Solves the model, starting from `init` (a converged neighbour's interface solution) or
+    /// from zero interface fields (the paper's "direct" start).
+    pub fn solve(
+        &mut self,
+        init: Option<&InterfaceSolution>,
+        options: &SolveOptions,
+    ) -> Result<SolveReport, SolverError> {
+        let m = self.model;
+        let mut timings = Timings {
+            factorisation: self.factorisation_seconds,
+            ..Default::default()
+        };
+        let needs_static = m.needs_static_stage();
+
+        // Static prestress stage.
+        let mut static_report = None;
+        let mut static_solution = None;
+        let mut u0: Vec<Option<Vec<f64>>> = vec![None; m.substructures.len()];
+        if needs_static {
+            let mut st = match init.and_then(|i| i.static_stage.clone()) {
+                Some(s) => {
+                    self.check_init(&s, 1, "static stage")?;
+                    s
+                }
+                None => self.zero_stage(1),
+            };
+            let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
+            let report = self.iterate(
+                Stage::Static,
+                &mut st.interfaces,
+                &start,
+                &[],
+                &u0,
+                &mut timings,
+            )?;
+            // the initial state of the dynamics: displacements of the converged static solution
+            let t = Instant::now();
+            let mut scratch = st.interfaces.clone();
+            for (s, u) in u0.iter_mut().enumerate() {
+                *u = Some(self.ops[s].static_sweep(m, s, &mut scratch));
+            }
+            timings.post_processing += t.elapsed().as_secs_f64();
+            static_report = Some(report);
+            static_solution = Some(st);
+        }
+
+        // Dynamic stage.
+        let mut dynamic = match init {
+            Some(i) => {
+                self.check_init(&i.dynamic, m.steps, "dynamic stage")?;
+                i.dynamic.clone()
+            }
+            None => self.zero_stage(m.steps),
+        };
+        let (gap_start, vn_start) = self.dynamic_initial_gaps(static_solution.as_ref());
+        let report = self.iterate(
+            Stage::Dynamic,
+            &mut dynamic.interfaces,
+            &gap_start,
+            &vn_start,
+            &u0,
+            &mut timings,
+        )?;
+
+        // Post-processing sweep on the converged local-stage fields.
+        let t = Instant::now();
+        let (qoi, fields) = self.post_process(
+            &mut dynamic.interfaces,
+            &u0,
+            static_solution.as_ref(),
+            options,
+        );
+        timings.post_processing += t.elapsed().as_secs_f64();
+        Ok(SolveReport {
+            static_stage: static_report,
+            dynamic: report,
+            solution: InterfaceSolution {
+                static_stage: static_solution,
+                dynamic,
+            },
+            qoi,
+            fields,
+            timings,
+        })
+    }
+
+    /// Gap and relative normal velocity at t_0, per interface node.
+    fn dynamic_initial_gaps(
+        &self,
+        statics: Option<&StageSolution>,
+    ) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+        let m = self.model;
+        let mut gaps = Vec::new();
+        let mut vns = Vec::new();
+        for (i, itf) in m.interfaces.iter().enumerate() {
+            let n = itf.n_nodes();
+            let mut g = itf.gap0.clone();
+            let mut vn = vec![0.0; n];
+            for j in 0..n {
+                let nrm = &itf.normal[j];
+                let side_vel = |k: usize| -> [f64; D] {
+                    itf.sides.get(k).map_or([0.0; D], |s| {
+                        m.substructures[s.substructure].initial_velocity
+                    })
+                };
+                let (v1, v2) = (side_vel(0), side_vel(1));
+                vn[j] = (0..D).map(|c| nrm[c] * (v2[c] - v1[c])).sum();
+                if let Some(st) = statics {
+                    let hat = &st.interfaces[i].hat;
+                    for c in 0..D {
+                        let u1 = hat[0].velocity[j * D + c];
+                        let u2 = hat.get(1).map_or(0.0, |h| h.velocity[j * D + c]);
+                        g[j] += nrm[c] * (u2 - u1);
+                    }
+                }
+            }
+            gaps.push(g);
+            vns.push(vn);
+        }
+        (gaps, vns)
+    }
+
+    /// LATIN iterations of one stage until the error indicator is below the tolerance.
+    fn iterate(
+        &mut self,
+        stage: Stage,
+        fields: &mut [InterfaceField],
+        gap_start: &[Vec<f64>],
+        vn_start: &[Vec<f64>],
+        u0: &[Option<Vec<f64>>],
+        timings: &mut Timings,
+    ) -> Result<StageReport, SolverError> {
+        let m = self.model;
+        let settings = &m.settings;
+        let mut report = StageReport::default();
+        let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
+        let stage_name = match stage {
+            Stage::Static => "static",
+            Stage::Dynamic => "dynamic",
+        };
+        for iteration in 1..=settings.max_iterations {
+            let t = Instant::now();
+            for (f, p) in fields.iter().zip(previous.iter_mut()) {
+                p.clone_from(&f.s);
+            }
+            for s in 0..m.substructures.len() {
+                match stage {
+                    Stage::Static => {
+                        self.ops[s].static_sweep(m, s, fields);
+                    }
+                    Stage::Dynamic => {
+                        self.ops[s].dynamic_sweep(m, s, u0[s].as_deref(), fields, None)
+                    }
+                }
+            }
+            // relaxation (mu = 1 at the first iteration)
+            if iteration > 1 {
+                for (f, p) in fields.iter_mut().zip(&previous) {
+                    for (side, old) in f.s.iter_mut().zip(p) {
+                        let mut relaxed = old.clone();
+                        relaxed.relax_towards(side, settings.relaxation);
+                        *side = relaxed;
+                    }
+                }
+            }
+            timings.linear_stage += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            self.local_stage(stage, fields, gap_start, vn_start);
+            let eta = error_indicator(m, stage, fields);
+            timings.local_stage += t.elapsed().as_secs_f64();
+            report.iterations = iteration;
+            report.error_indicator = eta;
+            report.history.push(eta);
+            tracing::debug!(stage = stage_name, iteration, eta, "LATIN iteration");
+            if !eta.is_finite() {
+                return Err(SolverError::NonFinite {
+                    stage: stage_name,
+                    iteration,
+                    eta,
+                });
+            }
+            if eta <= settings.tolerance {
+                report.converged = true;
+                break;
+            }
+        }
+        Ok(report)
+    }
+
+    /// Local stage over every interface, node and step.
+    fn local_stage(
+        &self,
+        stage: Stage,
+        fields: &mut [InterfaceField],
+        gap_start: &[Vec<f64>],
+        vn_start: &[Vec<f64>],
+    ) {
+        let m = self.model;
+        let steps = match stage {
+            Stage::Static => 1,
+            Stage::Dynamic => m.steps,
+        };
+        let half_dt = 0.5 * m.dt;
+        for (i, itf) in m.interfaces.iter().enumerate() {
+            let n = itf.n_nodes();
+            let h1 = 1.0 / stage.k(&itf.sides[0]);
+            let h2 = itf.sides.get(1).map_or(0.0, |s| 1.0 / stage.k(s));
+            let f = &mut fields[i];
+            // gap rule state: base = g(t_{n-1}) + dt/2 vn(t_{n-1})
+            let mut base: Vec<f64> = match stage {
+                Stage::Static => gap_start[i].clone(),
+                Stage::Dynamic => (0..n)
+                    .map(|j| gap_start[i][j] + half_dt * vn_start[i][j])
+                    .collect(),
+            };
+            let weight = match stage {
+                Stage::Static => 1.0,
+                Stage::Dynamic => half_dt,
+            };
+            for step in 0..steps {
+                for j in 0..n {
+                    let at = |v: &[f64]| -> [f64; D] {
+                        let mut out = [0.0; D];
+                        out.copy_from_slice(&v[(step * n + j) * D..(step * n + j + 1) * D]);
+                        out
+                    };
+                    let (w2, f2) = match f.s.get(1) {
+                        Some(s2) => (at(&s2.velocity), at(&s2.force)),
+                        None => ([0.0; D], [0.0; D]),
+                    };
+                    let input = NodeInput {
+                        w1: at(&f.s[0].velocity),
+                        f1: at(&f.s[0].force),
+                        w2,
+                        f2,
+                        h1,
+                        h2,
+                        normal: itf.normal[j],
+                    };
+                    let out = apply_law(
+                        itf.law,
+                        &input,
+                        GapRule {
+                            base: base[j],
+                            weight,
+                        },
+                    );
+                    let r = (step * n + j) * D..(step * n + j + 1) * D;
+                    f.hat[0].velocity[r.clone()].copy_from_slice(&out.w1);
+                    f.hat[0].force[r.clone()].copy_from_slice(&out.f1);
+                    if let Some(h) = f.hat.get_mut(1) {
+                        h.velocity[r.clone()].copy_from_slice(&out.w2);
+                        h.force[r].copy_from_slice(&out.f2);
+                    }
+                    let vn: f64 = (0..D)
+                        .map(|c| itf.normal[j][c] * (out.w2[c] - out.w1[c]))
+                        .sum();
+                    let gap = base[j] + weight * vn;
+                    base[j] = gap + half_dt * vn;
+                }
+            }
+        }
+    }
+
+    /// Final sweep of every substructure on the converged fields: QoI series and, if asked,
+    /// every node's history.
+    fn post_process(
+        &mut self,
+        fields: &mut [InterfaceField],
+        u0: &[Option<Vec<f64>>],
+        statics: Option<&StageSolution>,
+        options: &SolveOptions,
+    ) -> (Vec<QoiSeries>, Option<FieldHistory>) {
+        let m = self.model;
+        let times: Vec<f64> = (0..=m.steps).map(|n| n as f64 * m.dt).collect();
+        let mut series: Vec<QoiSeries> = m
+            .qois
+            .iter()
+            .map(|q| QoiSeries {
+                name: q.name.clone(),
+                times: times.clone(),
+                values: vec![0.0; m.steps + 1],
+            })
+            .collect();
+        let mut history = options.record_fields.then(FieldHistory::default);
+        // The sweep writes `s` fields: run it on a copy so the returned solution stays the
+        // converged iterate.
+        let mut scratch = fields.to_vec();
+        for s in 0..m.substructures.len() {
+            let wanted: Vec<(usize, usize, bool)> = m
+                .qois
+                .iter()
+                .enumerate()
+                .filter_map(|(q, qoi)| match qoi.target {
+                    QoiTarget::Displacement { substructure, dof } if substructure == s => {
+                        Some((q, dof, true))
+                    }
+                    QoiTarget::Velocity { substructure, dof } if substructure == s => {
+                        Some((q, dof, false))
+                    }
+                    _ => None,
+                })
+                .collect();
+            let mut disp = Vec::new();
+            let mut vel = Vec::new();
+            let record_all = history.is_some();
+            let mut record = |step: usize, u: &[f64], v: &[f64]| {
+                for &(q, dof, is_u) in &wanted {
+                    series[q].values[step] = if is_u { u[dof] } else { v[dof] };
+                }
+                if record_all {
+                    disp.push(u.to_vec());
+                    vel.push(v.to_vec());
+                }
+            };
+            self.ops[s].dynamic_sweep(m, s, u0[s].as_deref(), &mut scratch, Some(&mut record));
+            if let Some(h) = history.as_mut() {
+                h.displacement.push(disp);
+                h.velocity.push(vel);
+            }
+        }
+        for (q, qoi) in m.qois.iter().enumerate() {
+            match qoi.target {
+                QoiTarget::Slip { interface, node } => {
+                    series[q].values = slip_history(m, &fields[interface], interface, node);
+                }
+                QoiTarget::Force {
+                    interface,
+                    component,
+                } => {
+                    let itf = &m.interfaces[interface];
+                    let n = itf.n_nodes();
+                    let resultant = |force: &[f64], step: usize| -> f64 {
+                        (0..n)
+                            .map(|j| itf.area[j] * force[(step * n + j) * D + component])
+                            .sum()
+                    };
+                    series[q].values[0] = statics.map_or(0.0, |st| {
+                        resultant(&st.interfaces[interface].hat[0].force, 0)
+                    });
+                    for step in 0..m.steps {
+                        series[q].values[step + 1] =
+                            resultant(&fields[interface].hat[0].force, step);
+                    }
+                }
+                _ => {}
+            }
+        }
+        (series, history)
+    }
+}
+
+/// Slip at an interface node: norm of the tangential relative displacement accumulated during
+/// the dynamics, integrated from the local-stage velocities with the trapezoidal rule.
+fn slip_history<const D: usize>(
+    m: &Model<D>,
+    f: &InterfaceField,
+    interface: usize,
+    node: usize,
+) -> Vec<f64> {
+    let itf = &m.interfaces[interface];
+    let n = itf.n_nodes();
+    let nrm = itf.normal[node];
+    let tangential = |step: Option<usize>| -> [f64; D] {
+        let mut rel = [0.0; D];
+        for c in 0..D {
+            rel[c] = match step {
+                Some(s) => {
+                    let idx = (s * n + node) * D + c;
+                    f.hat.get(1).map_or(0.0, |h| h.velocity[idx]) - f.hat[0].velocity[idx]
+                }
+                None => {
+                    let v = |k: usize| {
+                        itf.sides.get(k).map_or(0.0, |sd| {
+                            m.substructures[sd.substructure].initial_velocity[c]
+                        })
+                    };
+                    v(1) - v(0)
+                }
+            };
+        }
+        let rn: f64 = (0..D).map(|c| rel[c] * nrm[c]).sum();
+        for c in 0..D {
+            rel[c] -= rn * nrm[c];
+        }
+        rel
+    };
+    let mut slip = [0.0; D];
+    let mut out = vec![0.0];
+    let mut prev = tangential(None);
+    for step in 0..m.steps {
+        let cur = tangential(Some(step));
+        for c in 0..D {
+            slip[c] += 0.5 * m.dt * (prev[c] + cur[c]);
+        }
+        out.push(slip.iter().map(|x| x * x).sum::<f64>().sqrt());
+        prev = cur;
+    }
+    out
+}
+
+/// The LATIN error indicator (METHOD.md 3):
+/// eta^2 = sum a [|F - F^|^2 / k + k |W - W^|^2] / sum a [|F + F^|^2 / k + k |W + W^|^2]
+/// over interface nodes, sides and steps.
+pub fn error_indicator<const D: usize>(
+    m: &Model<D>,
+    stage: Stage,
+    fields: &[InterfaceField],
+) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (itf, f) in m.interfaces.iter().zip(fields) {
+        let n = itf.n_nodes();
+        for (k, side) in itf.sides.iter().enumerate() {
+            let kk = stage.k(side);
+            let (s, h) = (&f.s[k], &f.hat[k]);
+            for idx in 0..s.force.len() {
+                let a = itf.area[(idx / D) % n];
+                let (df, dw) = (
+                    s.force[idx] - h.force[idx],
+                    s.velocity[idx] - h.velocity[idx],
+                );
+                let (sf, sw) = (
+                    s.force[idx] + h.force[idx],
+                    s.velocity[idx] + h.velocity[idx],
+                );
+                num += a * (df * df / kk + kk * dw * dw);
+                den += a * (sf * sf / kk + kk * sw * sw);
+            }
+        }
+    }
+    if den == 0.0 {
+        // nothing moves and nothing is loaded: the zero solution is exact
+        return if num == 0.0 { 0.0 } else { f64::INFINITY };
+    }
+    (num / den).sqrt()
+}

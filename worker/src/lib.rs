@@ -1,0 +1,14 @@
+//! glissade-worker: the LATIN solver core (pure computation) and its edges.
+//!
+//! Layout: `element`, `mesh`, `sparse` (discretisation); `scene` and `model` (what is solved);
+//! `latin` (the iterative solver) and `monolithic` (the reference); `output` at the edge.
+
+pub mod element;
+pub mod latin;
+pub mod mesh;
+pub mod model;
+pub mod monolithic;
+pub mod newmark;
+pub mod run;
+pub mod scene;
+pub mod sparse;

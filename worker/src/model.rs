@@ -1,0 +1,955 @@
+//! The decomposed model of one design point: substructures (operators assembled once) and
+//! interfaces (node pairs, nodal areas, normals, laws), built from a scene and parameter values.
+
+use std::collections::{BTreeMap, HashMap};
+
+use crate::element::{Material, element_matrices, face_area_and_normal, nodes_per_element};
+use crate::mesh::{Face, Mesh};
+use crate::scene::{
+    History, LawSpec, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError,
+    component_index, invalid,
+};
+use crate::sparse::CsrMatrix;
+
+/// Interface behaviour (METHOD.md 1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum InterfaceLaw {
+    Perfect,
+    Contact,
+    Friction { coefficient: f64 },
+}
+
+/// One side of an interface: a substructure and its nodes on the interface (same order on both
+/// sides, node `j` of side 1 faces node `j` of side 2).
+#[derive(Debug, Clone)]
+pub struct InterfaceSide {
+    pub substructure: usize,
+    /// substructure-local node numbers
+    pub nodes: Vec<usize>,
+    /// dynamic search direction k = k0 (traction per velocity, Pa s/m)
+    pub k_dynamic: f64,
+    /// static search direction (traction per displacement, Pa/m), for the prestress stage
+    pub k_static: f64,
+}
+
+/// An interface between two substructures, or between a substructure and a fixed rigid wall.
+#[derive(Debug, Clone)]
+pub struct Interface<const D: usize> {
+    pub name: String,
+    pub law: InterfaceLaw,
+    /// one side (rigid wall) or two
+    pub sides: Vec<InterfaceSide>,
+    /// lumped interface measure M_Gamma per node (area in 3D, length in 2D, 1 in 1D)
+    pub area: Vec<f64>,
+    /// unit normal per node, from side 1 towards side 2
+    pub normal: Vec<[f64; D]>,
+    pub coords: Vec<[f64; D]>,
+    /// initial normal gap per node
+    pub gap0: Vec<f64>,
+}
+
+impl<const D: usize> Interface<D> {
+    pub fn n_nodes(&self) -> usize {
+        self.area.len()
+    }
+}
+
+/// A prescribed degree of freedom: displacement reached in the static stage, then velocity.
+#[derive(Debug, Clone)]
+pub struct PrescribedDof {
+    pub dof: usize,
+    pub static_displacement: f64,
+    pub velocity: f64,
+    pub history: usize,
+}
+
+/// A load on a substructure: nodal forces times a time history.
+#[derive(Debug, Clone)]
+pub struct NodalLoad {
+    pub forces: Vec<(usize, f64)>,
+    pub history: usize,
+}
+
+/// A substructure: linear elastic, its own mesh, operators assembled once.
+#[derive(Debug, Clone)]
+pub struct Substructure<const D: usize> {
+    pub body: usize,
+    /// body node number of each local node
+    pub nodes: Vec<usize>,
+    pub coords: Vec<[f64; D]>,
+    /// connectivity in local node numbers
+    pub connectivity: Vec<usize>,
+    pub material: Material,
+    pub stiffness: CsrMatrix,
+    pub mass: CsrMatrix,
+    pub fixed: Vec<bool>,
+    pub prescribed: Vec<PrescribedDof>,
+    pub loads: Vec<NodalLoad>,
+    pub initial_velocity: [f64; D],
+    /// (interface, side) pairs touching this substructure
+    pub sides: Vec<(usize, usize)>,
+}
+
+impl<const D: usize> Substructure<D> {
+    pub fn n_dofs(&self) -> usize {
+        self.nodes.len() * D
+    }
+
+    /// External nodal forces at time t.
+    pub fn external_force(&self, histories: &[History], t: f64, out: &mut [f64]) {
+        out.fill(0.0);
+        for l in &self.loads {
+            let h = histories[l.history].at(t);
+            if h != 0.0 {
+                for &(dof, f) in &l.forces {
+                    out[dof] += h * f;
+                }
+            }
+        }
+    }
+}
+
+/// What a quantity of interest reads.
+#[derive(Debug, Clone)]
+pub enum QoiTarget {
+    Slip { interface: usize, node: usize },
+    Displacement { substructure: usize, dof: usize },
+    Velocity { substructure: usize, dof: usize },
+    Force { interface: usize, component: usize },
+}
+
+#[derive(Debug, Clone)]
+pub struct Qoi {
+    pub name: String,
+    pub target: QoiTarget,
+}
+
+/// A body of the scene.
+#[derive(Debug, Clone)]
+pub struct Body<const D: usize> {
+    pub name: String,
+    pub mesh: Mesh<D>,
+    /// element -> global substructure index
+    pub partition: Vec<usize>,
+}
+
+/// Solver settings with parameters resolved.
+#[derive(Debug, Clone)]
+pub struct SolverSettings {
+    pub tolerance: f64,
+    pub max_iterations: usize,
+    pub relaxation: f64,
+    pub scale: Scale,
+}
+
+/// The whole decomposed problem of one design point.
+#[derive(Debug, Clone)]
+pub struct Model<const D: usize> {
+    pub bodies: Vec<Body<D>>,
+    pub substructures: Vec<Substructure<D>>,
+    pub interfaces: Vec<Interface<D>>,
+    pub histories: Vec<History>,
+    pub dt: f64,
+    pub steps: usize,
+    pub qois: Vec<Qoi>,
+    pub settings: SolverSettings,
+    pub parameters: ParameterValues,
+}
+
+impl<const D: usize> Model<D> {
+    /// Whether a static prestress stage is needed: a prescribed displacement or a load at t = 0.
+    pub fn needs_static_stage(&self) -> bool {
+        self.substructures.iter().any(|s| {
+            s.prescribed.iter().any(|p| p.static_displacement != 0.0)
+                || s.loads
+                    .iter()
+                    .any(|l| self.histories[l.history].at(0.0) != 0.0)
+        })
+    }
+
+    pub fn n_dofs(&self) -> usize {
+        self.substructures.iter().map(|s| s.n_dofs()).sum()
+    }
+
+    /// Builds the model of `scene` at the design point `values` (dimension must equal `D`).
+    pub fn build(scene: &Scene, values: &ParameterValues) -> Result<Self, SceneError> {
+        assert_eq!(scene.dimension, D, "scene dimension must match the model's");
+        let r = Resolver { values };
+        let duration = r.get("time.duration", &scene.time.duration)?;
+        if duration <= 0.0 {
+            return Err(invalid("time.duration", "must be > 0"));
+        }
+        if scene.time.steps == 0 {
+            return Err(invalid("time.steps", "must be >= 1"));
+        }
+        let k0_factor = r.get("solver.k0_factor", &scene.solver.k0_factor)?;
+        if k0_factor <= 0.0 {
+            return Err(invalid("solver.k0_factor", "must be > 0"));
+        }
+        let st = &scene.solver;
+        if !(st.tolerance > 0.0 && st.tolerance.is_finite()) {
+            return Err(invalid("solver.tolerance", "must be a positive number"));
+        }
+        if !(st.relaxation > 0.0 && st.relaxation <= 1.0) {
+            return Err(invalid("solver.relaxation", "must be in (0, 1]"));
+        }
+        let settings = SolverSettings {
+            tolerance: st.tolerance,
+            max_iterations: st.max_iterations,
+            relaxation: st.relaxation,
+            scale: st.scale,
+        };
+
+        let mut materials = BTreeMap::new();
+        for (name, m) in &scene.materials {
+            let key = format!("materials.{name}");
+            let young = r.get(&format!("{key}.E"), &m.E)?;
+            let poisson = r.get(&format!("{key}.nu"), &m.nu)?;
+            let density = r.get(&format!("{key}.rho"), &m.rho)?;
+            if young <= 0.0 {
+                return Err(invalid(
+                    format!("{key}.E"),
+                    format!("must be > 0, got {young}"),
+                ));
+            }
+            if density <= 0.0 {
+                return Err(invalid(
+                    format!("{key}.rho"),
+                    format!("must be > 0, got {density}"),
+                ));
+            }
+            if !(-1.0 < poisson && poisson < 0.5) {
+                return Err(invalid(
+                    format!("{key}.nu"),
+                    format!("must be in (-1, 0.5), got {poisson}"),
+                ));
+            }
+            materials.insert(
+                name.clone(),
+                Material {
+                    young,
+                    poisson,
+                    density,
+                },
+            );
+        }
+
+        // Bodies, meshes, partitions, substructures.
+        let mut bodies = Vec::new();
+        let mut substructures: Vec<Substructure<D>> = Vec::new();
+        let mut body_material = Vec::new();
+        if scene.bodies.is_empty() {
+            return Err(invalid("bodies", "a scene needs at least one body"));
+        }
+        for (bi, b) in scene.bodies.iter().enumerate() {
+            let key = format!("bodies[{bi}]");
+            if scene.bodies[..bi].iter().any(|o| o.name == b.name) {
+                return Err(invalid(
+                    format!("{key}.name"),
+                    format!("duplicate body name '{}'", b.name),
+                ));
+            }
+            let material = *materials.get(&b.material).ok_or_else(|| {
+                invalid(
+                    format!("{key}.material"),
+                    format!("unknown material '{}'", b.material),
+                )
+            })?;
+            let origin = match &b.origin {
+                Some(o) => r.vector::<D>(&format!("{key}.origin"), o)?,
+                None => [0.0; D],
+            };
+            let size = r.vector::<D>(&format!("{key}.size"), &b.size)?;
+            if size.iter().any(|&s| s <= 0.0) {
+                return Err(invalid(format!("{key}.size"), "every extent must be > 0"));
+            }
+            let counts = usize_vector::<D>(&format!("{key}.elements"), &b.elements)?;
+            let parts = match &b.substructures {
+                Some(p) => usize_vector::<D>(&format!("{key}.substructures"), p)?,
+                None => [1; D],
+            };
+            for d in 0..D {
+                if parts[d] > counts[d] {
+                    return Err(invalid(
+                        format!("{key}.substructures"),
+                        format!(
+                            "{} substructures along axis {d} but only {} elements",
+                            parts[d], counts[d]
+                        ),
+                    ));
+                }
+            }
+            let v0 = match &b.initial_velocity {
+                Some(v) => r.vector::<D>(&format!("{key}.initial_velocity"), v)?,
+                None => [0.0; D],
+            };
+            let mesh = Mesh::structured_box(origin, size, counts);
+            let offset = substructures.len();
+            let partition: Vec<usize> = Mesh::<D>::box_partition(counts, parts)
+                .into_iter()
+                .map(|p| p + offset)
+                .collect();
+            let n_sub = parts.iter().product::<usize>();
+            for s in 0..n_sub {
+                let elements: Vec<usize> = (0..partition.len())
+                    .filter(|&e| partition[e] == offset + s)
+                    .collect();
+                substructures.push(
+                    assemble_substructure(bi, &mesh, &elements, material, v0).map_err(|det| {
+                        invalid(
+                            format!("{key}"),
+                            format!("element with non-positive Jacobian determinant {det}"),
+                        )
+                    })?,
+                );
+            }
+            body_material.push(material);
+            bodies.push(Body {
+                name: b.name.clone(),
+                mesh,
+                partition,
+            });
+        }
+        // body node -> local node, per substructure
+        let local_of: Vec<HashMap<usize, usize>> = substructures
+            .iter()
+            .map(|s| s.nodes.iter().enumerate().map(|(l, &g)| (g, l)).collect())
+            .collect();
+        let side = |s: usize, body_nodes: &[usize]| -> InterfaceSide {
+            let sub = &substructures[s];
+            let ell = char_length(sub);
+            InterfaceSide {
+                substructure: s,
+                nodes: body_nodes.iter().map(|g| local_of[s][g]).collect(),
+                k_dynamic: k0_factor * sub.material.impedance(),
+                k_static: k0_factor * sub.material.young / ell,
+            }
+        };
+
+        let mut interfaces: Vec<Interface<D>> = Vec::new();
+        // Implicit perfect interfaces between the substructures of one body.
+        for (bi, body) in bodies.iter().enumerate() {
+            let mut by_key: HashMap<Vec<usize>, Vec<Face>> = HashMap::new();
+            for e in 0..body.mesh.n_elements() {
+                for axis in 0..D as u8 {
+                    for s in 0..2u8 {
+                        let f = Face {
+                            element: e,
+                            axis,
+                            side: s,
+                        };
+                        let mut key = body.mesh.face_nodes(f);
+                        key.sort_unstable();
+                        by_key.entry(key).or_default().push(f);
+                    }
+                }
+            }
+            let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
+            for faces in by_key.values() {
+                if let [f1, f2] = faces[..] {
+                    let (s1, s2) = (body.partition[f1.element], body.partition[f2.element]);
+                    if s1 != s2 {
+                        let (f, pair) = if s1 < s2 {
+                            (f1, (s1, s2))
+                        } else {
+                            (f2, (s2, s1))
+                        };
+                        groups.entry(pair).or_default().push(f);
+                    }
+                }
+            }
+            for ((s1, s2), mut faces) in groups {
+                faces.sort();
+                let name = format!("{}:{}-{}", scene.bodies[bi].name, s1, s2);
+                let (nodes, area, normal) = face_group_geometry(&body.mesh, &faces);
+                let coords: Vec<[f64; D]> = nodes.iter().map(|&n| body.mesh.nodes[n]).collect();
+                interfaces.push(Interface {
+                    name,
+                    law: InterfaceLaw::Perfect,
+                    sides: vec![side(s1, &nodes), side(s2, &nodes)],
+                    gap0: vec![0.0; nodes.len()],
+                    area,
+                    normal,
+                    coords,
+                });
+            }
+        }
+        // Declared interfaces between bodies, or with a wall.
+        let mut interface_index = BTreeMap::new();
+        for (ii, spec) in scene.interfaces.iter().enumerate() {
+            let key = format!("interfaces[{ii}]");
+            if interface_index.contains_key(&spec.name) {
+                return Err(invalid(
+                    format!("{key}.name"),
+                    format!("duplicate interface name '{}'", spec.name),
+                ));
+            }
+            let law = match spec.law {
+                LawSpec::Perfect => InterfaceLaw::Perfect,
+                LawSpec::Contact => InterfaceLaw::Contact,
+                LawSpec::Friction => {
+                    let f = spec.friction.as_ref().ok_or_else(|| {
+                        invalid(
+                            format!("{key}.friction"),
+                            "law 'friction' needs a coefficient",
+                        )
+                    })?;
+                    let f = r.get(&format!("{key}.friction"), f)?;
+                    if f < 0.0 {
+                        return Err(invalid(
+                            format!("{key}.friction"),
+                            format!("must be >= 0, got {f}"),
+                        ));
+                    }
+                    InterfaceLaw::Friction { coefficient: f }
+                }
+            };
+            let (ba, faces_a) = find_face_set(&bodies, &format!("{key}.a"), &spec.a)?;
+            let mesh_a = &bodies[ba].mesh;
+            let first = interfaces.len();
+            if spec.b == "wall" {
+                if law == InterfaceLaw::Perfect {
+                    return Err(invalid(
+                        format!("{key}.law"),
+                        "a perfect interface with a wall is a clamped boundary: use [[boundary]] clamped = true",
+                    ));
+                }
+                let gap = match &spec.gap {
+                    Some(g) => r.get(&format!("{key}.gap"), g)?,
+                    None => 0.0,
+                };
+                if gap < 0.0 {
+                    return Err(invalid(format!("{key}.gap"), "an initial gap must be >= 0"));
+                }
+                let mut groups: BTreeMap<usize, Vec<Face>> = BTreeMap::new();
+                for f in faces_a {
+                    groups
+                        .entry(bodies[ba].partition[f.element])
+                        .or_default()
+                        .push(*f);
+                }
+                for (s1, faces) in groups {
+                    let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
+                    let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+                    interfaces.push(Interface {
+                        name: spec.name.clone(),
+                        law,
+                        sides: vec![side(s1, &nodes)],
+                        gap0: vec![gap; nodes.len()],
+                        area,
+                        normal,
+                        coords,
+                    });
+                }
+            } else {
+                if spec.gap.is_some() {
+                    return Err(invalid(
+                        format!("{key}.gap"),
+                        "a gap is only allowed with b = \"wall\" (body faces must touch)",
+                    ));
+                }
+                let (bb, faces_b) = find_face_set(&bodies, &format!("{key}.b"), &spec.b)?;
+                if ba == bb {
+                    return Err(invalid(
+                        format!("{key}.b"),
+                        "both sides are on the same body",
+                    ));
+                }
+                let mesh_b = &bodies[bb].mesh;
+                let scale = bbox_size(mesh_a).max(bbox_size(mesh_b));
+                let tol = 1e-9 * scale;
+                let quant = |p: &[f64; D]| -> Vec<i64> {
+                    p.iter().map(|x| (x / tol).round() as i64).collect()
+                };
+                let mut node_b: HashMap<Vec<i64>, usize> = HashMap::new();
+                let mut face_b: HashMap<Vec<usize>, usize> = HashMap::new();
+                for f in faces_b {
+                    let nodes = mesh_b.face_nodes(*f);
+                    for &n in &nodes {
+                        node_b.insert(quant(&mesh_b.nodes[n]), n);
+                    }
+                    let mut k = nodes;
+                    k.sort_unstable();
+                    face_b.insert(k, bodies[bb].partition[f.element]);
+                }
+                let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
+                for f in faces_a {
+                    let mut matched = Vec::new();
+                    for n in mesh_a.face_nodes(*f) {
+                        let p = mesh_a.nodes[n];
+                        let nb = node_b.get(&quant(&p)).ok_or_else(|| {
+                            invalid(
+                                key.clone(),
+                                format!("interface faces do not match: node at {p:?} of '{}' has no counterpart on '{}'", spec.a, spec.b),
+                            )
+                        })?;
+                        matched.push(*nb);
+                    }
+                    matched.sort_unstable();
+                    let s2 = face_b.get(&matched).ok_or_else(|| {
+                        invalid(key.clone(), format!("interface faces do not match: a face of '{}' has no conforming face on '{}'", spec.a, spec.b))
+                    })?;
+                    groups
+                        .entry((bodies[ba].partition[f.element], *s2))
+                        .or_default()
+                        .push(*f);
+                }
+                if groups.values().map(Vec::len).sum::<usize>() != faces_b.len() {
+                    return Err(invalid(
+                        key.clone(),
+                        format!(
+                            "interface faces do not match: '{}' and '{}' have different numbers of faces",
+                            spec.a, spec.b
+                        ),
+                    ));
+                }
+                for ((s1, s2), faces) in groups {
+                    let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
+                    let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+                    let nodes_b: Vec<usize> = coords.iter().map(|p| node_b[&quant(p)]).collect();
+                    let mut sides = vec![side(s1, &nodes), side(s2, &nodes_b)];
+                    sides[1].nodes = nodes_b.iter().map(|g| local_of[s2][g]).collect();
+                    interfaces.push(Interface {
+                        name: spec.name.clone(),
+                        law,
+                        sides,
+                        gap0: vec![0.0; nodes.len()],
+                        area,
+                        normal,
+                        coords,
+                    });
+                }
+            }
+            interface_index.insert(spec.name.clone(), first..interfaces.len());
+        }
+        for (i, itf) in interfaces.iter().enumerate() {
+            for (k, s) in itf.sides.iter().enumerate() {
+                substructures[s.substructure].sides.push((i, k));
+            }
+        }
+
+        // Boundary conditions and loads.
+        let mut histories = vec![History::constant()];
+        for (i, bc) in scene.boundary.iter().enumerate() {
+            let key = format!("boundary[{i}]");
+            let (bi, faces) = find_face_set(&bodies, &format!("{key}.face"), &bc.face)?;
+            let mut comps: Vec<(usize, f64, f64)> = Vec::new(); // (component, static u, velocity)
+            if bc.clamped {
+                comps.extend((0..D).map(|c| (c, 0.0, 0.0)));
+            }
+            for (name, v) in bc.displacement.iter().flatten() {
+                let c = component_index(&format!("{key}.displacement.{name}"), name, D)?;
+                comps.push((c, r.get(&format!("{key}.displacement.{name}"), v)?, 0.0));
+            }
+            for (name, v) in bc.velocity.iter().flatten() {
+                let c = component_index(&format!("{key}.velocity.{name}"), name, D)?;
+                comps.push((c, 0.0, r.get(&format!("{key}.velocity.{name}"), v)?));
+            }
+            if comps.is_empty() {
+                return Err(invalid(
+                    key,
+                    "a boundary condition needs clamped = true, displacement or velocity",
+                ));
+            }
+            let history = histories.len();
+            histories.push(r.history(&format!("{key}.history"), &bc.history)?);
+            for f in faces {
+                let s = bodies[bi].partition[f.element];
+                for n in bodies[bi].mesh.face_nodes(*f) {
+                    let l = local_of[s][&n];
+                    for &(c, u, v) in &comps {
+                        let dof = l * D + c;
+                        let sub = &mut substructures[s];
+                        sub.fixed[dof] = true;
+                        sub.prescribed.retain(|p| p.dof != dof);
+                        sub.prescribed.push(PrescribedDof {
+                            dof,
+                            static_displacement: u,
+                            velocity: v,
+                            history,
+                        });
+                    }
+                }
+            }
+        }
+        for (i, load) in scene.loads.iter().enumerate() {
+            let key = format!("loads[{i}]");
+            let (bi, faces) = find_face_set(&bodies, &format!("{key}.face"), &load.face)?;
+            let pressure = match &load.pressure {
+                Some(p) => Some(r.get(&format!("{key}.pressure"), p)?),
+                None => None,
+            };
+            let traction = match &load.traction {
+                Some(t) => Some(r.vector::<D>(&format!("{key}.traction"), t)?),
+                None => None,
+            };
+            if pressure.is_some() == traction.is_some() {
+                return Err(invalid(
+                    key,
+                    "a load needs exactly one of pressure or traction",
+                ));
+            }
+            let history = histories.len();
+            histories.push(r.history(&format!("{key}.history"), &load.history)?);
+            let mesh = &bodies[bi].mesh;
+            let mut per_sub: BTreeMap<usize, Vec<(usize, f64)>> = BTreeMap::new();
+            for f in faces {
+                let s = bodies[bi].partition[f.element];
+                let fnodes = mesh.face_nodes(*f);
+                let x: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh.nodes[n]).collect();
+                let (area, normal) = face_area_and_normal(&x, mesh.centroid(f.element));
+                let t = match (pressure, traction) {
+                    (Some(p), _) => normal.map(|n| -p * n),
+                    (_, Some(t)) => t,
+                    _ => unreachable!("checked above"),
+                };
+                for (a, &n) in fnodes.iter().enumerate() {
+                    for c in 0..D {
+                        per_sub
+                            .entry(s)
+                            .or_default()
+                            .push((local_of[s][&n] * D + c, area[a] * t[c]));
+                    }
+                }
+            }
+            for (s, forces) in per_sub {
+                substructures[s].loads.push(NodalLoad { forces, history });
+            }
+        }
+
+        // Quantities of interest.
+        let mut qois = Vec::new();
+        for (i, q) in scene.qoi.iter().enumerate() {
+            let key = format!("qoi[{i}]");
+            if scene.qoi[..i].iter().any(|o| o.name == q.name) {
+                return Err(invalid(
+                    format!("{key}.name"),
+                    format!("duplicate QoI name '{}'", q.name),
+                ));
+            }
+            let point = |q: &crate::scene::QoiSpec| -> Result<[f64; D], SceneError> {
+                let p = q
+                    .point
+                    .as_ref()
+                    .ok_or_else(|| invalid(format!("{key}.point"), "this QoI needs a point"))?;
+                r.vector::<D>(&format!("{key}.point"), p)
+            };
+            let component = |q: &crate::scene::QoiSpec| -> Result<usize, SceneError> {
+                let c = q.component.as_deref().ok_or_else(|| {
+                    invalid(
+                        format!("{key}.component"),
+                        "this QoI needs a component (x, y or z)",
+                    )
+                })?;
+                component_index(&format!("{key}.component"), c, D)
+            };
+            let target = match q.kind {
+                QoiKind::Slip | QoiKind::Force => {
+                    let name = q.interface.as_ref().ok_or_else(|| {
+                        invalid(format!("{key}.interface"), "this QoI needs an interface")
+                    })?;
+                    let range = interface_index
+                        .get(name)
+                        .ok_or_else(|| {
+                            invalid(
+                                format!("{key}.interface"),
+                                format!("unknown interface '{name}'"),
+                            )
+                        })?
+                        .clone();
+                    if q.kind == QoiKind::Force {
+                        if range.len() != 1 {
+                            return Err(invalid(
+                                format!("{key}.interface"),
+                                "force QoIs need an interface within one substructure pair",
+                            ));
+                        }
+                        QoiTarget::Force {
+                            interface: range.start,
+                            component: component(q)?,
+                        }
+                    } else {
+                        let p = point(q)?;
+                        let (mut best, mut dist) = ((0, 0), f64::INFINITY);
+                        for ii in range {
+                            for (j, c) in interfaces[ii].coords.iter().enumerate() {
+                                let d = distance(c, &p);
+                                if d < dist {
+                                    (best, dist) = ((ii, j), d);
+                                }
+                            }
+                        }
+                        let h = min_spacing(&interfaces[best.0].coords);
+                        if dist > 0.5 * h + 1e-12 {
+                            return Err(invalid(
+                                format!("{key}.point"),
+                                format!(
+                                    "{p:?} is not on interface '{name}' (nearest node {dist:.3e} away)"
+                                ),
+                            ));
+                        }
+                        QoiTarget::Slip {
+                            interface: best.0,
+                            node: best.1,
+                        }
+                    }
+                }
+                QoiKind::Displacement | QoiKind::Velocity => {
+                    let name = q
+                        .body
+                        .as_ref()
+                        .ok_or_else(|| invalid(format!("{key}.body"), "this QoI needs a body"))?;
+                    let bi = bodies.iter().position(|b| &b.name == name).ok_or_else(|| {
+                        invalid(format!("{key}.body"), format!("unknown body '{name}'"))
+                    })?;
+                    let p = point(q)?;
+                    let c = component(q)?;
+                    let mesh = &bodies[bi].mesh;
+                    let (n, dist) = mesh
+                        .nodes
+                        .iter()
+                        .enumerate()
+                        .map(|(n, x)| (n, distance(x, &p)))
+                        .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
+                    if dist > 1e-6 * bbox_size(mesh) {
+                        return Err(invalid(
+                            format!("{key}.point"),
+                            format!(
+                                "{p:?} is not a node of body '{name}' (nearest {dist:.3e} away)"
+                            ),
+                        ));
+                    }
+                    let s = (0..substructures.len())
+                        .find(|&s| substructures[s].body == bi && local_of[s].contains_key(&n))
+                        .expect("every node is in a substructure");
+                    let dof = local_of[s][&n] * D + c;
+                    if q.kind == QoiKind::Displacement {
+                        QoiTarget::Displacement {
+                            substructure: s,
+                            dof,
+                        }
+                    } else {
+                        QoiTarget::Velocity {
+                            substructure: s,
+                            dof,
+                        }
+                    }
+                }
+            };
+            qois.push(Qoi {
+                name: q.name.clone(),
+                target,
+            });
+        }
+
+        Ok(Model {
+            bodies,
+            substructures,
+            interfaces,
+            histories,
+            dt: duration / scene.time.steps as f64,
+            steps: scene.time.steps,
+            qois,
+            settings,
+            parameters: values.clone(),
+        })
+    }
+}
+
+fn usize_vector<const D: usize>(key: &str, v: &[usize]) -> Result<[usize; D], SceneError> {
+    if v.len() != D {
+        return Err(invalid(
+            key,
+            format!("expected {D} counts (dimension {D}), got {}", v.len()),
+        ));
+    }
+    let mut out = [0; D];
+    for (i, &c) in v.iter().enumerate() {
+        if c == 0 {
+            return Err(invalid(format!("{key}[{i}]"), "counts must be >= 1"));
+        }
+        out[i] = c;
+    }
+    Ok(out)
+}
+
+fn distance<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
+    (0..D).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
+}
+
+fn bbox_size<const D: usize>(mesh: &Mesh<D>) -> f64 {
+    let mut s: f64 = 0.0;
+    for d in 0..D {
+        let lo = mesh
+            .nodes
+            .iter()
+            .map(|p| p[d])
+            .fold(f64::INFINITY, f64::min);
+        let hi = mesh
+            .nodes
+            .iter()
+            .map(|p| p[d])
+            .fold(f64::NEG_INFINITY, f64::max);
+        s = s.max(hi - lo);
+    }
+    s
+}
+
+fn min_spacing<const D: usize>(coords: &[[f64; D]]) -> f64 {
+    if coords.len() < 2 {
+        return f64::INFINITY;
+    }
+    let mut h = f64::INFINITY;
+    for (i, a) in coords.iter().enumerate() {
+        for b in &coords[i + 1..] {
+            h = h.min(distance(a, b));
+        }
+    }
+    h
+}
+
+/// Characteristic length of a substructure: the D-th root of its volume.
+fn char_length<const D: usize>(s: &Substructure<D>) -> f64 {
+    let total_mass: f64 = s.mass.val.iter().sum::<f64>() / D as f64;
+    (total_mass / s.material.density).powf(1.0 / D as f64)
+}
+
+fn find_face_set<'a, const D: usize>(
+    bodies: &'a [Body<D>],
+    key: &str,
+    spec: &str,
+) -> Result<(usize, &'a Vec<Face>), SceneError> {
+    let (body, face) = spec.split_once('.').ok_or_else(|| {
+        invalid(
+            key,
+            format!("'{spec}' is not of the form body.face (e.g. block.z+)"),
+        )
+    })?;
+    let bi = bodies
+        .iter()
+        .position(|b| b.name == body)
+        .ok_or_else(|| invalid(key, format!("unknown body '{body}'")))?;
+    let faces = bodies[bi].mesh.face_sets.get(face).ok_or_else(|| {
+        invalid(
+            key,
+            format!(
+                "body '{body}' has no face '{face}' (has: {})",
+                bodies[bi]
+                    .mesh
+                    .face_sets
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )
+    })?;
+    Ok((bi, faces))
+}
+
+/// Nodes (body numbering, sorted), nodal areas and area-weighted unit normals of a set of faces.
+fn face_group_geometry<const D: usize>(
+    mesh: &Mesh<D>,
+    faces: &[Face],
+) -> (Vec<usize>, Vec<f64>, Vec<[f64; D]>) {
+    let mut index: BTreeMap<usize, usize> = BTreeMap::new();
+    for f in faces {
+        for n in mesh.face_nodes(*f) {
+            let len = index.len();
+            index.entry(n).or_insert(len);
+        }
+    }
+    let nodes_unsorted: Vec<usize> = {
+        let mut v = vec![0; index.len()];
+        for (&n, &i) in &index {
+            v[i] = n;
+        }
+        v
+    };
+    let mut area = vec![0.0; nodes_unsorted.len()];
+    let mut normal = vec![[0.0; D]; nodes_unsorted.len()];
+    for f in faces {
+        let fnodes = mesh.face_nodes(*f);
+        let x: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh.nodes[n]).collect();
+        let (a, n) = face_area_and_normal(&x, mesh.centroid(f.element));
+        for (k, node) in fnodes.iter().enumerate() {
+            let i = index[node];
+            area[i] += a[k];
+            for d in 0..D {
+                normal[i][d] += a[k] * n[d];
+            }
+        }
+    }
+    for n in normal.iter_mut() {
+        let len = n.iter().map(|x| x * x).sum::<f64>().sqrt();
+        for v in n.iter_mut() {
+            *v /= len;
+        }
+    }
+    // order nodes by body number for a stable layout
+    let mut order: Vec<usize> = (0..nodes_unsorted.len()).collect();
+    order.sort_by_key(|&i| nodes_unsorted[i]);
+    (
+        order.iter().map(|&i| nodes_unsorted[i]).collect(),
+        order.iter().map(|&i| area[i]).collect(),
+        order.iter().map(|&i| normal[i]).collect(),
+    )
+}
+
+/// Assembles the stiffness and consistent mass of the elements of one substructure.
+fn assemble_substructure<const D: usize>(
+    body: usize,
+    mesh: &Mesh<D>,
+    elements: &[usize],
+    material: Material,
+    initial_velocity: [f64; D],
+) -> Result<Substructure<D>, f64> {
+    let mut nodes: Vec<usize> = elements
+        .iter()
+        .flat_map(|&e| mesh.element(e).iter().copied())
+        .collect();
+    nodes.sort_unstable();
+    nodes.dedup();
+    let local: HashMap<usize, usize> = nodes.iter().enumerate().map(|(l, &g)| (g, l)).collect();
+    let nn = nodes_per_element(D);
+    let nd = nn * D;
+    let mut kt = Vec::with_capacity(elements.len() * nd * nd);
+    let mut mt = Vec::with_capacity(elements.len() * nd * nd);
+    let mut connectivity = Vec::with_capacity(elements.len() * nn);
+    for &e in elements {
+        let el = mesh.element(e);
+        let x: Vec<[f64; D]> = el.iter().map(|&n| mesh.nodes[n]).collect();
+        let (ke, me) = element_matrices(&x, &material)?;
+        let local = &local;
+        let dofs: Vec<usize> = el
+            .iter()
+            .flat_map(|n| (0..D).map(move |c| local[n] * D + c))
+            .collect();
+        connectivity.extend(el.iter().map(|n| local[n]));
+        for r in 0..nd {
+            for c in 0..nd {
+                if ke[r * nd + c] != 0.0 {
+                    kt.push((dofs[r], dofs[c], ke[r * nd + c]));
+                }
+                if me[r * nd + c] != 0.0 {
+                    mt.push((dofs[r], dofs[c], me[r * nd + c]));
+                }
+            }
+        }
+    }
+    let n = nodes.len() * D;
+    Ok(Substructure {
+        body,
+        coords: nodes.iter().map(|&g| mesh.nodes[g]).collect(),
+        nodes,
+        connectivity,
+        material,
+        stiffness: CsrMatrix::from_triplets(n, kt),
+        mass: CsrMatrix::from_triplets(n, mt),
+        fixed: vec![false; n],
+        prescribed: Vec::new(),
+        loads: Vec::new(),
+        initial_velocity,
+        sides: Vec::new(),
+    })
+}

@@ -1,0 +1,187 @@
+//! One solve of a scene at a design point: the library call behind `glissade-worker solve`, and
+//! what the study logic and the worker pool call. Dispatches on the scene's dimension.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::latin::field::InterfaceSolution;
+use crate::latin::{FieldHistory, LatinSolver, SolveOptions, SolverError, StageReport, Timings};
+use crate::model::Model;
+use crate::scene::{ParameterValues, Scale, Scene, SceneError};
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error(transparent)]
+    Solver(#[from] SolverError),
+}
+
+/// What to solve and how.
+#[derive(Debug, Clone, Default)]
+pub struct SolveRequest {
+    /// `--set NAME=VALUE` overrides of parameter defaults
+    pub set: Vec<(String, f64)>,
+    pub tolerance: Option<f64>,
+    pub max_iterations: Option<usize>,
+    pub scale: Option<Scale>,
+    pub record_fields: bool,
+}
+
+/// A QoI time series and its final value.
+#[derive(Debug, Clone, Serialize)]
+pub struct QoiJson {
+    #[serde(rename = "final")]
+    pub final_value: f64,
+    pub times: Vec<f64>,
+    pub values: Vec<f64>,
+}
+
+/// The machine-readable result of a solve (`--json`).
+#[derive(Debug, Clone, Serialize)]
+pub struct SolveSummary {
+    pub converged: bool,
+    /// total LATIN iterations (static + dynamic stages)
+    pub iterations: usize,
+    /// final error indicator of the dynamic stage
+    pub error_indicator: f64,
+    /// eta per iteration of the dynamic stage
+    pub history: Vec<f64>,
+    pub static_stage: Option<StageReport>,
+    pub tolerance: f64,
+    pub wall_seconds: f64,
+    pub dofs: usize,
+    pub substructures: usize,
+    pub interfaces: usize,
+    pub time_steps: usize,
+    pub parameters: ParameterValues,
+    pub qoi: BTreeMap<String, QoiJson>,
+    pub timings: Timings,
+}
+
+/// Node coordinates and connectivity of every substructure, for field output.
+#[derive(Debug, Clone)]
+pub struct SubstructureMesh {
+    pub dimension: usize,
+    /// coordinates padded to 3 components
+    pub coords: Vec<[f64; 3]>,
+    pub connectivity: Vec<usize>,
+}
+
+/// Fields of a solve, for `--fields`.
+#[derive(Debug, Clone)]
+pub struct FieldOutput {
+    pub meshes: Vec<SubstructureMesh>,
+    pub times: Vec<f64>,
+    pub history: FieldHistory,
+}
+
+pub struct SolveOutcome {
+    pub summary: SolveSummary,
+    pub solution: InterfaceSolution,
+    pub fields: Option<FieldOutput>,
+}
+
+/// Solves `scene` at the design point given by `request.set`, optionally warm-started.
+pub fn solve_scene(
+    scene: &Scene,
+    request: &SolveRequest,
+    init: Option<&InterfaceSolution>,
+) -> Result<SolveOutcome, RunError> {
+    match scene.dimension {
+        1 => solve_dim::<1>(scene, request, init),
+        2 => solve_dim::<2>(scene, request, init),
+        _ => solve_dim::<3>(scene, request, init),
+    }
+}
+
+fn solve_dim<const D: usize>(
+    scene: &Scene,
+    request: &SolveRequest,
+    init: Option<&InterfaceSolution>,
+) -> Result<SolveOutcome, RunError> {
+    let start = Instant::now();
+    let values = scene.parameter_values(&request.set)?;
+    let mut model = Model::<D>::build(scene, &values)?;
+    if let Some(t) = request.tolerance {
+        if !(t > 0.0 && t.is_finite()) {
+            return Err(crate::scene::invalid(
+                "--tol",
+                format!("must be a positive number, got {t}"),
+            )
+            .into());
+        }
+        model.settings.tolerance = t;
+    }
+    if let Some(n) = request.max_iterations {
+        model.settings.max_iterations = n;
+    }
+    if let Some(s) = request.scale {
+        model.settings.scale = s;
+    }
+    let mut solver = LatinSolver::new(&model)?;
+    let report = solver.solve(
+        init,
+        &SolveOptions {
+            record_fields: request.record_fields,
+        },
+    )?;
+    let qoi = report
+        .qoi
+        .iter()
+        .map(|q| {
+            (
+                q.name.clone(),
+                QoiJson {
+                    final_value: *q.values.last().unwrap_or(&0.0),
+                    times: q.times.clone(),
+                    values: q.values.clone(),
+                },
+            )
+        })
+        .collect();
+    let fields = report.fields.clone().map(|history| FieldOutput {
+        meshes: model
+            .substructures
+            .iter()
+            .map(|s| SubstructureMesh {
+                dimension: D,
+                coords: s
+                    .coords
+                    .iter()
+                    .map(|p| {
+                        let mut q = [0.0; 3];
+                        q[..D].copy_from_slice(p);
+                        q
+                    })
+                    .collect(),
+                connectivity: s.connectivity.clone(),
+            })
+            .collect(),
+        times: (0..=model.steps).map(|n| n as f64 * model.dt).collect(),
+        history,
+    });
+    let summary = SolveSummary {
+        converged: report.converged(),
+        iterations: report.iterations(),
+        error_indicator: report.dynamic.error_indicator,
+        history: report.dynamic.history.clone(),
+        static_stage: report.static_stage.clone(),
+        tolerance: model.settings.tolerance,
+        wall_seconds: start.elapsed().as_secs_f64(),
+        dofs: model.n_dofs(),
+        substructures: model.substructures.len(),
+        interfaces: model.interfaces.len(),
+        time_steps: model.steps,
+        parameters: values,
+        qoi,
+        timings: report.timings.clone(),
+    };
+    Ok(SolveOutcome {
+        summary,
+        solution: report.solution,
+        fields,
+    })
+}

@@ -1,0 +1,450 @@
+//! Scene files (TOML): what a user declares, parsed and validated. See `docs/scenes.md`.
+//!
+//! Any number may instead be the name of a declared parameter; [`Scene::resolve`] substitutes the
+//! design point's values and checks every physical constraint, naming the offending key.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+/// Errors of scene parsing and validation; each names the offending key.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    #[error("cannot parse scene: {0}")]
+    Parse(String),
+    #[error("{key}: {message}")]
+    Invalid { key: String, message: String },
+    #[error("{key}: parameter '{name}' is used but not declared in [parameters]")]
+    UndeclaredParameter { key: String, name: String },
+    #[error("--set {name}: no parameter of that name in the scene (declared: {declared})")]
+    UnknownParameter { name: String, declared: String },
+    #[error("parameter {name} = {value}: {message}")]
+    BadParameterValue {
+        name: String,
+        value: f64,
+        message: String,
+    },
+}
+
+pub(crate) fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError {
+    SceneError::Invalid {
+        key: key.into(),
+        message: message.into(),
+    }
+}
+
+/// A number, or the name of a parameter standing for one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Scalar {
+    Number(f64),
+    Parameter(String),
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParameterSpec {
+    pub default: f64,
+    pub min: Option<f64>,
+    pub max: Option<f64>,
+    pub unit: Option<String>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TimeSpec {
+    pub duration: Scalar,
+    pub steps: usize,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+#[allow(non_snake_case)]
+pub struct MaterialSpec {
+    pub E: Scalar,
+    #[serde(default = "zero")]
+    pub nu: Scalar,
+    pub rho: Scalar,
+}
+
+fn zero() -> Scalar {
+    Scalar::Number(0.0)
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodySpec {
+    pub name: String,
+    pub material: String,
+    #[serde(default)]
+    pub origin: Option<Vec<Scalar>>,
+    pub size: Vec<Scalar>,
+    pub elements: Vec<usize>,
+    #[serde(default)]
+    pub substructures: Option<Vec<usize>>,
+    #[serde(default)]
+    pub initial_velocity: Option<Vec<Scalar>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LawSpec {
+    Perfect,
+    Contact,
+    Friction,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InterfaceSpec {
+    pub name: String,
+    /// `body.face` of side 1 (the interface normal points out of it)
+    pub a: String,
+    /// `body.face` of side 2, or `wall` for a fixed rigid obstacle
+    pub b: String,
+    pub law: LawSpec,
+    pub friction: Option<Scalar>,
+    /// initial normal gap to a wall (m)
+    pub gap: Option<Scalar>,
+}
+
+/// Piecewise-linear factor `[[t, value], ...]`, constant beyond its ends.
+pub type HistorySpec = Vec<[Scalar; 2]>;
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoundarySpec {
+    pub face: String,
+    #[serde(default)]
+    pub clamped: bool,
+    /// components reached in the static prestress stage and held during the dynamics
+    pub displacement: Option<BTreeMap<String, Scalar>>,
+    /// prescribed velocity components during the dynamics (times `history`)
+    pub velocity: Option<BTreeMap<String, Scalar>>,
+    pub history: Option<HistorySpec>,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoadSpec {
+    pub face: String,
+    /// pressure (positive pushes into the body)
+    pub pressure: Option<Scalar>,
+    /// traction vector
+    pub traction: Option<Vec<Scalar>>,
+    pub history: Option<HistorySpec>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum QoiKind {
+    /// relative tangential displacement at an interface point (norm)
+    Slip,
+    /// displacement component of a body point
+    Displacement,
+    /// velocity component of a body point
+    Velocity,
+    /// resultant force component on side 1 of an interface
+    Force,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QoiSpec {
+    pub name: String,
+    pub kind: QoiKind,
+    pub interface: Option<String>,
+    pub body: Option<String>,
+    pub point: Option<Vec<Scalar>>,
+    pub component: Option<String>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Scale {
+    #[default]
+    Single,
+    Multi,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SolverSpec {
+    #[serde(default = "default_tolerance")]
+    pub tolerance: f64,
+    #[serde(default = "default_max_iterations")]
+    pub max_iterations: usize,
+    /// multiplies the default search direction k0 = sqrt(rho E) of each side
+    #[serde(default = "one")]
+    pub k0_factor: Scalar,
+    #[serde(default = "default_relaxation")]
+    pub relaxation: f64,
+    #[serde(default)]
+    pub scale: Scale,
+}
+
+fn default_tolerance() -> f64 {
+    2e-4
+}
+fn default_max_iterations() -> usize {
+    1000
+}
+fn default_relaxation() -> f64 {
+    0.8
+}
+fn one() -> Scalar {
+    Scalar::Number(1.0)
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        Self {
+            tolerance: default_tolerance(),
+            max_iterations: default_max_iterations(),
+            k0_factor: one(),
+            relaxation: default_relaxation(),
+            scale: Scale::Single,
+        }
+    }
+}
+
+/// A parsed scene file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    pub dimension: usize,
+    pub title: Option<String>,
+    pub time: TimeSpec,
+    #[serde(default)]
+    pub parameters: BTreeMap<String, ParameterSpec>,
+    pub materials: BTreeMap<String, MaterialSpec>,
+    pub bodies: Vec<BodySpec>,
+    #[serde(default)]
+    pub interfaces: Vec<InterfaceSpec>,
+    #[serde(default)]
+    pub boundary: Vec<BoundarySpec>,
+    #[serde(default)]
+    pub loads: Vec<LoadSpec>,
+    #[serde(default)]
+    pub qoi: Vec<QoiSpec>,
+    #[serde(default)]
+    pub solver: SolverSpec,
+}
+
+/// Parameter values of one design point, by name.
+pub type ParameterValues = BTreeMap<String, f64>;
+
+impl Scene {
+    /// Parses TOML text; errors carry the TOML key path and line.
+    pub fn parse(text: &str) -> Result<Self, SceneError> {
+        let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse(e.to_string()))?;
+        if !(1..=3).contains(&scene.dimension) {
+            return Err(invalid(
+                "dimension",
+                format!("must be 1, 2 or 3, got {}", scene.dimension),
+            ));
+        }
+        for (name, p) in &scene.parameters {
+            let key = format!("parameters.{name}");
+            if !p.default.is_finite() {
+                return Err(invalid(key, "default must be a finite number"));
+            }
+            if let (Some(lo), Some(hi)) = (p.min, p.max) {
+                if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                    return Err(invalid(
+                        key,
+                        format!("range [{lo}, {hi}] is not a finite interval"),
+                    ));
+                }
+            }
+        }
+        Ok(scene)
+    }
+
+    /// The parameter values of a design point: defaults overridden by `set`, all checked.
+    pub fn parameter_values(&self, set: &[(String, f64)]) -> Result<ParameterValues, SceneError> {
+        let mut values: ParameterValues = self
+            .parameters
+            .iter()
+            .map(|(k, p)| (k.clone(), p.default))
+            .collect();
+        for (name, value) in set {
+            if !self.parameters.contains_key(name) {
+                return Err(SceneError::UnknownParameter {
+                    name: name.clone(),
+                    declared: self
+                        .parameters
+                        .keys()
+                        .cloned()
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                });
+            }
+            if !value.is_finite() {
+                return Err(SceneError::BadParameterValue {
+                    name: name.clone(),
+                    value: *value,
+                    message: "not a finite number".into(),
+                });
+            }
+            values.insert(name.clone(), *value);
+        }
+        Ok(values)
+    }
+}
+
+/// Substitutes parameter values into scalars, naming the key on failure.
+pub struct Resolver<'a> {
+    pub values: &'a ParameterValues,
+}
+
+impl Resolver<'_> {
+    pub fn get(&self, key: &str, s: &Scalar) -> Result<f64, SceneError> {
+        let v = match s {
+            Scalar::Number(v) => *v,
+            Scalar::Parameter(name) => {
+                *self
+                    .values
+                    .get(name)
+                    .ok_or_else(|| SceneError::UndeclaredParameter {
+                        key: key.to_string(),
+                        name: name.clone(),
+                    })?
+            }
+        };
+        if !v.is_finite() {
+            return Err(invalid(key, format!("{v} is not a finite number")));
+        }
+        Ok(v)
+    }
+
+    pub fn vector<const D: usize>(&self, key: &str, v: &[Scalar]) -> Result<[f64; D], SceneError> {
+        if v.len() != D {
+            return Err(invalid(
+                key,
+                format!("expected {D} components (dimension {D}), got {}", v.len()),
+            ));
+        }
+        let mut out = [0.0; D];
+        for (i, s) in v.iter().enumerate() {
+            out[i] = self.get(&format!("{key}[{i}]"), s)?;
+        }
+        Ok(out)
+    }
+
+    pub fn history(&self, key: &str, h: &Option<HistorySpec>) -> Result<History, SceneError> {
+        let Some(h) = h else {
+            return Ok(History::constant());
+        };
+        if h.is_empty() {
+            return Err(invalid(
+                key,
+                "history needs at least one [time, value] pair",
+            ));
+        }
+        let mut points = Vec::with_capacity(h.len());
+        for (i, [t, v]) in h.iter().enumerate() {
+            let t = self.get(&format!("{key}[{i}][0]"), t)?;
+            let v = self.get(&format!("{key}[{i}][1]"), v)?;
+            if let Some(&(tp, _)) = points.last() {
+                if t < tp {
+                    return Err(invalid(format!("{key}[{i}]"), "times must not decrease"));
+                }
+            }
+            points.push((t, v));
+        }
+        Ok(History { points })
+    }
+}
+
+/// A piecewise-linear time history, constant beyond its first and last points.
+#[derive(Debug, Clone, PartialEq)]
+pub struct History {
+    pub points: Vec<(f64, f64)>,
+}
+
+impl History {
+    pub fn constant() -> Self {
+        Self {
+            points: vec![(0.0, 1.0)],
+        }
+    }
+
+    pub fn at(&self, t: f64) -> f64 {
+        let p = &self.points;
+        if t <= p[0].0 {
+            return p[0].1;
+        }
+        for w in p.windows(2) {
+            let ((t0, v0), (t1, v1)) = (w[0], w[1]);
+            if t <= t1 {
+                return if t1 > t0 {
+                    v0 + (v1 - v0) * (t - t0) / (t1 - t0)
+                } else {
+                    v1
+                };
+            }
+        }
+        p[p.len() - 1].1
+    }
+}
+
+/// Component index of an axis name (`x`, `y`, `z`) in dimension `dim`.
+pub fn component_index(key: &str, name: &str, dim: usize) -> Result<usize, SceneError> {
+    let i = match name {
+        "x" => 0,
+        "y" => 1,
+        "z" => 2,
+        _ => {
+            return Err(invalid(
+                key,
+                format!("unknown component '{name}' (use x, y or z)"),
+            ));
+        }
+    };
+    if i >= dim {
+        return Err(invalid(
+            key,
+            format!("component '{name}' does not exist in dimension {dim}"),
+        ));
+    }
+    Ok(i)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn history_interpolates_and_holds() {
+        let h = History {
+            points: vec![(0.0, 0.0), (1.0, 2.0), (2.0, 0.0)],
+        };
+        assert_eq!(h.at(-1.0), 0.0);
+        assert_eq!(h.at(0.5), 1.0);
+        assert_eq!(h.at(1.5), 1.0);
+        assert_eq!(h.at(5.0), 0.0);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let err = Scene::parse("dimension = 1\nbogus = 3\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("bogus"), "{err}");
+    }
+
+    #[test]
+    fn undeclared_parameter_is_named() {
+        let values = ParameterValues::new();
+        let r = Resolver { values: &values };
+        let err = r
+            .get("interfaces[0].friction", &Scalar::Parameter("f9".into()))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("f9") && err.contains("interfaces[0].friction"),
+            "{err}"
+        );
+    }
+}

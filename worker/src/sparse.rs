@@ -1,0 +1,213 @@
+//! Compressed sparse row matrices assembled from triplets, and their sparse Cholesky factors.
+
+use faer::linalg::solvers::Solve;
+use faer::sparse::{SparseColMat, Triplet};
+use faer::{MatMut, Side};
+
+/// Errors of sparse assembly and factorisation.
+#[derive(Debug, thiserror::Error)]
+pub enum SparseError {
+    #[error("sparse matrix construction failed: {0}")]
+    Creation(String),
+    #[error(
+        "operator is not positive definite (is a body free to move without any support or interface?): {0}"
+    )]
+    NotPositiveDefinite(String),
+}
+
+/// A square sparse matrix in CSR form; used for matrix-vector products (mass, stiffness).
+#[derive(Debug, Clone, Default)]
+pub struct CsrMatrix {
+    pub n: usize,
+    pub row_ptr: Vec<usize>,
+    pub col: Vec<usize>,
+    pub val: Vec<f64>,
+}
+
+impl CsrMatrix {
+    /// Assembles an `n x n` matrix from (row, col, value) triplets, summing duplicates.
+    pub fn from_triplets(n: usize, mut t: Vec<(usize, usize, f64)>) -> Self {
+        t.sort_unstable_by_key(|&(r, c, _)| (r, c));
+        let mut row_ptr = vec![0usize; n + 1];
+        let mut col = Vec::with_capacity(t.len());
+        let mut val: Vec<f64> = Vec::with_capacity(t.len());
+        let mut last: Option<(usize, usize)> = None;
+        for (r, c, v) in t {
+            if last == Some((r, c)) {
+                *val.last_mut().expect("a previous entry exists") += v;
+            } else {
+                col.push(c);
+                val.push(v);
+                row_ptr[r + 1] += 1;
+                last = Some((r, c));
+            }
+        }
+        for i in 0..n {
+            row_ptr[i + 1] += row_ptr[i];
+        }
+        Self {
+            n,
+            row_ptr,
+            col,
+            val,
+        }
+    }
+
+    /// y += alpha * A x
+    pub fn mul_add(&self, alpha: f64, x: &[f64], y: &mut [f64]) {
+        for (i, yi) in y.iter_mut().enumerate().take(self.n) {
+            let mut s = 0.0;
+            for p in self.row_ptr[i]..self.row_ptr[i + 1] {
+                s += self.val[p] * x[self.col[p]];
+            }
+            *yi += alpha * s;
+        }
+    }
+
+    /// Entry-wise linear combination `a*self + b*other` (same dimension, any patterns).
+    pub fn combine(&self, a: f64, other: &CsrMatrix, b: f64) -> CsrMatrix {
+        let mut t = Vec::with_capacity(self.val.len() + other.val.len());
+        for (m, s) in [(self, a), (other, b)] {
+            for i in 0..m.n {
+                for p in m.row_ptr[i]..m.row_ptr[i + 1] {
+                    t.push((i, m.col[p], s * m.val[p]));
+                }
+            }
+        }
+        CsrMatrix::from_triplets(self.n, t)
+    }
+
+    /// Adds `d[i]` to each diagonal entry (creating missing ones).
+    pub fn add_diagonal(&self, d: &[f64]) -> CsrMatrix {
+        let diag = CsrMatrix::from_triplets(
+            self.n,
+            d.iter().enumerate().map(|(i, &v)| (i, i, v)).collect(),
+        );
+        self.combine(1.0, &diag, 1.0)
+    }
+
+    /// Row sums (the lumped version of a mass-like matrix).
+    pub fn row_sums(&self) -> Vec<f64> {
+        (0..self.n)
+            .map(|i| self.val[self.row_ptr[i]..self.row_ptr[i + 1]].iter().sum())
+            .collect()
+    }
+}
+
+/// A symmetric positive definite operator restricted to its free unknowns, factorised once.
+///
+/// Fixed unknowns (Dirichlet conditions) are eliminated: `solve` takes a full-length right-hand
+/// side and full-length values of the fixed unknowns and returns the full solution.
+pub struct FactorisedOperator {
+    full: CsrMatrix,
+    free: Vec<usize>,
+    /// position of each full unknown among the free ones, `usize::MAX` when fixed
+    free_index: Vec<usize>,
+    llt: faer::sparse::linalg::solvers::Llt<usize, f64>,
+    work: Vec<f64>,
+}
+
+impl FactorisedOperator {
+    pub fn new(a: CsrMatrix, fixed: &[bool]) -> Result<Self, SparseError> {
+        let n = a.n;
+        let free: Vec<usize> = (0..n).filter(|&i| !fixed[i]).collect();
+        let mut free_index = vec![usize::MAX; n];
+        for (k, &i) in free.iter().enumerate() {
+            free_index[i] = k;
+        }
+        let mut trip = Vec::with_capacity(a.val.len());
+        for i in 0..n {
+            let fi = free_index[i];
+            if fi == usize::MAX {
+                continue;
+            }
+            for p in a.row_ptr[i]..a.row_ptr[i + 1] {
+                let fj = free_index[a.col[p]];
+                if fj != usize::MAX && fj <= fi {
+                    trip.push(Triplet::new(fi, fj, a.val[p]));
+                }
+            }
+        }
+        let m = free.len();
+        let mat = SparseColMat::<usize, f64>::try_new_from_triplets(m, m, &trip)
+            .map_err(|e| SparseError::Creation(format!("{e:?}")))?;
+        let llt = mat
+            .sp_cholesky(Side::Lower)
+            .map_err(|e| SparseError::NotPositiveDefinite(format!("{e:?}")))?;
+        Ok(Self {
+            full: a,
+            free,
+            free_index,
+            llt,
+            work: vec![0.0; m],
+        })
+    }
+
+    pub fn n(&self) -> usize {
+        self.full.n
+    }
+
+    pub fn n_free(&self) -> usize {
+        self.free.len()
+    }
+
+    /// Solves `A x = rhs` for the free unknowns, with `x` holding the fixed values on entry.
+    /// `fixed_nonzero` says whether any fixed value is non-zero (saves a product otherwise).
+    pub fn solve(&mut self, rhs: &[f64], x: &mut [f64], fixed_nonzero: bool) {
+        for (k, &i) in self.free.iter().enumerate() {
+            self.work[k] = rhs[i];
+        }
+        if fixed_nonzero {
+            // move the known columns to the right-hand side: rhs_f -= A_fp x_p
+            for (k, &i) in self.free.iter().enumerate() {
+                let mut s = 0.0;
+                for p in self.full.row_ptr[i]..self.full.row_ptr[i + 1] {
+                    let j = self.full.col[p];
+                    if self.free_index[j] == usize::MAX {
+                        s += self.full.val[p] * x[j];
+                    }
+                }
+                self.work[k] -= s;
+            }
+        }
+        let m = self.work.len();
+        self.llt
+            .solve_in_place(MatMut::from_column_major_slice_mut(&mut self.work, m, 1));
+        for (k, &i) in self.free.iter().enumerate() {
+            x[i] = self.work[k];
+        }
+    }
+
+    /// The full (unrestricted) operator.
+    pub fn matrix(&self) -> &CsrMatrix {
+        &self.full
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn solves_spd_system_with_fixed_unknown() {
+        // 1D Laplacian on 4 unknowns, the last fixed to 2.0: exact solution is linear.
+        let n = 4;
+        let mut t = vec![];
+        for i in 0..n {
+            t.push((i, i, 2.0));
+            if i + 1 < n {
+                t.push((i, i + 1, -1.0));
+                t.push((i + 1, i, -1.0));
+            }
+        }
+        let a = CsrMatrix::from_triplets(n, t);
+        let mut op = FactorisedOperator::new(a, &[false, false, false, true]).unwrap();
+        let mut x = vec![0.0, 0.0, 0.0, 2.0];
+        // rhs chosen so that x = [0.5, 1.0, 1.5, 2.0] solves rows 0..3 (row 0: 2*0.5-1 = 0)
+        op.solve(&[0.0, 0.0, 0.0, 0.0], &mut x, true);
+        // rows: 2x0-x1=0, -x0+2x1-x2=0, -x1+2x2-2=0 -> x = [0.5,1,1.5]
+        for (xi, ei) in x.iter().zip([0.5, 1.0, 1.5, 2.0]) {
+            assert!((xi - ei).abs() < 1e-14, "{x:?}");
+        }
+    }
+}
