@@ -23,10 +23,7 @@ impl Material {
             return (0.0, 0.5 * self.young);
         }
         let (e, nu) = (self.young, self.poisson);
-        (
-            e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
-            e / (2.0 * (1.0 + nu)),
-        )
+        (e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)), e / (2.0 * (1.0 + nu)))
     }
 
     /// Bar impedance sqrt(rho E): the search direction k0 of METHOD.md 3.
@@ -49,9 +46,7 @@ pub const fn nodes_per_element(dim: usize) -> usize {
 
 /// Gauss points (reference coordinates, weight) of a `k`-dimensional reference cube.
 pub fn gauss_points(k: usize) -> Vec<(Vec<f64>, f64)> {
-    (0..1usize << k)
-        .map(|g| ((0..k).map(|d| GAUSS[(g >> d) & 1]).collect(), 1.0))
-        .collect()
+    (0..1usize << k).map(|g| ((0..k).map(|d| GAUSS[(g >> d) & 1]).collect(), 1.0)).collect()
 }
 
 /// Shape functions of the `k`-dimensional multilinear element at `xi` and their reference
@@ -102,10 +97,7 @@ fn det_inv<const D: usize>(j: &[[f64; D]; D]) -> (f64, [[f64; D]; D]) {
 
 /// Consistent stiffness and mass matrices of one element (dense, `(a*D + i, b*D + j)` order),
 /// from its node coordinates in tensor order.
-pub fn element_matrices<const D: usize>(
-    x: &[[f64; D]],
-    mat: &Material,
-) -> Result<(Vec<f64>, Vec<f64>), f64> {
+pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Result<(Vec<f64>, Vec<f64>), f64> {
     let nn = nodes_per_element(D);
     let nd = nn * D;
     let (lambda, mu) = mat.lame(D);
@@ -161,17 +153,12 @@ pub fn element_matrices<const D: usize>(
 /// Local nodes of the face of the reference element normal to axis `axis` on side `side`,
 /// in the tensor order of the (D-1)-dimensional face element.
 pub fn face_local_nodes(dim: usize, axis: usize, side: usize) -> Vec<usize> {
-    (0..nodes_per_element(dim))
-        .filter(|a| (a >> axis) & 1 == side)
-        .collect()
+    (0..nodes_per_element(dim)).filter(|a| (a >> axis) & 1 == side).collect()
 }
 
 /// Integral of each face shape function over a face (lumped interface "mass" M_Gamma:
 /// the nodal area), and the face's unit normal at its centre pointing away from `inside`.
-pub fn face_area_and_normal<const D: usize>(
-    x: &[[f64; D]],
-    inside: [f64; D],
-) -> (Vec<f64>, [f64; D]) {
+pub fn face_area_and_normal<const D: usize>(x: &[[f64; D]], inside: [f64; D]) -> (Vec<f64>, [f64; D]) {
     let k = D - 1;
     let nn = 1usize << k;
     let mut area = vec![0.0; nn];
@@ -208,9 +195,7 @@ pub fn face_area_and_normal<const D: usize>(
         }
         _ => cross(&tangent(&dn0, 0), &tangent(&dn0, 1)),
     };
-    let centre: Vec<f64> = (0..D)
-        .map(|i| x.iter().map(|p| p[i]).sum::<f64>() / nn as f64)
-        .collect();
+    let centre: Vec<f64> = (0..D).map(|i| x.iter().map(|p| p[i]).sum::<f64>() / nn as f64).collect();
     let outward: f64 = (0..D).map(|i| normal[i] * (centre[i] - inside[i])).sum();
     let len = norm(&normal);
     for v in normal.iter_mut() {
@@ -252,30 +237,19 @@ mod tests {
 
     /// Total mass = rho V and rigid translations produce no force, in every dimension.
     fn check_mass_and_rigid_modes<const D: usize>(h: [f64; D]) {
-        let mat = Material {
-            young: 2.0e11,
-            poisson: 0.3,
-            density: 7800.0,
-        };
+        let mat = Material { young: 2.0e11, poisson: 0.3, density: 7800.0 };
         let x = unit_box(h);
         let (k, m) = element_matrices(&x, &mat).unwrap();
         let nd = nodes_per_element(D) * D;
         let vol: f64 = h.iter().product();
         for i in 0..D {
-            let t: Vec<f64> = (0..nd)
-                .map(|r| if r % D == i { 1.0 } else { 0.0 })
-                .collect();
-            let total: f64 = (0..nd)
-                .map(|r| (0..nd).map(|c| t[r] * m[r * nd + c] * t[c]).sum::<f64>())
-                .sum();
+            let t: Vec<f64> = (0..nd).map(|r| if r % D == i { 1.0 } else { 0.0 }).collect();
+            let total: f64 = (0..nd).map(|r| (0..nd).map(|c| t[r] * m[r * nd + c] * t[c]).sum::<f64>()).sum();
             assert!((total - mat.density * vol).abs() < 1e-12 * mat.density * vol);
             let kmax = k.iter().fold(0.0f64, |a, b| a.max(b.abs()));
             for r in 0..nd {
                 let f: f64 = (0..nd).map(|c| k[r * nd + c] * t[c]).sum();
-                assert!(
-                    f.abs() < 1e-13 * kmax,
-                    "rigid translation gives force {f} (max entry {kmax})"
-                );
+                assert!(f.abs() < 1e-13 * kmax, "rigid translation gives force {f} (max entry {kmax})");
             }
         }
     }
@@ -289,11 +263,7 @@ mod tests {
 
     #[test]
     fn bar_stiffness_is_ea_over_l() {
-        let mat = Material {
-            young: 7.0,
-            poisson: 0.25,
-            density: 1.0,
-        };
+        let mat = Material { young: 7.0, poisson: 0.25, density: 1.0 };
         let (k, m) = element_matrices::<1>(&[[0.0], [2.0]], &mat).unwrap();
         assert!((k[0] - 3.5).abs() < 1e-14 && (k[1] + 3.5).abs() < 1e-14);
         // consistent bar mass rho L / 6 [2 1; 1 2]
@@ -303,34 +273,20 @@ mod tests {
     #[test]
     fn uniaxial_strain_energy_matches_3d_with_nu_zero() {
         // Stretch a hexahedron along x by strain e: energy 1/2 E e^2 V when nu = 0.
-        let mat = Material {
-            young: 3.0,
-            poisson: 0.0,
-            density: 1.0,
-        };
+        let mat = Material { young: 3.0, poisson: 0.0, density: 1.0 };
         let h = [2.0, 0.5, 0.25];
         let x = unit_box(h);
         let (k, _) = element_matrices(&x, &mat).unwrap();
         let e = 0.01;
-        let u: Vec<f64> = (0..24)
-            .map(|r| if r % 3 == 0 { e * x[r / 3][0] } else { 0.0 })
-            .collect();
-        let energy: f64 = 0.5
-            * (0..24)
-                .map(|r| (0..24).map(|c| u[r] * k[r * 24 + c] * u[c]).sum::<f64>())
-                .sum::<f64>();
+        let u: Vec<f64> = (0..24).map(|r| if r % 3 == 0 { e * x[r / 3][0] } else { 0.0 }).collect();
+        let energy: f64 = 0.5 * (0..24).map(|r| (0..24).map(|c| u[r] * k[r * 24 + c] * u[c]).sum::<f64>()).sum::<f64>();
         let exact = 0.5 * mat.young * e * e * h.iter().product::<f64>();
         assert!((energy - exact).abs() < 1e-13, "{energy} vs {exact}");
     }
 
     #[test]
     fn face_areas_and_normals() {
-        let x = [
-            [0.0, 0.0, 1.0],
-            [2.0, 0.0, 1.0],
-            [0.0, 3.0, 1.0],
-            [2.0, 3.0, 1.0],
-        ];
+        let x = [[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [0.0, 3.0, 1.0], [2.0, 3.0, 1.0]];
         let (a, n) = face_area_and_normal::<3>(&x, [1.0, 1.5, 0.0]);
         assert!(a.iter().all(|v| (v - 1.5).abs() < 1e-14), "{a:?}");
         assert_eq!(n, [0.0, 0.0, 1.0]);

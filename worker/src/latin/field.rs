@@ -14,10 +14,7 @@ pub struct SideField {
 
 impl SideField {
     pub fn zeros(len: usize) -> Self {
-        Self {
-            force: vec![0.0; len],
-            velocity: vec![0.0; len],
-        }
+        Self { force: vec![0.0; len], velocity: vec![0.0; len] }
     }
 
     /// self <- mu * new + (1 - mu) * self (relaxation of METHOD.md 3)
@@ -41,10 +38,7 @@ pub struct InterfaceField {
 
 impl InterfaceField {
     pub fn zeros(sides: usize, len: usize) -> Self {
-        Self {
-            s: vec![SideField::zeros(len); sides],
-            hat: vec![SideField::zeros(len); sides],
-        }
+        Self { s: vec![SideField::zeros(len); sides], hat: vec![SideField::zeros(len); sides] }
     }
 
     pub fn len(&self) -> usize {

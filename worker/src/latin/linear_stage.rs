@@ -39,11 +39,7 @@ pub struct SubstructureOperators {
 }
 
 /// Interface contribution N^T M_Gamma k N: a diagonal over the interface dofs.
-fn interface_diagonal<const D: usize>(
-    sub: &Substructure<D>,
-    interfaces: &[Interface<D>],
-    stage: Stage,
-) -> Vec<f64> {
+fn interface_diagonal<const D: usize>(sub: &Substructure<D>, interfaces: &[Interface<D>], stage: Stage) -> Vec<f64> {
     let mut d = vec![0.0; sub.n_dofs()];
     for &(i, side) in &sub.sides {
         let itf = &interfaces[i];
@@ -58,11 +54,7 @@ fn interface_diagonal<const D: usize>(
 }
 
 impl SubstructureOperators {
-    pub fn new<const D: usize>(
-        model: &Model<D>,
-        s: usize,
-        with_static: bool,
-    ) -> Result<Self, SparseError> {
+    pub fn new<const D: usize>(model: &Model<D>, s: usize, with_static: bool) -> Result<Self, SparseError> {
         let sub = &model.substructures[s];
         let dt = model.dt;
         let a = step_operator(&sub.mass, &sub.stiffness, dt).add_diagonal(&interface_diagonal(
@@ -72,23 +64,13 @@ impl SubstructureOperators {
         ));
         let dynamic = FactorisedOperator::new(a, &sub.fixed)?;
         let statics = if with_static {
-            let a = sub.stiffness.add_diagonal(&interface_diagonal(
-                sub,
-                &model.interfaces,
-                Stage::Static,
-            ));
+            let a = sub.stiffness.add_diagonal(&interface_diagonal(sub, &model.interfaces, Stage::Static));
             Some(FactorisedOperator::new(a, &sub.fixed)?)
         } else {
             None
         };
         let n = sub.n_dofs();
-        Ok(Self {
-            dynamic,
-            statics,
-            state: NewmarkState::new(n),
-            x: vec![0.0; n],
-            rhs: vec![0.0; n],
-        })
+        Ok(Self { dynamic, statics, state: NewmarkState::new(n), x: vec![0.0; n], rhs: vec![0.0; n] })
     }
 
     /// Adds N^T M_Gamma (F^ + k W^) of step `step` to `rhs`.
@@ -150,19 +132,9 @@ impl SubstructureOperators {
         fields: &mut [InterfaceField],
     ) -> Vec<f64> {
         let sub = &model.substructures[s];
-        let op = self
-            .statics
-            .as_mut()
-            .expect("static operator factorised when the stage is needed");
+        let op = self.statics.as_mut().expect("static operator factorised when the stage is needed");
         sub.external_force(&model.histories, 0.0, &mut self.rhs);
-        Self::add_interface_load(
-            &mut self.rhs,
-            sub,
-            &model.interfaces,
-            fields,
-            Stage::Static,
-            0,
-        );
+        Self::add_interface_load(&mut self.rhs, sub, &model.interfaces, fields, Stage::Static, 0);
         self.x.fill(0.0);
         let mut nonzero = false;
         for p in &sub.prescribed {
@@ -205,26 +177,12 @@ impl SubstructureOperators {
         for step in 0..model.steps {
             let t = (step + 1) as f64 * dt;
             sub.external_force(&model.histories, t, &mut self.rhs);
-            Self::add_interface_load(
-                &mut self.rhs,
-                sub,
-                &model.interfaces,
-                fields,
-                Stage::Dynamic,
-                step,
-            );
+            Self::add_interface_load(&mut self.rhs, sub, &model.interfaces, fields, Stage::Dynamic, step);
             st.add_history(&sub.mass, &sub.stiffness, dt, &mut self.rhs);
             let nonzero = prescribed_velocities(&sub.prescribed, &model.histories, t, &mut self.x);
             self.dynamic.solve(&self.rhs, &mut self.x, nonzero);
             st.advance(&self.x, dt);
-            Self::extract_interface(
-                &self.x,
-                sub,
-                &model.interfaces,
-                fields,
-                Stage::Dynamic,
-                step,
-            );
+            Self::extract_interface(&self.x, sub, &model.interfaces, fields, Stage::Dynamic, step);
             if let Some(r) = record.as_mut() {
                 r(step + 1, &st.u, &st.v);
             }
@@ -233,12 +191,7 @@ impl SubstructureOperators {
 }
 
 /// Zeroes `x` and writes the prescribed velocities at time t; says whether any is non-zero.
-pub fn prescribed_velocities(
-    prescribed: &[PrescribedDof],
-    histories: &[History],
-    t: f64,
-    x: &mut [f64],
-) -> bool {
+pub fn prescribed_velocities(prescribed: &[PrescribedDof], histories: &[History], t: f64, x: &mut [f64]) -> bool {
     x.fill(0.0);
     let mut nonzero = false;
     for p in prescribed {

@@ -39,11 +39,7 @@ fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
 }
 
 /// Applies the interface law to one node (search direction E+: F^ - F = k (W^ - W)).
-pub fn apply_law<const D: usize>(
-    law: InterfaceLaw,
-    x: &NodeInput<D>,
-    gap: GapRule,
-) -> NodeOutput<D> {
+pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRule) -> NodeOutput<D> {
     let (h1, h2) = (x.h1, x.h2);
     let mut f1h = [0.0; D];
     match law {
@@ -80,23 +76,14 @@ pub fn apply_law<const D: usize>(
                 }
                 let t_norm = dot(&t, &t).sqrt();
                 let threshold = mu * f1n.abs();
-                let scale = if t_norm <= threshold {
-                    1.0
-                } else {
-                    threshold / t_norm
-                };
+                let scale = if t_norm <= threshold { 1.0 } else { threshold / t_norm };
                 for i in 0..D {
                     f1h[i] = f1n * n[i] + scale * t[i];
                 }
             }
         }
     }
-    let mut out = NodeOutput {
-        w1: [0.0; D],
-        f1: f1h,
-        w2: [0.0; D],
-        f2: [0.0; D],
-    };
+    let mut out = NodeOutput { w1: [0.0; D], f1: f1h, w2: [0.0; D], f2: [0.0; D] };
     for i in 0..D {
         out.f2[i] = -f1h[i];
         out.w1[i] = x.w1[i] + h1 * (f1h[i] - x.f1[i]);
@@ -110,15 +97,7 @@ mod tests {
     use super::*;
 
     fn input(w1: [f64; 2], f1: [f64; 2], w2: [f64; 2], f2: [f64; 2]) -> NodeInput<2> {
-        NodeInput {
-            w1,
-            f1,
-            w2,
-            f2,
-            h1: 0.5,
-            h2: 0.25,
-            normal: [0.0, 1.0],
-        }
+        NodeInput { w1, f1, w2, f2, h1: 0.5, h2: 0.25, normal: [0.0, 1.0] }
     }
 
     fn assert_search_direction(x: &NodeInput<2>, o: &NodeOutput<2>) {
@@ -132,14 +111,7 @@ mod tests {
     #[test]
     fn perfect_gives_equal_velocities() {
         let x = input([1.0, 2.0], [0.3, -0.1], [-1.0, 0.5], [0.2, 0.4]);
-        let o = apply_law(
-            InterfaceLaw::Perfect,
-            &x,
-            GapRule {
-                base: 0.0,
-                weight: 1.0,
-            },
-        );
+        let o = apply_law(InterfaceLaw::Perfect, &x, GapRule { base: 0.0, weight: 1.0 });
         assert_search_direction(&x, &o);
         for i in 0..2 {
             assert!((o.w1[i] - o.w2[i]).abs() < 1e-12);
@@ -150,14 +122,7 @@ mod tests {
     fn separation_gives_zero_force() {
         // side 2 moves away along n
         let x = input([0.0, 0.0], [0.0, 0.0], [0.0, 1.0], [0.0, 0.0]);
-        let o = apply_law(
-            InterfaceLaw::Friction { coefficient: 0.5 },
-            &x,
-            GapRule {
-                base: 0.0,
-                weight: 0.1,
-            },
-        );
+        let o = apply_law(InterfaceLaw::Friction { coefficient: 0.5 }, &x, GapRule { base: 0.0, weight: 0.1 });
         assert_eq!(o.f1, [0.0, 0.0]);
         assert_search_direction(&x, &o);
     }
@@ -166,10 +131,7 @@ mod tests {
     fn contact_closes_gap_and_respects_coulomb() {
         // side 2 moves towards side 1 and slides along x
         let x = input([0.0, 0.0], [0.0, 0.0], [3.0, -1.0], [0.0, 0.0]);
-        let rule = GapRule {
-            base: 0.0,
-            weight: 0.1,
-        };
+        let rule = GapRule { base: 0.0, weight: 0.1 };
         for mu in [0.0, 0.1, 10.0] {
             let o = apply_law(InterfaceLaw::Friction { coefficient: mu }, &x, rule);
             assert_search_direction(&x, &o);
@@ -189,24 +151,9 @@ mod tests {
 
     #[test]
     fn rigid_wall_side_keeps_its_velocity() {
-        let x = NodeInput {
-            w1: [-2.0],
-            f1: [0.0],
-            w2: [0.0],
-            f2: [0.0],
-            h1: 0.5,
-            h2: 0.0,
-            normal: [-1.0],
-        };
+        let x = NodeInput { w1: [-2.0], f1: [0.0], w2: [0.0], f2: [0.0], h1: 0.5, h2: 0.0, normal: [-1.0] };
         // side 1 moves along -x towards a wall whose outward normal from side 1 is -x
-        let o = apply_law(
-            InterfaceLaw::Contact,
-            &x,
-            GapRule {
-                base: 0.0,
-                weight: 0.1,
-            },
-        );
+        let o = apply_law(InterfaceLaw::Contact, &x, GapRule { base: 0.0, weight: 0.1 });
         assert_eq!(o.w2, [0.0]);
         assert!(o.w1[0].abs() < 1e-12, "side 1 stopped by the wall");
         assert!(o.f1[0] > 0.0, "wall pushes along +x");

@@ -17,22 +17,18 @@ use field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
 
+/// Tolerance of the static prestress stage relative to the asked one.
+pub const STATIC_TOLERANCE_RATIO: f64 = 0.01;
+
 /// Errors of a LATIN solve.
 #[derive(Debug, thiserror::Error)]
 pub enum SolverError {
     #[error("substructure {substructure}: {source}")]
-    Factorisation {
-        substructure: usize,
-        source: SparseError,
-    },
+    Factorisation { substructure: usize, source: SparseError },
     #[error(
         "{stage} stage, iteration {iteration}: error indicator is {eta} (the iterations diverged; try a smaller k0_factor or time step)"
     )]
-    NonFinite {
-        stage: &'static str,
-        iteration: usize,
-        eta: f64,
-    },
+    NonFinite { stage: &'static str, iteration: usize, eta: f64 },
     #[error("initial solution does not fit this model: {0}")]
     IncompatibleInit(String),
     #[error("{0}")]
@@ -114,27 +110,18 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     pub fn new(model: &'m Model<D>) -> Result<Self, SolverError> {
         if model.settings.scale == Scale::Multi {
             return Err(SolverError::Unsupported(
-                "scale = multi: the macro problem is not implemented yet; use scale = single"
-                    .into(),
+                "scale = multi: the macro problem is not implemented yet; use scale = single".into(),
             ));
         }
         let start = Instant::now();
         let with_static = model.needs_static_stage();
         let ops = (0..model.substructures.len())
             .map(|s| {
-                SubstructureOperators::new(model, s, with_static).map_err(|source| {
-                    SolverError::Factorisation {
-                        substructure: s,
-                        source,
-                    }
-                })
+                SubstructureOperators::new(model, s, with_static)
+                    .map_err(|source| SolverError::Factorisation { substructure: s, source })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self {
-            model,
-            ops,
-            factorisation_seconds: start.elapsed().as_secs_f64(),
-        })
+        Ok(Self { model, ops, factorisation_seconds: start.elapsed().as_secs_f64() })
     }
 
     fn zero_stage(&self, steps: usize) -> StageSolution {
@@ -148,12 +135,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         }
     }
 
-    fn check_init(
-        &self,
-        stage: &StageSolution,
-        steps: usize,
-        what: &str,
-    ) -> Result<(), SolverError> {
+    fn check_init(&self, stage: &StageSolution, steps: usize, what: &str) -> Result<(), SolverError> {
         let m = self.model;
         if stage.interfaces.len() != m.interfaces.len() {
             return Err(SolverError::IncompatibleInit(format!(
@@ -166,15 +148,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let len = steps * itf.n_nodes() * D;
             let ok = f.s.len() == itf.sides.len()
                 && f.hat.len() == itf.sides.len()
-                && f.s
-                    .iter()
-                    .chain(&f.hat)
-                    .all(|sf| sf.force.len() == len && sf.velocity.len() == len);
+                && f.s.iter().chain(&f.hat).all(|sf| sf.force.len() == len && sf.velocity.len() == len);
             if !ok {
-                return Err(SolverError::IncompatibleInit(format!(
-                    "{what}: interface '{}' has other sizes",
-                    itf.name
-                )));
+                return Err(SolverError::IncompatibleInit(format!("{what}: interface '{}' has other sizes", itf.name)));
             }
         }
         Ok(())
@@ -188,10 +164,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         options: &SolveOptions,
     ) -> Result<SolveReport, SolverError> {
         let m = self.model;
-        let mut timings = Timings {
-            factorisation: self.factorisation_seconds,
-            ..Default::default()
-        };
+        let mut timings = Timings { factorisation: self.factorisation_seconds, ..Default::default() };
         let needs_static = m.needs_static_stage();
 
         // Static prestress stage.
@@ -207,14 +180,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 None => self.zero_stage(1),
             };
             let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
-            let report = self.iterate(
-                Stage::Static,
-                &mut st.interfaces,
-                &start,
-                &[],
-                &u0,
-                &mut timings,
-            )?;
+            let report = self.iterate(Stage::Static, &mut st.interfaces, &start, &[], &u0, &mut timings)?;
             // the initial state of the dynamics: displacements of the converged static solution
             let t = Instant::now();
             let mut scratch = st.interfaces.clone();
@@ -235,31 +201,16 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             None => self.zero_stage(m.steps),
         };
         let (gap_start, vn_start) = self.dynamic_initial_gaps(static_solution.as_ref());
-        let report = self.iterate(
-            Stage::Dynamic,
-            &mut dynamic.interfaces,
-            &gap_start,
-            &vn_start,
-            &u0,
-            &mut timings,
-        )?;
+        let report = self.iterate(Stage::Dynamic, &mut dynamic.interfaces, &gap_start, &vn_start, &u0, &mut timings)?;
 
         // Post-processing sweep on the converged local-stage fields.
         let t = Instant::now();
-        let (qoi, fields) = self.post_process(
-            &mut dynamic.interfaces,
-            &u0,
-            static_solution.as_ref(),
-            options,
-        );
+        let (qoi, fields) = self.post_process(&mut dynamic.interfaces, &u0, static_solution.as_ref(), options);
         timings.post_processing += t.elapsed().as_secs_f64();
         Ok(SolveReport {
             static_stage: static_report,
             dynamic: report,
-            solution: InterfaceSolution {
-                static_stage: static_solution,
-                dynamic,
-            },
+            solution: InterfaceSolution { static_stage: static_solution, dynamic },
             qoi,
             fields,
             timings,
@@ -267,10 +218,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     }
 
     /// Gap and relative normal velocity at t_0, per interface node.
-    fn dynamic_initial_gaps(
-        &self,
-        statics: Option<&StageSolution>,
-    ) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    fn dynamic_initial_gaps(&self, statics: Option<&StageSolution>) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
         let m = self.model;
         let mut gaps = Vec::new();
         let mut vns = Vec::new();
@@ -281,9 +229,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             for j in 0..n {
                 let nrm = &itf.normal[j];
                 let side_vel = |k: usize| -> [f64; D] {
-                    itf.sides.get(k).map_or([0.0; D], |s| {
-                        m.substructures[s.substructure].initial_velocity
-                    })
+                    itf.sides.get(k).map_or([0.0; D], |s| m.substructures[s.substructure].initial_velocity)
                 };
                 let (v1, v2) = (side_vel(0), side_vel(1));
                 vn[j] = (0..D).map(|c| nrm[c] * (v2[c] - v1[c])).sum();
@@ -320,6 +266,12 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             Stage::Static => "static",
             Stage::Dynamic => "dynamic",
         };
+        // The static stage's error is carried by every step of the dynamics, and its iterations
+        // cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
+        let tolerance = match stage {
+            Stage::Static => settings.tolerance * STATIC_TOLERANCE_RATIO,
+            Stage::Dynamic => settings.tolerance,
+        };
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
             for (f, p) in fields.iter().zip(previous.iter_mut()) {
@@ -330,9 +282,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     Stage::Static => {
                         self.ops[s].static_sweep(m, s, fields);
                     }
-                    Stage::Dynamic => {
-                        self.ops[s].dynamic_sweep(m, s, u0[s].as_deref(), fields, None)
-                    }
+                    Stage::Dynamic => self.ops[s].dynamic_sweep(m, s, u0[s].as_deref(), fields, None),
                 }
             }
             // relaxation (mu = 1 at the first iteration)
@@ -355,13 +305,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             report.history.push(eta);
             tracing::debug!(stage = stage_name, iteration, eta, "LATIN iteration");
             if !eta.is_finite() {
-                return Err(SolverError::NonFinite {
-                    stage: stage_name,
-                    iteration,
-                    eta,
-                });
+                return Err(SolverError::NonFinite { stage: stage_name, iteration, eta });
             }
-            if eta <= settings.tolerance {
+            if eta <= tolerance {
                 report.converged = true;
                 break;
             }
@@ -370,13 +316,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     }
 
     /// Local stage over every interface, node and step.
-    fn local_stage(
-        &self,
-        stage: Stage,
-        fields: &mut [InterfaceField],
-        gap_start: &[Vec<f64>],
-        vn_start: &[Vec<f64>],
-    ) {
+    fn local_stage(&self, stage: Stage, fields: &mut [InterfaceField], gap_start: &[Vec<f64>], vn_start: &[Vec<f64>]) {
         let m = self.model;
         let steps = match stage {
             Stage::Static => 1,
@@ -391,9 +331,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             // gap rule state: base = g(t_{n-1}) + dt/2 vn(t_{n-1})
             let mut base: Vec<f64> = match stage {
                 Stage::Static => gap_start[i].clone(),
-                Stage::Dynamic => (0..n)
-                    .map(|j| gap_start[i][j] + half_dt * vn_start[i][j])
-                    .collect(),
+                Stage::Dynamic => (0..n).map(|j| gap_start[i][j] + half_dt * vn_start[i][j]).collect(),
             };
             let weight = match stage {
                 Stage::Static => 1.0,
@@ -419,14 +357,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         h2,
                         normal: itf.normal[j],
                     };
-                    let out = apply_law(
-                        itf.law,
-                        &input,
-                        GapRule {
-                            base: base[j],
-                            weight,
-                        },
-                    );
+                    let out = apply_law(itf.law, &input, GapRule { base: base[j], weight });
                     let r = (step * n + j) * D..(step * n + j + 1) * D;
                     f.hat[0].velocity[r.clone()].copy_from_slice(&out.w1);
                     f.hat[0].force[r.clone()].copy_from_slice(&out.f1);
@@ -434,9 +365,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         h.velocity[r.clone()].copy_from_slice(&out.w2);
                         h.force[r].copy_from_slice(&out.f2);
                     }
-                    let vn: f64 = (0..D)
-                        .map(|c| itf.normal[j][c] * (out.w2[c] - out.w1[c]))
-                        .sum();
+                    let vn: f64 = (0..D).map(|c| itf.normal[j][c] * (out.w2[c] - out.w1[c])).sum();
                     let gap = base[j] + weight * vn;
                     base[j] = gap + half_dt * vn;
                 }
@@ -458,11 +387,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut series: Vec<QoiSeries> = m
             .qois
             .iter()
-            .map(|q| QoiSeries {
-                name: q.name.clone(),
-                times: times.clone(),
-                values: vec![0.0; m.steps + 1],
-            })
+            .map(|q| QoiSeries { name: q.name.clone(), times: times.clone(), values: vec![0.0; m.steps + 1] })
             .collect();
         let mut history = options.record_fields.then(FieldHistory::default);
         // The sweep writes `s` fields: run it on a copy so the returned solution stays the
@@ -474,12 +399,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 .iter()
                 .enumerate()
                 .filter_map(|(q, qoi)| match qoi.target {
-                    QoiTarget::Displacement { substructure, dof } if substructure == s => {
-                        Some((q, dof, true))
-                    }
-                    QoiTarget::Velocity { substructure, dof } if substructure == s => {
-                        Some((q, dof, false))
-                    }
+                    QoiTarget::Displacement { substructure, dof } if substructure == s => Some((q, dof, true)),
+                    QoiTarget::Velocity { substructure, dof } if substructure == s => Some((q, dof, false)),
                     _ => None,
                 })
                 .collect();
@@ -506,23 +427,21 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 QoiTarget::Slip { interface, node } => {
                     series[q].values = slip_history(m, &fields[interface], interface, node);
                 }
-                QoiTarget::Force {
-                    interface,
-                    component,
-                } => {
-                    let itf = &m.interfaces[interface];
-                    let n = itf.n_nodes();
-                    let resultant = |force: &[f64], step: usize| -> f64 {
-                        (0..n)
-                            .map(|j| itf.area[j] * force[(step * n + j) * D + component])
+                QoiTarget::Force { ref interfaces, component } => {
+                    let resultant = |stage: &[InterfaceField], step: usize| -> f64 {
+                        interfaces
+                            .clone()
+                            .map(|i| {
+                                let itf = &m.interfaces[i];
+                                let n = itf.n_nodes();
+                                let force = &stage[i].hat[0].force;
+                                (0..n).map(|j| itf.area[j] * force[(step * n + j) * D + component]).sum::<f64>()
+                            })
                             .sum()
                     };
-                    series[q].values[0] = statics.map_or(0.0, |st| {
-                        resultant(&st.interfaces[interface].hat[0].force, 0)
-                    });
+                    series[q].values[0] = statics.map_or(0.0, |st| resultant(&st.interfaces, 0));
                     for step in 0..m.steps {
-                        series[q].values[step + 1] =
-                            resultant(&fields[interface].hat[0].force, step);
+                        series[q].values[step + 1] = resultant(fields, step);
                     }
                 }
                 _ => {}
@@ -534,12 +453,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
 
 /// Slip at an interface node: norm of the tangential relative displacement accumulated during
 /// the dynamics, integrated from the local-stage velocities with the trapezoidal rule.
-fn slip_history<const D: usize>(
-    m: &Model<D>,
-    f: &InterfaceField,
-    interface: usize,
-    node: usize,
-) -> Vec<f64> {
+fn slip_history<const D: usize>(m: &Model<D>, f: &InterfaceField, interface: usize, node: usize) -> Vec<f64> {
     let itf = &m.interfaces[interface];
     let n = itf.n_nodes();
     let nrm = itf.normal[node];
@@ -553,9 +467,7 @@ fn slip_history<const D: usize>(
                 }
                 None => {
                     let v = |k: usize| {
-                        itf.sides.get(k).map_or(0.0, |sd| {
-                            m.substructures[sd.substructure].initial_velocity[c]
-                        })
+                        itf.sides.get(k).map_or(0.0, |sd| m.substructures[sd.substructure].initial_velocity[c])
                     };
                     v(1) - v(0)
                 }
@@ -584,11 +496,7 @@ fn slip_history<const D: usize>(
 /// The LATIN error indicator (METHOD.md 3):
 /// eta^2 = sum a [|F - F^|^2 / k + k |W - W^|^2] / sum a [|F + F^|^2 / k + k |W + W^|^2]
 /// over interface nodes, sides and steps.
-pub fn error_indicator<const D: usize>(
-    m: &Model<D>,
-    stage: Stage,
-    fields: &[InterfaceField],
-) -> f64 {
+pub fn error_indicator<const D: usize>(m: &Model<D>, stage: Stage, fields: &[InterfaceField]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     for (itf, f) in m.interfaces.iter().zip(fields) {
         let n = itf.n_nodes();
@@ -597,14 +505,8 @@ pub fn error_indicator<const D: usize>(
             let (s, h) = (&f.s[k], &f.hat[k]);
             for idx in 0..s.force.len() {
                 let a = itf.area[(idx / D) % n];
-                let (df, dw) = (
-                    s.force[idx] - h.force[idx],
-                    s.velocity[idx] - h.velocity[idx],
-                );
-                let (sf, sw) = (
-                    s.force[idx] + h.force[idx],
-                    s.velocity[idx] + h.velocity[idx],
-                );
+                let (df, dw) = (s.force[idx] - h.force[idx], s.velocity[idx] - h.velocity[idx]);
+                let (sf, sw) = (s.force[idx] + h.force[idx], s.velocity[idx] + h.velocity[idx]);
                 num += a * (df * df / kk + kk * dw * dw);
                 den += a * (sf * sf / kk + kk * sw * sw);
             }

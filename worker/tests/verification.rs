@@ -1,0 +1,304 @@
+//! Verification of the solver against independent references (docs/verification.md):
+//! the monolithic Newmark solve, d'Alembert wave solutions, Coulomb's law, energy balance.
+
+use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
+use glissade_worker::model::Model;
+use glissade_worker::monolithic;
+use glissade_worker::scene::Scene;
+
+fn build<const D: usize>(text: &str, set: &[(&str, f64)]) -> Model<D> {
+    let scene = Scene::parse(text).expect("test scene parses");
+    let set: Vec<(String, f64)> = set.iter().map(|(k, v)| (k.to_string(), *v)).collect();
+    let values = scene.parameter_values(&set).expect("parameters");
+    Model::<D>::build(&scene, &values).expect("model builds")
+}
+
+fn solve<const D: usize>(m: &Model<D>, fields: bool) -> SolveReport {
+    let mut solver = LatinSolver::new(m).expect("factorisation");
+    let r = solver.solve(None, &SolveOptions { record_fields: fields }).expect("solve");
+    assert!(r.converged(), "LATIN did not converge: eta = {}", r.dynamic.error_indicator);
+    r
+}
+
+/// Relative L2 difference over all substructure nodes and steps between LATIN and monolithic
+/// displacement histories.
+fn latin_vs_monolithic<const D: usize>(m: &Model<D>) -> (f64, usize) {
+    let reference = monolithic::solve(m).expect("monolithic");
+    let r = solve(m, true);
+    let f = r.fields.as_ref().expect("fields recorded");
+    let (mut num, mut den) = (0.0, 0.0);
+    for (s, steps) in f.displacement.iter().enumerate() {
+        for (n, u) in steps.iter().enumerate() {
+            for (l, &ul) in u.iter().enumerate() {
+                let g = reference.dof_map[s][l];
+                let ur = reference.displacement[n][g];
+                num += (ul - ur).powi(2);
+                den += ur * ur;
+            }
+        }
+    }
+    assert!(den > 0.0, "the reference must move");
+    ((num / den).sqrt(), r.iterations())
+}
+
+const BAR_1D: &str = r#"
+dimension = 1
+[time]
+duration = 4e-5
+steps = 80
+[materials.steel]
+E = 200e9
+rho = 7800
+[[bodies]]
+name = "bar"
+material = "steel"
+size = [0.1]
+elements = [40]
+substructures = [4]
+[[boundary]]
+face = "bar.x-"
+clamped = true
+[[loads]]
+face = "bar.x+"
+traction = [1e6]
+history = [[0, 0.5], [1e-5, 1.0], [2e-5, 0.0]]
+"#;
+
+const PLATE_2D: &str = r#"
+dimension = 2
+[time]
+duration = 2e-5
+steps = 40
+[materials.steel]
+E = 200e9
+nu = 0.3
+rho = 7800
+[[bodies]]
+name = "plate"
+material = "steel"
+size = [0.04, 0.02]
+elements = [8, 4]
+substructures = [2, 2]
+[[boundary]]
+face = "plate.x-"
+clamped = true
+[[loads]]
+face = "plate.x+"
+pressure = 5e6
+history = [[0, 0], [5e-6, 1.0], [1e-5, 0.0]]
+[[loads]]
+face = "plate.y+"
+traction = [0, -1e6]
+"#;
+
+const BOX_3D: &str = r#"
+dimension = 3
+[time]
+duration = 2e-5
+steps = 20
+[materials.steel]
+E = 200e9
+nu = 0.3
+rho = 7800
+[materials.soft]
+E = 150e9
+nu = 0.45
+rho = 7800
+[[bodies]]
+name = "low"
+material = "steel"
+size = [0.01, 0.01, 0.01]
+elements = [2, 2, 2]
+substructures = [2, 1, 2]
+[[bodies]]
+name = "high"
+material = "soft"
+origin = [0, 0, 0.01]
+size = [0.01, 0.01, 0.01]
+elements = [2, 2, 2]
+[[interfaces]]
+name = "glue"
+a = "low.z+"
+b = "high.z-"
+law = "perfect"
+[[boundary]]
+face = "low.z-"
+clamped = true
+[[boundary]]
+face = "high.z+"
+displacement = { z = -1e-6 }
+[[loads]]
+face = "high.x-"
+pressure = 2e7
+history = [[0, 0], [5e-6, 1], [1e-5, 0]]
+"#;
+
+#[test]
+fn perfect_interfaces_match_monolithic_1d() {
+    let m = build::<1>(BAR_1D, &[]);
+    assert!(m.needs_static_stage(), "a load at t = 0 needs the static stage");
+    let (err, it) = latin_vs_monolithic(&m);
+    eprintln!("1D: relative L2 error {err:.2e} after {it} iterations (tolerance {:.0e})", m.settings.tolerance);
+    assert!(err < 10.0 * m.settings.tolerance, "1D error {err}");
+}
+
+#[test]
+fn perfect_interfaces_match_monolithic_2d() {
+    let m = build::<2>(PLATE_2D, &[]);
+    let (err, it) = latin_vs_monolithic(&m);
+    eprintln!("2D: relative L2 error {err:.2e} after {it} iterations");
+    assert!(err < 10.0 * m.settings.tolerance, "2D error {err}");
+}
+
+#[test]
+fn perfect_interfaces_match_monolithic_3d_with_prestress() {
+    let m = build::<3>(BOX_3D, &[]);
+    assert!(m.needs_static_stage());
+    let (err, it) = latin_vs_monolithic(&m);
+    eprintln!("3D: relative L2 error {err:.2e} after {it} iterations");
+    assert!(err < 10.0 * m.settings.tolerance, "3D error {err}");
+}
+
+/// Mass-weighted mean velocity along x of the whole model at step `n`.
+fn mean_velocity_x<const D: usize>(m: &Model<D>, r: &SolveReport, n: usize) -> f64 {
+    let f = r.fields.as_ref().expect("fields");
+    let (mut p, mut mass) = (0.0, 0.0);
+    for (s, sub) in m.substructures.iter().enumerate() {
+        let ones: Vec<f64> = (0..sub.n_dofs()).map(|i| if i % D == 0 { 1.0 } else { 0.0 }).collect();
+        let mut mv = vec![0.0; sub.n_dofs()];
+        sub.mass.mul_add(1.0, &f.velocity[s][n], &mut mv);
+        p += ones.iter().zip(&mv).map(|(a, b)| a * b).sum::<f64>();
+        let mut m1 = vec![0.0; sub.n_dofs()];
+        sub.mass.mul_add(1.0, &ones, &mut m1);
+        mass += ones.iter().zip(&m1).map(|(a, b)| a * b).sum::<f64>();
+    }
+    p / mass
+}
+
+/// Bar impact on a rigid wall against d'Alembert (METHOD.md 6): contact lasts 2L/c, the
+/// contact force is rho c A v0, the bar leaves at -v0; the free end reverses at L/c.
+fn check_bar_impact<const D: usize>(text: &str, area: f64) {
+    let m = build::<D>(text, &[]);
+    let r = solve(&m, true);
+    let mat = m.substructures[0].material;
+    let (c, v0, length) = (mat.bar_wave_speed(), 1.0, 0.1);
+    let dt = m.dt;
+    let q = |name: &str| r.qoi.iter().find(|q| q.name == name).expect("qoi").values.clone();
+    let force = q("wall_force");
+    let contact: Vec<usize> = (0..force.len()).filter(|&n| force[n] != 0.0).collect();
+    let duration = (contact[contact.len() - 1] - contact[0] + 1) as f64 * dt;
+    let expected = 2.0 * length / c;
+    eprintln!(
+        "{D}D impact: contact {:.3} us (2L/c = {:.3} us, dt = {:.2} us)",
+        duration * 1e6,
+        expected * 1e6,
+        dt * 1e6
+    );
+    assert!((duration - expected).abs() <= 2.0 * dt, "contact duration {duration} vs {expected}");
+    // The trapezoidal rule makes the constraint force alternate step to step about its mean:
+    // compare the impulse of each step, dt (F_n + F_{n+1}) / 2, over the established contact.
+    let inner = &contact[2..contact.len() - 2];
+    let mean: f64 = inner.iter().map(|&n| 0.5 * (force[n] + force[n + 1])).sum::<f64>() / inner.len() as f64;
+    let rho_c_a_v0 = mat.impedance() * area * v0;
+    eprintln!("{D}D impact: mean force {mean:.4e} vs rho c A v0 = {rho_c_a_v0:.4e}");
+    assert!((mean.abs() - rho_c_a_v0).abs() < 0.05 * rho_c_a_v0, "force {mean}");
+    assert!(mean < 0.0, "the wall pushes the bar back");
+    let rebound = mean_velocity_x(&m, &r, m.steps);
+    eprintln!("{D}D impact: rebound velocity {rebound:.4} (expected -{v0})");
+    assert!((rebound + v0).abs() < 0.05 * v0);
+    // free end: v0 until the wave arrives at L/c, then -v0 (plateau mean over [1.2, 1.8] L/c)
+    let free = q("free_end_velocity");
+    let arrival = (0..free.len()).find(|&n| free[n] < 0.0).expect("the wave reaches the free end") as f64 * dt;
+    eprintln!("{D}D wave: arrival {:.3} us vs L/c = {:.3} us", arrival * 1e6, length / c * 1e6);
+    assert!((arrival - length / c).abs() < 0.05 * length / c, "arrival {arrival}");
+    let window: Vec<f64> =
+        (0..free.len()).filter(|&n| (1.2..1.8).contains(&(n as f64 * dt * c / length))).map(|n| free[n]).collect();
+    let plateau = window.iter().sum::<f64>() / window.len() as f64;
+    eprintln!("{D}D wave: plateau velocity {plateau:.4} (expected -{v0})");
+    assert!((plateau + v0).abs() < 0.05 * v0);
+}
+
+#[test]
+fn bar_impact_1d_matches_dalembert() {
+    check_bar_impact::<1>(include_str!("../../scenes/bar-impact-1d.toml"), 1.0);
+}
+
+#[test]
+fn bar_impact_3d_nu0_matches_dalembert() {
+    // half the elements and steps of the shipped scene (same Courant number) to stay fast
+    let text = include_str!("../../scenes/bar-impact-3d.toml")
+        .replace("elements = [100, 1, 1]", "elements = [50, 1, 1]")
+        .replace("steps = 400", "steps = 200");
+    check_bar_impact::<3>(&text, 1e-4);
+}
+
+fn dot<const D: usize>(a: &[f64], b: &[f64; D]) -> f64 {
+    (0..D).map(|c| a[c] * b[c]).sum()
+}
+
+/// Sliding block (METHOD.md 6): sticks while the push is below f N, slides beyond; Coulomb's
+/// inequality at every node and step, no penetration, non-negative frictional dissipation.
+#[test]
+fn sliding_block_obeys_coulomb() {
+    let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
+    let r = solve(&m, false);
+    let f = 0.3;
+    let slip = &r.qoi.iter().find(|q| q.name == "slip_centre").unwrap().values;
+    let normal = &r.qoi.iter().find(|q| q.name == "normal_force").unwrap().values;
+    // push resultant: 12 MPa x 0.01 m x t / T; f N = 0.3 x 10 MPa x 0.02 m; crossing at t = T/2
+    let push = |n: usize| 12e6 * 0.01 * n as f64 / m.steps as f64;
+    let f_n = f * 1e7 * 0.02;
+    let final_slip = slip[m.steps];
+    assert!(final_slip > 1e-6, "the block slides in the end: {final_slip}");
+    for n in 0..=m.steps {
+        if push(n) < 0.9 * f_n {
+            assert!(slip[n] < 1e-9 * final_slip, "slip {} at push {} < f N {}", slip[n], push(n), f_n);
+        }
+    }
+    let first_slip = (0..=m.steps).find(|&n| slip[n] > 1e-6 * final_slip).unwrap();
+    eprintln!("slip starts at push = {:.3} f N", push(first_slip) / f_n);
+    assert!(push(first_slip) < 1.1 * f_n, "slip starts late: push {} vs f N {f_n}", push(first_slip));
+    assert!((normal[m.steps] - 2e5).abs() < 0.2 * 2e5, "normal force near the applied 2e5 N/m");
+
+    // pointwise checks on the converged local-stage fields
+    let (mut worst_cone, mut min_gap, mut min_power) = (0.0f64, f64::INFINITY, f64::INFINITY);
+    for (i, itf) in m.interfaces.iter().enumerate() {
+        if itf.name != "floor" {
+            continue;
+        }
+        let hat = &r.solution.dynamic.interfaces[i].hat[0];
+        let n_nodes = itf.n_nodes();
+        let mut gap = itf.gap0.clone();
+        let mut prev = vec![0.0; n_nodes];
+        for step in 0..m.steps {
+            for j in 0..n_nodes {
+                let at = (step * n_nodes + j) * 2;
+                let force = &hat.force[at..at + 2];
+                let w = &hat.velocity[at..at + 2];
+                let nrm = itf.normal[j];
+                let fnormal = dot(force, &nrm);
+                let ft = [force[0] - fnormal * nrm[0], force[1] - fnormal * nrm[1]];
+                let ft_norm = (ft[0] * ft[0] + ft[1] * ft[1]).sqrt();
+                worst_cone = worst_cone.max(ft_norm - f * fnormal.abs());
+                assert!(
+                    ft_norm <= f * fnormal.abs() * (1.0 + 1e-8) + 1e-8 * 1e7,
+                    "Coulomb violated: |Ft| {ft_norm} > f |Fn| {}",
+                    f * fnormal.abs()
+                );
+                assert!(fnormal <= 1e-8 * 1e7, "tensile contact force {fnormal}");
+                // wall side: relative velocity is -W1; friction power F1 . (W2 - W1) >= 0
+                let power = -(force[0] * w[0] + force[1] * w[1]);
+                min_power = min_power.min(power);
+                let vn = -dot(w, &nrm);
+                gap[j] += 0.5 * m.dt * (prev[j] + vn);
+                prev[j] = vn;
+                min_gap = min_gap.min(gap[j]);
+            }
+        }
+    }
+    eprintln!(
+        "Coulomb: max(|Ft| - f|Fn|) = {worst_cone:.3e} Pa; min gap {min_gap:.3e} m; min friction power {min_power:.3e}"
+    );
+    assert!(min_power >= -1e-6, "negative dissipation {min_power}");
+    assert!(min_gap > -1e-9, "penetration {min_gap}");
+}
