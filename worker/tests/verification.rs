@@ -302,3 +302,100 @@ fn sliding_block_obeys_coulomb() {
     assert!(min_power >= -1e-6, "negative dissipation {min_power}");
     assert!(min_gap > -1e-9, "penetration {min_gap}");
 }
+
+/// Energy balance (METHOD.md 6): kinetic + strain energy change = external work + work of the
+/// interfaces on the substructures (the negative of the dissipated energy), every term computed
+/// independently: energies from the substructure fields, external work from the loads, interface
+/// work from the converged local-stage fields (trapezoidal in time, like Newmark).
+fn energy_balance<const D: usize>(m: &Model<D>, r: &SolveReport) -> (f64, f64, f64, f64) {
+    let f = r.fields.as_ref().expect("fields");
+    let energy = |n: usize| -> f64 {
+        let mut e = 0.0;
+        for (s, sub) in m.substructures.iter().enumerate() {
+            let (u, v) = (&f.displacement[s][n], &f.velocity[s][n]);
+            let (mut ku, mut mv) = (vec![0.0; u.len()], vec![0.0; u.len()]);
+            sub.stiffness.mul_add(1.0, u, &mut ku);
+            sub.mass.mul_add(1.0, v, &mut mv);
+            e += 0.5
+                * (u.iter().zip(&ku).map(|(a, b)| a * b).sum::<f64>()
+                    + v.iter().zip(&mv).map(|(a, b)| a * b).sum::<f64>());
+        }
+        e
+    };
+    let mut external = 0.0;
+    for (s, sub) in m.substructures.iter().enumerate() {
+        let (mut f0, mut f1) = (vec![0.0; sub.n_dofs()], vec![0.0; sub.n_dofs()]);
+        for n in 0..m.steps {
+            sub.external_force(&m.histories, n as f64 * m.dt, &mut f0);
+            sub.external_force(&m.histories, (n + 1) as f64 * m.dt, &mut f1);
+            let (ua, ub) = (&f.displacement[s][n], &f.displacement[s][n + 1]);
+            external += (0..f0.len()).map(|i| 0.5 * (f0[i] + f1[i]) * (ub[i] - ua[i])).sum::<f64>();
+        }
+    }
+    let mut interface = 0.0;
+    for (i, itf) in m.interfaces.iter().enumerate() {
+        let nn = itf.n_nodes();
+        for (k, side) in itf.sides.iter().enumerate() {
+            let hat = &r.solution.dynamic.interfaces[i].hat[k];
+            let static_force = r.solution.static_stage.as_ref().map(|st| &st.interfaces[i].hat[k].force);
+            for j in 0..nn {
+                for c in 0..D {
+                    let value = |n: usize| -> (f64, f64) {
+                        if n == 0 {
+                            let fz = static_force.map_or(0.0, |sf| sf[j * D + c]);
+                            (fz, f.velocity[side.substructure][0][side.nodes[j] * D + c])
+                        } else {
+                            let at = ((n - 1) * nn + j) * D + c;
+                            (hat.force[at], hat.velocity[at])
+                        }
+                    };
+                    for n in 0..m.steps {
+                        let ((fa, wa), (fb, wb)) = (value(n), value(n + 1));
+                        interface += itf.area[j] * 0.25 * m.dt * (fa + fb) * (wa + wb);
+                    }
+                }
+            }
+        }
+    }
+    let scale = (0..=m.steps).map(energy).fold(0.0, f64::max);
+    (energy(m.steps) - energy(0), external, interface, scale)
+}
+
+/// Returns (interface work, external work).
+fn check_energy<const D: usize>(name: &str, m: &Model<D>) -> (f64, f64) {
+    let r = solve(m, true);
+    let (de, ext, itf, scale) = energy_balance(m, &r);
+    let residual = (de - ext - itf) / scale;
+    eprintln!(
+        "{name}: dE = {de:.4e}, external work {ext:.4e}, interface work {itf:.4e}, residual {residual:.2e} of max energy {scale:.3e}"
+    );
+    assert!(residual.abs() < 0.01, "{name}: energy balance off by {residual}");
+    (itf, ext)
+}
+
+#[test]
+fn energy_balance_closes_perfect_contact_friction() {
+    let (itf, ext) = check_energy("perfect 3D", &build::<3>(BOX_3D, &[]));
+    assert!(itf.abs() < 1e-6 * ext.abs(), "perfect interfaces do no work: {itf}");
+    let text = include_str!("../../scenes/bar-impact-1d.toml");
+    let (itf, _) = check_energy("contact 1D", &build::<1>(text, &[]));
+    assert!(itf <= 0.0, "a rigid wall can only take energy (inelastic impact node): {itf}");
+    let (itf, _) = check_energy("friction 2D", &build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]));
+    assert!(itf < 0.0, "sliding dissipates: interface work {itf}");
+}
+
+/// A point warm-started from its own converged solution converges at once (at most 2
+/// iterations), to the same QoIs.
+#[test]
+fn warm_start_from_own_solution_converges_at_once() {
+    let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
+    let mut solver = LatinSolver::new(&m).unwrap();
+    let cold = solver.solve(None, &SolveOptions::default()).unwrap();
+    let warm = solver.solve(Some(&cold.solution), &SolveOptions::default()).unwrap();
+    eprintln!("cold {} iterations, warm {} iterations", cold.iterations(), warm.iterations());
+    assert!(warm.converged() && warm.dynamic.iterations <= 2 && warm.static_stage.as_ref().unwrap().iterations <= 2);
+    for (a, b) in cold.qoi.iter().zip(&warm.qoi) {
+        let (x, y) = (a.values[m.steps], b.values[m.steps]);
+        assert!((x - y).abs() <= 10.0 * m.settings.tolerance * x.abs().max(1e-30), "{}: {x} vs {y}", a.name);
+    }
+}
