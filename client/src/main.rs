@@ -27,13 +27,7 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 )]
 struct Cli {
     /// URL of the glissade coordinator (glissade-server).
-    #[arg(
-        long,
-        global = true,
-        env = "GLISSADE_SERVER",
-        value_name = "URL",
-        default_value = "http://127.0.0.1:50051"
-    )]
+    #[arg(long, global = true, env = "GLISSADE_SERVER", value_name = "URL", default_value = "http://127.0.0.1:50051")]
     server: String,
     #[command(subcommand)]
     command: Command,
@@ -52,9 +46,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
-        .with_env_filter(
-            EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn")),
-        )
+        .with_env_filter(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn")))
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal())
         .init();
@@ -84,13 +76,7 @@ async fn health(server: &str, json: bool) -> Result<()> {
     let reply = HealthClient::new(channel)
         .check(HealthRequest {})
         .await
-        .map_err(|status| {
-            anyhow!(
-                "health check at {server} failed: {} ({:?})",
-                status.message(),
-                status.code()
-            )
-        })?
+        .map_err(|status| anyhow!("health check at {server} failed: {} ({:?})", status.message(), status.code()))?
         .into_inner();
     if json {
         let value = serde_json::json!({
@@ -109,9 +95,7 @@ async fn health(server: &str, json: bool) -> Result<()> {
 /// Connects to `server`, turning transport errors into one line that says what went wrong.
 async fn connect(server: &str) -> Result<Channel> {
     let invalid = || anyhow!("invalid server URL `{server}` (expected e.g. http://host:50051)");
-    let endpoint = Endpoint::from_shared(server.to_owned())
-        .map_err(|_| invalid())?
-        .connect_timeout(CONNECT_TIMEOUT);
+    let endpoint = Endpoint::from_shared(server.to_owned()).map_err(|_| invalid())?.connect_timeout(CONNECT_TIMEOUT);
     // `Endpoint` accepts relative URIs such as `localhost:50051`; catch them before connecting.
     let uri = endpoint.uri();
     if !matches!(uri.scheme_str(), Some("http" | "https")) || uri.host().is_none() {
@@ -120,10 +104,7 @@ async fn connect(server: &str) -> Result<Channel> {
     tracing::debug!(server, "connecting");
     endpoint.connect().await.map_err(|e| {
         tracing::debug!(error = ?e, "connect failed");
-        anyhow!(
-            "cannot reach glissade server at {server}: {}",
-            root_cause(&e)
-        )
+        anyhow!("cannot reach glissade server at {server}: {}", root_cause(&e))
     })
 }
 
@@ -147,9 +128,5 @@ fn root_cause(error: &(dyn std::error::Error + 'static)) -> String {
     }
     let text = current.to_string();
     // Timeouts surface as a bare "timed out" from tower/hyper without an io::Error.
-    if text.contains("timed out") {
-        format!("no answer within {}s", CONNECT_TIMEOUT.as_secs())
-    } else {
-        text
-    }
+    if text.contains("timed out") { format!("no answer within {}s", CONNECT_TIMEOUT.as_secs()) } else { text }
 }

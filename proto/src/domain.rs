@@ -99,10 +99,7 @@ fn check(name: &str, value: f64) -> Result<(), ParameterError> {
         return Err(ParameterError::EmptyName { value });
     }
     if !value.is_finite() {
-        return Err(ParameterError::NonFinite {
-            name: name.to_owned(),
-            value,
-        });
+        return Err(ParameterError::NonFinite { name: name.to_owned(), value });
     }
     Ok(())
 }
@@ -213,13 +210,7 @@ mod tests {
         for value in [f64::INFINITY, f64::NEG_INFINITY] {
             let mut v = ParameterVector::new();
             let err = v.insert("e", value).unwrap_err();
-            assert_eq!(
-                err,
-                ParameterError::NonFinite {
-                    name: "e".into(),
-                    value
-                }
-            );
+            assert_eq!(err, ParameterError::NonFinite { name: "e".into(), value });
             assert!(v.is_empty(), "a rejected value must not be stored");
         }
     }
@@ -253,10 +244,7 @@ mod tests {
         assert_eq!(s.to_string(), "42");
         assert_eq!(PointId(7).to_string().parse::<PointId>(), Ok(PointId(7)));
         let err = "x1".parse::<PointId>().unwrap_err();
-        assert_eq!(
-            err.to_string(),
-            "invalid point id `x1`: expected a non-negative integer"
-        );
+        assert_eq!(err.to_string(), "invalid point id `x1`: expected a non-negative integer");
         assert!("-1".parse::<StudyId>().is_err());
     }
 }

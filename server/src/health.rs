@@ -13,13 +13,7 @@ pub struct HealthService;
 
 #[tonic::async_trait]
 impl Health for HealthService {
-    async fn check(
-        &self,
-        _request: Request<HealthRequest>,
-    ) -> Result<Response<HealthReply>, Status> {
-        Ok(Response::new(HealthReply {
-            status: SERVING.to_owned(),
-            version: env!("CARGO_PKG_VERSION").to_owned(),
-        }))
+    async fn check(&self, _request: Request<HealthRequest>) -> Result<Response<HealthReply>, Status> {
+        Ok(Response::new(HealthReply { status: SERVING.to_owned(), version: env!("CARGO_PKG_VERSION").to_owned() }))
     }
 }

@@ -71,10 +71,7 @@ impl SledStore {
             sled::Error::Io(ref io) if io.to_string().starts_with("could not acquire lock") => {
                 StoreError::Locked { path: path.clone() }
             }
-            source => StoreError::Engine {
-                path: path.clone(),
-                source,
-            },
+            source => StoreError::Engine { path: path.clone(), source },
         })?;
         let store = Self { db, path };
         match store.get(SCHEMA_KEY)? {
@@ -98,26 +95,17 @@ impl SledStore {
     }
 
     fn engine_error(&self, source: sled::Error) -> StoreError {
-        StoreError::Engine {
-            path: self.path.clone(),
-            source,
-        }
+        StoreError::Engine { path: self.path.clone(), source }
     }
 }
 
 impl Store for SledStore {
     fn get(&self, key: &[u8]) -> Result<Option<Vec<u8>>, StoreError> {
-        self.db
-            .get(key)
-            .map(|v| v.map(|ivec| ivec.to_vec()))
-            .map_err(|e| self.engine_error(e))
+        self.db.get(key).map(|v| v.map(|ivec| ivec.to_vec())).map_err(|e| self.engine_error(e))
     }
 
     fn put(&self, key: &[u8], value: &[u8]) -> Result<(), StoreError> {
-        self.db
-            .insert(key, value)
-            .map(drop)
-            .map_err(|e| self.engine_error(e))
+        self.db.insert(key, value).map(drop).map_err(|e| self.engine_error(e))
     }
 
     fn flush(&self) -> Result<(), StoreError> {

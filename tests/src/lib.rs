@@ -16,9 +16,7 @@ use std::time::{Duration, Instant};
 /// When the binary is missing, with a message saying to run `cargo build --workspace` first.
 pub fn workspace_bin(name: &str) -> PathBuf {
     let exe = std::env::current_exe().expect("cannot locate the running test executable");
-    let deps = exe
-        .parent()
-        .expect("test executable has no parent directory");
+    let deps = exe.parent().expect("test executable has no parent directory");
     // Integration tests live in `<profile>/deps`; tolerate being run from `<profile>` directly.
     let profile_dir = if deps.file_name().is_some_and(|n| n == "deps") {
         deps.parent().expect("`deps` has no parent directory")

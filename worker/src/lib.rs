@@ -1,9 +1,11 @@
 //! glissade-worker: the LATIN solver core (pure computation) and its edges.
 //!
 //! Layout: `element`, `mesh`, `sparse` (discretisation); `scene` and `model` (what is solved);
-//! `latin` (the iterative solver) and `monolithic` (the reference); `output` at the edge.
+//! `latin` (the iterative solver) and `monolithic` (the reference); `io` (solution files,
+//! field output) and `run` (one solve, for the CLI and the workers) at the edge.
 
 pub mod element;
+pub mod io;
 pub mod latin;
 pub mod mesh;
 pub mod model;

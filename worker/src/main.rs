@@ -1,13 +1,15 @@
 //! `glissade-worker`: runs LATIN solves of scenes (and, later, MPI worker pools).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use anyhow::{Context, Result, bail};
-use clap::{Parser, Subcommand, ValueEnum};
+use anyhow::{Context, Result, anyhow, bail};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use serde::Serialize;
 
-use glissade_worker::run::{SolveRequest, solve_scene};
-use glissade_worker::scene::{Scale, Scene};
+use glissade_worker::io::{fields, solution_file};
+use glissade_worker::run::{SolveRequest, SolveSummary, solve_scene};
+use glissade_worker::scene::{Scale, Scene, SceneError};
 
 #[derive(Parser)]
 #[command(
@@ -26,82 +28,210 @@ enum ScaleArg {
     Multi,
 }
 
+const SOLVE_EXAMPLES: &str = "\
+Examples:
+  glissade-worker solve scenes/bar-impact-1d.toml
+  glissade-worker solve scenes/bar-impact-1d.toml --set v0=2 --json
+  glissade-worker solve scenes/bar-impact-1d.toml --save v1.sol
+  glissade-worker solve scenes/bar-impact-1d.toml --set v0=1.1 --init v1.sol
+  glissade-worker solve scenes/bar-impact-1d.toml --fields out.h5   # then open out.xdmf in ParaView
+
+Exit status: 0 converged, 1 error (one line on stderr), 2 not converged within the iteration limit.
+Progress: RUST_LOG=glissade_worker=info (per solve) or =debug (per LATIN iteration).";
+
 #[derive(Subcommand)]
 enum Command {
     /// Solve one design point of a scene.
-    #[command(
-        after_help = "Examples:\n  glissade-worker solve scenes/bar-impact-1d.toml\n  glissade-worker solve scenes/three-blocks-tiny.toml --set f1=0.12 --json"
-    )]
-    Solve {
-        /// Scene file (TOML, see docs/scenes.md)
-        scene: PathBuf,
-        /// Parameter value, NAME=VALUE (repeatable)
-        #[arg(long = "set", value_name = "NAME=VALUE")]
-        set: Vec<String>,
-        /// Error-indicator tolerance (default: the scene's, else 2e-4)
-        #[arg(long)]
-        tol: Option<f64>,
-        /// Iteration limit (default: the scene's, else 1000)
-        #[arg(long)]
-        max_iter: Option<usize>,
-        /// Single-scale or multiscale (macro problem) iterations
-        #[arg(long, value_enum)]
-        scale: Option<ScaleArg>,
-        /// Print one JSON object instead of the human summary
-        #[arg(long)]
-        json: bool,
-    },
+    #[command(after_help = SOLVE_EXAMPLES)]
+    Solve(SolveArgs),
+}
+
+#[derive(Args)]
+struct SolveArgs {
+    /// Scene file (TOML, see docs/scenes.md)
+    scene: PathBuf,
+    /// Parameter value, NAME=VALUE (repeatable)
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    set: Vec<String>,
+    /// Error-indicator tolerance (default: the scene's, else 2e-4)
+    #[arg(long, value_name = "T")]
+    tol: Option<f64>,
+    /// Iteration limit (default: the scene's, else 1000)
+    #[arg(long, value_name = "N")]
+    max_iter: Option<usize>,
+    /// Single-scale or multiscale (macro problem) iterations
+    #[arg(long, value_enum)]
+    scale: Option<ScaleArg>,
+    /// Start the iterations from a stored interface solution of the same scene (any design point)
+    #[arg(long, value_name = "SOLUTION")]
+    init: Option<PathBuf>,
+    /// Store the final interface solution (docs/solution-format.md), also when not converged
+    #[arg(long, value_name = "SOLUTION")]
+    save: Option<PathBuf>,
+    /// Write displacement and velocity fields to OUT.h5 and OUT.xdmf (ParaView)
+    #[arg(long, value_name = "OUT.h5")]
+    fields: Option<PathBuf>,
+    /// Print one JSON object instead of the human summary
+    #[arg(long)]
+    json: bool,
+}
+
+/// Field files written by `--fields`.
+#[derive(Serialize)]
+struct FieldFiles {
+    h5: String,
+    xdmf: String,
+}
+
+/// `--json` output: the solve summary and what this command read and wrote.
+#[derive(Serialize)]
+struct Output<'a> {
+    #[serde(flatten)]
+    summary: &'a SolveSummary,
+    scene_hash: String,
+    /// the `--init` solution file, or null
+    initialised_from: Option<String>,
+    /// the `--save` solution file, or null
+    saved_to: Option<String>,
+    fields: Option<FieldFiles>,
 }
 
 fn parse_set(s: &str) -> Result<(String, f64)> {
-    let (name, value) = s
-        .split_once('=')
-        .with_context(|| format!("--set {s}: expected NAME=VALUE"))?;
-    let v: f64 = value
-        .trim()
-        .parse()
-        .with_context(|| format!("--set {s}: '{value}' is not a number"))?;
+    let (name, value) = s.split_once('=').with_context(|| format!("--set {s}: expected NAME=VALUE"))?;
+    let v: f64 = value.trim().parse().with_context(|| format!("--set {s}: '{value}' is not a number"))?;
     if !v.is_finite() {
         bail!("--set {s}: value must be a finite number");
     }
     Ok((name.trim().to_string(), v))
 }
 
-fn solve(
-    scene_path: PathBuf,
-    set: Vec<String>,
-    tol: Option<f64>,
-    max_iter: Option<usize>,
-    scale: Option<ScaleArg>,
-    json: bool,
-) -> Result<bool> {
-    let text = std::fs::read_to_string(&scene_path)
-        .with_context(|| format!("cannot read scene {}", scene_path.display()))?;
-    let scene = Scene::parse(&text).with_context(|| format!("scene {}", scene_path.display()))?;
+/// Parses a scene; TOML errors become one line with their position.
+fn parse_scene(text: &str, path: &Path) -> Result<Scene> {
+    Scene::parse(text).map_err(|e| {
+        let detail = match (&e, toml::from_str::<Scene>(text)) {
+            // Scene::parse keeps only toml's multi-line rendering: redo the parse for the parts
+            (SceneError::Parse(_), Err(te)) => {
+                let at = te.span().map(|span| {
+                    let before = &text[..span.start.min(text.len())];
+                    let line = before.matches('\n').count() + 1;
+                    let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+                    format!("line {line}, column {column}: ")
+                });
+                let message: Vec<&str> = te.message().lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+                format!("{}{}", at.unwrap_or_default(), message.join("; "))
+            }
+            _ => e.to_string(),
+        };
+        anyhow!("scene {}: {detail}", path.display())
+    })
+}
+
+/// Refuses before a long solve to write where it could not (missing directory, clashing names).
+fn check_output(flag: &str, path: &Path) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        bail!("{flag} {}: directory {} does not exist", path.display(), dir.display());
+    }
+    if path.is_dir() {
+        bail!("{flag} {}: is a directory", path.display());
+    }
+    Ok(())
+}
+
+fn solve(args: SolveArgs) -> Result<bool> {
+    let scene_path = &args.scene;
+    let text =
+        std::fs::read_to_string(scene_path).with_context(|| format!("cannot read scene {}", scene_path.display()))?;
+    let scene = parse_scene(&text, scene_path)?;
+    let scene_hash = scene.content_hash();
     let request = SolveRequest {
-        set: set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
-        tolerance: tol,
-        max_iterations: max_iter,
-        scale: scale.map(|s| match s {
+        set: args.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
+        tolerance: args.tol,
+        max_iterations: args.max_iter,
+        scale: args.scale.map(|s| match s {
             ScaleArg::Single => Scale::Single,
             ScaleArg::Multi => Scale::Multi,
         }),
-        record_fields: false,
+        record_fields: args.fields.is_some(),
     };
-    let outcome = solve_scene(&scene, &request, None)
-        .with_context(|| format!("scene {}", scene_path.display()))?;
+    if let Some(p) = &args.save {
+        check_output("--save", p)?;
+    }
+    if let Some(p) = &args.fields {
+        check_output("--fields", p)?;
+        if fields::xdmf_path(p) == *p {
+            bail!("--fields {}: give the HDF5 file (e.g. out.h5); the .xdmf file is written beside it", p.display());
+        }
+    }
+
+    let init = match &args.init {
+        Some(p) => {
+            let (meta, solution) = solution_file::read(p).with_context(|| format!("--init {}", p.display()))?;
+            meta.check_fits(&scene).with_context(|| format!("--init {}", p.display()))?;
+            tracing::info!(
+                solution = %p.display(),
+                converged = meta.converged,
+                parameters = ?meta.parameters,
+                "warm start"
+            );
+            Some(solution)
+        }
+        None => None,
+    };
+
+    tracing::info!(scene = %scene_path.display(), hash = %scene_hash, "solving");
+    let outcome =
+        solve_scene(&scene, &request, init.as_ref()).with_context(|| format!("scene {}", scene_path.display()))?;
     let s = &outcome.summary;
-    if json {
-        println!("{}", serde_json::to_string(s)?);
+    tracing::info!(
+        converged = s.converged,
+        iterations = s.iterations,
+        eta = s.error_indicator,
+        seconds = s.wall_seconds,
+        "solved"
+    );
+
+    // Files first: the summary is printed only once everything asked for is written.
+    if let Some(p) = &args.save {
+        let meta = solution_file::SolutionMeta {
+            solver_version: env!("CARGO_PKG_VERSION").into(),
+            scene_hash: scene_hash.clone(),
+            dimension: scene.dimension,
+            time_steps: s.time_steps,
+            parameters: s.parameters.clone(),
+            converged: s.converged,
+            error_indicator: s.error_indicator,
+            iterations: s.iterations,
+            tolerance: s.tolerance,
+        };
+        solution_file::write(p, &outcome.solution, &meta).with_context(|| format!("--save {}", p.display()))?;
+    }
+    let field_files = match (&args.fields, &outcome.fields) {
+        (Some(p), Some(f)) => {
+            let xdmf = fields::write(p, f, &scene_hash).with_context(|| format!("--fields {}", p.display()))?;
+            Some(FieldFiles { h5: p.display().to_string(), xdmf: xdmf.display().to_string() })
+        }
+        (Some(p), None) => bail!("--fields {}: the solver returned no fields", p.display()),
+        _ => None,
+    };
+
+    if args.json {
+        let out = Output {
+            summary: s,
+            scene_hash,
+            initialised_from: args.init.as_ref().map(|p| p.display().to_string()),
+            saved_to: args.save.as_ref().map(|p| p.display().to_string()),
+            fields: field_files,
+        };
+        println!("{}", serde_json::to_string(&out)?);
     } else {
         println!(
             "{}: {} after {} iterations, eta = {:.3e} (tolerance {:.1e}), {} dofs in {} substructures, {:.2} s",
             scene_path.display(),
-            if s.converged {
-                "converged"
-            } else {
-                "NOT converged"
-            },
+            if s.converged { "converged" } else { "NOT converged" },
             s.iterations,
             s.error_indicator,
             s.tolerance,
@@ -109,8 +239,17 @@ fn solve(
             s.substructures,
             s.wall_seconds
         );
+        if let Some(p) = &args.init {
+            println!("  initialised from {}", p.display());
+        }
         for (name, q) in &s.qoi {
             println!("  {name:<24} final = {:.6e}", q.final_value);
+        }
+        if let Some(p) = &args.save {
+            println!("  interface solution saved to {}", p.display());
+        }
+        if let Some(f) = &field_files {
+            println!("  fields written to {} (open {} in ParaView)", f.h5, f.xdmf);
         }
     }
     if !s.converged {
@@ -122,29 +261,25 @@ fn solve(
     Ok(s.converged)
 }
 
+/// Error messages are one line (`error: ...`): a nested cause may span several.
+fn one_line(message: &str) -> String {
+    message.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" ")
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()),
-        )
+        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Solve {
-            scene,
-            set,
-            tol,
-            max_iter,
-            scale,
-            json,
-        } => solve(scene, set, tol, max_iter, scale, json),
+        Command::Solve(args) => solve(args),
     };
     match result {
         Ok(true) => ExitCode::SUCCESS,
         Ok(false) => ExitCode::from(2),
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", one_line(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }

@@ -41,10 +41,7 @@ impl<const D: usize> Mesh<D> {
     /// Body node numbers of a face, in the face's own tensor order.
     pub fn face_nodes(&self, f: Face) -> Vec<usize> {
         let el = self.element(f.element);
-        face_local_nodes(D, f.axis as usize, f.side as usize)
-            .into_iter()
-            .map(|a| el[a])
-            .collect()
+        face_local_nodes(D, f.axis as usize, f.side as usize).into_iter().map(|a| el[a]).collect()
     }
 
     /// Centroid of an element.
@@ -102,20 +99,12 @@ impl<const D: usize> Mesh<D> {
                 for (side, at_side) in [(0u8, eidx[d] == 0), (1u8, eidx[d] + 1 == counts[d])] {
                     if at_side {
                         let name = format!("{}{}", AXES[d], if side == 0 { '-' } else { '+' });
-                        face_sets.entry(name).or_default().push(Face {
-                            element: e,
-                            axis: d as u8,
-                            side,
-                        });
+                        face_sets.entry(name).or_default().push(Face { element: e, axis: d as u8, side });
                     }
                 }
             }
         }
-        Self {
-            nodes,
-            connectivity,
-            face_sets,
-        }
+        Self { nodes, connectivity, face_sets }
     }
 
     /// Partition of a structured box's elements into `parts[d]` blocks along each axis
@@ -151,11 +140,7 @@ mod tests {
         assert_eq!(m.face_sets["x-"].len(), 12);
         assert_eq!(m.face_sets["z+"].len(), 6);
         for f in &m.face_sets["z+"] {
-            assert!(
-                m.face_nodes(*f)
-                    .iter()
-                    .all(|&n| (m.nodes[n][2] - 3.0).abs() < 1e-15)
-            );
+            assert!(m.face_nodes(*f).iter().all(|&n| (m.nodes[n][2] - 3.0).abs() < 1e-15));
         }
         let p = Mesh::<3>::box_partition([2, 3, 4], [1, 1, 2]);
         assert_eq!(p.iter().filter(|&&s| s == 0).count(), 12);

@@ -9,9 +9,7 @@ use crate::sparse::{CsrMatrix, FactorisedOperator, SparseError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum MonolithicError {
-    #[error(
-        "the monolithic reference handles perfect interfaces only; interface '{0}' is a contact"
-    )]
+    #[error("the monolithic reference handles perfect interfaces only; interface '{0}' is a contact")]
     NotPerfect(String),
     #[error(transparent)]
     Sparse(#[from] SparseError),
@@ -77,11 +75,7 @@ pub fn solve<const D: usize>(m: &Model<D>) -> Result<MonolithicHistory, Monolith
         .substructures
         .iter()
         .enumerate()
-        .map(|(s, sub)| {
-            (0..sub.n_dofs())
-                .map(|l| global_node[offsets[s] + l / D] * D + l % D)
-                .collect()
-        })
+        .map(|(s, sub)| (0..sub.n_dofs()).map(|l| global_node[offsets[s] + l / D] * D + l % D).collect())
         .collect();
 
     // Assemble by summing the substructure operators (they are the element sums).
@@ -102,10 +96,7 @@ pub fn solve<const D: usize>(m: &Model<D>) -> Result<MonolithicHistory, Monolith
             let g = map[p.dof];
             if !fixed[g] {
                 fixed[g] = true;
-                prescribed.push(PrescribedDof {
-                    dof: g,
-                    ..p.clone()
-                });
+                prescribed.push(PrescribedDof { dof: g, ..p.clone() });
             }
         }
         for (l, &g) in map.iter().enumerate() {
@@ -123,11 +114,7 @@ pub fn solve<const D: usize>(m: &Model<D>) -> Result<MonolithicHistory, Monolith
             }
         }
     };
-    let mut scratch: Vec<Vec<f64>> = m
-        .substructures
-        .iter()
-        .map(|s| vec![0.0; s.n_dofs()])
-        .collect();
+    let mut scratch: Vec<Vec<f64>> = m.substructures.iter().map(|s| vec![0.0; s.n_dofs()]).collect();
 
     let start = std::time::Instant::now();
     let mut step_op = FactorisedOperator::new(step_operator(&mass, &stiffness, m.dt), &fixed)?;

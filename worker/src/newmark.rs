@@ -15,22 +15,11 @@ pub struct NewmarkState {
 
 impl NewmarkState {
     pub fn new(n: usize) -> Self {
-        Self {
-            u: vec![0.0; n],
-            v: vec![0.0; n],
-            a: vec![0.0; n],
-            tmp: vec![0.0; n],
-        }
+        Self { u: vec![0.0; n], v: vec![0.0; n], a: vec![0.0; n], tmp: vec![0.0; n] }
     }
 
     /// rhs += M ((2/dt) v_n + a_n) - K (u_n + (dt/2) v_n)
-    pub fn add_history(
-        &mut self,
-        mass: &CsrMatrix,
-        stiffness: &CsrMatrix,
-        dt: f64,
-        rhs: &mut [f64],
-    ) {
+    pub fn add_history(&mut self, mass: &CsrMatrix, stiffness: &CsrMatrix, dt: f64, rhs: &mut [f64]) {
         for i in 0..self.tmp.len() {
             self.tmp[i] = 2.0 / dt * self.v[i] + self.a[i];
         }

@@ -107,11 +107,7 @@ fn solve_dim<const D: usize>(
     let mut model = Model::<D>::build(scene, &values)?;
     if let Some(t) = request.tolerance {
         if !(t > 0.0 && t.is_finite()) {
-            return Err(crate::scene::invalid(
-                "--tol",
-                format!("must be a positive number, got {t}"),
-            )
-            .into());
+            return Err(crate::scene::invalid("--tol", format!("must be a positive number, got {t}")).into());
         }
         model.settings.tolerance = t;
     }
@@ -122,12 +118,7 @@ fn solve_dim<const D: usize>(
         model.settings.scale = s;
     }
     let mut solver = LatinSolver::new(&model)?;
-    let report = solver.solve(
-        init,
-        &SolveOptions {
-            record_fields: request.record_fields,
-        },
-    )?;
+    let report = solver.solve(init, &SolveOptions { record_fields: request.record_fields })?;
     let qoi = report
         .qoi
         .iter()
@@ -179,9 +170,5 @@ fn solve_dim<const D: usize>(
         qoi,
         timings: report.timings.clone(),
     };
-    Ok(SolveOutcome {
-        summary,
-        solution: report.solution,
-        fields,
-    })
+    Ok(SolveOutcome { summary, solution: report.solution, fields })
 }

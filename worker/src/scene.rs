@@ -19,18 +19,11 @@ pub enum SceneError {
     #[error("--set {name}: no parameter of that name in the scene (declared: {declared})")]
     UnknownParameter { name: String, declared: String },
     #[error("parameter {name} = {value}: {message}")]
-    BadParameterValue {
-        name: String,
-        value: f64,
-        message: String,
-    },
+    BadParameterValue { name: String, value: f64, message: String },
 }
 
 pub(crate) fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError {
-    SceneError::Invalid {
-        key: key.into(),
-        message: message.into(),
-    }
+    SceneError::Invalid { key: key.into(), message: message.into() }
 }
 
 /// A number, or the name of a parameter standing for one.
@@ -239,10 +232,7 @@ impl Scene {
     pub fn parse(text: &str) -> Result<Self, SceneError> {
         let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse(e.to_string()))?;
         if !(1..=3).contains(&scene.dimension) {
-            return Err(invalid(
-                "dimension",
-                format!("must be 1, 2 or 3, got {}", scene.dimension),
-            ));
+            return Err(invalid("dimension", format!("must be 1, 2 or 3, got {}", scene.dimension)));
         }
         for (name, p) in &scene.parameters {
             let key = format!("parameters.{name}");
@@ -251,33 +241,43 @@ impl Scene {
             }
             if let (Some(lo), Some(hi)) = (p.min, p.max) {
                 if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
-                    return Err(invalid(
-                        key,
-                        format!("range [{lo}, {hi}] is not a finite interval"),
-                    ));
+                    return Err(invalid(key, format!("range [{lo}, {hi}] is not a finite interval")));
                 }
             }
         }
         Ok(scene)
     }
 
+    /// Identity of the mechanical problem: hex SHA-256 of the scene serialised canonically
+    /// (serde_json, maps sorted) without what does not change the solution of a design point —
+    /// the `[solver]` section, the title, and the parameters' defaults, ranges and units (their
+    /// names stay). A stored interface solution may warm-start a solve only of a scene with the
+    /// same hash (METHOD.md 4).
+    pub fn content_hash(&self) -> String {
+        use sha2::{Digest, Sha256};
+        let mut canonical = self.clone();
+        canonical.title = None;
+        canonical.solver = SolverSpec::default();
+        for p in canonical.parameters.values_mut() {
+            *p = ParameterSpec { default: 0.0, min: None, max: None, unit: None };
+        }
+        // a tag, so that a change of this canonical form can be told from a change of the scene
+        let mut hasher = Sha256::new();
+        hasher.update(b"glissade-scene-hash-v1\n");
+        // Serialising plain data (no maps with non-string keys) cannot fail.
+        let json = serde_json::to_vec(&canonical).expect("scene serialises to JSON");
+        hasher.update(&json);
+        hasher.finalize().iter().map(|b| format!("{b:02x}")).collect()
+    }
+
     /// The parameter values of a design point: defaults overridden by `set`, all checked.
     pub fn parameter_values(&self, set: &[(String, f64)]) -> Result<ParameterValues, SceneError> {
-        let mut values: ParameterValues = self
-            .parameters
-            .iter()
-            .map(|(k, p)| (k.clone(), p.default))
-            .collect();
+        let mut values: ParameterValues = self.parameters.iter().map(|(k, p)| (k.clone(), p.default)).collect();
         for (name, value) in set {
             if !self.parameters.contains_key(name) {
                 return Err(SceneError::UnknownParameter {
                     name: name.clone(),
-                    declared: self
-                        .parameters
-                        .keys()
-                        .cloned()
-                        .collect::<Vec<_>>()
-                        .join(", "),
+                    declared: self.parameters.keys().cloned().collect::<Vec<_>>().join(", "),
                 });
             }
             if !value.is_finite() {
@@ -302,14 +302,16 @@ impl Resolver<'_> {
     pub fn get(&self, key: &str, s: &Scalar) -> Result<f64, SceneError> {
         let v = match s {
             Scalar::Number(v) => *v,
-            Scalar::Parameter(name) => {
-                *self
+            Scalar::Parameter(spec) => {
+                // "-name" stands for the negated parameter (e.g. a prestress pushing down)
+                let (sign, name) = match spec.strip_prefix('-') {
+                    Some(n) => (-1.0, n),
+                    None => (1.0, spec.as_str()),
+                };
+                sign * *self
                     .values
                     .get(name)
-                    .ok_or_else(|| SceneError::UndeclaredParameter {
-                        key: key.to_string(),
-                        name: name.clone(),
-                    })?
+                    .ok_or_else(|| SceneError::UndeclaredParameter { key: key.to_string(), name: name.to_string() })?
             }
         };
         if !v.is_finite() {
@@ -320,10 +322,7 @@ impl Resolver<'_> {
 
     pub fn vector<const D: usize>(&self, key: &str, v: &[Scalar]) -> Result<[f64; D], SceneError> {
         if v.len() != D {
-            return Err(invalid(
-                key,
-                format!("expected {D} components (dimension {D}), got {}", v.len()),
-            ));
+            return Err(invalid(key, format!("expected {D} components (dimension {D}), got {}", v.len())));
         }
         let mut out = [0.0; D];
         for (i, s) in v.iter().enumerate() {
@@ -337,10 +336,7 @@ impl Resolver<'_> {
             return Ok(History::constant());
         };
         if h.is_empty() {
-            return Err(invalid(
-                key,
-                "history needs at least one [time, value] pair",
-            ));
+            return Err(invalid(key, "history needs at least one [time, value] pair"));
         }
         let mut points = Vec::with_capacity(h.len());
         for (i, [t, v]) in h.iter().enumerate() {
@@ -365,9 +361,7 @@ pub struct History {
 
 impl History {
     pub fn constant() -> Self {
-        Self {
-            points: vec![(0.0, 1.0)],
-        }
+        Self { points: vec![(0.0, 1.0)] }
     }
 
     pub fn at(&self, t: f64) -> f64 {
@@ -378,11 +372,7 @@ impl History {
         for w in p.windows(2) {
             let ((t0, v0), (t1, v1)) = (w[0], w[1]);
             if t <= t1 {
-                return if t1 > t0 {
-                    v0 + (v1 - v0) * (t - t0) / (t1 - t0)
-                } else {
-                    v1
-                };
+                return if t1 > t0 { v0 + (v1 - v0) * (t - t0) / (t1 - t0) } else { v1 };
             }
         }
         p[p.len() - 1].1
@@ -396,17 +386,11 @@ pub fn component_index(key: &str, name: &str, dim: usize) -> Result<usize, Scene
         "y" => 1,
         "z" => 2,
         _ => {
-            return Err(invalid(
-                key,
-                format!("unknown component '{name}' (use x, y or z)"),
-            ));
+            return Err(invalid(key, format!("unknown component '{name}' (use x, y or z)")));
         }
     };
     if i >= dim {
-        return Err(invalid(
-            key,
-            format!("component '{name}' does not exist in dimension {dim}"),
-        ));
+        return Err(invalid(key, format!("component '{name}' does not exist in dimension {dim}")));
     }
     Ok(i)
 }
@@ -417,9 +401,7 @@ mod tests {
 
     #[test]
     fn history_interpolates_and_holds() {
-        let h = History {
-            points: vec![(0.0, 0.0), (1.0, 2.0), (2.0, 0.0)],
-        };
+        let h = History { points: vec![(0.0, 0.0), (1.0, 2.0), (2.0, 0.0)] };
         assert_eq!(h.at(-1.0), 0.0);
         assert_eq!(h.at(0.5), 1.0);
         assert_eq!(h.at(1.5), 1.0);
@@ -428,23 +410,60 @@ mod tests {
 
     #[test]
     fn unknown_key_is_named() {
-        let err = Scene::parse("dimension = 1\nbogus = 3\n")
-            .unwrap_err()
-            .to_string();
+        let err = Scene::parse("dimension = 1\nbogus = 3\n").unwrap_err().to_string();
         assert!(err.contains("bogus"), "{err}");
+    }
+
+    const HASHED: &str = r#"
+dimension = 1
+title = "bar"
+[time]
+duration = 1e-4
+steps = 10
+[parameters]
+v0 = { default = 1.0, min = 0.1, max = 10.0, unit = "m/s" }
+[materials.steel]
+E = 200e9
+rho = 7800
+[[bodies]]
+name = "bar"
+material = "steel"
+size = [0.1]
+elements = [10]
+initial_velocity = ["v0"]
+"#;
+
+    #[test]
+    fn content_hash_ignores_solver_settings_and_parameter_defaults() {
+        let base = Scene::parse(HASHED).unwrap().content_hash();
+        assert_eq!(base.len(), 64);
+        assert!(base.chars().all(|c| c.is_ascii_hexdigit()));
+        let same = [
+            format!("{HASHED}[solver]\ntolerance = 1e-6\nmax_iterations = 5\n"),
+            HASHED.replace("default = 1.0, min = 0.1", "default = 2.0, min = 0.5"),
+            HASHED.replace("title = \"bar\"", "title = \"other\""),
+            // an integer and a float of the same value are the same number
+            HASHED.replace("rho = 7800", "rho = 7800.0"),
+        ];
+        for text in &same {
+            assert_eq!(Scene::parse(text).unwrap().content_hash(), base, "{text}");
+        }
+        let different = [
+            HASHED.replace("elements = [10]", "elements = [50]"),
+            HASHED.replace("rho = 7800", "rho = 7801"),
+            HASHED.replace("steps = 10", "steps = 11"),
+            HASHED.replace("v0 = {", "w0 = {").replace("[\"v0\"]", "[\"w0\"]"),
+        ];
+        for text in &different {
+            assert_ne!(Scene::parse(text).unwrap().content_hash(), base, "{text}");
+        }
     }
 
     #[test]
     fn undeclared_parameter_is_named() {
         let values = ParameterValues::new();
         let r = Resolver { values: &values };
-        let err = r
-            .get("interfaces[0].friction", &Scalar::Parameter("f9".into()))
-            .unwrap_err()
-            .to_string();
-        assert!(
-            err.contains("f9") && err.contains("interfaces[0].friction"),
-            "{err}"
-        );
+        let err = r.get("interfaces[0].friction", &Scalar::Parameter("f9".into())).unwrap_err().to_string();
+        assert!(err.contains("f9") && err.contains("interfaces[0].friction"), "{err}");
     }
 }

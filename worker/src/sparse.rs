@@ -9,9 +9,7 @@ use faer::{MatMut, Side};
 pub enum SparseError {
     #[error("sparse matrix construction failed: {0}")]
     Creation(String),
-    #[error(
-        "operator is not positive definite (is a body free to move without any support or interface?): {0}"
-    )]
+    #[error("operator is not positive definite (is a body free to move without any support or interface?): {0}")]
     NotPositiveDefinite(String),
 }
 
@@ -45,12 +43,7 @@ impl CsrMatrix {
         for i in 0..n {
             row_ptr[i + 1] += row_ptr[i];
         }
-        Self {
-            n,
-            row_ptr,
-            col,
-            val,
-        }
+        Self { n, row_ptr, col, val }
     }
 
     /// y += alpha * A x
@@ -79,18 +72,13 @@ impl CsrMatrix {
 
     /// Adds `d[i]` to each diagonal entry (creating missing ones).
     pub fn add_diagonal(&self, d: &[f64]) -> CsrMatrix {
-        let diag = CsrMatrix::from_triplets(
-            self.n,
-            d.iter().enumerate().map(|(i, &v)| (i, i, v)).collect(),
-        );
+        let diag = CsrMatrix::from_triplets(self.n, d.iter().enumerate().map(|(i, &v)| (i, i, v)).collect());
         self.combine(1.0, &diag, 1.0)
     }
 
     /// Row sums (the lumped version of a mass-like matrix).
     pub fn row_sums(&self) -> Vec<f64> {
-        (0..self.n)
-            .map(|i| self.val[self.row_ptr[i]..self.row_ptr[i + 1]].iter().sum())
-            .collect()
+        (0..self.n).map(|i| self.val[self.row_ptr[i]..self.row_ptr[i + 1]].iter().sum()).collect()
     }
 }
 
@@ -131,16 +119,8 @@ impl FactorisedOperator {
         let m = free.len();
         let mat = SparseColMat::<usize, f64>::try_new_from_triplets(m, m, &trip)
             .map_err(|e| SparseError::Creation(format!("{e:?}")))?;
-        let llt = mat
-            .sp_cholesky(Side::Lower)
-            .map_err(|e| SparseError::NotPositiveDefinite(format!("{e:?}")))?;
-        Ok(Self {
-            full: a,
-            free,
-            free_index,
-            llt,
-            work: vec![0.0; m],
-        })
+        let llt = mat.sp_cholesky(Side::Lower).map_err(|e| SparseError::NotPositiveDefinite(format!("{e:?}")))?;
+        Ok(Self { full: a, free, free_index, llt, work: vec![0.0; m] })
     }
 
     pub fn n(&self) -> usize {
@@ -171,8 +151,7 @@ impl FactorisedOperator {
             }
         }
         let m = self.work.len();
-        self.llt
-            .solve_in_place(MatMut::from_column_major_slice_mut(&mut self.work, m, 1));
+        self.llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut self.work, m, 1));
         for (k, &i) in self.free.iter().enumerate() {
             x[i] = self.work[k];
         }

@@ -1,17 +1,19 @@
 //! Linear stage: each substructure's dynamics (Newmark average acceleration, velocity form) or
 //! statics, driven by the local-stage fields through the search direction E- (METHOD.md 3).
 //!
-//! A = (2/dt) M + (dt/2) K + N^T M_Gamma k N is factorised once per substructure; a sweep over the
-//! time steps is then one sparse solve and two sparse products per step.
+//! A = (2/dt) M + (dt/2) K + N^T M_Gamma k N (or K + N^T M_Gamma k N in the static stage) is
+//! factorised once per substructure. Each step is split so that the macro problem can sit between
+//! the two micro problems: `predict` (micro problem 1), then optionally `correct` (micro problem 2,
+//! a combination of precomputed responses to the macro basis), then `finish`.
 
-use crate::model::{Interface, Model, PrescribedDof, Substructure};
+use crate::model::{Interface, InterfaceSide, Model, PrescribedDof, Substructure};
 use crate::newmark::{NewmarkState, step_operator};
 use crate::scene::History;
 use crate::sparse::{FactorisedOperator, SparseError};
 
 use super::field::InterfaceField;
 
-/// Which problem a sweep solves.
+/// Which problem the linear stage solves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
     /// prestress: K u = f(0) + interface, W holds displacements, one step
@@ -21,10 +23,24 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub fn k(self, side: &crate::model::InterfaceSide) -> f64 {
+    pub fn k(self, side: &InterfaceSide) -> f64 {
         match self {
             Stage::Static => side.k_static,
             Stage::Dynamic => side.k_dynamic,
+        }
+    }
+
+    pub fn steps<const D: usize>(self, model: &Model<D>) -> usize {
+        match self {
+            Stage::Static => 1,
+            Stage::Dynamic => model.steps,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Static => "static",
+            Stage::Dynamic => "dynamic",
         }
     }
 }
@@ -34,7 +50,8 @@ pub struct SubstructureOperators {
     dynamic: FactorisedOperator,
     statics: Option<FactorisedOperator>,
     state: NewmarkState,
-    x: Vec<f64>,
+    /// v_{n+1} (dynamic) or u (static) being computed
+    pub x: Vec<f64>,
     rhs: Vec<f64>,
 }
 
@@ -56,8 +73,7 @@ fn interface_diagonal<const D: usize>(sub: &Substructure<D>, interfaces: &[Inter
 impl SubstructureOperators {
     pub fn new<const D: usize>(model: &Model<D>, s: usize, with_static: bool) -> Result<Self, SparseError> {
         let sub = &model.substructures[s];
-        let dt = model.dt;
-        let a = step_operator(&sub.mass, &sub.stiffness, dt).add_diagonal(&interface_diagonal(
+        let a = step_operator(&sub.mass, &sub.stiffness, model.dt).add_diagonal(&interface_diagonal(
             sub,
             &model.interfaces,
             Stage::Dynamic,
@@ -73,119 +89,126 @@ impl SubstructureOperators {
         Ok(Self { dynamic, statics, state: NewmarkState::new(n), x: vec![0.0; n], rhs: vec![0.0; n] })
     }
 
-    /// Adds N^T M_Gamma (F^ + k W^) of step `step` to `rhs`.
-    fn add_interface_load<const D: usize>(
-        rhs: &mut [f64],
-        sub: &Substructure<D>,
-        interfaces: &[Interface<D>],
-        fields: &[InterfaceField],
-        stage: Stage,
-        step: usize,
-    ) {
-        for &(i, side) in &sub.sides {
-            let itf = &interfaces[i];
-            let s = &itf.sides[side];
-            let k = stage.k(s);
-            let hat = &fields[i].hat[side];
-            let m = s.nodes.len();
-            for (j, &node) in s.nodes.iter().enumerate() {
-                for c in 0..D {
-                    let idx = (step * m + j) * D + c;
-                    rhs[node * D + c] += itf.area[j] * (hat.force[idx] + k * hat.velocity[idx]);
-                }
-            }
+    fn operator(&mut self, stage: Stage) -> &mut FactorisedOperator {
+        match stage {
+            Stage::Static => self.statics.as_mut().expect("static operator factorised when the stage is needed"),
+            Stage::Dynamic => &mut self.dynamic,
         }
     }
 
-    /// Extracts W = N x and F = F^ + k (W^ - W) on this substructure's sides at `step`.
-    fn extract_interface<const D: usize>(
-        x: &[f64],
-        sub: &Substructure<D>,
-        interfaces: &[Interface<D>],
-        fields: &mut [InterfaceField],
-        stage: Stage,
-        step: usize,
-    ) {
-        for &(i, side) in &sub.sides {
-            let s = &interfaces[i].sides[side];
-            let k = stage.k(s);
-            let m = s.nodes.len();
-            let f = &mut fields[i];
-            let (hat, lin) = (&f.hat[side], &mut f.s[side]);
-            for (j, &node) in s.nodes.iter().enumerate() {
-                for c in 0..D {
-                    let idx = (step * m + j) * D + c;
-                    let w = x[node * D + c];
-                    lin.velocity[idx] = w;
-                    lin.force[idx] = hat.force[idx] + k * (hat.velocity[idx] - w);
-                }
-            }
-        }
+    /// Solves A q = rhs with zero prescribed values and no history (macro basis responses).
+    pub fn solve_homogeneous(&mut self, stage: Stage, rhs: &[f64]) -> Vec<f64> {
+        let mut q = vec![0.0; rhs.len()];
+        self.operator(stage).solve(rhs, &mut q, false);
+        q
     }
 
-    /// Static sweep: solves K u = f(0) + interface with the prescribed displacements; writes the
-    /// sides' `s` fields (W = displacement) and returns u.
-    pub fn static_sweep<const D: usize>(
-        &mut self,
-        model: &Model<D>,
-        s: usize,
-        fields: &mut [InterfaceField],
-    ) -> Vec<f64> {
+    /// Sets the initial state of a stage: u0 (the prestressed state or zero), v0, a0 = 0.
+    pub fn start<const D: usize>(&mut self, model: &Model<D>, s: usize, stage: Stage, u0: Option<&[f64]>) {
         let sub = &model.substructures[s];
-        let op = self.statics.as_mut().expect("static operator factorised when the stage is needed");
-        sub.external_force(&model.histories, 0.0, &mut self.rhs);
-        Self::add_interface_load(&mut self.rhs, sub, &model.interfaces, fields, Stage::Static, 0);
-        self.x.fill(0.0);
-        let mut nonzero = false;
-        for p in &sub.prescribed {
-            self.x[p.dof] = p.static_displacement;
-            nonzero |= p.static_displacement != 0.0;
-        }
-        op.solve(&self.rhs, &mut self.x, nonzero);
-        Self::extract_interface(&self.x, sub, &model.interfaces, fields, Stage::Static, 0);
-        self.x.clone()
-    }
-
-    /// Dynamic sweep over all steps from the initial displacement `u0`; writes the sides' `s`
-    /// fields and calls `record(step, u, v)` after each step (step 0 is the initial state).
-    pub fn dynamic_sweep<const D: usize>(
-        &mut self,
-        model: &Model<D>,
-        s: usize,
-        u0: Option<&[f64]>,
-        fields: &mut [InterfaceField],
-        mut record: Option<&mut dyn FnMut(usize, &[f64], &[f64])>,
-    ) {
-        let sub = &model.substructures[s];
-        let dt = model.dt;
         let st = &mut self.state;
-        match u0 {
-            Some(u0) => st.u.copy_from_slice(u0),
-            None => st.u.fill(0.0),
+        match (stage, u0) {
+            (Stage::Dynamic, Some(u0)) => st.u.copy_from_slice(u0),
+            _ => st.u.fill(0.0),
         }
         for (i, v) in st.v.iter_mut().enumerate() {
-            *v = sub.initial_velocity[i % D];
+            *v = if stage == Stage::Dynamic { sub.initial_velocity[i % D] } else { 0.0 };
         }
-        for p in &sub.prescribed {
-            st.v[p.dof] = p.velocity * model.histories[p.history].at(0.0);
+        if stage == Stage::Dynamic {
+            for p in &sub.prescribed {
+                st.v[p.dof] = p.velocity * model.histories[p.history].at(0.0);
+            }
         }
         // the initial state is a static equilibrium (METHOD.md 3, prestress): a0 = 0
         st.a.fill(0.0);
-        if let Some(r) = record.as_mut() {
-            r(0, &st.u, &st.v);
-        }
-        for step in 0..model.steps {
-            let t = (step + 1) as f64 * dt;
-            sub.external_force(&model.histories, t, &mut self.rhs);
-            Self::add_interface_load(&mut self.rhs, sub, &model.interfaces, fields, Stage::Dynamic, step);
-            st.add_history(&sub.mass, &sub.stiffness, dt, &mut self.rhs);
-            let nonzero = prescribed_velocities(&sub.prescribed, &model.histories, t, &mut self.x);
-            self.dynamic.solve(&self.rhs, &mut self.x, nonzero);
-            st.advance(&self.x, dt);
-            Self::extract_interface(&self.x, sub, &model.interfaces, fields, Stage::Dynamic, step);
-            if let Some(r) = record.as_mut() {
-                r(step + 1, &st.u, &st.v);
+    }
+
+    /// Current (u, v) of the substructure.
+    pub fn state(&self) -> (&[f64], &[f64]) {
+        (&self.state.u, &self.state.v)
+    }
+
+    /// Micro problem 1 of step `step`: x = A^-1 [f + N^T M_Gamma (F^ + k W^) + history].
+    pub fn predict<const D: usize>(
+        &mut self,
+        model: &Model<D>,
+        s: usize,
+        stage: Stage,
+        step: usize,
+        fields: &[InterfaceField],
+    ) {
+        let sub = &model.substructures[s];
+        let t = match stage {
+            Stage::Static => 0.0,
+            Stage::Dynamic => (step + 1) as f64 * model.dt,
+        };
+        sub.external_force(&model.histories, t, &mut self.rhs);
+        for &(i, side) in &sub.sides {
+            let itf = &model.interfaces[i];
+            let sd = &itf.sides[side];
+            let k = stage.k(sd);
+            let hat = &fields[i].hat[side];
+            let m = sd.nodes.len();
+            for (j, &node) in sd.nodes.iter().enumerate() {
+                for c in 0..D {
+                    let idx = (step * m + j) * D + c;
+                    self.rhs[node * D + c] += itf.area[j] * (hat.force[idx] + k * hat.velocity[idx]);
+                }
             }
+        }
+        let nonzero = match stage {
+            Stage::Static => {
+                self.x.fill(0.0);
+                let mut nonzero = false;
+                for p in &sub.prescribed {
+                    self.x[p.dof] = p.static_displacement;
+                    nonzero |= p.static_displacement != 0.0;
+                }
+                nonzero
+            }
+            Stage::Dynamic => {
+                self.state.add_history(&sub.mass, &sub.stiffness, model.dt, &mut self.rhs);
+                prescribed_velocities(&sub.prescribed, &model.histories, t, &mut self.x)
+            }
+        };
+        let rhs = std::mem::take(&mut self.rhs);
+        let mut x = std::mem::take(&mut self.x);
+        self.operator(stage).solve(&rhs, &mut x, nonzero);
+        self.rhs = rhs;
+        self.x = x;
+    }
+
+    /// Writes W = N x and F = F^ + k (W^ - W + W~) on this substructure's sides at `step`, where
+    /// W~ is the macro correction field of each side (zero in single-scale), then advances the
+    /// Newmark state.
+    pub fn finish<const D: usize>(
+        &mut self,
+        model: &Model<D>,
+        s: usize,
+        stage: Stage,
+        step: usize,
+        fields: &mut [InterfaceField],
+        macro_field: &dyn Fn(usize, usize, usize, usize) -> f64,
+    ) {
+        let sub = &model.substructures[s];
+        for &(i, side) in &sub.sides {
+            let sd = &model.interfaces[i].sides[side];
+            let k = stage.k(sd);
+            let m = sd.nodes.len();
+            let f = &mut fields[i];
+            let (hat, lin) = (&f.hat[side], &mut f.s[side]);
+            for (j, &node) in sd.nodes.iter().enumerate() {
+                for c in 0..D {
+                    let idx = (step * m + j) * D + c;
+                    let w = self.x[node * D + c];
+                    lin.velocity[idx] = w;
+                    lin.force[idx] = hat.force[idx] + k * (hat.velocity[idx] - w + macro_field(i, side, j, c));
+                }
+            }
+        }
+        match stage {
+            Stage::Static => self.state.u.copy_from_slice(&self.x),
+            Stage::Dynamic => self.state.advance(&self.x, model.dt),
         }
     }
 }

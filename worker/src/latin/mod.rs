@@ -4,6 +4,7 @@
 pub mod field;
 pub mod linear_stage;
 pub mod local_stage;
+pub mod macro_problem;
 
 use std::time::Instant;
 
@@ -16,6 +17,7 @@ use crate::sparse::SparseError;
 use field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
+use macro_problem::{MacroError, MacroProblem};
 
 /// Tolerance of the static prestress stage relative to the asked one.
 pub const STATIC_TOLERANCE_RATIO: f64 = 0.01;
@@ -31,8 +33,8 @@ pub enum SolverError {
     NonFinite { stage: &'static str, iteration: usize, eta: f64 },
     #[error("initial solution does not fit this model: {0}")]
     IncompatibleInit(String),
-    #[error("{0}")]
-    Unsupported(String),
+    #[error("{stage} stage: {source}")]
+    Macro { stage: &'static str, source: MacroError },
 }
 
 /// Iteration record of one stage.
@@ -103,25 +105,90 @@ pub struct SolveOptions {
 pub struct LatinSolver<'m, const D: usize> {
     model: &'m Model<D>,
     ops: Vec<SubstructureOperators>,
+    /// macro problems of the static and dynamic stages (multiscale only)
+    macro_static: Option<MacroProblem>,
+    macro_dynamic: Option<MacroProblem>,
     factorisation_seconds: f64,
 }
 
+/// Called after each step of a linear stage with (substructure, step, u, v); step 0 is the
+/// initial state.
+pub type StepRecorder<'a> = &'a mut dyn FnMut(usize, usize, &[f64], &[f64]);
+
 impl<'m, const D: usize> LatinSolver<'m, D> {
     pub fn new(model: &'m Model<D>) -> Result<Self, SolverError> {
-        if model.settings.scale == Scale::Multi {
-            return Err(SolverError::Unsupported(
-                "scale = multi: the macro problem is not implemented yet; use scale = single".into(),
-            ));
-        }
         let start = Instant::now();
         let with_static = model.needs_static_stage();
-        let ops = (0..model.substructures.len())
+        let mut ops = (0..model.substructures.len())
             .map(|s| {
                 SubstructureOperators::new(model, s, with_static)
                     .map_err(|source| SolverError::Factorisation { substructure: s, source })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Self { model, ops, factorisation_seconds: start.elapsed().as_secs_f64() })
+        let (mut macro_static, mut macro_dynamic) = (None, None);
+        if model.settings.scale == Scale::Multi {
+            let build = |ops: &mut [SubstructureOperators], stage: Stage| {
+                MacroProblem::new(model, ops, stage)
+                    .map_err(|source| SolverError::Macro { stage: stage.name(), source })
+            };
+            macro_dynamic = Some(build(&mut ops, Stage::Dynamic)?);
+            if with_static {
+                macro_static = Some(build(&mut ops, Stage::Static)?);
+            }
+        }
+        Ok(Self { model, ops, macro_static, macro_dynamic, factorisation_seconds: start.elapsed().as_secs_f64() })
+    }
+
+    /// One linear stage over the whole time interval: at every step micro problem 1 in each
+    /// substructure, then (multiscale) the macro problem and micro problem 2, then the interface
+    /// fields `s` and the substructure states.
+    fn linear_stage(
+        &mut self,
+        stage: Stage,
+        fields: &mut [InterfaceField],
+        u0: &[Option<Vec<f64>>],
+        mut record: Option<StepRecorder>,
+    ) {
+        let m = self.model;
+        let ops = &mut self.ops;
+        let mut macro_problem = match stage {
+            Stage::Static => self.macro_static.as_mut(),
+            Stage::Dynamic => self.macro_dynamic.as_mut(),
+        };
+        for (s, op) in ops.iter_mut().enumerate() {
+            op.start(m, s, stage, u0[s].as_deref());
+            if let Some(r) = record.as_mut() {
+                let (u, v) = op.state();
+                r(s, 0, u, v);
+            }
+        }
+        for step in 0..stage.steps(m) {
+            if let Some(mp) = macro_problem.as_mut() {
+                mp.rhs.fill(0.0);
+            }
+            for (s, op) in ops.iter_mut().enumerate() {
+                op.predict(m, s, stage, step, fields);
+                if let Some(mp) = macro_problem.as_mut() {
+                    mp.add_residual(m, s, stage, step, fields, &op.x);
+                }
+            }
+            if let Some(mp) = macro_problem.as_mut() {
+                mp.solve();
+            }
+            let mp = macro_problem.as_deref();
+            let macro_field =
+                |i: usize, _side: usize, j: usize, c: usize| mp.map_or(0.0, |mp| mp.field_value(D, i, j, c));
+            for (s, op) in ops.iter_mut().enumerate() {
+                if let Some(mp) = mp {
+                    mp.correct(s, &mut op.x);
+                }
+                op.finish(m, s, stage, step, fields, &macro_field);
+                if let Some(r) = record.as_mut() {
+                    let (u, v) = op.state();
+                    r(s, step + 1, u, v);
+                }
+            }
+        }
     }
 
     fn zero_stage(&self, steps: usize) -> StageSolution {
@@ -184,9 +251,12 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             // the initial state of the dynamics: displacements of the converged static solution
             let t = Instant::now();
             let mut scratch = st.interfaces.clone();
-            for (s, u) in u0.iter_mut().enumerate() {
-                *u = Some(self.ops[s].static_sweep(m, s, &mut scratch));
-            }
+            let mut record = |s: usize, step: usize, u: &[f64], _: &[f64]| {
+                if step == 1 {
+                    u0[s] = Some(u.to_vec());
+                }
+            };
+            self.linear_stage(Stage::Static, &mut scratch, &vec![None; m.substructures.len()], Some(&mut record));
             timings.post_processing += t.elapsed().as_secs_f64();
             static_report = Some(report);
             static_solution = Some(st);
@@ -200,6 +270,22 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             None => self.zero_stage(m.steps),
         };
+        if init.is_none() {
+            if let Some(st) = &static_solution {
+                // Start the dynamics from the prestressed interface forces held over the whole
+                // interval (velocities zero): the state the assembly is in before loading.
+                for (f, sf) in dynamic.interfaces.iter_mut().zip(&st.interfaces) {
+                    let per_step = sf.len();
+                    for (sides, static_sides) in [(&mut f.s, &sf.s), (&mut f.hat, &sf.hat)] {
+                        for (side, static_side) in sides.iter_mut().zip(static_sides) {
+                            for chunk in side.force.chunks_mut(per_step) {
+                                chunk.copy_from_slice(&static_side.force);
+                            }
+                        }
+                    }
+                }
+            }
+        }
         let (gap_start, vn_start) = self.dynamic_initial_gaps(static_solution.as_ref());
         let report = self.iterate(Stage::Dynamic, &mut dynamic.interfaces, &gap_start, &vn_start, &u0, &mut timings)?;
 
@@ -262,10 +348,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let settings = &m.settings;
         let mut report = StageReport::default();
         let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
-        let stage_name = match stage {
-            Stage::Static => "static",
-            Stage::Dynamic => "dynamic",
-        };
+        let stage_name = stage.name();
         // The static stage's error is carried by every step of the dynamics, and its iterations
         // cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
         let tolerance = match stage {
@@ -277,14 +360,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             for (f, p) in fields.iter().zip(previous.iter_mut()) {
                 p.clone_from(&f.s);
             }
-            for s in 0..m.substructures.len() {
-                match stage {
-                    Stage::Static => {
-                        self.ops[s].static_sweep(m, s, fields);
-                    }
-                    Stage::Dynamic => self.ops[s].dynamic_sweep(m, s, u0[s].as_deref(), fields, None),
-                }
-            }
+            self.linear_stage(stage, fields, u0, None);
             // relaxation (mu = 1 at the first iteration)
             if iteration > 1 {
                 for (f, p) in fields.iter_mut().zip(&previous) {
@@ -393,35 +469,33 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // The sweep writes `s` fields: run it on a copy so the returned solution stays the
         // converged iterate.
         let mut scratch = fields.to_vec();
-        for s in 0..m.substructures.len() {
-            let wanted: Vec<(usize, usize, bool)> = m
-                .qois
-                .iter()
-                .enumerate()
-                .filter_map(|(q, qoi)| match qoi.target {
-                    QoiTarget::Displacement { substructure, dof } if substructure == s => Some((q, dof, true)),
-                    QoiTarget::Velocity { substructure, dof } if substructure == s => Some((q, dof, false)),
-                    _ => None,
-                })
-                .collect();
-            let mut disp = Vec::new();
-            let mut vel = Vec::new();
-            let record_all = history.is_some();
-            let mut record = |step: usize, u: &[f64], v: &[f64]| {
-                for &(q, dof, is_u) in &wanted {
+        let wanted: Vec<(usize, usize, usize, bool)> = m
+            .qois
+            .iter()
+            .enumerate()
+            .filter_map(|(q, qoi)| match qoi.target {
+                QoiTarget::Displacement { substructure, dof } => Some((q, substructure, dof, true)),
+                QoiTarget::Velocity { substructure, dof } => Some((q, substructure, dof, false)),
+                _ => None,
+            })
+            .collect();
+        let n_sub = m.substructures.len();
+        if let Some(h) = history.as_mut() {
+            h.displacement = vec![Vec::with_capacity(m.steps + 1); n_sub];
+            h.velocity = vec![Vec::with_capacity(m.steps + 1); n_sub];
+        }
+        let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| {
+            for &(q, sub, dof, is_u) in &wanted {
+                if sub == s {
                     series[q].values[step] = if is_u { u[dof] } else { v[dof] };
                 }
-                if record_all {
-                    disp.push(u.to_vec());
-                    vel.push(v.to_vec());
-                }
-            };
-            self.ops[s].dynamic_sweep(m, s, u0[s].as_deref(), &mut scratch, Some(&mut record));
-            if let Some(h) = history.as_mut() {
-                h.displacement.push(disp);
-                h.velocity.push(vel);
             }
-        }
+            if let Some(h) = history.as_mut() {
+                h.displacement[s].push(u.to_vec());
+                h.velocity[s].push(v.to_vec());
+            }
+        };
+        self.linear_stage(Stage::Dynamic, &mut scratch, u0, Some(&mut record));
         for (q, qoi) in m.qois.iter().enumerate() {
             match qoi.target {
                 QoiTarget::Slip { interface, node } => {

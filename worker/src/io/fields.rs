@@ -1,0 +1,384 @@
+//! Field output (`--fields OUT.h5`): displacement and velocity of every node at every time step,
+//! in one HDF5 file plus an XDMF 3 file beside it (`OUT.xdmf`) that ParaView opens as a time
+//! series. Layout of the HDF5 file (see also `docs/solution-format.md`):
+//!
+//! ```text
+//! /mesh/coordinates           N x 3 f64   all substructures' nodes, one after the other
+//!                                         (interface nodes appear once per substructure)
+//! /mesh/topology              E x 2^D i64 node numbers of each element, VTK/XDMF order
+//! /mesh/substructure          E i64       substructure of each element
+//! /time                       S+1 f64     t_0 .. t_S
+//! /fields/displacement/NNNNNN N x 3 f64   step NNNNNN (zero-padded components beyond D)
+//! /fields/velocity/NNNNNN     N x 3 f64
+//! ```
+//! Root attributes: `dimension` (i64), `scene_hash`, `solver_version` (strings).
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use hdf5::types::VarLenUnicode;
+
+use crate::run::FieldOutput;
+
+/// Errors of writing field output.
+#[derive(Debug, thiserror::Error)]
+pub enum FieldsError {
+    #[error("{0}")]
+    Invalid(String),
+    #[error("HDF5: {0}")]
+    Hdf5(#[from] hdf5::Error),
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+}
+
+/// Element node order of VTK/XDMF from our tensor order (bit d of the local index = side along
+/// axis d): the same for bars, (0,1,3,2) for quads, (0,1,3,2,4,5,7,6) for hexahedra.
+pub fn vtk_order(dimension: usize) -> &'static [usize] {
+    match dimension {
+        1 => &[0, 1],
+        2 => &[0, 1, 3, 2],
+        _ => &[0, 1, 3, 2, 4, 5, 7, 6],
+    }
+}
+
+/// XDMF topology type and its extra attributes for a dimension.
+fn xdmf_topology(dimension: usize) -> &'static str {
+    match dimension {
+        1 => r#"TopologyType="Polyline" NodesPerElement="2""#,
+        2 => r#"TopologyType="Quadrilateral""#,
+        _ => r#"TopologyType="Hexahedron""#,
+    }
+}
+
+/// The XDMF file written beside `h5`: same stem, extension `.xdmf`.
+pub fn xdmf_path(h5: &Path) -> PathBuf {
+    h5.with_extension("xdmf")
+}
+
+/// All substructures merged into one mesh, and the fields laid out on it.
+struct Merged {
+    dimension: usize,
+    coords: Vec<f64>,
+    topology: Vec<i64>,
+    substructure: Vec<i64>,
+    /// first merged node of each substructure
+    offsets: Vec<usize>,
+    nodes: usize,
+    elements: usize,
+}
+
+fn merge(f: &FieldOutput) -> Result<Merged, FieldsError> {
+    let invalid = |m: String| FieldsError::Invalid(m);
+    let Some(first) = f.meshes.first() else {
+        return Err(invalid("no substructures to write".into()));
+    };
+    let d = first.dimension;
+    if !(1..=3).contains(&d) {
+        return Err(invalid(format!("dimension {d} is not 1, 2 or 3")));
+    }
+    let npe = 1 << d;
+    let steps = f.times.len();
+    let h = &f.history;
+    if h.displacement.len() != f.meshes.len() || h.velocity.len() != f.meshes.len() {
+        return Err(invalid(format!(
+            "{} substructure meshes but fields of {} and {}",
+            f.meshes.len(),
+            h.displacement.len(),
+            h.velocity.len()
+        )));
+    }
+    let order = vtk_order(d);
+    let mut m = Merged {
+        dimension: d,
+        coords: Vec::new(),
+        topology: Vec::new(),
+        substructure: Vec::new(),
+        offsets: Vec::new(),
+        nodes: 0,
+        elements: 0,
+    };
+    for (s, mesh) in f.meshes.iter().enumerate() {
+        let n = mesh.coords.len();
+        let ok_fields = [&h.displacement[s], &h.velocity[s]]
+            .iter()
+            .all(|per_step| per_step.len() == steps && per_step.iter().all(|v| v.len() == n * d));
+        if mesh.dimension != d || mesh.connectivity.len() % npe != 0 || !ok_fields {
+            return Err(invalid(format!(
+                "substructure {s}: mesh and fields do not fit ({n} nodes, dimension {}, {} steps)",
+                mesh.dimension, steps
+            )));
+        }
+        if let Some(&bad) = mesh.connectivity.iter().find(|&&i| i >= n) {
+            return Err(invalid(format!("substructure {s}: element node {bad} out of range ({n} nodes)")));
+        }
+        m.offsets.push(m.nodes);
+        m.coords.extend(mesh.coords.iter().flatten());
+        for el in mesh.connectivity.chunks_exact(npe) {
+            m.topology.extend(order.iter().map(|&k| (m.nodes + el[k]) as i64));
+            m.substructure.push(s as i64);
+        }
+        m.nodes += n;
+        m.elements += mesh.connectivity.len() / npe;
+    }
+    Ok(m)
+}
+
+impl Merged {
+    /// One step of a field (`[substructure][step][dof]`) as N x 3, zero-padded.
+    fn step(&self, field: &[Vec<Vec<f64>>], step: usize) -> Vec<f64> {
+        let d = self.dimension;
+        let mut out = vec![0.0; self.nodes * 3];
+        for (s, per_step) in field.iter().enumerate() {
+            for (i, node) in per_step[step].chunks_exact(d).enumerate() {
+                let at = (self.offsets[s] + i) * 3;
+                out[at..at + d].copy_from_slice(node);
+            }
+        }
+        out
+    }
+}
+
+fn step_name(step: usize) -> String {
+    format!("{step:06}")
+}
+
+/// Writes `fields` to `h5` and the XDMF description beside it (see the module documentation);
+/// both atomically. Returns the XDMF path.
+pub fn write(h5: &Path, fields: &FieldOutput, scene_hash: &str) -> Result<PathBuf, FieldsError> {
+    let xdmf = xdmf_path(h5);
+    if xdmf == h5 {
+        return Err(FieldsError::Invalid(format!(
+            "{}: the field file needs another extension than .xdmf (e.g. .h5), the XDMF file goes beside it",
+            h5.display()
+        )));
+    }
+    let h5_name = h5
+        .file_name()
+        .ok_or_else(|| FieldsError::Invalid(format!("{}: not a file name", h5.display())))?
+        .to_string_lossy()
+        .into_owned();
+    let m = merge(fields)?;
+    super::replace_atomically(h5, |tmp, _| write_h5(tmp, &m, fields, scene_hash))?;
+    let text = xdmf_text(&m, &fields.times, &h5_name);
+    super::write_atomically(&xdmf, |w| {
+        w.write_all(text.as_bytes())?;
+        Ok::<_, FieldsError>(())
+    })?;
+    Ok(xdmf)
+}
+
+fn write_h5(path: &Path, m: &Merged, f: &FieldOutput, scene_hash: &str) -> Result<(), FieldsError> {
+    let file = hdf5::File::create(path)?;
+    {
+        let string = |s: &str| -> Result<VarLenUnicode, FieldsError> {
+            s.parse().map_err(|e| FieldsError::Invalid(format!("attribute {s:?}: {e}")))
+        };
+        file.new_attr::<i64>().create("dimension")?.write_scalar(&(m.dimension as i64))?;
+        file.new_attr::<VarLenUnicode>().create("scene_hash")?.write_scalar(&string(scene_hash)?)?;
+        file.new_attr::<VarLenUnicode>().create("solver_version")?.write_scalar(&string(env!("CARGO_PKG_VERSION"))?)?;
+
+        let mesh = file.create_group("mesh")?;
+        mesh.new_dataset::<f64>().shape((m.nodes, 3)).create("coordinates")?.write_raw(&m.coords)?;
+        mesh.new_dataset::<i64>().shape((m.elements, 1 << m.dimension)).create("topology")?.write_raw(&m.topology)?;
+        mesh.new_dataset::<i64>().shape(m.elements).create("substructure")?.write_raw(&m.substructure)?;
+        file.new_dataset::<f64>().shape(f.times.len()).create("time")?.write_raw(&f.times)?;
+        let group = file.create_group("fields")?;
+        for (name, field) in [("displacement", &f.history.displacement), ("velocity", &f.history.velocity)] {
+            let g = group.create_group(name)?;
+            for step in 0..f.times.len() {
+                g.new_dataset::<f64>()
+                    .shape((m.nodes, 3))
+                    .create(step_name(step).as_str())?
+                    .write_raw(&m.step(field, step))?;
+            }
+        }
+    }
+    file.close()?;
+    Ok(())
+}
+
+fn xml_escape(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&apos;"),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// XDMF 3: a temporal collection of uniform grids sharing the mesh datasets.
+fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
+    let h5 = xml_escape(h5_name);
+    let (n, e, npe) = (m.nodes, m.elements, 1 << m.dimension);
+    let item = |dims: &str, kind: &str, path: &str| {
+        format!(
+            r#"<DataItem Dimensions="{dims}" NumberType="{kind}" Precision="8" Format="HDF">{h5}:{path}</DataItem>"#
+        )
+    };
+    let mut x = String::new();
+    x.push_str("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
+    x.push_str("<Xdmf Version=\"3.0\">\n  <Domain>\n");
+    x.push_str("    <Grid Name=\"glissade\" GridType=\"Collection\" CollectionType=\"Temporal\">\n");
+    for (step, t) in times.iter().enumerate() {
+        let name = step_name(step);
+        // writing to a String cannot fail
+        let _ = write!(
+            x,
+            r#"      <Grid Name="step {name}" GridType="Uniform">
+        <Time Value="{t:e}"/>
+        <Topology {topo} NumberOfElements="{e}">
+          {topology}
+        </Topology>
+        <Geometry GeometryType="XYZ">
+          {coordinates}
+        </Geometry>
+        <Attribute Name="substructure" AttributeType="Scalar" Center="Cell">
+          {substructure}
+        </Attribute>
+        <Attribute Name="displacement" AttributeType="Vector" Center="Node">
+          {displacement}
+        </Attribute>
+        <Attribute Name="velocity" AttributeType="Vector" Center="Node">
+          {velocity}
+        </Attribute>
+      </Grid>
+"#,
+            topo = xdmf_topology(m.dimension),
+            topology = item(&format!("{e} {npe}"), "Int", "/mesh/topology"),
+            coordinates = item(&format!("{n} 3"), "Float", "/mesh/coordinates"),
+            substructure = item(&format!("{e}"), "Int", "/mesh/substructure"),
+            displacement = item(&format!("{n} 3"), "Float", &format!("/fields/displacement/{name}")),
+            velocity = item(&format!("{n} 3"), "Float", &format!("/fields/velocity/{name}")),
+        );
+    }
+    x.push_str("    </Grid>\n  </Domain>\n</Xdmf>\n");
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::latin::FieldHistory;
+    use crate::run::SubstructureMesh;
+
+    /// Two 2D substructures side by side, one quad each, sharing the nodes at x = 1.
+    fn sample() -> FieldOutput {
+        let square = |x0: f64| SubstructureMesh {
+            dimension: 2,
+            // tensor order: (0,0), (1,0), (0,1), (1,1)
+            coords: vec![[x0, 0.0, 0.0], [x0 + 1.0, 0.0, 0.0], [x0, 1.0, 0.0], [x0 + 1.0, 1.0, 0.0]],
+            connectivity: vec![0, 1, 2, 3],
+        };
+        let times = vec![0.0, 0.5, 1.0];
+        // value = 1000 s + 100 step + dof, so every entry says where it belongs
+        let field = |scale: f64| -> Vec<Vec<Vec<f64>>> {
+            (0..2)
+                .map(|s| {
+                    (0..times.len())
+                        .map(|n| (0..8).map(|dof| scale * (1000 * s + 100 * n + dof) as f64).collect())
+                        .collect()
+                })
+                .collect()
+        };
+        FieldOutput {
+            meshes: vec![square(0.0), square(1.0)],
+            history: FieldHistory { displacement: field(1.0), velocity: field(-1.0) },
+            times,
+        }
+    }
+
+    #[test]
+    fn h5_and_xdmf_of_a_2d_result() {
+        let dir = tempfile::tempdir().unwrap();
+        let h5 = dir.path().join("out.h5");
+        let xdmf = write(&h5, &sample(), "abc").unwrap();
+        assert_eq!(xdmf, dir.path().join("out.xdmf"));
+
+        let file = hdf5::File::open(&h5).unwrap();
+        let coords = file.dataset("mesh/coordinates").unwrap();
+        assert_eq!(coords.shape(), vec![8, 3]);
+        let c: Vec<f64> = coords.read_raw().unwrap();
+        assert_eq!(&c[5 * 3..6 * 3], &[2.0, 0.0, 0.0]);
+        let topo = file.dataset("mesh/topology").unwrap();
+        assert_eq!(topo.shape(), vec![2, 4]);
+        // counter-clockwise VTK order, second substructure's nodes after the first's
+        assert_eq!(topo.read_raw::<i64>().unwrap(), vec![0, 1, 3, 2, 4, 5, 7, 6]);
+        assert_eq!(file.dataset("mesh/substructure").unwrap().read_raw::<i64>().unwrap(), vec![0, 1]);
+        assert_eq!(file.dataset("time").unwrap().read_raw::<f64>().unwrap(), vec![0.0, 0.5, 1.0]);
+        let names = file.group("fields/displacement").unwrap().member_names().unwrap();
+        assert_eq!(names, vec!["000000", "000001", "000002"]);
+        let u = file.dataset("fields/displacement/000002").unwrap();
+        assert_eq!(u.shape(), vec![8, 3]);
+        let u: Vec<f64> = u.read_raw().unwrap();
+        // merged node 5 = substructure 1, local node 1: dofs 2, 3 at step 2; z padded with 0
+        assert_eq!(&u[5 * 3..6 * 3], &[1202.0, 1203.0, 0.0]);
+        let v: Vec<f64> = file.dataset("fields/velocity/000001").unwrap().read_raw().unwrap();
+        assert_eq!(&v[0..3], &[-100.0, -101.0, 0.0]);
+        let hash: VarLenUnicode = file.attr("scene_hash").unwrap().read_scalar().unwrap();
+        assert_eq!(hash.as_str(), "abc");
+
+        let text = std::fs::read_to_string(&xdmf).unwrap();
+        assert!(text.starts_with("<?xml"));
+        assert_eq!(text.matches("<Grid Name=\"step ").count(), 3);
+        assert!(text.contains(r#"TopologyType="Quadrilateral" NumberOfElements="2""#));
+        assert!(text.contains(
+            r#"<DataItem Dimensions="2 4" NumberType="Int" Precision="8" Format="HDF">out.h5:/mesh/topology</DataItem>"#
+        ));
+        assert!(text.contains(
+            r#"<DataItem Dimensions="8 3" NumberType="Float" Precision="8" Format="HDF">out.h5:/fields/velocity/000002</DataItem>"#
+        ));
+        assert!(text.contains(r#"<Time Value="5e-1"/>"#));
+        assert_well_formed(&text);
+        // only the two files are left
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+    }
+
+    /// Tags balance (enough of an XML check for text we generate ourselves).
+    fn assert_well_formed(text: &str) {
+        let mut open: Vec<&str> = Vec::new();
+        let mut rest = text;
+        while let Some(i) = rest.find('<') {
+            let j = rest[i..].find('>').expect("unclosed tag") + i;
+            let tag = &rest[i + 1..j];
+            rest = &rest[j + 1..];
+            if tag.starts_with('?') || tag.ends_with('/') {
+                continue;
+            }
+            let name = tag.trim_start_matches('/').split_whitespace().next().unwrap();
+            if tag.starts_with('/') {
+                assert_eq!(open.pop(), Some(name), "mismatched </{name}>");
+            } else {
+                open.push(name);
+            }
+        }
+        assert!(open.is_empty(), "unclosed: {open:?}");
+    }
+
+    #[test]
+    fn inconsistent_fields_are_refused_and_leave_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let h5 = dir.path().join("out.h5");
+        let mut f = sample();
+        f.history.velocity[1][2].pop();
+        let err = write(&h5, &f, "abc").unwrap_err();
+        assert!(err.to_string().contains("substructure 1"), "{err}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        let err = write(&dir.path().join("out.xdmf"), &sample(), "abc").unwrap_err();
+        assert!(err.to_string().contains(".xdmf"), "{err}");
+    }
+
+    #[test]
+    fn vtk_order_of_a_hexahedron() {
+        // tensor index bits (x, y, z) -> VTK: bottom face counter-clockwise, then the top face
+        let bits = |i: usize| (i & 1, (i >> 1) & 1, (i >> 2) & 1);
+        let vtk: Vec<_> = vtk_order(3).iter().map(|&i| bits(i)).collect();
+        assert_eq!(vtk, vec![(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1), (1, 0, 1), (1, 1, 1), (0, 1, 1)]);
+    }
+}

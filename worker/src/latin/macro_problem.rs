@@ -1,0 +1,335 @@
+//! The macro problem of the multiscale LATIN (METHOD.md 3, "Multiscale").
+//!
+//! Each two-sided interface carries a small macro basis (rigid motions and linear fields,
+//! orthonormal for M_Gamma). At every step, between the two micro problems, the macro
+//! admissibility Pi^M (F_E + F_E') = 0 is enforced on every interface through one macro
+//! multiplier W~ per interface, solving (sum_E L_E) W~ = -sum_E Pi^M F1_E. The homogenised
+//! operators L_E come from each substructure's responses q to the macro basis, computed once.
+
+use faer::linalg::solvers::Solve;
+use faer::{Mat, MatMut, Side};
+
+use crate::model::{Interface, Model};
+
+use super::field::InterfaceField;
+use super::linear_stage::{Stage, SubstructureOperators};
+
+/// Relative M_Gamma-norm below which a candidate macro field is dependent on the previous ones.
+const DEPENDENCE_TOLERANCE: f64 = 1e-8;
+
+/// Macro basis of one interface: fields of length `nodes * D`, orthonormal for M_Gamma.
+/// Candidates: D translations, rotations about the principal axes, linear in-plane extensions
+/// and shear; Gram-Schmidt drops those a given interface cannot carry (e.g. on a single node).
+/// A planar 3D interface keeps 9 fields, a straight 2D one 4, a 1D point 1.
+pub fn interface_basis<const D: usize>(itf: &Interface<D>) -> Vec<Vec<f64>> {
+    let n = itf.n_nodes();
+    let total: f64 = itf.area.iter().sum();
+    let mut centre = [0.0; D];
+    for j in 0..n {
+        for d in 0..D {
+            centre[d] += itf.area[j] * itf.coords[j][d] / total;
+        }
+    }
+    let rel = |j: usize| -> [f64; D] {
+        let mut r = [0.0; D];
+        for d in 0..D {
+            r[d] = itf.coords[j][d] - centre[d];
+        }
+        r
+    };
+    let mut candidates: Vec<Vec<f64>> = Vec::new();
+    // translations
+    for d in 0..D {
+        candidates.push((0..n * D).map(|k| if k % D == d { 1.0 } else { 0.0 }).collect());
+    }
+    // rotations: omega x r for each axis (3D), or the in-plane rotation (2D)
+    if D == 3 {
+        for axis in 0..3 {
+            let mut f = vec![0.0; n * D];
+            for j in 0..n {
+                let r = rel(j);
+                let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
+                f[j * D + b] = r[a];
+                f[j * D + a] = -r[b];
+            }
+            candidates.push(f);
+        }
+    } else if D == 2 {
+        let mut f = vec![0.0; n * D];
+        for j in 0..n {
+            let r = rel(j);
+            f[j * D] = -r[1];
+            f[j * D + 1] = r[0];
+        }
+        candidates.push(f);
+    }
+    // symmetric linear fields sym(t_a (x) t_b) r over tangent-plane directions: extensions, shear
+    let nrm = itf.normal[0];
+    let tangents: Vec<[f64; D]> = (0..D)
+        .map(|d| {
+            let mut t = [0.0; D];
+            t[d] = 1.0;
+            let dn: f64 = (0..D).map(|c| t[c] * nrm[c]).sum();
+            for c in 0..D {
+                t[c] -= dn * nrm[c];
+            }
+            t
+        })
+        .collect();
+    for a in 0..D {
+        for b in a..D {
+            let mut f = vec![0.0; n * D];
+            for j in 0..n {
+                let r = rel(j);
+                let ra: f64 = (0..D).map(|c| r[c] * tangents[a][c]).sum();
+                let rb: f64 = (0..D).map(|c| r[c] * tangents[b][c]).sum();
+                for c in 0..D {
+                    f[j * D + c] = rb * tangents[a][c] + ra * tangents[b][c];
+                }
+            }
+            candidates.push(f);
+        }
+    }
+    let inner = |x: &[f64], y: &[f64]| -> f64 { (0..n * D).map(|k| itf.area[k / D] * x[k] * y[k]).sum() };
+    let mut basis: Vec<Vec<f64>> = Vec::new();
+    for mut f in candidates {
+        let norm0 = inner(&f, &f).sqrt();
+        if norm0 == 0.0 {
+            continue;
+        }
+        // modified Gram-Schmidt, twice for stability
+        for _ in 0..2 {
+            for e in &basis {
+                let p = inner(&f, e);
+                for k in 0..f.len() {
+                    f[k] -= p * e[k];
+                }
+            }
+        }
+        let norm = inner(&f, &f).sqrt();
+        if norm > DEPENDENCE_TOLERANCE * norm0 {
+            for v in f.iter_mut() {
+                *v /= norm;
+            }
+            basis.push(f);
+        }
+    }
+    basis
+}
+
+/// One macro basis field of one interface side, as seen by a substructure, and the
+/// substructure's response q = A^-1 N^T M_Gamma k e to it.
+struct Column {
+    interface: usize,
+    side: usize,
+    mode: usize,
+    dof: usize,
+    response: Vec<f64>,
+}
+
+/// The assembled, factorised macro problem of one stage.
+pub struct MacroProblem {
+    /// first macro dof of each interface; `None` for one-sided (wall) interfaces
+    offset: Vec<Option<usize>>,
+    basis: Vec<Vec<Vec<f64>>>,
+    n: usize,
+    llt: Option<faer::linalg::solvers::Llt<f64>>,
+    columns: Vec<Vec<Column>>,
+    /// right-hand side, then solution W~, of the current step
+    pub rhs: Vec<f64>,
+}
+
+/// Errors of the macro problem.
+#[derive(Debug, thiserror::Error)]
+#[error("macro operator is not positive definite: {0}")]
+pub struct MacroError(String);
+
+impl MacroProblem {
+    /// Builds the homogenised operators from each substructure's responses to the macro basis and
+    /// factorises their sum (dense Cholesky: a few hundred macro dofs).
+    pub fn new<const D: usize>(
+        model: &Model<D>,
+        ops: &mut [SubstructureOperators],
+        stage: Stage,
+    ) -> Result<Self, MacroError> {
+        let mut offset = Vec::with_capacity(model.interfaces.len());
+        let mut basis = Vec::with_capacity(model.interfaces.len());
+        let mut n = 0;
+        for itf in &model.interfaces {
+            if itf.sides.len() == 2 {
+                let b = interface_basis(itf);
+                offset.push(Some(n));
+                n += b.len();
+                basis.push(b);
+            } else {
+                offset.push(None);
+                basis.push(Vec::new());
+            }
+        }
+        let mut operator = Mat::<f64>::zeros(n, n);
+        let mut columns = Vec::with_capacity(model.substructures.len());
+        for (s, sub) in model.substructures.iter().enumerate() {
+            let mut cols: Vec<Column> = Vec::new();
+            for &(i, side) in &sub.sides {
+                let Some(off) = offset[i] else { continue };
+                let itf = &model.interfaces[i];
+                let sd = &itf.sides[side];
+                let k = stage.k(sd);
+                for (mode, e) in basis[i].iter().enumerate() {
+                    let mut rhs = vec![0.0; sub.n_dofs()];
+                    for (j, &node) in sd.nodes.iter().enumerate() {
+                        for c in 0..D {
+                            rhs[node * D + c] = itf.area[j] * k * e[j * D + c];
+                        }
+                    }
+                    let response = ops[s].solve_homogeneous(stage, &rhs);
+                    cols.push(Column { interface: i, side, mode, dof: off + mode, response });
+                }
+            }
+            // L_E[c', c] = k' (delta_cc' - <e_c', N_c' q_c>)
+            for c in &cols {
+                for cp in &cols {
+                    let itf = &model.interfaces[cp.interface];
+                    let sd = &itf.sides[cp.side];
+                    let k = stage.k(sd);
+                    let e = &basis[cp.interface][cp.mode];
+                    let mut proj = 0.0;
+                    for (j, &node) in sd.nodes.iter().enumerate() {
+                        for d in 0..D {
+                            proj += itf.area[j] * e[j * D + d] * c.response[node * D + d];
+                        }
+                    }
+                    let delta = if c.dof == cp.dof && c.side == cp.side { 1.0 } else { 0.0 };
+                    operator[(cp.dof, c.dof)] += k * (delta - proj);
+                }
+            }
+            columns.push(cols);
+        }
+        // symmetrise away round-off before Cholesky
+        for i in 0..n {
+            for j in 0..i {
+                let v = 0.5 * (operator[(i, j)] + operator[(j, i)]);
+                operator[(i, j)] = v;
+                operator[(j, i)] = v;
+            }
+        }
+        let llt = if n > 0 { Some(operator.llt(Side::Lower).map_err(|e| MacroError(format!("{e:?}")))?) } else { None };
+        Ok(Self { offset, basis, n, llt, columns, rhs: vec![0.0; n] })
+    }
+
+    pub fn n_dofs(&self) -> usize {
+        self.n
+    }
+
+    /// Adds -Pi^M F1 of substructure `s` at `step` to the macro right-hand side, where
+    /// F1 = F^ + k (W^ - N x) follows from micro problem 1's solution x.
+    pub fn add_residual<const D: usize>(
+        &mut self,
+        model: &Model<D>,
+        s: usize,
+        stage: Stage,
+        step: usize,
+        fields: &[InterfaceField],
+        x: &[f64],
+    ) {
+        let sub = &model.substructures[s];
+        for &(i, side) in &sub.sides {
+            let Some(off) = self.offset[i] else { continue };
+            let itf = &model.interfaces[i];
+            let sd = &itf.sides[side];
+            let k = stage.k(sd);
+            let hat = &fields[i].hat[side];
+            let m = sd.nodes.len();
+            for (mode, e) in self.basis[i].iter().enumerate() {
+                let mut proj = 0.0;
+                for (j, &node) in sd.nodes.iter().enumerate() {
+                    for c in 0..D {
+                        let idx = (step * m + j) * D + c;
+                        let f1 = hat.force[idx] + k * (hat.velocity[idx] - x[node * D + c]);
+                        proj += itf.area[j] * e[j * D + c] * f1;
+                    }
+                }
+                self.rhs[off + mode] -= proj;
+            }
+        }
+    }
+
+    /// Solves for W~ in place of the right-hand side.
+    pub fn solve(&mut self) {
+        if let Some(llt) = &self.llt {
+            let n = self.n;
+            llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut self.rhs, n, 1));
+        }
+    }
+
+    /// Micro problem 2: x += sum_c q_c W~_c over the substructure's macro columns.
+    pub fn correct(&self, s: usize, x: &mut [f64]) {
+        for c in &self.columns[s] {
+            let w = self.rhs[c.dof];
+            if w != 0.0 {
+                for (xi, qi) in x.iter_mut().zip(&c.response) {
+                    *xi += w * qi;
+                }
+            }
+        }
+    }
+
+    /// Value of the macro field W~ of interface `i` at node `j`, component `c` (D components).
+    pub fn field_value(&self, dim: usize, i: usize, j: usize, c: usize) -> f64 {
+        match self.offset[i] {
+            Some(off) => self.basis[i].iter().enumerate().map(|(mode, e)| self.rhs[off + mode] * e[j * dim + c]).sum(),
+            None => 0.0,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::{InterfaceLaw, InterfaceSide};
+
+    fn square_interface(nx: usize) -> Interface<3> {
+        let mut coords = vec![];
+        let mut area = vec![];
+        for i in 0..=nx {
+            for j in 0..=nx {
+                coords.push([i as f64 / nx as f64, j as f64 / nx as f64, 0.5]);
+                let w = |k: usize| if k == 0 || k == nx { 0.5 } else { 1.0 };
+                area.push(w(i) * w(j) / (nx * nx) as f64);
+            }
+        }
+        let n = coords.len();
+        let side = InterfaceSide { substructure: 0, nodes: (0..n).collect(), k_dynamic: 1.0, k_static: 1.0 };
+        Interface {
+            name: "t".into(),
+            law: InterfaceLaw::Perfect,
+            sides: vec![side.clone(), side],
+            area,
+            normal: vec![[0.0, 0.0, 1.0]; n],
+            coords,
+            gap0: vec![0.0; n],
+        }
+    }
+
+    #[test]
+    fn planar_3d_interface_has_nine_orthonormal_fields() {
+        let itf = square_interface(4);
+        let b = interface_basis(&itf);
+        assert_eq!(b.len(), 9);
+        for (p, x) in b.iter().enumerate() {
+            for (q, y) in b.iter().enumerate() {
+                let dot: f64 = (0..x.len()).map(|k| itf.area[k / 3] * x[k] * y[k]).sum();
+                assert!((dot - if p == q { 1.0 } else { 0.0 }).abs() < 1e-12, "<e{p}, e{q}> = {dot}");
+            }
+        }
+    }
+
+    #[test]
+    fn single_node_interface_keeps_translations_only() {
+        let mut itf = square_interface(1);
+        itf.coords.truncate(1);
+        itf.area.truncate(1);
+        itf.normal.truncate(1);
+        assert_eq!(interface_basis(&itf).len(), 3);
+    }
+}
