@@ -4,8 +4,64 @@
 use std::io::Read;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus, Output, Stdio};
+use std::sync::{Condvar, Mutex, PoisonError};
 use std::thread;
 use std::time::{Duration, Instant};
+
+/// A child process inherits the test process's open files: until it execs, and for files opened
+/// without close-on-exec (HDF5 opens its files so) until it exits. A child spawned by one test
+/// while another test holds a file lock in-process (HDF5, sled) thus keeps that lock, and the
+/// other test's reopening fails with EWOULDBLOCK. So tests that lock files in-process run while
+/// no child runs ([`no_children`]), and every spawn holds a [`ChildToken`] while its child lives.
+struct Gate {
+    children: usize,
+    exclusive: bool,
+}
+
+static GATE: Mutex<Gate> = Mutex::new(Gate { children: 0, exclusive: false });
+static GATE_CHANGED: Condvar = Condvar::new();
+
+/// Held while a child process of a test runs (see [`no_children`]).
+pub struct ChildToken(());
+
+impl Drop for ChildToken {
+    fn drop(&mut self) {
+        GATE.lock().unwrap_or_else(PoisonError::into_inner).children -= 1;
+        GATE_CHANGED.notify_all();
+    }
+}
+
+/// Take before spawning a child process yourself ([`run_with_timeout`] does), and keep it until
+/// the child is reaped. Tokens may nest; they wait only while a [`NoChildren`] is held.
+pub fn child_token() -> ChildToken {
+    let mut gate = GATE.lock().unwrap_or_else(PoisonError::into_inner);
+    while gate.exclusive {
+        gate = GATE_CHANGED.wait(gate).unwrap_or_else(PoisonError::into_inner);
+    }
+    gate.children += 1;
+    ChildToken(())
+}
+
+/// Held by a test that locks files in-process: no child process runs meanwhile.
+pub struct NoChildren(());
+
+impl Drop for NoChildren {
+    fn drop(&mut self) {
+        GATE.lock().unwrap_or_else(PoisonError::into_inner).exclusive = false;
+        GATE_CHANGED.notify_all();
+    }
+}
+
+/// Waits until no child process of any test runs, and keeps new ones from starting until dropped.
+/// Do not spawn while holding it (that would wait for itself).
+pub fn no_children() -> NoChildren {
+    let mut gate = GATE.lock().unwrap_or_else(PoisonError::into_inner);
+    while gate.exclusive || gate.children > 0 {
+        gate = GATE_CHANGED.wait(gate).unwrap_or_else(PoisonError::into_inner);
+    }
+    gate.exclusive = true;
+    NoChildren(())
+}
 
 /// Path of binary `name` built by this workspace, e.g. `glissade-server`.
 ///
@@ -38,6 +94,7 @@ pub fn workspace_bin(name: &str) -> PathBuf {
 /// # Panics
 /// When it cannot start, or runs longer than `limit` (the child is killed first).
 pub fn run_with_timeout(cmd: &mut Command, limit: Duration) -> Output {
+    let _running = child_token();
     let described = format!("{cmd:?}");
     let mut child = cmd
         .stdin(Stdio::null())

@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use glissade_e2e::{run_with_timeout, wait_with_timeout, workspace_bin};
+use glissade_e2e::{ChildToken, child_token, no_children, run_with_timeout, wait_with_timeout, workspace_bin};
 
 /// Generous: the 2-core CI machine may be busy compiling beside us.
 const LIMIT: Duration = Duration::from_secs(60);
@@ -37,6 +37,7 @@ fn mpiexec_runs_two_ranks_and_all_reduces() {
 
 #[test]
 fn hdf5_round_trip_of_a_2d_dataset_and_attribute() -> anyhow::Result<()> {
+    let _locks_files = no_children();
     let dir = tempfile::tempdir()?;
     let path = dir.path().join("fields.h5");
     // Thirds are not exactly representable in decimal, so a lossy path (text, f32) would show.
@@ -63,6 +64,7 @@ fn hdf5_round_trip_of_a_2d_dataset_and_attribute() -> anyhow::Result<()> {
 
 #[test]
 fn sled_survives_flush_drop_and_reopen() -> anyhow::Result<()> {
+    let _locks_files = no_children();
     let dir = tempfile::tempdir()?;
     {
         let db = sled::open(dir.path())?;
@@ -81,7 +83,7 @@ fn sled_survives_flush_drop_and_reopen() -> anyhow::Result<()> {
 }
 
 /// Kills the server if a test panics before stopping it, so no process outlives the test.
-struct ServerGuard(Child);
+struct ServerGuard(Child, ChildToken);
 
 impl Drop for ServerGuard {
     fn drop(&mut self) {
@@ -92,6 +94,7 @@ impl Drop for ServerGuard {
 
 /// Starts `glissade-server` on a free port and returns it with the address from its stdout line.
 fn start_server(data: &Path, log: &Path) -> (ServerGuard, SocketAddr) {
+    let token = child_token();
     let child = command(&workspace_bin("glissade-server"))
         .args(["--listen", "127.0.0.1:0", "--data"])
         .arg(data)
@@ -100,7 +103,7 @@ fn start_server(data: &Path, log: &Path) -> (ServerGuard, SocketAddr) {
         .stderr(File::create(log).expect("create server log"))
         .spawn()
         .expect("start glissade-server");
-    let mut guard = ServerGuard(child);
+    let mut guard = ServerGuard(child, token);
     let stdout = guard.0.stdout.take().expect("piped stdout");
     let (tx, rx) = mpsc::channel();
     std::thread::spawn(move || {
@@ -262,6 +265,20 @@ fn worker_warm_start_from_a_saved_solution_converges_at_once() -> anyhow::Result
         let (a, b) = (q["final"].as_f64().unwrap(), warm["qoi"][name]["final"].as_f64().unwrap());
         assert!((a - b).abs() <= 10.0 * tol * scale, "{name}: cold {a}, warm {b} (scale {scale}, tolerance {tol})");
     }
+
+    // Not converged within the limit: exit 2, and the last iterate is still saved, marked so.
+    let out = worker_solve(
+        dir.path(),
+        &[scene.as_os_str(), os("--json"), os("--max-iter"), os("3"), os("--save"), os("partial.bin")],
+    );
+    assert_eq!(out.status.code(), Some(2), "stderr: {}", text(&out.stderr));
+    let partial: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(partial["converged"], false, "{partial}");
+    let bytes = std::fs::read(dir.path().join("partial.bin"))?;
+    let header_len = u64::from_le_bytes(bytes[12..20].try_into()?) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[20..20 + header_len])?;
+    assert_eq!(header["converged"], false, "{header}");
+    assert_eq!(header["error_indicator"], partial["error_indicator"], "{header}");
     Ok(())
 }
 

@@ -15,7 +15,8 @@ use glissade_worker::scene::{Scale, Scene, SceneError};
 #[command(
     name = "glissade-worker",
     version,
-    about = "LATIN solver for transient dynamics of elastic assemblies with contact and friction"
+    about = "LATIN solver for transient dynamics of elastic assemblies with contact and friction",
+    after_help = "Examples:\n  glissade-worker solve scenes/bar-impact-1d.toml --json\n  glissade-worker solve --help   # flags, warm starts, field output"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -270,6 +271,7 @@ fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
     let result = match cli.command {

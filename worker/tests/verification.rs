@@ -461,3 +461,65 @@ fn macro_problem_makes_iterations_nearly_independent_of_substructures() {
     assert!(growth("Multi") < 0.20, "multiscale grows {}", growth("Multi"));
     assert!(growth("Single") > 2.0 * growth("Multi").max(0.1), "single-scale should grow visibly");
 }
+
+/// Bad scenes give an error naming the offending key, never a panic or a result.
+#[test]
+fn bad_scenes_give_named_errors() {
+    let base = include_str!("../../scenes/sliding-block-2d.toml");
+    let cases: &[(&str, &str, &str)] = &[
+        ("nu = 0.3", "nu = 0.5", "materials.steel.nu"),
+        ("E = 200e9", "E = 0", "materials.steel.E"),
+        ("E = 200e9", "E = nan", "materials.steel.E"),
+        ("rho = 7800", "rho = -1", "materials.steel.rho"),
+        ("duration = 1e-4", "duration = 0", "time.duration"),
+        ("friction = \"f\"", "friction = -0.1", "interfaces[0].friction"),
+        ("friction = \"f\"", "friction = \"g\"", "'g'"),
+        ("b = \"wall\"", "b = \"ghost.y+\"", "unknown body 'ghost'"),
+        ("point = [0.01, 0]", "point = [0.5, 0]", "qoi[0].point"),
+        ("pressure = 1e7", "pressure = 1e7\nbogus = 1", "bogus"),
+        ("elements = [8, 4]", "elements = [8]", "bodies[0].elements"),
+        ("a = \"block.y-\"", "a = \"block.q+\"", "no face 'q+'"),
+    ];
+    for (from, to, expected) in cases {
+        assert!(base.contains(from), "test case pattern {from}");
+        let text = base.replacen(from, to, 1);
+        let err = match Scene::parse(&text) {
+            Err(e) => e.to_string(),
+            Ok(scene) => {
+                let values = scene.parameter_values(&[]).unwrap();
+                Model::<2>::build(&scene, &values).err().map(|e| e.to_string()).unwrap_or_default()
+            }
+        };
+        assert!(err.contains(expected), "{to}: expected an error naming {expected}, got '{err}'");
+    }
+    let scene = Scene::parse(base).unwrap();
+    let err = scene.parameter_values(&[("nosuch".into(), 1.0)]).unwrap_err().to_string();
+    assert!(err.contains("nosuch") && err.contains("f, push"), "{err}");
+    let err = scene.parameter_values(&[("f".into(), f64::NAN)]).unwrap_err().to_string();
+    assert!(err.contains("f = NaN"), "{err}");
+}
+
+/// Non-matching interface faces are refused.
+#[test]
+fn non_matching_interfaces_are_refused() {
+    // the upper body gets 3 elements along x against the lower body's 2
+    let text = BOX_3D.replacen(
+        "origin = [0, 0, 0.01]\nsize = [0.01, 0.01, 0.01]\nelements = [2, 2, 2]",
+        "origin = [0, 0, 0.01]\nsize = [0.01, 0.01, 0.01]\nelements = [3, 2, 2]",
+        1,
+    );
+    let scene = Scene::parse(&text).unwrap();
+    let err = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).unwrap_err().to_string();
+    assert!(err.contains("interfaces[0]") && err.contains("do not match"), "{err}");
+}
+
+/// A non-finite error indicator stops the solve with an error, never a result.
+#[test]
+fn non_finite_iterates_stop_with_an_error() {
+    let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
+    let mut solver = LatinSolver::new(&m).unwrap();
+    let mut init = solver.solve(None, &SolveOptions::default()).unwrap().solution;
+    init.dynamic.interfaces[0].hat[0].force[3] = f64::NAN;
+    let err = solver.solve(Some(&init), &SolveOptions::default()).unwrap_err().to_string();
+    assert!(err.contains("dynamic stage") && err.contains("NaN"), "{err}");
+}

@@ -183,11 +183,11 @@ impl Layout {
                 if !(1..=2).contains(&itf.sides) {
                     return Err(SolutionFileError::Header(format!("{name} stage, interface {i}: {} sides", itf.sides)));
                 }
-                if steps == 0 || !itf.len.is_multiple_of(steps * d) {
+                let per_node = steps.checked_mul(d).filter(|&n| n > 0);
+                if !per_node.is_some_and(|n| itf.len.is_multiple_of(n)) {
                     return Err(SolutionFileError::Header(format!(
-                        "{name} stage, interface {i}: array length {} is not a multiple of steps x dimension = {}",
-                        itf.len,
-                        steps * d
+                        "{name} stage, interface {i}: array length {} is not a multiple of steps ({steps}) x dimension ({d})",
+                        itf.len
                     )));
                 }
             }
