@@ -37,7 +37,7 @@ fn run<const D: usize>(scene: &Scene, iterations: usize) {
         model.settings.max_iterations = iterations;
         model.settings.tolerance = 1e-30; // run exactly `iterations` iterations per stage
         let t = Instant::now();
-        let mut solver = LatinSolver::new(&model).expect("factorisation");
+        let mut solver = LatinSolver::serial(&model).expect("factorisation");
         let setup = t.elapsed().as_secs_f64();
         let r = solver.solve(None, &SolveOptions::default()).expect("solve");
         let dynamic_iterations = r.dynamic.iterations as f64;

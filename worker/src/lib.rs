@@ -4,6 +4,7 @@
 //! `latin` (the iterative solver) and `monolithic` (the reference); `io` (solution files,
 //! field output) and `run` (one solve, for the CLI and the workers) at the edge.
 
+pub mod comm;
 pub mod element;
 pub mod io;
 pub mod latin;

@@ -7,8 +7,9 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use serde::Serialize;
 
+use glissade_worker::comm::{Communicator, Mpi};
 use glissade_worker::io::{fields, solution_file};
-use glissade_worker::run::{SolveRequest, SolveSummary, solve_scene};
+use glissade_worker::run::{SolveRequest, SolveSummary, solve_scene_on};
 use glissade_worker::scene::{Scale, Scene, SceneError};
 
 #[derive(Parser)]
@@ -142,7 +143,8 @@ fn check_output(flag: &str, path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn solve(args: SolveArgs) -> Result<bool> {
+/// One solve; under `mpiexec -n P` every rank runs it and rank 0 writes the files and prints.
+fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
     let scene_path = &args.scene;
     let text =
         std::fs::read_to_string(scene_path).with_context(|| format!("cannot read scene {}", scene_path.display()))?;
@@ -184,8 +186,8 @@ fn solve(args: SolveArgs) -> Result<bool> {
     };
 
     tracing::info!(scene = %scene_path.display(), hash = %scene_hash, "solving");
-    let outcome =
-        solve_scene(&scene, &request, init.as_ref()).with_context(|| format!("scene {}", scene_path.display()))?;
+    let outcome = solve_scene_on(comm, &scene, &request, init.as_ref())
+        .with_context(|| format!("scene {}", scene_path.display()))?;
     let s = &outcome.summary;
     tracing::info!(
         converged = s.converged,
@@ -195,6 +197,9 @@ fn solve(args: SolveArgs) -> Result<bool> {
         "solved"
     );
 
+    if comm.rank() != 0 {
+        return Ok(s.converged);
+    }
     // Files first: the summary is printed only once everything asked for is written.
     if let Some(p) = &args.save {
         let meta = solution_file::SolutionMeta {
@@ -275,7 +280,33 @@ fn main() -> ExitCode {
         .init();
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Solve(args) => solve(args),
+        Command::Solve(args) => {
+            // Without mpiexec this is a one-rank world (MPI singleton).
+            let Some(universe) = mpi::initialize() else {
+                eprintln!("error: MPI could not be initialised");
+                return ExitCode::FAILURE;
+            };
+            let comm = Mpi { world: universe.world() };
+            if comm.size() > 1 {
+                // A panicking rank must not leave the others waiting in a collective.
+                let default_hook = std::panic::take_hook();
+                std::panic::set_hook(Box::new(move |info| {
+                    default_hook(info);
+                    // SAFETY: MPI is initialised (the universe lives until main returns);
+                    // MPI_Abort on the world ends every rank of the job.
+                    unsafe {
+                        mpi::ffi::MPI_Abort(mpi::ffi::RSMPI_COMM_WORLD, 101);
+                    }
+                }));
+            }
+            let result = solve(args, &comm);
+            if let (Err(e), true) = (&result, comm.size() > 1) {
+                // A failing rank must not leave the others waiting in a collective: abort all.
+                eprintln!("error: rank {}: {}", comm.rank(), one_line(&format!("{e:#}")));
+                mpi::traits::Communicator::abort(&comm.world, 1);
+            }
+            result
+        }
     };
     match result {
         Ok(true) => ExitCode::SUCCESS,

@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use crate::comm::Communicator;
 use crate::latin::field::InterfaceSolution;
 use crate::latin::{FieldHistory, LatinSolver, SolveOptions, SolverError, StageReport, Timings};
 use crate::model::Model;
@@ -84,20 +85,34 @@ pub struct SolveOutcome {
     pub fields: Option<FieldOutput>,
 }
 
-/// Solves `scene` at the design point given by `request.set`, optionally warm-started.
+/// Solves `scene` at the design point given by `request.set`, optionally warm-started, on one
+/// process.
 pub fn solve_scene(
     scene: &Scene,
     request: &SolveRequest,
     init: Option<&InterfaceSolution>,
 ) -> Result<SolveOutcome, RunError> {
+    solve_scene_on(&crate::comm::Serial, scene, request, init)
+}
+
+/// The same solve spread over the ranks of `comm`; every rank calls it with the same arguments.
+/// Rank 0's outcome holds the whole solution, QoIs and fields; other ranks' outcomes hold the
+/// same summary and QoIs.
+pub fn solve_scene_on(
+    comm: &dyn Communicator,
+    scene: &Scene,
+    request: &SolveRequest,
+    init: Option<&InterfaceSolution>,
+) -> Result<SolveOutcome, RunError> {
     match scene.dimension {
-        1 => solve_dim::<1>(scene, request, init),
-        2 => solve_dim::<2>(scene, request, init),
-        _ => solve_dim::<3>(scene, request, init),
+        1 => solve_dim::<1>(comm, scene, request, init),
+        2 => solve_dim::<2>(comm, scene, request, init),
+        _ => solve_dim::<3>(comm, scene, request, init),
     }
 }
 
 fn solve_dim<const D: usize>(
+    comm: &dyn Communicator,
     scene: &Scene,
     request: &SolveRequest,
     init: Option<&InterfaceSolution>,
@@ -117,7 +132,7 @@ fn solve_dim<const D: usize>(
     if let Some(s) = request.scale {
         model.settings.scale = s;
     }
-    let mut solver = LatinSolver::new(&model)?;
+    let mut solver = LatinSolver::new(&model, comm)?;
     let report = solver.solve(init, &SolveOptions { record_fields: request.record_fields })?;
     let qoi = report
         .qoi

@@ -14,7 +14,7 @@ fn build<const D: usize>(text: &str, set: &[(&str, f64)]) -> Model<D> {
 }
 
 fn solve<const D: usize>(m: &Model<D>, fields: bool) -> SolveReport {
-    let mut solver = LatinSolver::new(m).expect("factorisation");
+    let mut solver = LatinSolver::serial(m).expect("factorisation");
     let r = solver.solve(None, &SolveOptions { record_fields: fields }).expect("solve");
     assert!(r.converged(), "LATIN did not converge: eta = {}", r.dynamic.error_indicator);
     r
@@ -394,7 +394,7 @@ fn energy_balance_closes_perfect_contact_friction() {
 #[test]
 fn warm_start_from_own_solution_converges_at_once() {
     let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
-    let mut solver = LatinSolver::new(&m).unwrap();
+    let mut solver = LatinSolver::serial(&m).unwrap();
     let cold = solver.solve(None, &SolveOptions::default()).unwrap();
     let warm = solver.solve(Some(&cold.solution), &SolveOptions::default()).unwrap();
     eprintln!("cold {} iterations, warm {} iterations", cold.iterations(), warm.iterations());
@@ -517,9 +517,101 @@ fn non_matching_interfaces_are_refused() {
 #[test]
 fn non_finite_iterates_stop_with_an_error() {
     let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
-    let mut solver = LatinSolver::new(&m).unwrap();
+    let mut solver = LatinSolver::serial(&m).unwrap();
     let mut init = solver.solve(None, &SolveOptions::default()).unwrap().solution;
     init.dynamic.interfaces[0].hat[0].force[3] = f64::NAN;
     let err = solver.solve(Some(&init), &SolveOptions::default()).unwrap_err().to_string();
     assert!(err.contains("dynamic stage") && err.contains("NaN"), "{err}");
+}
+
+/// Runs `mpiexec ARGS` (each rank a real process) with a time limit, so a hang fails the test.
+fn mpiexec(args: &[&str]) -> std::process::Output {
+    std::process::Command::new("timeout")
+        .arg("120")
+        .arg("mpiexec")
+        .args(args)
+        .output()
+        .expect("mpiexec runs (deploy/install-deps.sh installs MPICH)")
+}
+
+fn worker_bin() -> &'static str {
+    env!("CARGO_BIN_EXE_glissade-worker")
+}
+
+fn scene_path(name: &str) -> String {
+    format!("{}/../scenes/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+/// P = 1, 2, 3 ranks give bitwise identical results: same iterations, same QoIs, and the same
+/// saved interface solution byte for byte (every reduction has one or two contributions per
+/// entry, so the order of the sum does not matter).
+#[test]
+fn mpi_ranks_give_bitwise_identical_solutions() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene_path("three-blocks-tiny.toml");
+    for scale in ["single", "multi"] {
+        let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
+        for np in ["1", "2", "3"] {
+            let save = dir.path().join(format!("{scale}-{np}.sol"));
+            let out = mpiexec(&[
+                "-n",
+                np,
+                worker_bin(),
+                "solve",
+                &scene,
+                "--scale",
+                scale,
+                "--tol",
+                "1e-3",
+                "--json",
+                "--save",
+                save.to_str().unwrap(),
+            ]);
+            assert!(out.status.success(), "P = {np}: {}", String::from_utf8_lossy(&out.stderr));
+            let stdout = String::from_utf8(out.stdout).unwrap();
+            assert_eq!(stdout.lines().count(), 1, "only rank 0 prints: {stdout}");
+            let json: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+            let bytes = std::fs::read(&save).unwrap();
+            match &reference {
+                None => reference = Some((json, bytes)),
+                Some((j, b)) => {
+                    assert_eq!(j["iterations"], json["iterations"], "{scale} P = {np}");
+                    assert_eq!(j["error_indicator"], json["error_indicator"], "{scale} P = {np}");
+                    assert_eq!(j["qoi"], json["qoi"], "{scale} P = {np}");
+                    assert!(*b == bytes, "{scale} P = {np}: saved solution differs from P = 1");
+                }
+            }
+        }
+    }
+}
+
+/// A rank that fails makes the whole job exit non-zero with the error on stderr, never a hang:
+/// rank 1 gets a malformed scene (MPMD launch) while rank 0 starts solving a good one.
+#[test]
+fn mpi_failing_rank_stops_the_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "dimension = 3\nbogus = 1\n").unwrap();
+    let good = scene_path("three-blocks-tiny.toml");
+    let out = mpiexec(&[
+        "-n",
+        "1",
+        worker_bin(),
+        "solve",
+        &good,
+        ":",
+        "-n",
+        "1",
+        worker_bin(),
+        "solve",
+        bad.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_ne!(out.status.code(), Some(124), "the job hung");
+    assert!(!out.status.success());
+    assert!(stderr.contains("rank 1") && stderr.contains("bogus"), "{stderr}");
+    // more ranks than substructures: every rank refuses, clearly
+    let out = mpiexec(&["-n", "3", worker_bin(), "solve", &scene_path("sliding-block-2d.toml")]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("at most 2 ranks"), "{stderr}");
 }

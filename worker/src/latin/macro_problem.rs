@@ -9,6 +9,7 @@
 use faer::linalg::solvers::Solve;
 use faer::{Mat, MatMut, Side};
 
+use crate::comm::Communicator;
 use crate::model::{Interface, Model};
 
 use super::field::InterfaceField;
@@ -149,8 +150,9 @@ impl MacroProblem {
     /// factorises their sum (dense Cholesky: a few hundred macro dofs).
     pub fn new<const D: usize>(
         model: &Model<D>,
-        ops: &mut [SubstructureOperators],
+        ops: &mut [Option<SubstructureOperators>],
         stage: Stage,
+        comm: &dyn Communicator,
     ) -> Result<Self, MacroError> {
         let mut offset = Vec::with_capacity(model.interfaces.len());
         let mut basis = Vec::with_capacity(model.interfaces.len());
@@ -166,10 +168,16 @@ impl MacroProblem {
                 basis.push(Vec::new());
             }
         }
-        let mut operator = Mat::<f64>::zeros(n, n);
+        // column-major n x n; each entry gets at most two contributions (the two sides of an
+        // interface), so the sum over ranks is exact in any order
+        let mut operator = vec![0.0; n * n];
         let mut columns = Vec::with_capacity(model.substructures.len());
         for (s, sub) in model.substructures.iter().enumerate() {
             let mut cols: Vec<Column> = Vec::new();
+            let Some(op) = ops[s].as_mut() else {
+                columns.push(cols);
+                continue;
+            };
             for &(i, side) in &sub.sides {
                 let Some(off) = offset[i] else { continue };
                 let itf = &model.interfaces[i];
@@ -182,7 +190,7 @@ impl MacroProblem {
                             rhs[node * D + c] = itf.area[j] * k * e[j * D + c];
                         }
                     }
-                    let response = ops[s].solve_homogeneous(stage, &rhs);
+                    let response = op.solve_homogeneous(stage, &rhs);
                     cols.push(Column { interface: i, side, mode, dof: off + mode, response });
                 }
             }
@@ -200,19 +208,14 @@ impl MacroProblem {
                         }
                     }
                     let delta = if c.dof == cp.dof && c.side == cp.side { 1.0 } else { 0.0 };
-                    operator[(cp.dof, c.dof)] += k * (delta - proj);
+                    operator[c.dof * n + cp.dof] += k * (delta - proj);
                 }
             }
             columns.push(cols);
         }
+        comm.sum_in_place(&mut operator);
         // symmetrise away round-off before Cholesky
-        for i in 0..n {
-            for j in 0..i {
-                let v = 0.5 * (operator[(i, j)] + operator[(j, i)]);
-                operator[(i, j)] = v;
-                operator[(j, i)] = v;
-            }
-        }
+        let operator = Mat::<f64>::from_fn(n, n, |i, j| 0.5 * (operator[j * n + i] + operator[i * n + j]));
         let llt = if n > 0 { Some(operator.llt(Side::Lower).map_err(|e| MacroError(format!("{e:?}")))?) } else { None };
         Ok(Self { offset, basis, n, llt, columns, rhs: vec![0.0; n] })
     }
@@ -255,7 +258,8 @@ impl MacroProblem {
     }
 
     /// Solves for W~ in place of the right-hand side.
-    pub fn solve(&mut self) {
+    pub fn solve(&mut self, comm: &dyn Communicator) {
+        comm.sum_in_place(&mut self.rhs);
         if let Some(llt) = &self.llt {
             let n = self.n;
             llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut self.rhs, n, 1));

@@ -1,6 +1,7 @@
 //! The LATIN mixed domain-decomposition solver (METHOD.md 3): linear stage (substructures),
 //! relaxation, local stage (interfaces), error indicator — iterated over the whole time interval.
 
+pub mod distribution;
 pub mod field;
 pub mod linear_stage;
 pub mod local_stage;
@@ -10,10 +11,12 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use crate::comm::Communicator;
 use crate::model::{Model, QoiTarget};
 use crate::scene::Scale;
 use crate::sparse::SparseError;
 
+use distribution::Distribution;
 use field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
@@ -31,6 +34,8 @@ pub enum SolverError {
         "{stage} stage, iteration {iteration}: error indicator is {eta} (the iterations diverged; try a smaller k0_factor or time step)"
     )]
     NonFinite { stage: &'static str, iteration: usize, eta: f64 },
+    #[error("cannot distribute the model: {0}")]
+    Distribution(String),
     #[error("initial solution does not fit this model: {0}")]
     IncompatibleInit(String),
     #[error("{stage} stage: {source}")]
@@ -104,7 +109,10 @@ pub struct SolveOptions {
 /// reused by every `solve` (a warm-started design point does not refactorise).
 pub struct LatinSolver<'m, const D: usize> {
     model: &'m Model<D>,
-    ops: Vec<SubstructureOperators>,
+    comm: &'m dyn Communicator,
+    dist: Distribution,
+    /// operators of this rank's substructures (`None` elsewhere)
+    ops: Vec<Option<SubstructureOperators>>,
     /// macro problems of the static and dynamic stages (multiscale only)
     macro_static: Option<MacroProblem>,
     macro_dynamic: Option<MacroProblem>,
@@ -116,19 +124,31 @@ pub struct LatinSolver<'m, const D: usize> {
 pub type StepRecorder<'a> = &'a mut dyn FnMut(usize, usize, &[f64], &[f64]);
 
 impl<'m, const D: usize> LatinSolver<'m, D> {
-    pub fn new(model: &'m Model<D>) -> Result<Self, SolverError> {
+    /// A solver on one process.
+    pub fn serial(model: &'m Model<D>) -> Result<Self, SolverError> {
+        Self::new(model, &crate::comm::Serial)
+    }
+
+    /// A solver whose substructures and interfaces are spread over the ranks of `comm`; every
+    /// rank calls it with the same model.
+    pub fn new(model: &'m Model<D>, comm: &'m dyn Communicator) -> Result<Self, SolverError> {
         let start = Instant::now();
         let with_static = model.needs_static_stage();
+        let dist = Distribution::new(model, comm.rank(), comm.size()).map_err(SolverError::Distribution)?;
         let mut ops = (0..model.substructures.len())
             .map(|s| {
+                if !dist.owns_substructure(s) {
+                    return Ok(None);
+                }
                 SubstructureOperators::new(model, s, with_static)
+                    .map(Some)
                     .map_err(|source| SolverError::Factorisation { substructure: s, source })
             })
             .collect::<Result<Vec<_>, _>>()?;
         let (mut macro_static, mut macro_dynamic) = (None, None);
         if model.settings.scale == Scale::Multi {
-            let build = |ops: &mut [SubstructureOperators], stage: Stage| {
-                MacroProblem::new(model, ops, stage)
+            let build = |ops: &mut [Option<SubstructureOperators>], stage: Stage| {
+                MacroProblem::new(model, ops, stage, comm)
                     .map_err(|source| SolverError::Macro { stage: stage.name(), source })
             };
             macro_dynamic = Some(build(&mut ops, Stage::Dynamic)?);
@@ -136,7 +156,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 macro_static = Some(build(&mut ops, Stage::Static)?);
             }
         }
-        Ok(Self { model, ops, macro_static, macro_dynamic, factorisation_seconds: start.elapsed().as_secs_f64() })
+        Ok(Self {
+            model,
+            comm,
+            dist,
+            ops,
+            macro_static,
+            macro_dynamic,
+            factorisation_seconds: start.elapsed().as_secs_f64(),
+        })
     }
 
     /// One linear stage over the whole time interval: at every step micro problem 1 in each
@@ -155,7 +183,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             Stage::Static => self.macro_static.as_mut(),
             Stage::Dynamic => self.macro_dynamic.as_mut(),
         };
-        for (s, op) in ops.iter_mut().enumerate() {
+        for (s, op) in ops.iter_mut().enumerate().filter_map(|(s, o)| o.as_mut().map(|o| (s, o))) {
             op.start(m, s, stage, u0[s].as_deref());
             if let Some(r) = record.as_mut() {
                 let (u, v) = op.state();
@@ -166,19 +194,19 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if let Some(mp) = macro_problem.as_mut() {
                 mp.rhs.fill(0.0);
             }
-            for (s, op) in ops.iter_mut().enumerate() {
+            for (s, op) in ops.iter_mut().enumerate().filter_map(|(s, o)| o.as_mut().map(|o| (s, o))) {
                 op.predict(m, s, stage, step, fields);
                 if let Some(mp) = macro_problem.as_mut() {
                     mp.add_residual(m, s, stage, step, fields, &op.x);
                 }
             }
             if let Some(mp) = macro_problem.as_mut() {
-                mp.solve();
+                mp.solve(self.comm);
             }
             let mp = macro_problem.as_deref();
             let macro_field =
                 |i: usize, _side: usize, j: usize, c: usize| mp.map_or(0.0, |mp| mp.field_value(D, i, j, c));
-            for (s, op) in ops.iter_mut().enumerate() {
+            for (s, op) in ops.iter_mut().enumerate().filter_map(|(s, o)| o.as_mut().map(|o| (s, o))) {
                 if let Some(mp) = mp {
                     mp.correct(s, &mut op.x);
                 }
@@ -191,13 +219,16 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         }
     }
 
+    /// Zero fields for the interfaces this rank holds (rank 0 holds all, to gather results).
     fn zero_stage(&self, steps: usize) -> StageSolution {
+        let m = self.model;
         StageSolution {
-            interfaces: self
-                .model
-                .interfaces
-                .iter()
-                .map(|itf| InterfaceField::zeros(itf.sides.len(), steps * itf.n_nodes() * D))
+            interfaces: (0..m.interfaces.len())
+                .map(|i| {
+                    let itf = &m.interfaces[i];
+                    let held = self.dist.rank == 0 || self.dist.holds_interface(m, i);
+                    InterfaceField::zeros(itf.sides.len(), if held { steps * itf.n_nodes() * D } else { 0 })
+                })
                 .collect(),
         }
     }
@@ -276,6 +307,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 // interval (velocities zero): the state the assembly is in before loading.
                 for (f, sf) in dynamic.interfaces.iter_mut().zip(&st.interfaces) {
                     let per_step = sf.len();
+                    if per_step == 0 || f.is_empty() {
+                        continue;
+                    }
                     for (sides, static_sides) in [(&mut f.s, &sf.s), (&mut f.hat, &sf.hat)] {
                         for (side, static_side) in sides.iter_mut().zip(static_sides) {
                             for chunk in side.force.chunks_mut(per_step) {
@@ -292,6 +326,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // Post-processing sweep on the converged local-stage fields.
         let t = Instant::now();
         let (qoi, fields) = self.post_process(&mut dynamic.interfaces, &u0, static_solution.as_ref(), options);
+        self.dist.gather_interfaces(self.comm, &mut dynamic.interfaces);
+        if let Some(st) = static_solution.as_mut() {
+            self.dist.gather_interfaces(self.comm, &mut st.interfaces);
+        }
         timings.post_processing += t.elapsed().as_secs_f64();
         Ok(SolveReport {
             static_stage: static_report,
@@ -319,7 +357,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 };
                 let (v1, v2) = (side_vel(0), side_vel(1));
                 vn[j] = (0..D).map(|c| nrm[c] * (v2[c] - v1[c])).sum();
-                if let Some(st) = statics {
+                if let (Some(st), true) = (statics, self.dist.owns_interface(i)) {
                     let hat = &st.interfaces[i].hat;
                     for c in 0..D {
                         let u1 = hat[0].velocity[j * D + c];
@@ -361,20 +399,31 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 p.clone_from(&f.s);
             }
             self.linear_stage(stage, fields, u0, None);
-            // relaxation (mu = 1 at the first iteration)
+            // relaxation (mu = 1 at the first iteration), on the sides this rank computed
             if iteration > 1 {
-                for (f, p) in fields.iter_mut().zip(&previous) {
-                    for (side, old) in f.s.iter_mut().zip(p) {
-                        let mut relaxed = old.clone();
-                        relaxed.relax_towards(side, settings.relaxation);
-                        *side = relaxed;
+                for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
+                    for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
+                        if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
+                            let mut relaxed = old.clone();
+                            relaxed.relax_towards(side, settings.relaxation);
+                            *side = relaxed;
+                        }
                     }
                 }
             }
+            self.dist.send_sides_to_owners(self.comm, m, fields);
             timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
             self.local_stage(stage, fields, gap_start, vn_start);
-            let eta = error_indicator(m, stage, fields);
+            let mut partial = vec![0.0; 2 * m.interfaces.len()];
+            for i in (0..m.interfaces.len()).filter(|&i| self.dist.owns_interface(i)) {
+                let (num, den) = interface_error(m, stage, i, &fields[i]);
+                partial[2 * i] = num;
+                partial[2 * i + 1] = den;
+            }
+            self.comm.sum_in_place(&mut partial);
+            let eta = error_indicator_from_parts(&partial);
+            self.dist.send_hats_to_sides(self.comm, m, fields);
             timings.local_stage += t.elapsed().as_secs_f64();
             report.iterations = iteration;
             report.error_indicator = eta;
@@ -400,6 +449,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         };
         let half_dt = 0.5 * m.dt;
         for (i, itf) in m.interfaces.iter().enumerate() {
+            if !self.dist.owns_interface(i) {
+                continue;
+            }
             let n = itf.n_nodes();
             let h1 = 1.0 / stage.k(&itf.sides[0]);
             let h2 = itf.sides.get(1).map_or(0.0, |s| 1.0 / stage.k(s));
@@ -444,6 +496,36 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     let vn: f64 = (0..D).map(|c| itf.normal[j][c] * (out.w2[c] - out.w1[c])).sum();
                     let gap = base[j] + weight * vn;
                     base[j] = gap + half_dt * vn;
+                }
+            }
+        }
+    }
+
+    /// Moves every substructure's field history to rank 0.
+    fn gather_field_history(&self, h: &mut FieldHistory) {
+        let (comm, dist, m) = (self.comm, &self.dist, self.model);
+        for r in 1..dist.size {
+            let subs: Vec<usize> = (0..m.substructures.len()).filter(|&s| dist.substructure_rank[s] == r).collect();
+            if dist.rank == r {
+                let mut buf = Vec::new();
+                for &s in &subs {
+                    for step in h.displacement[s].iter().chain(&h.velocity[s]) {
+                        buf.extend_from_slice(step);
+                    }
+                }
+                comm.send(0, &buf);
+            } else if dist.rank == 0 {
+                let buf = comm.receive(r);
+                let mut at = 0;
+                for &s in &subs {
+                    let n = m.substructures[s].n_dofs();
+                    let mut take = || {
+                        let v = buf[at..at + n].to_vec();
+                        at += n;
+                        v
+                    };
+                    h.displacement[s] = (0..=m.steps).map(|_| take()).collect();
+                    h.velocity[s] = (0..=m.steps).map(|_| take()).collect();
                 }
             }
         }
@@ -496,30 +578,55 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
         };
         self.linear_stage(Stage::Dynamic, &mut scratch, u0, Some(&mut record));
+        // Interface QoIs: computed by each interface's owner, as blocks of steps + 1 values
+        // (one block per part for forces), then summed over ranks: one contribution per value.
+        let len = m.steps + 1;
+        let mut blocks: Vec<f64> = Vec::new();
         for (q, qoi) in m.qois.iter().enumerate() {
             match qoi.target {
                 QoiTarget::Slip { interface, node } => {
-                    series[q].values = slip_history(m, &fields[interface], interface, node);
-                }
-                QoiTarget::Force { ref interfaces, component } => {
-                    let resultant = |stage: &[InterfaceField], step: usize| -> f64 {
-                        interfaces
-                            .clone()
-                            .map(|i| {
-                                let itf = &m.interfaces[i];
-                                let n = itf.n_nodes();
-                                let force = &stage[i].hat[0].force;
-                                (0..n).map(|j| itf.area[j] * force[(step * n + j) * D + component]).sum::<f64>()
-                            })
-                            .sum()
-                    };
-                    series[q].values[0] = statics.map_or(0.0, |st| resultant(&st.interfaces, 0));
-                    for step in 0..m.steps {
-                        series[q].values[step + 1] = resultant(fields, step);
+                    if self.dist.owns_interface(interface) {
+                        blocks.extend(slip_history(m, &fields[interface], interface, node));
+                    } else {
+                        blocks.extend(std::iter::repeat_n(0.0, len));
                     }
                 }
-                _ => {}
+                QoiTarget::Force { ref interfaces, component } => {
+                    for i in interfaces.clone() {
+                        if !self.dist.owns_interface(i) {
+                            blocks.extend(std::iter::repeat_n(0.0, len));
+                            continue;
+                        }
+                        let itf = &m.interfaces[i];
+                        let n = itf.n_nodes();
+                        let resultant = |force: &[f64], step: usize| -> f64 {
+                            (0..n).map(|j| itf.area[j] * force[(step * n + j) * D + component]).sum::<f64>()
+                        };
+                        blocks.push(statics.map_or(0.0, |st| resultant(&st.interfaces[i].hat[0].force, 0)));
+                        blocks.extend((0..m.steps).map(|step| resultant(&fields[i].hat[0].force, step)));
+                    }
+                }
+                _ => blocks.extend(std::mem::take(&mut series[q].values)),
             }
+        }
+        self.comm.sum_in_place(&mut blocks);
+        let mut at = 0;
+        for (q, qoi) in m.qois.iter().enumerate() {
+            let parts = match qoi.target {
+                QoiTarget::Force { ref interfaces, .. } => interfaces.len(),
+                _ => 1,
+            };
+            let mut values = vec![0.0; len];
+            for part in blocks[at..at + parts * len].chunks(len) {
+                for (v, p) in values.iter_mut().zip(part) {
+                    *v += p;
+                }
+            }
+            series[q].values = values;
+            at += parts * len;
+        }
+        if let Some(h) = history.as_mut() {
+            self.gather_field_history(h);
         }
         (series, history)
     }
@@ -571,21 +678,34 @@ fn slip_history<const D: usize>(m: &Model<D>, f: &InterfaceField, interface: usi
 /// eta^2 = sum a [|F - F^|^2 / k + k |W - W^|^2] / sum a [|F + F^|^2 / k + k |W + W^|^2]
 /// over interface nodes, sides and steps.
 pub fn error_indicator<const D: usize>(m: &Model<D>, stage: Stage, fields: &[InterfaceField]) -> f64 {
+    let parts: Vec<f64> =
+        (0..m.interfaces.len()).flat_map(|i| <[f64; 2]>::from(interface_error(m, stage, i, &fields[i]))).collect();
+    error_indicator_from_parts(&parts)
+}
+
+/// Numerator and denominator of the error indicator on one interface.
+fn interface_error<const D: usize>(m: &Model<D>, stage: Stage, i: usize, f: &InterfaceField) -> (f64, f64) {
+    let itf = &m.interfaces[i];
+    let n = itf.n_nodes();
     let (mut num, mut den) = (0.0, 0.0);
-    for (itf, f) in m.interfaces.iter().zip(fields) {
-        let n = itf.n_nodes();
-        for (k, side) in itf.sides.iter().enumerate() {
-            let kk = stage.k(side);
-            let (s, h) = (&f.s[k], &f.hat[k]);
-            for idx in 0..s.force.len() {
-                let a = itf.area[(idx / D) % n];
-                let (df, dw) = (s.force[idx] - h.force[idx], s.velocity[idx] - h.velocity[idx]);
-                let (sf, sw) = (s.force[idx] + h.force[idx], s.velocity[idx] + h.velocity[idx]);
-                num += a * (df * df / kk + kk * dw * dw);
-                den += a * (sf * sf / kk + kk * sw * sw);
-            }
+    for (k, side) in itf.sides.iter().enumerate() {
+        let kk = stage.k(side);
+        let (s, h) = (&f.s[k], &f.hat[k]);
+        for idx in 0..s.force.len() {
+            let a = itf.area[(idx / D) % n];
+            let (df, dw) = (s.force[idx] - h.force[idx], s.velocity[idx] - h.velocity[idx]);
+            let (sf, sw) = (s.force[idx] + h.force[idx], s.velocity[idx] + h.velocity[idx]);
+            num += a * (df * df / kk + kk * dw * dw);
+            den += a * (sf * sf / kk + kk * sw * sw);
         }
     }
+    (num, den)
+}
+
+/// eta from per-interface (numerator, denominator) pairs, summed in interface order so that the
+/// result does not depend on how interfaces are spread over ranks.
+fn error_indicator_from_parts(parts: &[f64]) -> f64 {
+    let (num, den) = parts.chunks(2).fold((0.0, 0.0), |(a, b), p| (a + p[0], b + p[1]));
     if den == 0.0 {
         // nothing moves and nothing is loaded: the zero solution is exact
         return if num == 0.0 { 0.0 } else { f64::INFINITY };
