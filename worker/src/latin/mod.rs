@@ -72,9 +72,16 @@ pub struct FieldHistory {
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Timings {
     pub factorisation: f64,
+    /// linear stages, including their macro problems and the transfer of side fields
     pub linear_stage: f64,
+    /// local stages, including the error-indicator reduction and the return of the fields
     pub local_stage: f64,
     pub post_processing: f64,
+    /// macro problems (right-hand side reduction and solve), part of `linear_stage`
+    pub macro_problem: f64,
+    /// interface-field exchanges and reductions (including waits on other ranks), part of the
+    /// linear and local stages
+    pub communication: f64,
 }
 
 /// Everything a solve produces.
@@ -117,6 +124,8 @@ pub struct LatinSolver<'m, const D: usize> {
     macro_static: Option<MacroProblem>,
     macro_dynamic: Option<MacroProblem>,
     factorisation_seconds: f64,
+    /// seconds in macro solves since the last `solve` started
+    macro_seconds: f64,
 }
 
 /// Called after each step of a linear stage with (substructure, step, u, v); step 0 is the
@@ -164,6 +173,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             macro_static,
             macro_dynamic,
             factorisation_seconds: start.elapsed().as_secs_f64(),
+            macro_seconds: 0.0,
         })
     }
 
@@ -201,7 +211,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 }
             }
             if let Some(mp) = macro_problem.as_mut() {
+                let t = Instant::now();
                 mp.solve(self.comm);
+                self.macro_seconds += t.elapsed().as_secs_f64();
             }
             let mp = macro_problem.as_deref();
             let macro_field =
@@ -263,6 +275,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     ) -> Result<SolveReport, SolverError> {
         let m = self.model;
         let mut timings = Timings { factorisation: self.factorisation_seconds, ..Default::default() };
+        self.macro_seconds = 0.0;
         let needs_static = m.needs_static_stage();
 
         // Static prestress stage.
@@ -331,6 +344,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             self.dist.gather_interfaces(self.comm, &mut st.interfaces);
         }
         timings.post_processing += t.elapsed().as_secs_f64();
+        timings.macro_problem = self.macro_seconds;
         Ok(SolveReport {
             static_stage: static_report,
             dynamic: report,
@@ -411,7 +425,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     }
                 }
             }
+            let c = Instant::now();
             self.dist.send_sides_to_owners(self.comm, m, fields);
+            timings.communication += c.elapsed().as_secs_f64();
             timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
             self.local_stage(stage, fields, gap_start, vn_start);
@@ -421,9 +437,11 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 partial[2 * i] = num;
                 partial[2 * i + 1] = den;
             }
+            let c = Instant::now();
             self.comm.sum_in_place(&mut partial);
             let eta = error_indicator_from_parts(&partial);
             self.dist.send_hats_to_sides(self.comm, m, fields);
+            timings.communication += c.elapsed().as_secs_f64();
             timings.local_stage += t.elapsed().as_secs_f64();
             report.iterations = iteration;
             report.error_indicator = eta;
