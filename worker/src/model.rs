@@ -181,6 +181,20 @@ impl<const D: usize> Model<D> {
         self.substructures.iter().map(|s| s.n_dofs()).sum()
     }
 
+    /// Moves the model to another design point that differs only in interface-law parameters
+    /// ([`Scene::interface_law_parameters`]): the interfaces' laws change, no operator does.
+    pub fn update_interface_laws(&mut self, scene: &Scene, values: &ParameterValues) -> Result<(), SceneError> {
+        let r = Resolver { values };
+        for (ii, spec) in scene.interfaces.iter().enumerate() {
+            let law = resolve_law(&r, &format!("interfaces[{ii}]"), spec)?;
+            for itf in self.interfaces.iter_mut().filter(|itf| itf.name == spec.name) {
+                itf.law = law;
+            }
+        }
+        self.parameters = values.clone();
+        Ok(())
+    }
+
     /// Builds the model of `scene` at the design point `values` (dimension must equal `D`).
     pub fn build(scene: &Scene, values: &ParameterValues) -> Result<Self, SceneError> {
         assert_eq!(scene.dimension, D, "scene dimension must match the model's");
@@ -355,21 +369,7 @@ impl<const D: usize> Model<D> {
             if interface_index.contains_key(&spec.name) {
                 return Err(invalid(format!("{key}.name"), format!("duplicate interface name '{}'", spec.name)));
             }
-            let law = match spec.law {
-                LawSpec::Perfect => InterfaceLaw::Perfect,
-                LawSpec::Contact => InterfaceLaw::Contact,
-                LawSpec::Friction => {
-                    let f = spec
-                        .friction
-                        .as_ref()
-                        .ok_or_else(|| invalid(format!("{key}.friction"), "law 'friction' needs a coefficient"))?;
-                    let f = r.get(&format!("{key}.friction"), f)?;
-                    if f < 0.0 {
-                        return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
-                    }
-                    InterfaceLaw::Friction { coefficient: f }
-                }
-            };
+            let law = resolve_law(&r, &key, spec)?;
             let (ba, faces_a) = find_face_set(&bodies, &format!("{key}.a"), &spec.a)?;
             let mesh_a = &bodies[ba].mesh;
             let first = interfaces.len();
@@ -666,6 +666,25 @@ impl<const D: usize> Model<D> {
             parameters: values.clone(),
         })
     }
+}
+
+/// The law of a declared interface at a design point.
+fn resolve_law(r: &Resolver, key: &str, spec: &crate::scene::InterfaceSpec) -> Result<InterfaceLaw, SceneError> {
+    Ok(match spec.law {
+        LawSpec::Perfect => InterfaceLaw::Perfect,
+        LawSpec::Contact => InterfaceLaw::Contact,
+        LawSpec::Friction => {
+            let f = spec
+                .friction
+                .as_ref()
+                .ok_or_else(|| invalid(format!("{key}.friction"), "law 'friction' needs a coefficient"))?;
+            let f = r.get(&format!("{key}.friction"), f)?;
+            if f < 0.0 {
+                return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
+            }
+            InterfaceLaw::Friction { coefficient: f }
+        }
+    })
 }
 
 fn usize_vector<const D: usize>(key: &str, v: &[usize]) -> Result<[usize; D], SceneError> {

@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use crate::comm::Communicator;
 use crate::latin::field::InterfaceSolution;
-use crate::latin::{FieldHistory, LatinSolver, SolveOptions, SolverError, StageReport, Timings};
+use crate::latin::{FieldHistory, LatinSolver, Operators, SolveOptions, SolverError, StageReport, Timings};
 use crate::model::Model;
 use crate::scene::{ParameterValues, Scale, Scene, SceneError};
 
@@ -104,22 +104,51 @@ pub fn solve_scene_on(
     request: &SolveRequest,
     init: Option<&InterfaceSolution>,
 ) -> Result<SolveOutcome, RunError> {
-    match scene.dimension {
-        1 => solve_dim::<1>(comm, scene, request, init),
-        2 => solve_dim::<2>(comm, scene, request, init),
-        _ => solve_dim::<3>(comm, scene, request, init),
+    PointSolver::default().solve(comm, scene, request, init)
+}
+
+/// Solves design point after design point, keeping the factorised operators of the last model
+/// while only interface-law parameters change (friction coefficients: METHOD.md 4), as a worker
+/// pool or a study does. Any other change (scene, other parameters, scale) refactorises.
+#[derive(Default)]
+pub struct PointSolver {
+    cache: Option<Box<dyn std::any::Any + Send>>,
+}
+
+/// A built model and its factorised operators, with what they were built for.
+struct Cached<const D: usize> {
+    key: String,
+    model: Model<D>,
+    operators: Operators,
+}
+
+impl PointSolver {
+    pub fn solve(
+        &mut self,
+        comm: &dyn Communicator,
+        scene: &Scene,
+        request: &SolveRequest,
+        init: Option<&InterfaceSolution>,
+    ) -> Result<SolveOutcome, RunError> {
+        match scene.dimension {
+            1 => solve_dim::<1>(comm, scene, request, init, &mut self.cache),
+            2 => solve_dim::<2>(comm, scene, request, init, &mut self.cache),
+            _ => solve_dim::<3>(comm, scene, request, init, &mut self.cache),
+        }
     }
 }
 
-fn solve_dim<const D: usize>(
-    comm: &dyn Communicator,
-    scene: &Scene,
-    request: &SolveRequest,
-    init: Option<&InterfaceSolution>,
-) -> Result<SolveOutcome, RunError> {
-    let start = Instant::now();
-    let values = scene.parameter_values(&request.set)?;
-    let mut model = Model::<D>::build(scene, &values)?;
+/// What the operators depend on: the scene, the parameters other than interface laws, the scale.
+fn operator_key(scene: &Scene, values: &ParameterValues, scale: Option<Scale>) -> String {
+    let law = scene.interface_law_parameters();
+    let others: Vec<String> =
+        values.iter().filter(|(k, _)| !law.contains(*k)).map(|(k, v)| format!("{k}={v:?}")).collect();
+    format!("{}|{scale:?}|{}", scene.content_hash(), others.join(","))
+}
+
+fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &SolveRequest) -> Result<(), RunError> {
+    model.settings.tolerance = scene.solver.tolerance;
+    model.settings.max_iterations = scene.solver.max_iterations;
     if let Some(t) = request.tolerance {
         if !(t > 0.0 && t.is_finite()) {
             return Err(crate::scene::invalid("--tol", format!("must be a positive number, got {t}")).into());
@@ -132,8 +161,36 @@ fn solve_dim<const D: usize>(
     if let Some(s) = request.scale {
         model.settings.scale = s;
     }
-    let mut solver = LatinSolver::new(&model, comm)?;
-    let report = solver.solve(init, &SolveOptions { record_fields: request.record_fields })?;
+    Ok(())
+}
+
+fn solve_dim<const D: usize>(
+    comm: &dyn Communicator,
+    scene: &Scene,
+    request: &SolveRequest,
+    init: Option<&InterfaceSolution>,
+    cache: &mut Option<Box<dyn std::any::Any + Send>>,
+) -> Result<SolveOutcome, RunError> {
+    let start = Instant::now();
+    let values = scene.parameter_values(&request.set)?;
+    let key = operator_key(scene, &values, request.scale);
+    let reusable = cache.take().and_then(|c| c.downcast::<Cached<D>>().ok()).filter(|c| c.key == key);
+    let (mut model, operators) = match reusable {
+        Some(c) => {
+            let Cached { mut model, operators, .. } = *c;
+            model.update_interface_laws(scene, &values)?;
+            (model, Some(operators))
+        }
+        None => (Model::<D>::build(scene, &values)?, None),
+    };
+    apply_request(&mut model, scene, request)?;
+    let mut solver = match operators {
+        Some(ops) => LatinSolver::with_operators(&model, comm, ops),
+        None => LatinSolver::new(&model, comm)?,
+    };
+    let report = solver.solve(init, &SolveOptions { record_fields: request.record_fields });
+    let operators = solver.into_operators();
+    let report = report?;
     let qoi = report
         .qoi
         .iter()
@@ -185,5 +242,6 @@ fn solve_dim<const D: usize>(
         qoi,
         timings: report.timings.clone(),
     };
+    *cache = Some(Box::new(Cached { key, model, operators }));
     Ok(SolveOutcome { summary, solution: report.solution, fields })
 }

@@ -248,6 +248,46 @@ impl Scene {
         Ok(scene)
     }
 
+    /// Parameters used only as friction coefficients of interfaces (`interfaces[*].friction`):
+    /// changing them changes no substructure operator, only the local stage, so a solve can
+    /// keep its factorisations and warm starts may blend solutions. A parameter also used
+    /// anywhere else (or never used) is not in the set.
+    pub fn interface_law_parameters(&self) -> std::collections::BTreeSet<String> {
+        fn walk(v: &serde_json::Value, path: &mut Vec<String>, uses: &mut BTreeMap<String, Vec<String>>) {
+            match v {
+                serde_json::Value::String(s) => {
+                    let name = s.strip_prefix('-').unwrap_or(s);
+                    uses.entry(name.to_string()).or_default().push(path.join("."));
+                }
+                serde_json::Value::Array(a) => {
+                    for x in a {
+                        path.push("[]".into());
+                        walk(x, path, uses);
+                        path.pop();
+                    }
+                }
+                serde_json::Value::Object(o) => {
+                    for (k, x) in o {
+                        path.push(k.clone());
+                        walk(x, path, uses);
+                        path.pop();
+                    }
+                }
+                _ => {}
+            }
+        }
+        let mut body = self.clone();
+        body.parameters.clear();
+        let value = serde_json::to_value(&body).expect("a scene serialises");
+        let mut uses = BTreeMap::new();
+        walk(&value, &mut Vec::new(), &mut uses);
+        self.parameters
+            .keys()
+            .filter(|name| uses.get(*name).is_some_and(|paths| paths.iter().all(|p| p == "interfaces.[].friction")))
+            .cloned()
+            .collect()
+    }
+
     /// Identity of the mechanical problem: hex SHA-256 of the scene serialised canonically
     /// (serde_json, maps sorted) without what does not change the solution of a design point —
     /// the `[solver]` section, the title, and the parameters' defaults, ranges and units (their
@@ -398,6 +438,17 @@ pub fn component_index(key: &str, name: &str, dim: usize) -> Result<usize, Scene
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn interface_law_parameters_are_friction_only() {
+        let text = include_str!("../../scenes/three-blocks-tiny.toml");
+        let scene = Scene::parse(text).unwrap();
+        let law: Vec<String> = scene.interface_law_parameters().into_iter().collect();
+        assert_eq!(law, vec!["f1".to_string(), "f2".to_string()]);
+        // a friction parameter also used as a load is no longer law-only
+        let scene = Scene::parse(&text.replace("pressure = \"pressure\"", "pressure = \"f1\"")).unwrap();
+        assert_eq!(scene.interface_law_parameters().into_iter().collect::<Vec<_>>(), vec!["f2".to_string()]);
+    }
 
     #[test]
     fn history_interpolates_and_holds() {

@@ -615,3 +615,29 @@ fn mpi_failing_rank_stops_the_job() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && stderr.contains("at most 2 ranks"), "{stderr}");
 }
+
+/// A sequence of design points differing only in friction reuses the factorised operators and
+/// gets exactly the result of a fresh solve; another parameter refactorises.
+#[test]
+fn point_solver_reuses_factorisations_across_friction_changes() {
+    use glissade_worker::comm::Serial;
+    use glissade_worker::run::{PointSolver, SolveRequest, solve_scene};
+    let scene = Scene::parse(include_str!("../../scenes/three-blocks-tiny.toml")).unwrap();
+    let at = |set: &[(&str, f64)]| SolveRequest {
+        set: set.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
+        tolerance: Some(1e-3),
+        ..Default::default()
+    };
+    let mut pool = PointSolver::default();
+    let first = pool.solve(&Serial, &scene, &at(&[("f1", 0.1)]), None).unwrap();
+    assert!(first.summary.timings.factorisation > 0.0);
+    let second = pool.solve(&Serial, &scene, &at(&[("f1", 0.15)]), None).unwrap();
+    assert_eq!(second.summary.timings.factorisation, 0.0, "friction change must not refactorise");
+    let fresh = solve_scene(&scene, &at(&[("f1", 0.15)]), None).unwrap();
+    assert_eq!(second.summary.iterations, fresh.summary.iterations);
+    for (name, q) in &fresh.summary.qoi {
+        assert_eq!(q.values, second.summary.qoi[name].values, "{name}");
+    }
+    let third = pool.solve(&Serial, &scene, &at(&[("f1", 0.15), ("prestress", 2e-4)]), None).unwrap();
+    assert!(third.summary.timings.factorisation > 0.0, "a prestress change rebuilds the operators");
+}

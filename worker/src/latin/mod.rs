@@ -128,6 +128,16 @@ pub struct LatinSolver<'m, const D: usize> {
     macro_seconds: f64,
 }
 
+/// The factorised operators of a model (substructure operators, macro problems) and where they
+/// live: taken out of a solver with [`LatinSolver::into_operators`] and given to the next one with
+/// [`LatinSolver::with_operators`], for design points that differ only in interface laws.
+pub struct Operators {
+    dist: Distribution,
+    ops: Vec<Option<SubstructureOperators>>,
+    macro_static: Option<MacroProblem>,
+    macro_dynamic: Option<MacroProblem>,
+}
+
 /// Called after each step of a linear stage with (substructure, step, u, v); step 0 is the
 /// initial state.
 pub type StepRecorder<'a> = &'a mut dyn FnMut(usize, usize, &[f64], &[f64]);
@@ -175,6 +185,18 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             factorisation_seconds: start.elapsed().as_secs_f64(),
             macro_seconds: 0.0,
         })
+    }
+
+    /// A solver reusing operators factorised for a model with the same substructures, loads and
+    /// search directions (only interface laws may differ); no factorisation is repeated.
+    pub fn with_operators(model: &'m Model<D>, comm: &'m dyn Communicator, operators: Operators) -> Self {
+        let Operators { dist, ops, macro_static, macro_dynamic, .. } = operators;
+        Self { model, comm, dist, ops, macro_static, macro_dynamic, factorisation_seconds: 0.0, macro_seconds: 0.0 }
+    }
+
+    /// Gives the factorised operators back, for the next design point.
+    pub fn into_operators(self) -> Operators {
+        Operators { dist: self.dist, ops: self.ops, macro_static: self.macro_static, macro_dynamic: self.macro_dynamic }
     }
 
     /// One linear stage over the whole time interval: at every step micro problem 1 in each
