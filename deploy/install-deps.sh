@@ -9,7 +9,9 @@ PACKAGES=(
   libhdf5-dev                 # HDF5 field output (hdf5-metno finds it through pkg-config)
   protobuf-compiler           # protoc for tonic/prost code generation
   libclang-dev                # bindgen, used by mpi-sys
-  python3 python3-venv        # the Python gRPC example client and the HDF5 reader check
+  python3 python3-venv        # the Python gRPC example client (its test pip-installs grpcio,
+                              # grpcio-tools, grpcio-reflection from PyPI into a venv under
+                              # target/) and the HDF5 reader check
 )
 
 missing=()

@@ -1,10 +1,29 @@
 //! The gRPC contract of glissade (generated) and the small domain types both ends share.
 
+pub mod chunks;
 pub mod domain;
 
+pub use chunks::{Assembler, CHUNK_BYTES, ChunkError, chunks};
 pub use domain::{IdParseError, ParameterError, ParameterVector, PointId, StudyId};
 
 /// Generated code of package `glissade.v1`.
 pub mod v1 {
     tonic::include_proto!("glissade.v1");
+}
+
+/// The encoded protobuf descriptors of `glissade.v1`, for server reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("glissade_descriptor");
+
+impl TryFrom<v1::ParameterVector> for ParameterVector {
+    type Error = ParameterError;
+
+    fn try_from(message: v1::ParameterVector) -> Result<Self, Self::Error> {
+        Self::try_from(message.values)
+    }
+}
+
+impl From<ParameterVector> for v1::ParameterVector {
+    fn from(vector: ParameterVector) -> Self {
+        Self { values: vector.into() }
+    }
 }

@@ -1,15 +1,86 @@
-//! The coordinator's persistent store.
+//! The coordinator's persistent store: named trees of byte keys and values, written in atomic,
+//! durable batches.
 //!
 //! The rest of the server sees only [`Store`], so sled (whose 1.0 is still alpha) can be swapped
-//! for another embedded engine without touching the service code.
+//! for another embedded engine (LMDB, SQLite) without touching the service code: the seam is
+//! get / scan / commit-a-batch, which every such engine offers. What the keys and values mean is
+//! `records.rs`'s business.
 
 use std::path::{Path, PathBuf};
 
 /// Version of the on-disk layout; bump it whenever keys or value encodings change.
-pub const SCHEMA_VERSION: u32 = 1;
+///
+/// 1: only this version key (the service stored nothing yet). 2: the trees of [`Tree`].
+pub const SCHEMA_VERSION: u32 = 2;
 
-/// Key under which the layout version is stored (a reserved prefix keeps it apart from data keys).
+/// Key of the layout version, in sled's default tree: where version 1 put it and where any
+/// glissade-server looks first, so an older binary opening a newer database sees a version it
+/// does not know and refuses, instead of taking the database for a new one.
 const SCHEMA_KEY: &[u8] = b"meta/schema-version";
+
+/// The trees of the database (sled trees; tables elsewhere).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Tree {
+    /// Scene content hash (hex) -> scene TOML text.
+    Scenes,
+    /// Study id (u64 big-endian) -> study record.
+    Studies,
+    /// Study id ++ point id (u64 big-endian each) -> point record.
+    Points,
+    /// Solution key (scene hash ++ parameter vector) -> solution metadata.
+    Solutions,
+    /// Solution key -> zstd-compressed solution file; apart from the metadata so that loading
+    /// the index at start reads kilobytes, not the fields.
+    SolutionFields,
+    /// Counters (next study id, next lease id).
+    Meta,
+}
+
+impl Tree {
+    /// Every tree, in a fixed order.
+    pub const ALL: [Tree; 6] =
+        [Tree::Scenes, Tree::Studies, Tree::Points, Tree::Solutions, Tree::SolutionFields, Tree::Meta];
+
+    /// Name of the tree on disk.
+    pub fn name(self) -> &'static str {
+        match self {
+            Tree::Scenes => "scenes",
+            Tree::Studies => "studies",
+            Tree::Points => "points",
+            Tree::Solutions => "solutions",
+            Tree::SolutionFields => "solution_fields",
+            Tree::Meta => "meta",
+        }
+    }
+
+    fn index(self) -> usize {
+        Self::ALL.iter().position(|&t| t == self).expect("every tree is in ALL")
+    }
+}
+
+/// Writes applied together or not at all.
+#[derive(Debug, Default)]
+pub struct Batch {
+    ops: Vec<(Tree, Vec<u8>, Vec<u8>)>,
+}
+
+impl Batch {
+    /// An empty batch.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Stores `value` under `key` in `tree`, replacing any previous value.
+    pub fn put(&mut self, tree: Tree, key: impl Into<Vec<u8>>, value: impl Into<Vec<u8>>) -> &mut Self {
+        self.ops.push((tree, key.into(), value.into()));
+        self
+    }
+
+    /// True when there is nothing to write.
+    pub fn is_empty(&self) -> bool {
+        self.ops.is_empty()
+    }
+}
 
 /// Errors of the store; each names the database directory involved.
 #[derive(Debug, thiserror::Error)]
@@ -44,26 +115,34 @@ pub enum StoreError {
     },
 }
 
-/// Minimal key-value interface the coordinator needs.
+/// What the coordinator needs from a storage engine.
 pub trait Store: Send + Sync {
-    /// The value stored under `key`, if any.
-    fn get(&self, key: &[u8]) -> Result<Option<Vec<u8>>, StoreError>;
-    /// Stores `value` under `key`, replacing any previous value.
-    fn put(&self, key: &[u8], value: &[u8]) -> Result<(), StoreError>;
-    /// Makes every earlier write durable.
+    /// The value under `key` in `tree`, if any.
+    fn get(&self, tree: Tree, key: &[u8]) -> Result<Option<Vec<u8>>, StoreError>;
+    /// Every `(key, value)` of `tree` whose key starts with `prefix`, in key order.
+    fn scan_prefix(&self, tree: Tree, prefix: &[u8]) -> Result<Vec<(Vec<u8>, Vec<u8>)>, StoreError>;
+    /// Applies every write of `batch` atomically, and durably: on disk when this returns, so a
+    /// SIGKILL right after loses nothing.
+    fn commit(&self, batch: Batch) -> Result<(), StoreError>;
+    /// Makes every earlier write durable (commits already are; this is for shutdown).
     fn flush(&self) -> Result<(), StoreError>;
+    /// Bytes the database occupies on disk.
+    fn size_on_disk(&self) -> Result<u64, StoreError>;
 }
 
 /// [`Store`] backed by a sled database directory.
 pub struct SledStore {
     db: sled::Db,
+    /// Open trees, indexed like [`Tree::ALL`].
+    trees: Vec<sled::Tree>,
     path: PathBuf,
 }
 
 impl SledStore {
     /// Opens (creating if needed) the database in `dir` and checks its schema version.
     ///
-    /// A new database gets [`SCHEMA_VERSION`]; an existing one with another version is refused.
+    /// A new database gets [`SCHEMA_VERSION`]; a version-1 one (which held nothing but its
+    /// version) is migrated; any other version is refused.
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         let path = dir.to_path_buf();
         let db = sled::open(dir).map_err(|source| match source {
@@ -73,25 +152,41 @@ impl SledStore {
             }
             source => StoreError::Engine { path: path.clone(), source },
         })?;
-        let store = Self { db, path };
-        match store.get(SCHEMA_KEY)? {
+        let engine = |source| StoreError::Engine { path: path.clone(), source };
+        let found = db.get(SCHEMA_KEY).map_err(engine)?;
+        // Check before opening trees: opening one creates it, which would change an old database.
+        let expected = SCHEMA_VERSION.to_string();
+        match found.as_deref() {
             None => {
-                store.put(SCHEMA_KEY, SCHEMA_VERSION.to_string().as_bytes())?;
-                store.flush()?;
-                tracing::info!(path = %store.path.display(), SCHEMA_VERSION, "created database");
+                let has_trees = db.tree_names().iter().any(|n| &n[..] != b"__sled__default");
+                if !db.is_empty() || has_trees {
+                    return Err(StoreError::SchemaMismatch { path, found: "(none)".into(), expected: SCHEMA_VERSION });
+                }
+                db.insert(SCHEMA_KEY, expected.as_bytes()).map_err(engine)?;
+                tracing::info!(path = %path.display(), SCHEMA_VERSION, "created database");
             }
-            Some(found) if found == SCHEMA_VERSION.to_string().as_bytes() => {
-                tracing::info!(path = %store.path.display(), SCHEMA_VERSION, "opened database");
+            Some(b"1") if db.len() == 1 && db.tree_names().len() == 1 => {
+                db.insert(SCHEMA_KEY, expected.as_bytes()).map_err(engine)?;
+                tracing::info!(path = %path.display(), SCHEMA_VERSION, "migrated an empty version-1 database");
             }
-            Some(found) => {
+            Some(v) if v == expected.as_bytes() => {
+                tracing::info!(path = %path.display(), SCHEMA_VERSION, "opened database");
+            }
+            Some(v) => {
                 return Err(StoreError::SchemaMismatch {
-                    path: store.path,
-                    found: String::from_utf8_lossy(&found).into_owned(),
+                    path,
+                    found: String::from_utf8_lossy(v).into_owned(),
                     expected: SCHEMA_VERSION,
                 });
             }
         }
-        Ok(store)
+        let trees = Tree::ALL.iter().map(|t| db.open_tree(t.name())).collect::<Result<Vec<_>, _>>().map_err(engine)?;
+        db.flush().map_err(engine)?;
+        Ok(Self { db, trees, path })
+    }
+
+    fn tree(&self, tree: Tree) -> &sled::Tree {
+        &self.trees[tree.index()]
     }
 
     fn engine_error(&self, source: sled::Error) -> StoreError {
@@ -100,16 +195,54 @@ impl SledStore {
 }
 
 impl Store for SledStore {
-    fn get(&self, key: &[u8]) -> Result<Option<Vec<u8>>, StoreError> {
-        self.db.get(key).map(|v| v.map(|ivec| ivec.to_vec())).map_err(|e| self.engine_error(e))
+    fn get(&self, tree: Tree, key: &[u8]) -> Result<Option<Vec<u8>>, StoreError> {
+        self.tree(tree).get(key).map(|v| v.map(|ivec| ivec.to_vec())).map_err(|e| self.engine_error(e))
     }
 
-    fn put(&self, key: &[u8], value: &[u8]) -> Result<(), StoreError> {
-        self.db.insert(key, value).map(drop).map_err(|e| self.engine_error(e))
+    fn scan_prefix(&self, tree: Tree, prefix: &[u8]) -> Result<Vec<(Vec<u8>, Vec<u8>)>, StoreError> {
+        self.tree(tree)
+            .scan_prefix(prefix)
+            .map(|kv| kv.map(|(k, v)| (k.to_vec(), v.to_vec())))
+            .collect::<Result<_, _>>()
+            .map_err(|e| self.engine_error(e))
+    }
+
+    fn commit(&self, batch: Batch) -> Result<(), StoreError> {
+        if batch.is_empty() {
+            return Ok(());
+        }
+        // One transaction over the trees the batch touches.
+        let mut involved: Vec<Tree> = Vec::new();
+        for (tree, _, _) in &batch.ops {
+            if !involved.contains(tree) {
+                involved.push(*tree);
+            }
+        }
+        let handles: Vec<&sled::Tree> = involved.iter().map(|&t| self.tree(t)).collect();
+        use sled::Transactional;
+        handles[..]
+            .transaction(|views| {
+                for (tree, key, value) in &batch.ops {
+                    let view = &views[involved.iter().position(|t| t == tree).expect("tree listed above")];
+                    view.insert(key.as_slice(), value.as_slice())?;
+                }
+                Ok(())
+            })
+            .map_err(|e: sled::transaction::TransactionError<()>| match e {
+                sled::transaction::TransactionError::Storage(source) => self.engine_error(source),
+                sled::transaction::TransactionError::Abort(()) => {
+                    unreachable!("the transaction closure never aborts")
+                }
+            })?;
+        self.flush()
     }
 
     fn flush(&self) -> Result<(), StoreError> {
         self.db.flush().map(drop).map_err(|e| self.engine_error(e))
+    }
+
+    fn size_on_disk(&self) -> Result<u64, StoreError> {
+        self.db.size_on_disk().map_err(|e| self.engine_error(e))
     }
 }
 
@@ -122,12 +255,16 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         {
             let store = SledStore::open(dir.path()).unwrap();
-            assert_eq!(store.get(SCHEMA_KEY).unwrap().as_deref(), Some(&b"1"[..]));
-            store.put(b"k", b"v").unwrap();
-            store.flush().unwrap();
+            assert_eq!(store.db.get(SCHEMA_KEY).unwrap().as_deref(), Some(&b"2"[..]));
+            let mut batch = Batch::new();
+            batch.put(Tree::Studies, b"k".to_vec(), b"v".to_vec()).put(Tree::Points, b"k1".to_vec(), b"w".to_vec());
+            store.commit(batch).unwrap();
         }
         let store = SledStore::open(dir.path()).unwrap();
-        assert_eq!(store.get(b"k").unwrap().as_deref(), Some(&b"v"[..]));
+        assert_eq!(store.get(Tree::Studies, b"k").unwrap().as_deref(), Some(&b"v"[..]));
+        assert_eq!(store.get(Tree::Points, b"k").unwrap(), None);
+        assert_eq!(store.scan_prefix(Tree::Points, b"k").unwrap(), vec![(b"k1".to_vec(), b"w".to_vec())]);
+        assert!(store.size_on_disk().unwrap() > 0);
     }
 
     #[test]
@@ -135,7 +272,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         {
             let store = SledStore::open(dir.path()).unwrap();
-            store.put(SCHEMA_KEY, b"999").unwrap();
+            store.db.insert(SCHEMA_KEY, b"999").unwrap();
             store.flush().unwrap();
         }
         let err = SledStore::open(dir.path()).err().expect("must refuse");
@@ -144,5 +281,27 @@ mod tests {
             "{err}"
         );
         assert!(err.to_string().contains("schema version 999"), "{err}");
+    }
+
+    #[test]
+    fn empty_version_1_database_is_migrated_and_a_versionless_one_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let db = sled::open(dir.path()).unwrap();
+            db.insert(SCHEMA_KEY, b"1").unwrap();
+            db.flush().unwrap();
+        }
+        let store = SledStore::open(dir.path()).unwrap();
+        assert_eq!(store.db.get(SCHEMA_KEY).unwrap().as_deref(), Some(&b"2"[..]));
+        drop(store);
+
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let db = sled::open(dir.path()).unwrap();
+            db.open_tree("studies").unwrap().insert(b"1", b"x").unwrap();
+            db.flush().unwrap();
+        }
+        let err = SledStore::open(dir.path()).err().expect("must refuse data without a version");
+        assert!(matches!(&err, StoreError::SchemaMismatch { found, .. } if found == "(none)"), "{err}");
     }
 }

@@ -94,10 +94,16 @@ impl Drop for ServerGuard {
 
 /// Starts `glissade-server` on a free port and returns it with the address from its stdout line.
 fn start_server(data: &Path, log: &Path) -> (ServerGuard, SocketAddr) {
+    start_server_with(data, log, "127.0.0.1:0", &[])
+}
+
+/// Starts `glissade-server` listening on `listen` with extra arguments.
+fn start_server_with(data: &Path, log: &Path, listen: &str, args: &[&str]) -> (ServerGuard, SocketAddr) {
     let token = child_token();
     let child = command(&workspace_bin("glissade-server"))
-        .args(["--listen", "127.0.0.1:0", "--data"])
+        .args(["--listen", listen, "--data"])
         .arg(data)
+        .args(args)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(File::create(log).expect("create server log"))
@@ -170,7 +176,7 @@ fn server_and_client_talk_and_fail_cleanly() -> anyhow::Result<()> {
     // must make the next server refuse to start, with one clear line.
     {
         let db = sled::open(&data)?;
-        assert_eq!(db.get("meta/schema-version")?.as_deref(), Some(&b"1"[..]));
+        assert_eq!(db.get("meta/schema-version")?.as_deref(), Some(&b"2"[..]));
         db.insert("meta/schema-version", "999")?;
         db.flush()?;
     }
@@ -363,5 +369,662 @@ fn worker_rejects_bad_input_with_one_line() -> anyhow::Result<()> {
         assert!(stderr.starts_with("error: ") && stderr.contains(named), "{args:?}: {stderr}");
         assert!(out.stdout.is_empty(), "{args:?}: {}", text(&out.stdout));
     }
+    Ok(())
+}
+
+// ---- the service: coordinator, worker pools and studies over gRPC ----
+
+use glissade_proto::v1;
+use glissade_proto::v1::pool_client::PoolClient;
+use glissade_proto::v1::user_client::UserClient;
+use tonic::Code;
+use tonic::transport::Channel;
+
+/// The shipped tiny three-blocks scene: f1, f2 in [0.1, 0.2]; a cold solve takes well under a
+/// second in a debug build.
+fn tiny_scene() -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    std::fs::read_to_string(path).expect("read scenes/three-blocks-tiny.toml")
+}
+
+/// Tolerance of the service studies where results are only checked for what they are.
+const STUDY_TOL: f64 = 1e-3;
+
+/// Starts `glissade-worker pool` against `url`, logging to `log`.
+fn start_pool(url: &str, id: &str, log: &Path) -> ServerGuard {
+    let token = child_token();
+    let child = command(&workspace_bin("glissade-worker"))
+        .args(["pool", "--coordinator", url, "--pool-id", id])
+        .env("RUST_LOG", "glissade_worker::pool=debug")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(File::create(log).expect("create pool log"))
+        .spawn()
+        .expect("start glissade-worker pool");
+    ServerGuard(child, token)
+}
+
+/// Sends SIGTERM to a child and waits for it to exit.
+fn terminate(child: &mut Child) -> std::process::ExitStatus {
+    let kill = run_with_timeout(Command::new("kill").args(["-TERM", &child.id().to_string()]), LIMIT);
+    assert!(kill.status.success(), "kill: {}", text(&kill.stderr));
+    wait_with_timeout(child, LIMIT).expect("did not stop within the limit after SIGTERM")
+}
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread().enable_all().build().expect("tokio runtime")
+}
+
+async fn user(url: &str) -> anyhow::Result<UserClient<Channel>> {
+    Ok(UserClient::connect(url.to_owned()).await?)
+}
+
+fn grid_request(grid: &[&str], tolerance: f64) -> v1::SubmitStudyRequest {
+    v1::SubmitStudyRequest {
+        scene: tiny_scene(),
+        grid: grid.iter().map(|g| g.to_string()).collect(),
+        tolerance: Some(tolerance),
+        ..Default::default()
+    }
+}
+
+fn kind(e: &v1::StudyEvent) -> v1::EventKind {
+    v1::EventKind::try_from(e.kind).unwrap_or(v1::EventKind::Unspecified)
+}
+
+fn point_id(e: &v1::StudyEvent) -> u64 {
+    e.point.as_ref().map_or(u64::MAX, |p| p.point_id)
+}
+
+/// Watches study `id` until it ends, passing each event to `on_event` (which may stop the watch
+/// early by returning false); returns the events seen.
+async fn watch(
+    client: &mut UserClient<Channel>,
+    id: u64,
+    mut on_event: impl FnMut(&v1::StudyEvent) -> bool,
+) -> anyhow::Result<Vec<v1::StudyEvent>> {
+    let mut stream = client.watch_study(v1::WatchStudyRequest { study_id: id }).await?.into_inner();
+    let mut events = Vec::new();
+    loop {
+        let next = tokio::time::timeout(LIMIT, stream.message()).await;
+        let event = next.map_err(|_| anyhow::anyhow!("no event within {LIMIT:?}; so far: {events:?}"))??;
+        let Some(event) = event else { anyhow::bail!("the watch stream ended before the study did: {events:?}") };
+        let go_on = on_event(&event);
+        let ended = kind(&event) == v1::EventKind::StudyEnded;
+        events.push(event);
+        if ended || !go_on {
+            return Ok(events);
+        }
+    }
+}
+
+async fn study(client: &mut UserClient<Channel>, id: u64) -> anyhow::Result<v1::Study> {
+    Ok(client.get_study(v1::GetStudyRequest { study_id: id, points: true }).await?.into_inner())
+}
+
+/// The `--json` summary of a direct `glissade-worker solve` of the tiny scene at a point.
+fn direct_solve(parameters: &std::collections::BTreeMap<String, f64>, tol: f64) -> serde_json::Value {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let mut args = vec![scene.into_os_string(), "--json".into(), "--tol".into(), tol.to_string().into()];
+    for (k, v) in parameters {
+        args.push("--set".into());
+        args.push(format!("{k}={v}").into());
+    }
+    let args: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+    converged_json(&worker_solve(dir.path(), &args))
+}
+
+fn log_of(path: &Path) -> String {
+    std::fs::read_to_string(path).unwrap_or_default()
+}
+
+/// Fetches a stored solution file through FetchSolution.
+async fn fetch(
+    client: &mut UserClient<Channel>,
+    which: v1::fetch_solution_request::Solution,
+) -> anyhow::Result<Vec<u8>> {
+    let mut stream = client.fetch_solution(v1::FetchSolutionRequest { solution: Some(which) }).await?.into_inner();
+    let mut bytes = Vec::new();
+    while let Some(chunk) = stream.message().await? {
+        assert_eq!(chunk.offset as usize, bytes.len(), "chunks in order");
+        assert!(chunk.data.len() <= glissade_proto::CHUNK_BYTES);
+        bytes.extend_from_slice(&chunk.data);
+    }
+    Ok(bytes)
+}
+
+/// QoIs of a service point and of a direct solve: within 10 x tol x the QoI's magnitude.
+fn assert_qois_agree(point: &v1::PointStatus, direct: &serde_json::Value, tol: f64) {
+    assert!(!point.qoi.is_empty(), "{point:?}");
+    for (name, value) in &point.qoi {
+        let expected = direct["qoi"][name]["final"].as_f64().expect("QoI in the direct solve");
+        let scale = direct["qoi"][name]["values"]
+            .as_array()
+            .map_or(0.0, |v| v.iter().map(|x| x.as_f64().unwrap_or(0.0).abs()).fold(0.0, f64::max));
+        assert!(
+            (value - expected).abs() <= 10.0 * tol * scale,
+            "point {:?} {name}: service {value}, direct {expected}",
+            point.parameters
+        );
+    }
+}
+
+#[test]
+fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (server_log, pool_logs) = (dir.path().join("server.log"), [dir.path().join("a.log"), dir.path().join("b.log")]);
+    let (mut server, addr) = start_server_with(&dir.path().join("db"), &server_log, "127.0.0.1:0", &[]);
+    let url = format!("http://{addr}");
+    let mut pools = [start_pool(&url, "pool-a", &pool_logs[0]), start_pool(&url, "pool-b", &pool_logs[1])];
+    let glissade = workspace_bin("glissade");
+    let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let logs = || {
+        let [a, b] = &pool_logs;
+        format!("server:\n{}\npool-a:\n{}\npool-b:\n{}", log_of(&server_log), log_of(a), log_of(b))
+    };
+
+    // A cold study (so that each point is exactly a direct solve), submitted with the CLI.
+    let out = run_with_timeout(
+        command(&glissade).args(["--server", &url, "submit"]).arg(&scene_path).args([
+            "--grid",
+            "f1=0.1:0.2:3",
+            "--grid",
+            "f2=0.1:0.2:3",
+            "--tol",
+            &STUDY_TOL.to_string(),
+            "--strategy",
+            "cold",
+            "--json",
+        ]),
+        LIMIT,
+    );
+    assert!(out.status.success(), "submit: {}", text(&out.stderr));
+    let submitted: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(submitted["points"], 9, "{submitted}");
+    let first = submitted["study_id"].as_u64().expect("study_id");
+    let scene_hash = submitted["scene_hash"].as_str().expect("scene_hash").to_owned();
+
+    let rt = runtime();
+    let (events, first_study) = rt.block_on(async {
+        let mut client = user(&url).await?;
+        let events = watch(&mut client, first, |_| true).await?;
+        anyhow::Ok((events, study(&mut client, first).await?))
+    })?;
+    // Every point finished exactly once, on one of the two pools, with one lease.
+    let mut finished: Vec<u64> =
+        events.iter().filter(|e| kind(e) == v1::EventKind::PointFinished && !e.replay).map(point_id).collect();
+    finished.sort();
+    assert_eq!(finished, (0..9).collect::<Vec<_>>(), "{}", logs());
+    assert_eq!(first_study.state, v1::StudyState::Done as i32);
+    for p in &first_study.points {
+        assert_eq!(p.state, v1::PointState::Done as i32, "{p:?}");
+        assert_eq!(p.attempts, 1, "{p:?}");
+        assert!(["pool-a", "pool-b"].contains(&p.pool_id.as_str()), "{p:?}");
+        assert!(p.error_indicator <= STUDY_TOL && p.iterations > 0 && p.started_from.is_none(), "{p:?}");
+    }
+    // the CLI shows it
+    let out =
+        run_with_timeout(command(&glissade).args(["--server", &url, "show", &first.to_string(), "--json"]), LIMIT);
+    assert!(out.status.success(), "show: {}", text(&out.stderr));
+    let shown: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(
+        (&shown["state"], &shown["progress"]["done"], &shown["strategy"]),
+        (&"done".into(), &9.into(), &"cold".into())
+    );
+
+    // The same points solved directly: the same iterations, QoIs within 10x the tolerance.
+    for p in &first_study.points {
+        let direct = direct_solve(&p.parameters, STUDY_TOL);
+        assert_eq!(direct["iterations"].as_u64(), Some(p.iterations), "{p:?}");
+        assert_qois_agree(p, &direct, STUDY_TOL);
+    }
+
+    // A second study of the same scene starts from the first one's solutions: fewer iterations.
+    let second_study = rt.block_on(async {
+        let mut client = user(&url).await?;
+        let reply =
+            client.submit_study(grid_request(&["f1=0.125:0.175:2", "f2=0.125:0.175:2"], STUDY_TOL)).await?.into_inner();
+        assert_eq!(reply.scene_hash, scene_hash);
+        watch(&mut client, reply.study_id, |_| true).await?;
+        study(&mut client, reply.study_id).await
+    })?;
+    let mean = |s: &v1::Study| s.points.iter().map(|p| p.iterations as f64).sum::<f64>() / s.points.len() as f64;
+    for p in &second_study.points {
+        assert_eq!(p.state, v1::PointState::Done as i32, "{p:?}");
+        assert_eq!(p.started_from.as_ref().map(|f| f.study_id), Some(first), "{p:?}");
+    }
+    assert!(
+        mean(&second_study) < 0.6 * mean(&first_study),
+        "second study: {} iterations per point, the first (cold) {}",
+        mean(&second_study),
+        mean(&first_study)
+    );
+
+    // A warm-started point solved directly from the same stored solution gives the same result:
+    // the pool runs exactly the solve of `glissade-worker solve --init`.
+    use v1::fetch_solution_request::Solution;
+    let warm = &second_study.points[0];
+    let from = warm.started_from.clone().expect("checked above");
+    let key = v1::SolutionKey { scene_hash: from.scene_hash.clone(), parameters: from.parameters.clone() };
+    let init = rt.block_on(async { fetch(&mut user(&url).await?, Solution::Key(key)).await })?;
+    std::fs::write(dir.path().join("init.bin"), init)?;
+    let mut args: Vec<std::ffi::OsString> =
+        vec![scene_path.clone().into(), "--json".into(), "--tol".into(), STUDY_TOL.to_string().into()];
+    args.extend(["--init".into(), dir.path().join("init.bin").into()]);
+    for (k, v) in &warm.parameters {
+        args.extend(["--set".into(), format!("{k}={v}").into()]);
+    }
+    let args: Vec<&std::ffi::OsStr> = args.iter().map(|a| a.as_os_str()).collect();
+    let same = converged_json(&worker_solve(dir.path(), &args));
+    assert_eq!(same["iterations"].as_u64(), Some(warm.iterations), "{warm:?}\n{same}");
+    assert_qois_agree(warm, &same, STUDY_TOL);
+
+    // Response surfaces: over a study, a slice of it, every solution of the scene.
+    rt.block_on(async {
+        use v1::query_surface_request::Source;
+        let mut client = user(&url).await?;
+        let q = |source, fixed: &[(&str, f64)]| v1::QuerySurfaceRequest {
+            source: Some(source),
+            fixed: fixed.iter().map(|&(k, v)| (k.to_owned(), v)).collect(),
+            qoi: vec![],
+        };
+        let s = client.query_surface(q(Source::StudyId(first), &[])).await?.into_inner();
+        assert_eq!(s.points.len(), 9);
+        assert_eq!(s.parameters, ["f1", "f2"]);
+        assert_eq!(s.qoi, ["middle_ux", "slip_A", "slip_B"]);
+        let slice = client.query_surface(q(Source::StudyId(first), &[("f1", 0.1)])).await?.into_inner();
+        assert_eq!(slice.points.len(), 3);
+        assert!(slice.points.iter().all(|p| p.parameters["f1"] == 0.1 && p.converged));
+        let all = client.query_surface(q(Source::SceneHash(scene_hash.clone()), &[("f2", 0.125)])).await?.into_inner();
+        assert_eq!(all.points.len(), 2, "{all:?}");
+        let all = client.query_surface(q(Source::SceneHash(scene_hash.clone()), &[])).await?.into_inner();
+        assert_eq!(all.points.len(), 13);
+
+        // The stored solution of a point: a whole solution file of this scene and point.
+        let bytes = fetch(&mut client, Solution::Point(v1::PointKey { study_id: first, point_id: 4 })).await?;
+        let (meta, _) = glissade_worker::io::solution_file::read_from(&bytes[..])?;
+        assert_eq!(meta.scene_hash, scene_hash);
+        assert_eq!((meta.parameters["f1"], meta.parameters["f2"]), (0.15, 0.15));
+        assert!(meta.converged);
+        anyhow::Ok(())
+    })?;
+
+    // Idle pools stop at once on SIGTERM, successfully; so does the coordinator.
+    drop(rt);
+    for pool in &mut pools {
+        let status = terminate(&mut pool.0);
+        assert!(status.success(), "pool exited with {status}:\n{}", logs());
+    }
+    let status = terminate(&mut server.0);
+    assert!(status.success(), "server exited with {status}:\n{}", logs());
+    Ok(())
+}
+
+#[test]
+fn service_survives_a_killed_pool_and_a_killed_coordinator() -> anyhow::Result<()> {
+    const TOL: f64 = 1e-4; // long enough solves (about a second cold) to be killed in the middle
+    let dir = tempfile::tempdir()?;
+    let data = dir.path().join("db");
+    let logs = ["server1.log", "server2.log", "a.log", "b.log"].map(|n| dir.path().join(n));
+    let all_logs = || logs.iter().map(|l| format!("{}:\n{}", l.display(), log_of(l))).collect::<Vec<_>>().join("\n");
+    let lease = ["--lease-seconds", "1.5", "--max-attempts", "5"];
+    let (mut server, addr) = start_server_with(&data, &logs[0], "127.0.0.1:0", &lease);
+    let url = format!("http://{addr}");
+    let mut pool_a = start_pool(&url, "pool-a", &logs[2]);
+    let rt = runtime();
+
+    let mut client = rt.block_on(user(&url))?;
+    let id =
+        rt.block_on(client.submit_study(grid_request(&["f1=0.1:0.2:3", "f2=0.1:0.2:3"], TOL)))?.into_inner().study_id;
+    // Kill pool A with SIGKILL as soon as it starts its first point.
+    let started = rt.block_on(watch(&mut client, id, |e| kind(e) != v1::EventKind::PointStarted))?;
+    pool_a.0.kill()?;
+    let _ = pool_a.0.wait();
+    let killed = point_id(started.last().expect("an event"));
+    assert_eq!(started.last().and_then(|e| e.point.as_ref()).map(|p| p.pool_id.as_str()), Some("pool-a"));
+
+    // Pool B takes over; the lost point comes back when its lease expires.
+    let _pool_b = start_pool(&url, "pool-b", &logs[3]);
+    let mut finished_before = std::collections::BTreeSet::new();
+    let mut requeued = false;
+    rt.block_on(watch(&mut client, id, |e| {
+        match kind(e) {
+            v1::EventKind::PointRequeued if point_id(e) == killed && !e.replay => requeued = true,
+            v1::EventKind::PointFinished if !e.replay => {
+                assert!(finished_before.insert(point_id(e)), "point {} finished twice", point_id(e));
+            }
+            _ => {}
+        }
+        !(requeued && finished_before.len() >= 3)
+    }))?;
+    assert!(requeued, "the killed pool's point was never requeued:\n{}", all_logs());
+
+    // Kill the coordinator mid-study and restart it on the same data and address.
+    let done_before: Vec<u64> = rt
+        .block_on(study(&mut client, id))?
+        .points
+        .iter()
+        .filter(|p| p.state == v1::PointState::Done as i32)
+        .map(|p| p.point_id)
+        .collect();
+    assert!(done_before.len() < 9, "the study ended before the coordinator could be killed");
+    server.0.kill()?;
+    let _ = server.0.wait();
+    drop(server);
+    let (_server, _) = start_server_with(&data, &logs[1], &addr.to_string(), &lease);
+    let mut client = rt.block_on(user(&url))?;
+    let mut finished_after = std::collections::BTreeSet::new();
+    let mut replayed_done = std::collections::BTreeSet::new();
+    rt.block_on(watch(&mut client, id, |e| {
+        if kind(e) == v1::EventKind::PointFinished {
+            let set = if e.replay { &mut replayed_done } else { &mut finished_after };
+            assert!(set.insert(point_id(e)), "point {} finished twice", point_id(e));
+        }
+        true
+    }))?;
+    let after = rt.block_on(study(&mut client, id))?;
+
+    // Nothing lost: what was done before the kill is still done; nothing done twice.
+    for p in &done_before {
+        assert!(replayed_done.contains(p), "point {p} was done before the kill, not after:\n{}", all_logs());
+    }
+    assert!(finished_after.is_disjoint(&replayed_done), "{finished_after:?} {replayed_done:?}");
+    assert!(finished_after.is_disjoint(&finished_before), "{finished_after:?} {finished_before:?}");
+    let all: std::collections::BTreeSet<u64> = replayed_done.union(&finished_after).copied().collect();
+    assert_eq!(all, (0..9).collect(), "\n{}", all_logs());
+    assert_eq!(after.state, v1::StudyState::Done as i32, "{after:?}");
+    let lost = &after.points[killed as usize];
+    assert!(lost.attempts >= 2, "the killed pool's point was leased {} times: {lost:?}", lost.attempts);
+    assert!(after.points.iter().all(|p| p.state == v1::PointState::Done as i32 && p.error_indicator <= TOL));
+    // one stored solution per point: no duplicate
+    let surface = rt.block_on(client.query_surface(v1::QuerySurfaceRequest {
+        source: Some(v1::query_surface_request::Source::SceneHash(after.scene_hash.clone())),
+        ..Default::default()
+    }))?;
+    assert_eq!(surface.into_inner().points.len(), 9);
+    // pool B reconnected by itself
+    assert!(log_of(&logs[3]).contains("reconnecting") || log_of(&logs[3]).contains("cannot reach"), "{}", all_logs());
+    Ok(())
+}
+
+/// A pool client in the test: registers, leases a point of the tiny scene.
+async fn fake_pool(url: &str, id: &str) -> anyhow::Result<(PoolClient<Channel>, v1::Lease)> {
+    let mut pool = PoolClient::connect(url.to_owned()).await?;
+    pool.register_pool(v1::RegisterPoolRequest {
+        pool_id: id.into(),
+        ranks: 1,
+        host: "test".into(),
+        solver_version: env!("CARGO_PKG_VERSION").into(),
+    })
+    .await?;
+    let mut stream = pool.lease_point(v1::LeasePointRequest { pool_id: id.into(), wait_ms: 5000 }).await?.into_inner();
+    let Some(v1::LeaseMessage { body: Some(v1::lease_message::Body::Lease(lease)) }) = stream.message().await? else {
+        anyhow::bail!("no lease");
+    };
+    while stream.message().await?.is_some() {}
+    Ok((pool, lease))
+}
+
+/// CompletePoint: a header with the outcome of the solution file `valid` announcing `announced`
+/// bytes, then the chunks of `bytes` (`valid` itself, or a damaged or foreign file).
+async fn complete(
+    pool: &mut PoolClient<Channel>,
+    lease: &v1::Lease,
+    pool_id: &str,
+    valid: &[u8],
+    bytes: &[u8],
+    announced: usize,
+) -> Result<v1::CompletePointReply, tonic::Status> {
+    let (meta, _) = glissade_worker::io::solution_file::read_from(valid).expect("a valid solution file");
+    let header = v1::CompletePointHeader {
+        pool_id: pool_id.into(),
+        lease_id: lease.lease_id,
+        study_id: lease.study_id,
+        point_id: lease.point_id,
+        converged: meta.converged,
+        iterations: meta.iterations as u64,
+        error_indicator: meta.error_indicator,
+        qoi: [("slip_A".to_string(), 1.0)].into(),
+        wall_seconds: 0.1,
+        solution_bytes: announced as u64,
+    };
+    let mut messages = vec![v1::CompletePointMessage { body: Some(v1::complete_point_message::Body::Header(header)) }];
+    messages.extend(
+        glissade_proto::chunks(bytes)
+            .map(|mut c| {
+                c.total_bytes = announced as u64;
+                c
+            })
+            .map(|c| v1::CompletePointMessage { body: Some(v1::complete_point_message::Body::Chunk(c)) }),
+    );
+    Ok(pool.complete_point(tokio_stream::iter(messages)).await?.into_inner())
+}
+
+#[test]
+fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let log = dir.path().join("server.log");
+    let (_server, addr) = start_server_with(&dir.path().join("db"), &log, "127.0.0.1:0", &["--lease-seconds", "30"]);
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let mut client = rt.block_on(user(&url))?;
+    let expect = |result: Result<tonic::Response<v1::SubmitStudyReply>, tonic::Status>, code: Code, needle: &str| {
+        let status = result.expect_err("must be refused");
+        assert_eq!(status.code(), code, "{status:?}");
+        assert!(status.message().contains(needle), "expected `{needle}` in: {}", status.message());
+    };
+
+    // Submissions: malformed scene, empty grid, NaN, out of range, unknown parameter.
+    let mut bad = grid_request(&["f1=0.1:0.2:3"], STUDY_TOL);
+    bad.scene = tiny_scene().replace("dimension = 3", "dimension = [3");
+    expect(rt.block_on(client.submit_study(bad)), Code::InvalidArgument, "scene");
+    expect(rt.block_on(client.submit_study(grid_request(&[], STUDY_TOL))), Code::InvalidArgument, "empty study");
+    let mut nan = grid_request(&[], STUDY_TOL);
+    nan.points = vec![v1::ParameterVector { values: [("f1".to_string(), f64::NAN)].into() }];
+    expect(rt.block_on(client.submit_study(nan)), Code::InvalidArgument, "not finite");
+    expect(
+        rt.block_on(client.submit_study(grid_request(&["f1=0.1,0.5"], STUDY_TOL))),
+        Code::InvalidArgument,
+        "outside the scene's range",
+    );
+    expect(
+        rt.block_on(client.submit_study(grid_request(&["mu=0.1:0.2:3"], STUDY_TOL))),
+        Code::InvalidArgument,
+        "no parameter 'mu'",
+    );
+    expect(rt.block_on(client.submit_study(grid_request(&["f1=0.1"], -1.0))), Code::InvalidArgument, "tolerance");
+    // Unknown study ids.
+    for status in [
+        rt.block_on(client.get_study(v1::GetStudyRequest { study_id: 42, points: false })).map(drop).expect_err("get"),
+        rt.block_on(client.watch_study(v1::WatchStudyRequest { study_id: 42 })).map(drop).expect_err("watch"),
+        rt.block_on(client.cancel_study(v1::CancelStudyRequest { study_id: 42 })).map(drop).expect_err("cancel"),
+    ] {
+        assert_eq!((status.code(), status.message()), (Code::NotFound, "no study 42"));
+    }
+    // The CLI says it in one line.
+    let out = run_with_timeout(command(&workspace_bin("glissade")).args(["--server", &url, "show", "42"]), LIMIT);
+    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(text(&out.stderr), "error: show 42: no study 42 (NotFound)\n");
+
+    // A study of two points: one completed properly first, whose stored solution must survive.
+    let id = rt.block_on(client.submit_study(grid_request(&["f1=0.1,0.2"], STUDY_TOL)))?.into_inner().study_id;
+    let solve_to_file = |lease: &v1::Lease, scene: &Path| -> Vec<u8> {
+        let file = dir.path().join(format!("p{}.bin", lease.point_id));
+        let mut args: Vec<std::ffi::OsString> =
+            vec![scene.into(), "--tol".into(), STUDY_TOL.to_string().into(), "--save".into(), file.clone().into()];
+        for (k, v) in &lease.parameters {
+            args.push("--set".into());
+            args.push(format!("{k}={v}").into());
+        }
+        let out = run_with_timeout(command(&workspace_bin("glissade-worker")).arg("solve").args(&args), LIMIT);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        std::fs::read(&file).expect("saved solution")
+    };
+    let scene_file = dir.path().join("tiny.toml");
+    std::fs::write(&scene_file, tiny_scene())?;
+    let (mut pool, lease) = rt.block_on(fake_pool(&url, "tester"))?;
+    let good = solve_to_file(&lease, &scene_file);
+    let reply = rt.block_on(complete(&mut pool, &lease, "tester", &good, &good, good.len()))?;
+    assert_eq!(reply.point.expect("point").state, v1::PointState::Done as i32);
+    let fetch = |client: &mut UserClient<Channel>, point: u64| -> anyhow::Result<Vec<u8>> {
+        rt.block_on(async {
+            let request = v1::FetchSolutionRequest {
+                solution: Some(v1::fetch_solution_request::Solution::Point(v1::PointKey {
+                    study_id: id,
+                    point_id: point,
+                })),
+            };
+            let mut stream = client.fetch_solution(request).await?.into_inner();
+            let mut bytes = Vec::new();
+            while let Some(c) = stream.message().await? {
+                bytes.extend_from_slice(&c.data);
+            }
+            anyhow::Ok(bytes)
+        })
+    };
+    let stored = fetch(&mut client, lease.point_id)?;
+    assert_eq!(stored, good, "the coordinator serves the bytes the pool sent");
+
+    // Completing that point again (no longer held), and completing under another pool's name.
+    let status =
+        rt.block_on(complete(&mut pool, &lease, "tester", &good, &good, good.len())).expect_err("done already");
+    assert_eq!(status.code(), Code::FailedPrecondition, "{status:?}");
+    assert!(status.message().contains("it is done"), "{}", status.message());
+
+    // The second point: leased; then truncated, corrupt and foreign solutions are refused.
+    let (mut pool, lease2) = rt.block_on(fake_pool(&url, "tester"))?;
+    let good2 = solve_to_file(&lease2, &scene_file);
+    let status =
+        rt.block_on(complete(&mut pool, &lease2, "intruder", &good2, &good2, good2.len())).expect_err("not held");
+    assert_eq!(status.code(), Code::FailedPrecondition, "{status:?}");
+    assert!(status.message().contains("leased to pool `tester`"), "{}", status.message());
+    let status = rt
+        .block_on(complete(&mut pool, &lease2, "tester", &good2, &good2[..good2.len() / 2], good2.len()))
+        .expect_err("truncated");
+    assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+    assert!(status.message().contains("truncated"), "{}", status.message());
+    let mut corrupt = good2.clone();
+    let last = corrupt.len() - 3;
+    corrupt[last] ^= 0x40;
+    let status =
+        rt.block_on(complete(&mut pool, &lease2, "tester", &good2, &corrupt, corrupt.len())).expect_err("corrupt");
+    assert_eq!(status.code(), Code::DataLoss, "{status:?}");
+    let bar = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/bar-impact-1d.toml");
+    let foreign = {
+        let file = dir.path().join("bar.bin");
+        let out = run_with_timeout(
+            command(&workspace_bin("glissade-worker")).arg("solve").arg(&bar).arg("--save").arg(&file),
+            LIMIT,
+        );
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        std::fs::read(&file)?
+    };
+    let status =
+        rt.block_on(complete(&mut pool, &lease2, "tester", &foreign, &foreign, foreign.len())).expect_err("foreign");
+    assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+    assert!(status.message().contains("solution is for scene"), "{}", status.message());
+    let status =
+        rt.block_on(complete(&mut pool, &lease2, "tester", &good, &good, good.len())).expect_err("other point");
+    assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+    assert!(status.message().contains("solution is for parameters"), "{}", status.message());
+
+    // Nothing stored was harmed, and the point held is still held: the right solution completes it.
+    assert_eq!(fetch(&mut client, lease.point_id)?, good);
+    let s = rt.block_on(study(&mut client, id))?;
+    assert_eq!(s.points[lease2.point_id as usize].state, v1::PointState::Leased as i32, "{s:?}");
+    let reply = rt.block_on(complete(&mut pool, &lease2, "tester", &good2, &good2, good2.len()))?;
+    assert_eq!(reply.point.expect("point").state, v1::PointState::Done as i32);
+    let s = rt.block_on(study(&mut client, id))?;
+    assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}");
+    assert_eq!(fetch(&mut client, lease2.point_id)?, good2);
+    Ok(())
+}
+
+/// A Python virtual environment with grpcio, grpcio-tools and grpcio-reflection under target/,
+/// made once; None when PyPI cannot be reached (the caller skips, saying so).
+fn python_with_grpc() -> Option<std::path::PathBuf> {
+    let venv = Path::new(env!("CARGO_TARGET_TMPDIR")).join("python-grpc");
+    let python = venv.join("bin/python");
+    let ready = |python: &Path| {
+        python.is_file()
+            && run_with_timeout(Command::new(python).args(["-c", "import grpc, grpc_tools, grpc_reflection"]), LIMIT).status.success()
+    };
+    if ready(&python) {
+        return Some(python);
+    }
+    let out = run_with_timeout(Command::new("python3").args(["-m", "venv"]).arg(&venv), LIMIT);
+    assert!(out.status.success(), "python3 -m venv failed (run deploy/install-deps.sh): {}", text(&out.stderr));
+    let pip = venv.join("bin/pip");
+    let out = run_with_timeout(
+        Command::new(&pip).args(["install", "--quiet", "--disable-pip-version-check", "grpcio", "grpcio-tools", "grpcio-reflection"]),
+        Duration::from_secs(600),
+    );
+    if !out.status.success() {
+        let reach = "import urllib.request; urllib.request.urlopen('https://pypi.org/simple/grpcio/', timeout=15)";
+        if !run_with_timeout(Command::new("python3").args(["-c", reach]), LIMIT).status.success() {
+            return None;
+        }
+        panic!("pip install grpcio grpcio-tools grpcio-reflection failed although PyPI answers:\n{}", text(&out.stderr));
+    }
+    assert!(ready(&python), "grpcio installed but not importable");
+    Some(python)
+}
+
+#[test]
+fn python_example_client_submits_a_grid_and_reads_the_surface() -> anyhow::Result<()> {
+    let Some(python) = python_with_grpc() else {
+        eprintln!(
+            "SKIPPED python_example_client_submits_a_grid_and_reads_the_surface: PyPI is unreachable, so grpcio cannot be installed"
+        );
+        return Ok(());
+    };
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
+    let _pool = start_pool(&format!("http://{addr}"), "py-pool", &dir.path().join("pool.log"));
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("../client/examples/submit_and_surface.py");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let run = |grid: &[&str]| {
+        let mut cmd = Command::new(&python);
+        cmd.arg(&example).args(["--server", &addr.to_string(), "--tol", "1e-3", "--json"]).arg(&scene);
+        for g in grid {
+            cmd.args(["--grid", g]);
+        }
+        run_with_timeout(&mut cmd, LIMIT)
+    };
+    let out = run(&["f1=0.1,0.2", "f2=0.1,0.2"]);
+    assert_eq!(out.status.code(), Some(0), "stderr: {}", text(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(v["state"], "STUDY_STATE_DONE", "{v}");
+    assert_eq!(v["parameters"], serde_json::json!(["f1", "f2"]), "{v}");
+    assert_eq!(v["qoi"], serde_json::json!(["middle_ux", "slip_A", "slip_B"]), "{v}");
+    let points = v["points"].as_array().expect("points");
+    assert_eq!(points.len(), 4, "{v}");
+    for p in points {
+        assert_eq!(p["converged"], true, "{p}");
+        assert!(p["error_indicator"].as_f64().is_some_and(|e| e <= 1e-3), "{p}");
+        assert!(p["qoi"]["slip_A"].as_f64().is_some_and(f64::is_finite), "{p}");
+    }
+    assert!(text(&out.stderr).contains("done 4/4"), "progress lines expected: {}", text(&out.stderr));
+
+    // Server reflection lists the services (what `grpcurl list` shows).
+    let list = format!(
+        "import grpc\nfrom grpc_reflection.v1alpha.proto_reflection_descriptor_database import \
+         ProtoReflectionDescriptorDatabase as D\nprint(' '.join(sorted(D(grpc.insecure_channel('{addr}')).get_services())))"
+    );
+    let out = run_with_timeout(Command::new(&python).args(["-c", &list]), LIMIT);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let services = text(&out.stdout);
+    for s in ["glissade.v1.Health", "glissade.v1.Pool", "glissade.v1.User"] {
+        assert!(services.split_whitespace().any(|x| x == s), "{s} not in {services}");
+    }
+
+    // A refused request: one line and exit status 1.
+    let out = run(&["f1=0.1,0.5"]);
+    assert_eq!(out.status.code(), Some(1), "stdout: {}", text(&out.stdout));
+    assert_eq!(
+        text(&out.stderr),
+        "error: point 1: f1 = 0.5 is outside the scene's range [0.1, 0.2] (INVALID_ARGUMENT)\n"
+    );
     Ok(())
 }

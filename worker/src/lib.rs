@@ -2,7 +2,8 @@
 //!
 //! Layout: `element`, `mesh`, `sparse` (discretisation); `scene` and `model` (what is solved);
 //! `latin` (the iterative solver) and `monolithic` (the reference); `io` (solution files,
-//! field output) and `run` (one solve, for the CLI and the workers) at the edge.
+//! field output) and `run` (one solve, for the CLI and the workers) at the edge; `study` (the
+//! multiparametric strategy: parameter space, solution store, warm starts, ordering) above `run`.
 
 pub mod comm;
 pub mod element;
@@ -12,6 +13,8 @@ pub mod mesh;
 pub mod model;
 pub mod monolithic;
 pub mod newmark;
+pub mod pool;
 pub mod run;
 pub mod scene;
 pub mod sparse;
+pub mod study;

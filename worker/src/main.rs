@@ -12,6 +12,8 @@ use glissade_worker::io::{fields, solution_file};
 use glissade_worker::run::{SolveRequest, SolveSummary, solve_scene_on};
 use glissade_worker::scene::{Scale, Scene, SceneError};
 
+mod study_cli;
+
 #[derive(Parser)]
 #[command(
     name = "glissade-worker",
@@ -46,6 +48,55 @@ enum Command {
     /// Solve one design point of a scene.
     #[command(after_help = SOLVE_EXAMPLES)]
     Solve(SolveArgs),
+    /// Serve a glissade coordinator: lease design points, solve them, send the solutions back.
+    #[command(after_help = POOL_EXAMPLES)]
+    Pool(PoolArgs),
+    /// Solve a parametric study (a grid of design points) in this process, with warm starts.
+    #[command(after_help = study_cli::STUDY_EXAMPLES)]
+    Study(study_cli::StudyArgs),
+}
+
+const POOL_EXAMPLES: &str = "\
+Examples:
+  glissade-worker pool --coordinator http://coordinator:50051
+  glissade-worker pool --coordinator http://10.0.0.5:50051 --pool-id node17 --idle-exit 600
+
+Runs until SIGTERM or Ctrl-C: a pool waiting for work stops at once, a pool solving finishes and
+delivers its point first. Reconnects by itself (with back-off) when the coordinator goes away.
+Logs to stderr (RUST_LOG=glissade_worker=debug for more).";
+
+#[derive(Args)]
+struct PoolArgs {
+    /// URL of the coordinator (glissade-server)
+    #[arg(long, env = "GLISSADE_SERVER", value_name = "URL")]
+    coordinator: String,
+    /// Id of this pool in the coordinator's records (default: assigned by the coordinator)
+    #[arg(long, value_name = "ID")]
+    pool_id: Option<String>,
+    /// Stop after this many seconds without work (default: never)
+    #[arg(long, value_name = "SECONDS")]
+    idle_exit: Option<f64>,
+}
+
+/// Pool mode on one process (MPI pools of several ranks: see glissade_worker::pool).
+fn pool(args: PoolArgs) -> Result<bool> {
+    use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
+    // Under mpiexec, every rank would otherwise run a pool of its own under the same id.
+    let Some(universe) = mpi::initialize() else { bail!("MPI could not be initialised") };
+    let ranks = mpi::topology::Communicator::size(&universe.world());
+    if ranks > 1 {
+        bail!("a pool runs on one MPI rank for now, not {ranks}: start one pool per rank (srun -n 1)");
+    }
+    let mut options = PoolOptions::new(args.coordinator);
+    options.pool_id = args.pool_id;
+    if let Some(s) = args.idle_exit {
+        if !(s.is_finite() && s >= 0.0) {
+            bail!("--idle-exit {s}: give a number of seconds");
+        }
+        options.idle_exit = Some(std::time::Duration::from_secs_f64(s));
+    }
+    run_pool(options, &mut SerialPoolSolver::default())?;
+    Ok(true)
 }
 
 #[derive(Args)]
@@ -274,7 +325,10 @@ fn one_line(message: &str) -> String {
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "warn".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "warn,glissade_worker::pool=info".into()),
+        )
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
@@ -307,6 +361,8 @@ fn main() -> ExitCode {
             }
             result
         }
+        Command::Pool(args) => pool(args),
+        Command::Study(args) => study_cli::study(args),
     };
     match result {
         Ok(true) => ExitCode::SUCCESS,

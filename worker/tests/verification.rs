@@ -650,7 +650,8 @@ fn mpi_fields_are_gathered_on_rank_zero() {
     let scene = scene_path("three-blocks-tiny.toml");
     let read = |np: &str| -> (Vec<f64>, Vec<f64>) {
         let h5 = dir.path().join(format!("p{np}.h5"));
-        let out = mpiexec(&["-n", np, worker_bin(), "solve", &scene, "--tol", "1e-3", "--fields", h5.to_str().unwrap()]);
+        let out =
+            mpiexec(&["-n", np, worker_bin(), "solve", &scene, "--tol", "1e-3", "--fields", h5.to_str().unwrap()]);
         assert!(out.status.success(), "P = {np}: {}", String::from_utf8_lossy(&out.stderr));
         let file = hdf5::File::open(&h5).unwrap();
         let u = file.dataset("fields/displacement/000050").unwrap().read_raw().unwrap();

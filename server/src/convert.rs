@@ -1,0 +1,418 @@
+//! The edge between generated proto messages and the domain: every incoming message is
+//! validated here (`TryFrom`, errors as [`Invalid`]), every domain error becomes a status here
+//! ([`status`]), so each rule and each status code lives in one place.
+
+use std::collections::BTreeMap;
+
+use glissade_proto::v1;
+use glissade_proto::{ParameterVector, PointId, StudyId};
+use tonic::{Code, Status};
+
+use crate::coordinator::{
+    Completion, CoordError, Event, EventKind, Failure, PoolInfo, Progress, SolutionSelector, StudyState, StudyView,
+    Submission, Surface, SurfaceSource,
+};
+use glissade_worker::study::order::OrderKind;
+use glissade_worker::study::strategy::InitStrategy;
+
+use crate::records::{PointRecord, PointState, SolutionOrigin};
+
+/// Largest scene text accepted (scenes are a few kilobytes; a mesh file would be another story).
+pub const MAX_SCENE_BYTES: usize = 1 << 20;
+/// Most design points in one study.
+pub const MAX_POINTS: usize = 1_000_000;
+
+/// An invalid message: becomes INVALID_ARGUMENT with this text.
+#[derive(Debug)]
+pub struct Invalid(pub String);
+
+impl From<Invalid> for Status {
+    fn from(e: Invalid) -> Self {
+        Status::invalid_argument(e.0)
+    }
+}
+
+/// The status of a domain error: the one place where codes are chosen.
+pub fn status(e: CoordError) -> Status {
+    let code = match &e {
+        CoordError::Invalid(_) => Code::InvalidArgument,
+        CoordError::UnknownStudy(_)
+        | CoordError::UnknownPoint { .. }
+        | CoordError::UnknownPool(_)
+        | CoordError::UnknownSolution(_) => Code::NotFound,
+        CoordError::Precondition(_) => Code::FailedPrecondition,
+        CoordError::Corrupt(_) => Code::DataLoss,
+        CoordError::Store(_) | CoordError::Decode(_) | CoordError::Index(_) => {
+            tracing::error!(error = %e, "storage error");
+            Code::Internal
+        }
+    };
+    Status::new(code, e.to_string())
+}
+
+impl From<CoordError> for Status {
+    fn from(e: CoordError) -> Self {
+        status(e)
+    }
+}
+
+fn parameters(what: &str, values: BTreeMap<String, f64>) -> Result<ParameterVector, Invalid> {
+    for name in values.keys() {
+        if name.len() > 256 || name.chars().any(char::is_control) {
+            return Err(Invalid(format!("{what}: parameter name `{}` is not a plain short name", name.escape_debug())));
+        }
+    }
+    ParameterVector::try_from(values).map_err(|e| Invalid(format!("{what}: {e}")))
+}
+
+/// Neighbours a blend combines when the request says 0 (the study command's default).
+pub const DEFAULT_BLEND_NEIGHBOURS: u32 = 3;
+
+fn strategy(value: i32, blend_neighbours: u32) -> Result<InitStrategy, Invalid> {
+    Ok(match v1::InitStrategy::try_from(value) {
+        Ok(v1::InitStrategy::Unspecified | v1::InitStrategy::Nearest) => InitStrategy::Nearest,
+        Ok(v1::InitStrategy::Cold) => InitStrategy::Cold,
+        Ok(v1::InitStrategy::Previous) => InitStrategy::Previous,
+        Ok(combined @ (v1::InitStrategy::Blend | v1::InitStrategy::Linear)) => {
+            let k = if blend_neighbours == 0 { DEFAULT_BLEND_NEIGHBOURS } else { blend_neighbours };
+            if k > 8 {
+                return Err(Invalid(format!("blend_neighbours {k}: at most 8")));
+            }
+            let k = k as usize;
+            if combined == v1::InitStrategy::Blend { InitStrategy::Blend { k } } else { InitStrategy::Linear { k } }
+        }
+        Err(_) => return Err(Invalid(format!("strategy: unknown value {value}"))),
+    })
+}
+
+fn order(value: i32) -> Result<OrderKind, Invalid> {
+    Ok(match v1::PointOrder::try_from(value) {
+        Ok(v1::PointOrder::Unspecified | v1::PointOrder::Greedy) => OrderKind::Greedy,
+        Ok(v1::PointOrder::Ascending) => OrderKind::Asc,
+        Ok(v1::PointOrder::Descending) => OrderKind::Desc,
+        Err(_) => return Err(Invalid(format!("order: unknown value {value}"))),
+    })
+}
+
+impl TryFrom<v1::SubmitStudyRequest> for Submission {
+    type Error = Invalid;
+
+    fn try_from(m: v1::SubmitStudyRequest) -> Result<Self, Invalid> {
+        if m.scene.trim().is_empty() {
+            return Err(Invalid("scene: empty (give the scene file's TOML text)".into()));
+        }
+        if m.scene.len() > MAX_SCENE_BYTES {
+            return Err(Invalid(format!("scene: {} bytes, more than the {MAX_SCENE_BYTES} accepted", m.scene.len())));
+        }
+        if m.grid.is_empty() && m.points.is_empty() {
+            return Err(Invalid("empty study: give a grid (`NAME=SPEC`) or a list of points".into()));
+        }
+        if !m.grid.is_empty() && !m.points.is_empty() {
+            return Err(Invalid("give either a grid or a list of points, not both".into()));
+        }
+        if m.points.len() > MAX_POINTS {
+            return Err(Invalid(format!("{} points, more than the {MAX_POINTS} accepted", m.points.len())));
+        }
+        let points = m
+            .points
+            .into_iter()
+            .enumerate()
+            .map(|(i, p)| parameters(&format!("points[{i}]"), p.values))
+            .collect::<Result<Vec<_>, _>>()?;
+        if let Some(t) = m.tolerance {
+            if !(t > 0.0 && t.is_finite()) {
+                return Err(Invalid(format!("tolerance must be a positive finite number, got {t}")));
+            }
+        }
+        if m.max_iterations == Some(0) {
+            return Err(Invalid("max_iterations must be at least 1".into()));
+        }
+        if m.label.len() > 1024 {
+            return Err(Invalid("label: longer than 1024 bytes".into()));
+        }
+        Ok(Submission {
+            scene_text: m.scene,
+            grid: m.grid,
+            points,
+            tolerance: m.tolerance,
+            max_iterations: m.max_iterations,
+            strategy: strategy(m.strategy, m.blend_neighbours)?,
+            order: order(m.order)?,
+            label: m.label,
+        })
+    }
+}
+
+/// A response-surface query.
+pub struct SurfaceQuery {
+    pub source: SurfaceSource,
+    pub fixed: ParameterVector,
+    pub qoi: Vec<String>,
+}
+
+impl TryFrom<v1::QuerySurfaceRequest> for SurfaceQuery {
+    type Error = Invalid;
+
+    fn try_from(m: v1::QuerySurfaceRequest) -> Result<Self, Invalid> {
+        let source = match m.source {
+            Some(v1::query_surface_request::Source::StudyId(id)) => SurfaceSource::Study(StudyId(id)),
+            Some(v1::query_surface_request::Source::SceneHash(h)) => SurfaceSource::Scene(scene_hash(&h)?),
+            None => return Err(Invalid("give a study_id or a scene_hash".into())),
+        };
+        Ok(Self { source, fixed: parameters("fixed", m.fixed)?, qoi: m.qoi })
+    }
+}
+
+fn scene_hash(h: &str) -> Result<String, Invalid> {
+    if h.len() == 64 && h.bytes().all(|b| b.is_ascii_hexdigit()) {
+        Ok(h.to_ascii_lowercase())
+    } else {
+        Err(Invalid(format!("scene_hash `{}`: expected 64 hexadecimal digits", h.escape_debug())))
+    }
+}
+
+impl TryFrom<v1::FetchSolutionRequest> for SolutionSelector {
+    type Error = Invalid;
+
+    fn try_from(m: v1::FetchSolutionRequest) -> Result<Self, Invalid> {
+        match m.solution {
+            Some(v1::fetch_solution_request::Solution::Point(p)) => {
+                Ok(SolutionSelector::Point(StudyId(p.study_id), PointId(p.point_id)))
+            }
+            Some(v1::fetch_solution_request::Solution::Key(k)) => {
+                Ok(SolutionSelector::Key(scene_hash(&k.scene_hash)?, parameters("key.parameters", k.parameters)?))
+            }
+            None => Err(Invalid("give a point (study_id, point_id) or a key (scene_hash, parameters)".into())),
+        }
+    }
+}
+
+/// A pool id: what logs, leases and errors name, so kept printable.
+pub fn pool_id(id: &str) -> Result<String, Invalid> {
+    let ok = !id.is_empty()
+        && id.len() <= 64
+        && id.bytes().all(|b| b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.'));
+    if ok {
+        Ok(id.to_owned())
+    } else {
+        Err(Invalid(format!("pool_id `{}`: use 1 to 64 letters, digits, `-`, `_` or `.`", id.escape_debug())))
+    }
+}
+
+/// A pool's registration: its id (None: to be assigned) and description.
+pub struct Registration {
+    pub id: Option<String>,
+    pub info: PoolInfo,
+}
+
+impl TryFrom<v1::RegisterPoolRequest> for Registration {
+    type Error = Invalid;
+
+    fn try_from(m: v1::RegisterPoolRequest) -> Result<Self, Invalid> {
+        let id = if m.pool_id.is_empty() { None } else { Some(pool_id(&m.pool_id)?) };
+        if m.ranks == 0 {
+            return Err(Invalid("ranks must be at least 1".into()));
+        }
+        if m.solver_version.is_empty() || m.solver_version.len() > 64 {
+            return Err(Invalid("solver_version: give the pool's `glissade-worker --version`".into()));
+        }
+        let host: String = m.host.chars().filter(|c| !c.is_control()).take(256).collect();
+        Ok(Self { id, info: PoolInfo { ranks: m.ranks, host, solver_version: m.solver_version } })
+    }
+}
+
+impl TryFrom<v1::CompletePointHeader> for Completion {
+    type Error = Invalid;
+
+    fn try_from(m: v1::CompletePointHeader) -> Result<Self, Invalid> {
+        if !m.error_indicator.is_finite() {
+            return Err(Invalid(format!("error_indicator is not finite: {}", m.error_indicator)));
+        }
+        Ok(Completion {
+            pool: pool_id(&m.pool_id)?,
+            lease_id: m.lease_id,
+            study: StudyId(m.study_id),
+            point: PointId(m.point_id),
+            converged: m.converged,
+            iterations: m.iterations,
+            error_indicator: m.error_indicator,
+            qoi: m.qoi,
+            wall_seconds: m.wall_seconds,
+        })
+    }
+}
+
+impl TryFrom<v1::FailPointRequest> for Failure {
+    type Error = Invalid;
+
+    fn try_from(m: v1::FailPointRequest) -> Result<Self, Invalid> {
+        let error = m.error.trim();
+        if error.is_empty() {
+            return Err(Invalid("error: say what went wrong".into()));
+        }
+        // Stored and shown: one line, bounded.
+        let error: String = error.lines().collect::<Vec<_>>().join(" ").chars().take(4096).collect();
+        if m.error_indicator.is_some_and(|e| !e.is_finite()) {
+            // A diverged solve: keep the fact in words, not a NaN in the record.
+            return Ok(Failure {
+                pool: pool_id(&m.pool_id)?,
+                lease_id: m.lease_id,
+                study: StudyId(m.study_id),
+                point: PointId(m.point_id),
+                error: format!("{error} (eta not finite)"),
+                error_indicator: None,
+                iterations: m.iterations,
+            });
+        }
+        Ok(Failure {
+            pool: pool_id(&m.pool_id)?,
+            lease_id: m.lease_id,
+            study: StudyId(m.study_id),
+            point: PointId(m.point_id),
+            error,
+            error_indicator: m.error_indicator,
+            iterations: m.iterations,
+        })
+    }
+}
+
+// ---- domain -> proto ----
+
+pub fn study_state(s: StudyState) -> v1::StudyState {
+    match s {
+        StudyState::Active => v1::StudyState::Active,
+        StudyState::Done => v1::StudyState::Done,
+        StudyState::Failed => v1::StudyState::Failed,
+        StudyState::Cancelled => v1::StudyState::Cancelled,
+    }
+}
+
+pub fn point_state(s: &PointState) -> v1::PointState {
+    match s {
+        PointState::Pending => v1::PointState::Pending,
+        PointState::Leased { .. } => v1::PointState::Leased,
+        PointState::Done => v1::PointState::Done,
+        PointState::Failed => v1::PointState::Failed,
+        PointState::Cancelled => v1::PointState::Cancelled,
+    }
+}
+
+pub fn progress(p: Progress) -> v1::StudyProgress {
+    v1::StudyProgress {
+        total: p.total,
+        pending: p.pending,
+        leased: p.leased,
+        done: p.done,
+        failed: p.failed,
+        cancelled: p.cancelled,
+        iterations: p.iterations,
+    }
+}
+
+pub fn origin(o: &SolutionOrigin) -> v1::SolutionRef {
+    v1::SolutionRef {
+        scene_hash: o.scene_hash.clone(),
+        parameters: o.parameters.clone().into(),
+        study_id: o.study.map_or(0, |s| s.0),
+        point_id: o.point.map_or(0, |p| p.0),
+    }
+}
+
+pub fn point(p: &PointRecord) -> v1::PointStatus {
+    let r = p.result.as_ref();
+    let (pool, deadline, leased_from) = match &p.state {
+        PointState::Leased { pool, deadline_unix_ms, init, .. } => (pool.clone(), *deadline_unix_ms, init.as_ref()),
+        _ => (r.map(|r| r.pool.clone()).unwrap_or_default(), 0, None),
+    };
+    let started_from = r.and_then(|r| r.started_from.as_ref()).or(leased_from);
+    v1::PointStatus {
+        study_id: p.study.0,
+        point_id: p.id.0,
+        parameters: p.parameters.clone().into(),
+        state: point_state(&p.state).into(),
+        attempts: p.attempts,
+        pool_id: pool,
+        iterations: r.map_or(0, |r| r.iterations),
+        error_indicator: r.map_or(0.0, |r| r.error_indicator),
+        qoi: r.map(|r| r.qoi.clone()).unwrap_or_default(),
+        started_from: started_from.map(origin),
+        answered: r.is_some_and(|r| r.answered),
+        wall_seconds: r.map_or(0.0, |r| r.wall_seconds),
+        error: p.error.clone().unwrap_or_default(),
+        lease_deadline_unix_ms: deadline,
+    }
+}
+
+pub fn study(v: &StudyView) -> v1::Study {
+    let r = &v.record;
+    v1::Study {
+        study_id: r.id.0,
+        label: r.label.clone(),
+        scene_hash: r.scene_hash.clone(),
+        state: study_state(v.state).into(),
+        strategy: match r.strategy {
+            InitStrategy::Cold => v1::InitStrategy::Cold,
+            InitStrategy::Previous => v1::InitStrategy::Previous,
+            InitStrategy::Nearest => v1::InitStrategy::Nearest,
+            InitStrategy::Blend { .. } => v1::InitStrategy::Blend,
+            InitStrategy::Linear { .. } => v1::InitStrategy::Linear,
+        }
+        .into(),
+        order: match r.order {
+            OrderKind::Asc => v1::PointOrder::Ascending,
+            OrderKind::Desc => v1::PointOrder::Descending,
+            OrderKind::Greedy => v1::PointOrder::Greedy,
+        }
+        .into(),
+        blend_neighbours: match r.strategy {
+            InitStrategy::Blend { k } | InitStrategy::Linear { k } => k as u32,
+            _ => 0,
+        },
+        tolerance: r.tolerance,
+        max_iterations: r.max_iterations,
+        progress: Some(progress(v.progress)),
+        parameters: r.parameters.clone(),
+        created_unix_ms: r.created_unix_ms,
+        points: v.points.iter().map(point).collect(),
+    }
+}
+
+pub fn event(e: &Event) -> v1::StudyEvent {
+    let kind = match e.kind {
+        EventKind::Started => v1::EventKind::PointStarted,
+        EventKind::Finished => v1::EventKind::PointFinished,
+        EventKind::Failed => v1::EventKind::PointFailed,
+        EventKind::Requeued => v1::EventKind::PointRequeued,
+        EventKind::StudyEnded => v1::EventKind::StudyEnded,
+        EventKind::Snapshot => v1::EventKind::Snapshot,
+    };
+    v1::StudyEvent {
+        kind: kind.into(),
+        study_id: e.study.0,
+        point: e.point.as_ref().map(point),
+        progress: Some(progress(e.progress)),
+        state: study_state(e.state).into(),
+        replay: e.replay,
+        unix_ms: e.unix_ms,
+    }
+}
+
+pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
+    v1::QuerySurfaceReply {
+        scene_hash: s.scene_hash,
+        parameters: s.parameters,
+        qoi: s.qoi,
+        points: s
+            .rows
+            .into_iter()
+            .map(|r| v1::SurfacePoint {
+                parameters: r.parameters.into(),
+                qoi: r.qoi,
+                iterations: r.iterations,
+                error_indicator: r.error_indicator,
+                converged: r.converged,
+                state: point_state(&r.state).into(),
+            })
+            .collect(),
+    }
+}

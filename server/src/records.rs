@@ -1,0 +1,276 @@
+//! What the coordinator keeps in its trees (`store.rs`): the keys' byte layout and the records
+//! (JSON: self-describing, readable with any sled dump, and checked by the schema version).
+//!
+//! | tree              | key                                   | value                      |
+//! |-------------------|---------------------------------------|----------------------------|
+//! | `scenes`          | scene content hash (64 hex chars)     | scene TOML text            |
+//! | `studies`         | study id, u64 big-endian              | [`StudyRecord`]            |
+//! | `points`          | study id ++ point id, u64 BE each     | [`PointRecord`]            |
+//! | `solutions`       | [`SolutionKey`] bytes                 | [`SolutionRecord`]         |
+//! | `solution_fields` | [`SolutionKey`] bytes                 | zstd(solution file bytes)  |
+//! | `meta`            | `next-study-id`, `next-lease-id`      | u64 big-endian             |
+//!
+//! Big-endian ids make sled's key order the numeric order, so scans come sorted.
+
+use std::collections::BTreeMap;
+
+use glissade_proto::{ParameterVector, PointId, StudyId};
+use glissade_worker::study::order::OrderKind;
+use glissade_worker::study::strategy::InitStrategy;
+use serde::{Deserialize, Serialize};
+
+/// `meta` key of the next study id to hand out.
+pub const NEXT_STUDY_KEY: &[u8] = b"next-study-id";
+/// `meta` key of the next lease id to hand out.
+pub const NEXT_LEASE_KEY: &[u8] = b"next-lease-id";
+
+/// Key of a study.
+pub fn study_key(study: StudyId) -> [u8; 8] {
+    study.0.to_be_bytes()
+}
+
+/// Key of a point: its study's key first, so a prefix scan gives a study's points in order.
+pub fn point_key(study: StudyId, point: PointId) -> [u8; 16] {
+    let mut key = [0; 16];
+    key[..8].copy_from_slice(&study.0.to_be_bytes());
+    key[8..].copy_from_slice(&point.0.to_be_bytes());
+    key
+}
+
+/// Reads a big-endian u64 counter value.
+pub fn decode_u64(bytes: &[u8]) -> Option<u64> {
+    bytes.try_into().ok().map(u64::from_be_bytes)
+}
+
+/// Identity of a stored solution: the scene's content hash and every parameter's value.
+///
+/// Bytes: the 64 hex characters of the hash, then per parameter in name order its name's length
+/// (u16 BE), its name, and its value's IEEE bits (u64 BE; -0 stored as +0). The hash first lets a
+/// prefix scan list a scene's solutions.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct SolutionKey(Vec<u8>);
+
+impl SolutionKey {
+    /// The key of `scene_hash` at `parameters`.
+    pub fn new(scene_hash: &str, parameters: &ParameterVector) -> Self {
+        let mut bytes = scene_hash.as_bytes().to_vec();
+        for (name, value) in parameters.iter() {
+            let len = u16::try_from(name.len()).expect("parameter names are validated to be short");
+            bytes.extend_from_slice(&len.to_be_bytes());
+            bytes.extend_from_slice(name.as_bytes());
+            let value = if value == 0.0 { 0.0 } else { value };
+            bytes.extend_from_slice(&value.to_bits().to_be_bytes());
+        }
+        Self(bytes)
+    }
+
+    /// The key's bytes.
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.0
+    }
+}
+
+/// A study as submitted.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StudyRecord {
+    pub id: StudyId,
+    pub label: String,
+    pub scene_hash: String,
+    /// The scene's own text: defaults and solver settings may differ between texts of one hash.
+    pub scene: String,
+    /// Names of the swept parameters, sorted.
+    pub parameters: Vec<String>,
+    pub tolerance: f64,
+    pub max_iterations: u32,
+    /// How its points' iterations start (the study library's strategies).
+    pub strategy: InitStrategy,
+    /// Which pending point is handed out next (the study library's policies).
+    pub order: OrderKind,
+    pub created_unix_ms: i64,
+    pub cancelled: bool,
+}
+
+/// Where a point is in its life.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "state", rename_all = "lowercase")]
+pub enum PointState {
+    Pending,
+    /// Held by `pool` until `deadline_unix_ms` (wall clock, so that it survives a restart).
+    Leased {
+        pool: String,
+        lease_id: u64,
+        deadline_unix_ms: i64,
+        /// The stored solution its warm start came from.
+        init: Option<SolutionOrigin>,
+    },
+    Done,
+    Failed,
+    Cancelled,
+}
+
+/// A reference to a stored solution, as recorded in a point ("started from") or a solution
+/// ("parent").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SolutionOrigin {
+    pub scene_hash: String,
+    /// Every parameter of the solution.
+    pub parameters: ParameterVector,
+    pub study: Option<StudyId>,
+    pub point: Option<PointId>,
+}
+
+/// What a solve of a point gave (converged or not).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PointResult {
+    pub pool: String,
+    pub converged: bool,
+    pub iterations: u64,
+    pub error_indicator: f64,
+    pub qoi: BTreeMap<String, f64>,
+    pub wall_seconds: f64,
+    pub started_from: Option<SolutionOrigin>,
+    /// Answered from a stored solution without iterations.
+    pub answered: bool,
+}
+
+/// One design point of a study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PointRecord {
+    pub study: StudyId,
+    pub id: PointId,
+    /// The swept parameters only.
+    pub parameters: ParameterVector,
+    #[serde(flatten)]
+    pub state: PointState,
+    /// Leases granted since submission or the last RetryFailed.
+    pub attempts: u32,
+    /// The last solve's result (also for a non-converged FAILED point).
+    pub result: Option<PointResult>,
+    /// Why the point failed, or why its last attempt did.
+    pub error: Option<String>,
+    /// Completion order among all points (for the `previous` strategy); None until done.
+    pub finished_seq: Option<u64>,
+}
+
+/// Metadata of a stored solution; its fields are in `solution_fields` under the same key.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SolutionRecord {
+    pub scene_hash: String,
+    /// Every parameter of the scene at this solution.
+    pub parameters: ParameterVector,
+    /// Version of the solver that computed it: it answers a request only of the same version.
+    pub solver_version: String,
+    pub converged: bool,
+    pub error_indicator: f64,
+    pub tolerance: f64,
+    pub iterations: u64,
+    pub wall_seconds: f64,
+    pub qoi: BTreeMap<String, f64>,
+    /// The solution its iterations started from.
+    pub parent: Option<SolutionOrigin>,
+    /// The study point whose solve stored it.
+    pub study: Option<StudyId>,
+    pub point: Option<PointId>,
+    pub stored_unix_ms: i64,
+    /// Size of the solution file, and of its zstd compression as stored.
+    pub file_bytes: u64,
+    pub stored_bytes: u64,
+}
+
+impl SolutionRecord {
+    /// Whether this (new) solution should replace `old` under the same key: converged beats
+    /// not converged, the current solver version beats another, then the smaller eta wins.
+    pub fn replaces(&self, old: &SolutionRecord, current_version: &str) -> bool {
+        if self.converged != old.converged {
+            return self.converged;
+        }
+        let (new_current, old_current) =
+            (self.solver_version == current_version, old.solver_version == current_version);
+        if new_current != old_current {
+            return new_current;
+        }
+        self.error_indicator <= old.error_indicator
+    }
+
+    /// This solution as an origin reference.
+    pub fn origin(&self) -> SolutionOrigin {
+        SolutionOrigin {
+            scene_hash: self.scene_hash.clone(),
+            parameters: self.parameters.clone(),
+            study: self.study,
+            point: self.point,
+        }
+    }
+}
+
+/// JSON encoding of a record (records hold only finite numbers: the coordinator checks them).
+pub fn encode<T: Serialize>(record: &T) -> Vec<u8> {
+    serde_json::to_vec(record).expect("records serialise to JSON")
+}
+
+/// A record that does not decode: the database is damaged or of another layout.
+#[derive(Debug, thiserror::Error)]
+#[error("{tree} record {key}: {message}")]
+pub struct DecodeError {
+    pub tree: &'static str,
+    pub key: String,
+    pub message: String,
+}
+
+/// Decodes a record of `tree` stored under `key`.
+pub fn decode<T: for<'de> Deserialize<'de>>(tree: &'static str, key: &[u8], bytes: &[u8]) -> Result<T, DecodeError> {
+    serde_json::from_slice(bytes).map_err(|e| DecodeError {
+        tree,
+        key: key.iter().map(|b| format!("{b:02x}")).collect(),
+        message: e.to_string(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pv(pairs: &[(&str, f64)]) -> ParameterVector {
+        ParameterVector::from_pairs(pairs.iter().map(|&(n, v)| (n, v))).unwrap()
+    }
+
+    #[test]
+    fn solution_keys_are_prefixed_by_the_scene_and_exact_in_values() {
+        let h = "ab".repeat(32);
+        let a = SolutionKey::new(&h, &pv(&[("f1", 0.1), ("f2", 0.2)]));
+        assert!(a.as_bytes().starts_with(h.as_bytes()));
+        assert_eq!(a, SolutionKey::new(&h, &pv(&[("f2", 0.2), ("f1", 0.1)])));
+        assert_ne!(a, SolutionKey::new(&h, &pv(&[("f1", 0.1), ("f2", 0.2 + 1e-16)])));
+        assert_ne!(a, SolutionKey::new(&"cd".repeat(32), &pv(&[("f1", 0.1), ("f2", 0.2)])));
+        // a name boundary cannot be shifted: ("ab", x) differs from ("a", ...) ("b", ...)
+        assert_ne!(SolutionKey::new(&h, &pv(&[("ab", 1.0)])), SolutionKey::new(&h, &pv(&[("a", 1.0), ("b", 1.0)])));
+        assert_eq!(SolutionKey::new(&h, &pv(&[("v", -0.0)])), SolutionKey::new(&h, &pv(&[("v", 0.0)])));
+    }
+
+    #[test]
+    fn point_keys_sort_by_study_then_point() {
+        let keys = [point_key(StudyId(1), PointId(300)), point_key(StudyId(2), PointId(0))];
+        assert!(keys[0] < keys[1]);
+        assert!(point_key(StudyId(1), PointId(2)) < point_key(StudyId(1), PointId(256)));
+        assert_eq!(&keys[1][..8], &study_key(StudyId(2)));
+    }
+
+    #[test]
+    fn records_round_trip_and_damage_is_named() {
+        let p = PointRecord {
+            study: StudyId(3),
+            id: PointId(4),
+            parameters: pv(&[("f1", 0.15)]),
+            state: PointState::Leased { pool: "p1".into(), lease_id: 9, deadline_unix_ms: 1234, init: None },
+            attempts: 1,
+            result: None,
+            error: None,
+            finished_seq: None,
+        };
+        let bytes = encode(&p);
+        let back: PointRecord = decode("points", b"k", &bytes).unwrap();
+        assert_eq!(back, p);
+        let err = decode::<PointRecord>("points", &[1, 255], b"{").unwrap_err();
+        assert!(err.to_string().starts_with("points record 01ff: "), "{err}");
+    }
+}

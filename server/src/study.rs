@@ -1,0 +1,333 @@
+//! The coordinator's side of the study library (`glissade_worker::study`): grids expanded by its
+//! parser, points ordered by its policies, warm starts chosen by its strategies — over the
+//! solutions of the sled database, which [`SceneSolutions`] presents as a
+//! [`SolutionStore`].
+//!
+//! The index is the library's kd-tree ([`MemoryStore`]) over design points only; the fields stay
+//! in sled and are read (zstd, then the solution file format) when a strategy asks for them.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use glissade_proto::ParameterVector;
+use glissade_worker::io::solution_file::{self, SolutionMeta};
+use glissade_worker::latin::field::{InterfaceSolution, StageSolution};
+use glissade_worker::scene::Scene;
+use glissade_worker::study::order::OrderingPolicy;
+use glissade_worker::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
+use glissade_worker::study::store::{MemoryStore, SolutionId, SolutionStore, StoreError, StoredSolution};
+use glissade_worker::study::strategy::{Initialisation, initialise, interface_law_parameters};
+
+use crate::records::{PointRecord, PointState, SolutionKey, SolutionOrigin, SolutionRecord, StudyRecord};
+use crate::store::{Store, Tree};
+
+/// The design points of a submission: a grid (the library's `NAME=SPEC` parser and Cartesian
+/// product) or an explicit list, each checked against the scene's parameters and their declared
+/// ranges. Returns the swept names (sorted) and the points (swept parameters only).
+pub fn expand(
+    scene: &Scene,
+    grid: &[String],
+    points: &[ParameterVector],
+) -> Result<(Vec<String>, Vec<ParameterVector>), String> {
+    let space = ParameterSpace::from_scene(scene);
+    let design: Vec<DesignPoint> = if grid.is_empty() {
+        points.iter().map(|p| DesignPoint::from(BTreeMap::from(p.clone()))).collect()
+    } else {
+        let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
+        design_points(&axes.map_err(|e| e.to_string())?).map_err(|e| e.to_string())?
+    };
+    if design.is_empty() {
+        return Err("empty study: the grid or point list gives no design point".into());
+    }
+    let mut names: Vec<String> = design.iter().flat_map(|p| p.iter().map(|(k, _)| k.to_owned())).collect();
+    names.sort();
+    names.dedup();
+    let mut out = Vec::with_capacity(design.len());
+    for (i, p) in design.iter().enumerate() {
+        space.complete(p).map_err(|e| e.to_string())?;
+        if p.len() != names.len() {
+            return Err(format!("point {i} ({p}) does not give every swept parameter ({})", names.join(", ")));
+        }
+        for (name, value) in p.iter() {
+            let range = space.range(name).expect("complete() checked the name");
+            if range.declared && !(range.min..=range.max).contains(&value) {
+                return Err(format!(
+                    "point {i}: {name} = {value} is outside the scene's range [{}, {}]",
+                    range.min, range.max
+                ));
+            }
+        }
+        out.push(ParameterVector::try_from(BTreeMap::from(p.clone())).map_err(|e| format!("point {i}: {e}"))?);
+    }
+    Ok((names, out))
+}
+
+/// Every parameter of `scene` at `swept` (defaults for the rest), as the library's point.
+pub fn design_point(space: &ParameterSpace, swept: &ParameterVector) -> DesignPoint {
+    let mut full = space.defaults();
+    for (name, value) in swept.iter() {
+        full.insert(name, value);
+    }
+    full
+}
+
+pub fn parameter_vector(point: &DesignPoint) -> ParameterVector {
+    ParameterVector::try_from(BTreeMap::from(point.clone())).expect("design points hold finite named values")
+}
+
+/// The ordering and initialisation of one study.
+pub struct StudyPlan {
+    pub space: ParameterSpace,
+    law_parameters: BTreeSet<String>,
+    policy: Box<dyn OrderingPolicy>,
+    /// Every parameter at each point, by point id.
+    pub full: Vec<DesignPoint>,
+}
+
+impl StudyPlan {
+    pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Self {
+        let space = ParameterSpace::from_scene(scene);
+        let full = points.iter().map(|p| design_point(&space, &p.parameters)).collect();
+        Self { policy: record.order.policy(&space), law_parameters: interface_law_parameters(scene), space, full }
+    }
+
+    /// The point to lease next among the pending ones, by the study's ordering policy (which sees
+    /// the points done and those in flight on every pool).
+    pub fn next(&mut self, points: &[PointRecord]) -> Option<usize> {
+        let mut pending = (Vec::new(), Vec::new());
+        let (mut done, mut in_flight) = (Vec::new(), Vec::new());
+        for (i, p) in points.iter().enumerate() {
+            match p.state {
+                PointState::Pending => {
+                    pending.0.push(i);
+                    pending.1.push(self.full[i].clone());
+                }
+                PointState::Leased { .. } => in_flight.push(self.full[i].clone()),
+                PointState::Done | PointState::Failed => done.push(self.full[i].clone()),
+                PointState::Cancelled => {}
+            }
+        }
+        let choice = self.policy.next(&pending.1, &done, &in_flight)?;
+        pending.0.get(choice).copied()
+    }
+
+    /// The warm start of point `i` by the study's strategy, from `solutions` (this scene's);
+    /// `previous` is the solution of the study's point finished last. A store failure (a damaged
+    /// stored solution) gives a cold start rather than no start.
+    pub fn warm_start(
+        &self,
+        record: &StudyRecord,
+        i: usize,
+        solutions: &SceneSolutions,
+        previous: Option<&SolutionKey>,
+    ) -> Option<WarmStart> {
+        let point = &self.full[i];
+        let previous = previous.and_then(|k| solutions.id_of(k));
+        let init = match initialise(solutions, &self.space, &self.law_parameters, point, previous, record.strategy) {
+            Ok(init) => init,
+            Err(e) => {
+                tracing::error!(study = %record.id, point = i, error = %e, "warm start failed; starting cold");
+                return None;
+            }
+        };
+        solutions.warm_start(init, point)
+    }
+}
+
+/// A chosen warm start: where it came from and its fields, ready to stream.
+#[derive(Debug, Clone)]
+pub struct WarmStart {
+    /// The (nearest) stored solution it came from.
+    pub origin: SolutionOrigin,
+    pub file: WarmFile,
+}
+
+/// The warm start's solution file.
+#[derive(Debug, Clone)]
+pub enum WarmFile {
+    /// A stored solution as is: its file bytes.
+    Stored(Arc<Vec<u8>>),
+    /// A blend: the combined fields, and the header to write them with.
+    Blended(Arc<InterfaceSolution>, Box<SolutionMeta>),
+}
+
+impl WarmStart {
+    /// The bytes to stream.
+    pub fn bytes(&self) -> Result<Vec<u8>, solution_file::SolutionFileError> {
+        match &self.file {
+            WarmFile::Stored(bytes) => Ok(bytes.as_ref().clone()),
+            WarmFile::Blended(solution, meta) => {
+                let mut out = Vec::new();
+                solution_file::write_to(&mut out, solution, meta)?;
+                Ok(out)
+            }
+        }
+    }
+}
+
+/// Solutions kept decoded (enough for a blend of up to 8 neighbours).
+const RECENT: usize = 8;
+
+/// A solution read back from the database.
+struct Loaded {
+    id: SolutionId,
+    bytes: Arc<Vec<u8>>,
+    solution: Arc<InterfaceSolution>,
+}
+
+/// The converged solutions of one scene: the library's kd-tree over their design points, their
+/// records, and the database their fields are read from.
+pub struct SceneSolutions {
+    index: MemoryStore,
+    scene_hash: String,
+    keys: Vec<SolutionKey>,
+    ids: HashMap<SolutionKey, SolutionId>,
+    records: Vec<SolutionRecord>,
+    store: Arc<dyn Store>,
+    /// The solutions read last, newest last: a strategy reads the ones it picks twice (to check
+    /// them, to use them).
+    recent: Mutex<Vec<Arc<Loaded>>>,
+}
+
+impl SceneSolutions {
+    /// An empty index over `space` (the scene's parameters and ranges).
+    pub fn new(scene_hash: String, space: ParameterSpace, store: Arc<dyn Store>) -> Result<Self, StoreError> {
+        Ok(Self {
+            index: MemoryStore::new(space)?,
+            scene_hash,
+            keys: Vec::new(),
+            ids: HashMap::new(),
+            records: Vec::new(),
+            store,
+            recent: Mutex::new(Vec::new()),
+        })
+    }
+
+    /// Makes a stored solution (already committed to the database) findable; a better solution
+    /// at a key already indexed only replaces the record.
+    pub fn index(&mut self, key: SolutionKey, record: &SolutionRecord) -> Result<(), StoreError> {
+        if let Some(&id) = self.ids.get(&key) {
+            self.records[id as usize] = record.clone();
+            self.recent.lock().unwrap_or_else(PoisonError::into_inner).retain(|l| l.id != id);
+            return Ok(());
+        }
+        let point = DesignPoint::from(BTreeMap::from(record.parameters.clone()));
+        let id = self.index.insert(StoredSolution {
+            point,
+            eta: record.error_indicator,
+            tolerance: record.tolerance,
+            converged: record.converged,
+            iterations: record.iterations as usize,
+            qoi: record.qoi.clone(),
+            // The index holds design points only; `get` reads the fields from the database.
+            solution: Arc::new(InterfaceSolution {
+                static_stage: None,
+                dynamic: StageSolution { interfaces: Vec::new() },
+            }),
+            parent: None,
+        })?;
+        self.keys.push(key.clone());
+        self.ids.insert(key, id);
+        self.records.push(record.clone());
+        Ok(())
+    }
+
+    pub fn id_of(&self, key: &SolutionKey) -> Option<SolutionId> {
+        self.ids.get(key).copied()
+    }
+
+    fn load(&self, id: SolutionId) -> Result<Arc<Loaded>, StoreError> {
+        if let Some(l) = self.recent.lock().unwrap_or_else(PoisonError::into_inner).iter().find(|l| l.id == id) {
+            return Ok(l.clone());
+        }
+        let key = self.keys.get(id as usize).ok_or(StoreError::UnknownId(id))?;
+        let compressed = self
+            .store
+            .get(Tree::SolutionFields, key.as_bytes())
+            .map_err(|e| StoreError::Backend(e.to_string()))?
+            .ok_or_else(|| StoreError::Backend(format!("solution {id}: fields missing from the database")))?;
+        let bytes = zstd::decode_all(&compressed[..])
+            .map_err(|e| StoreError::Backend(format!("solution {id}: fields do not decompress: {e}")))?;
+        let (_, solution) =
+            solution_file::read_from(&bytes[..]).map_err(|e| StoreError::Backend(format!("solution {id}: {e}")))?;
+        let loaded = Arc::new(Loaded { id, bytes: Arc::new(bytes), solution: Arc::new(solution) });
+        let mut recent = self.recent.lock().unwrap_or_else(PoisonError::into_inner);
+        if recent.len() == RECENT {
+            recent.remove(0);
+        }
+        recent.push(loaded.clone());
+        Ok(loaded)
+    }
+
+    /// The streamable form of an initialisation of `point`.
+    fn warm_start(&self, init: Initialisation, point: &DesignPoint) -> Option<WarmStart> {
+        let solution = init.solution?;
+        let first = init.sources.first()?;
+        let record = self.records.get(first.id as usize)?;
+        let origin = record.origin();
+        if init.sources.len() == 1 {
+            // The stored solution as is: send its bytes, no re-encoding.
+            let loaded = self.load(first.id).ok()?;
+            return Some(WarmStart { origin, file: WarmFile::Stored(loaded.bytes.clone()) });
+        }
+        let meta = SolutionMeta {
+            solver_version: record.solver_version.clone(),
+            scene_hash: self.scene_hash.clone(),
+            dimension: 0,
+            time_steps: 0,
+            parameters: BTreeMap::from(point.clone()),
+            converged: false,
+            error_indicator: record.error_indicator,
+            iterations: 0,
+            tolerance: record.tolerance,
+        };
+        // Dimension and steps: those of the stored file the blend was made from.
+        let loaded = self.load(first.id).ok()?;
+        let (stored_meta, _) = solution_file::read_from(&loaded.bytes[..]).ok()?;
+        let meta = SolutionMeta { dimension: stored_meta.dimension, time_steps: stored_meta.time_steps, ..meta };
+        Some(WarmStart { origin, file: WarmFile::Blended(solution, Box::new(meta)) })
+    }
+}
+
+impl SolutionStore for SceneSolutions {
+    /// Indexes a solution whose fields the coordinator has committed under the key of this
+    /// scene and the solution's point (the coordinator calls [`SceneSolutions::index`] itself,
+    /// with the record it committed).
+    fn insert(&mut self, solution: StoredSolution) -> Result<SolutionId, StoreError> {
+        let parameters = ParameterVector::try_from(BTreeMap::from(solution.point.clone()))
+            .map_err(|e| StoreError::Backend(e.to_string()))?;
+        let key = SolutionKey::new(&self.scene_hash, &parameters);
+        let bytes = self
+            .store
+            .get(Tree::Solutions, key.as_bytes())
+            .map_err(|e| StoreError::Backend(e.to_string()))?
+            .ok_or_else(|| StoreError::Backend(format!("no solution record at {parameters} in the database")))?;
+        let record: SolutionRecord = crate::records::decode("solutions", key.as_bytes(), &bytes)
+            .map_err(|e| StoreError::Backend(e.to_string()))?;
+        self.index(key.clone(), &record)?;
+        Ok(self.ids[&key])
+    }
+
+    fn nearest(&self, point: &DesignPoint, k: usize) -> Result<Vec<(f64, SolutionId)>, StoreError> {
+        self.index.nearest(point, k)
+    }
+
+    fn get(&self, id: SolutionId) -> Result<StoredSolution, StoreError> {
+        let r = self.records.get(id as usize).ok_or(StoreError::UnknownId(id))?;
+        let loaded = self.load(id)?;
+        Ok(StoredSolution {
+            point: DesignPoint::from(BTreeMap::from(r.parameters.clone())),
+            eta: r.error_indicator,
+            tolerance: r.tolerance,
+            converged: r.converged,
+            iterations: r.iterations as usize,
+            qoi: r.qoi.clone(),
+            solution: loaded.solution.clone(),
+            parent: None,
+        })
+    }
+
+    fn len(&self) -> usize {
+        self.index.len()
+    }
+}

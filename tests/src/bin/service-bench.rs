@@ -1,0 +1,206 @@
+//! Dispatch throughput of the coordinator, with a FAKE, INSTANT "solver": a benchmark of the
+//! service alone (lease, warm-start transfer, completion, database commits), not of any solve.
+//!
+//! K fake pools (tasks of this process, each with its own connection) lease the points of one
+//! study and complete each at once with a small synthetic solution file of the right scene and
+//! point (one interface node: about 5 kB), so every rule of the coordinator runs as for real
+//! solutions. Prints one JSON object: points per second and latency percentiles.
+//!
+//!   service-bench URL SCENE.toml POOLS STRATEGY ORDER GRID...
+//!   service-bench http://127.0.0.1:50051 scenes/three-blocks-tiny.toml 4 nearest asc \
+//!       f1=0.1:0.2:50 f2=0.1:0.2:40
+//!
+//! STRATEGY: cold | previous | nearest | blend; ORDER: asc | desc | greedy.
+
+use std::collections::BTreeMap;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use glissade_proto::v1::pool_client::PoolClient;
+use glissade_proto::v1::user_client::UserClient;
+use glissade_proto::v1::{self, complete_point_message, lease_message};
+use glissade_worker::io::solution_file::{self, SolutionMeta};
+use glissade_worker::latin::field::{InterfaceField, InterfaceSolution, StageSolution};
+use glissade_worker::scene::Scene;
+
+type Error = Box<dyn std::error::Error + Send + Sync>;
+
+struct Args {
+    url: String,
+    scene_text: String,
+    pools: usize,
+    strategy: v1::InitStrategy,
+    order: v1::PointOrder,
+    grid: Vec<String>,
+}
+
+fn parse_args() -> Result<Args, Error> {
+    let a: Vec<String> = std::env::args().skip(1).collect();
+    if a.len() < 6 {
+        return Err("usage: service-bench URL SCENE.toml POOLS STRATEGY ORDER GRID...".into());
+    }
+    let strategy = match a[3].as_str() {
+        "cold" => v1::InitStrategy::Cold,
+        "previous" => v1::InitStrategy::Previous,
+        "nearest" => v1::InitStrategy::Nearest,
+        "blend" => v1::InitStrategy::Blend,
+        s => return Err(format!("unknown strategy {s}").into()),
+    };
+    let order = match a[4].as_str() {
+        "asc" => v1::PointOrder::Ascending,
+        "desc" => v1::PointOrder::Descending,
+        "greedy" => v1::PointOrder::Greedy,
+        s => return Err(format!("unknown order {s}").into()),
+    };
+    Ok(Args {
+        url: a[0].clone(),
+        scene_text: std::fs::read_to_string(&a[1]).map_err(|e| format!("{}: {e}", a[1]))?,
+        pools: a[2].parse()?,
+        strategy,
+        order,
+        grid: a[5..].to_vec(),
+    })
+}
+
+/// A converged solution file of `scene` at the lease's point with one interface node.
+fn fake_solution(scene: &Scene, hash: &str, lease: &v1::Lease) -> Result<Vec<u8>, Error> {
+    let mut parameters = BTreeMap::new();
+    for (name, p) in &scene.parameters {
+        parameters.insert(name.clone(), lease.parameters.get(name).copied().unwrap_or(p.default));
+    }
+    let len = scene.time.steps * scene.dimension;
+    let solution =
+        InterfaceSolution { static_stage: None, dynamic: StageSolution { interfaces: vec![InterfaceField::zeros(2, len)] } };
+    let meta = SolutionMeta {
+        solver_version: env!("CARGO_PKG_VERSION").into(),
+        scene_hash: hash.into(),
+        dimension: scene.dimension,
+        time_steps: scene.time.steps,
+        parameters,
+        converged: true,
+        error_indicator: lease.tolerance / 2.0,
+        iterations: 1,
+        tolerance: lease.tolerance,
+    };
+    let mut bytes = Vec::new();
+    solution_file::write_to(&mut bytes, &solution, &meta)?;
+    Ok(bytes)
+}
+
+/// Latencies of one fake pool (milliseconds) and when it completed its last point.
+type PoolRun = (Vec<f64>, Vec<f64>, Option<Instant>);
+
+/// One fake pool: lease, complete at once, until no work is left.
+async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Result<PoolRun, Error> {
+    let mut pool = PoolClient::connect(url).await?;
+    pool.register_pool(v1::RegisterPoolRequest {
+        pool_id: id.clone(),
+        ranks: 1,
+        host: "bench".into(),
+        solver_version: env!("CARGO_PKG_VERSION").into(),
+    })
+    .await?;
+    let (mut lease_ms, mut complete_ms, mut last) = (Vec::new(), Vec::new(), None);
+    loop {
+        let t = Instant::now();
+        let mut stream = pool.lease_point(v1::LeasePointRequest { pool_id: id.clone(), wait_ms: 300 }).await?.into_inner();
+        let lease = match stream.message().await? {
+            Some(v1::LeaseMessage { body: Some(lease_message::Body::Lease(l)) }) => l,
+            _ => return Ok((lease_ms, complete_ms, last)),
+        };
+        while stream.message().await?.is_some() {}
+        lease_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        let bytes = fake_solution(&scene, &hash, &lease)?;
+        let t = Instant::now();
+        let header = v1::CompletePointHeader {
+            pool_id: id.clone(),
+            lease_id: lease.lease_id,
+            study_id: lease.study_id,
+            point_id: lease.point_id,
+            converged: true,
+            iterations: 1,
+            error_indicator: lease.tolerance / 2.0,
+            qoi: [("q".to_string(), 1.0)].into(),
+            wall_seconds: 0.0,
+            solution_bytes: bytes.len() as u64,
+        };
+        let mut messages =
+            vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
+        messages.extend(
+            glissade_proto::chunks(&bytes)
+                .map(|c| v1::CompletePointMessage { body: Some(complete_point_message::Body::Chunk(c)) }),
+        );
+        pool.complete_point(tokio_stream::iter(messages)).await?;
+        complete_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        last = Some(Instant::now());
+    }
+}
+
+fn percentile(v: &mut [f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * p).round() as usize]
+}
+
+async fn run(args: Args) -> Result<serde_json::Value, Error> {
+    let scene = Scene::parse(&args.scene_text)?;
+    let hash = scene.content_hash();
+    let mut user = UserClient::connect(args.url.clone()).await?;
+    let start = Instant::now();
+    let reply = user
+        .submit_study(v1::SubmitStudyRequest {
+            scene: args.scene_text.clone(),
+            grid: args.grid.clone(),
+            tolerance: Some(1e-3),
+            strategy: args.strategy.into(),
+            order: args.order.into(),
+            ..Default::default()
+        })
+        .await?
+        .into_inner();
+    let submitted = start.elapsed();
+    let tasks: Vec<_> = (0..args.pools)
+        .map(|i| tokio::spawn(fake_pool(args.url.clone(), format!("bench-{i}"), scene.clone(), hash.clone())))
+        .collect();
+    let (mut lease_ms, mut complete_ms, mut last) = (Vec::new(), Vec::new(), start);
+    for t in tasks {
+        let (l, c, end) = t.await??;
+        lease_ms.extend(l);
+        complete_ms.extend(c);
+        last = last.max(end.unwrap_or(start));
+    }
+    // The final NoWork waits are not dispatch time: the clock stops at the last completion.
+    let study = user.get_study(v1::GetStudyRequest { study_id: reply.study_id, points: false }).await?.into_inner();
+    let done = study.progress.map_or(0, |p| p.done);
+    let elapsed = last - start;
+    Ok(serde_json::json!({
+        "points": reply.points,
+        "done": done,
+        "pools": args.pools,
+        "strategy": args.strategy.as_str_name(),
+        "order": args.order.as_str_name(),
+        "submit_seconds": submitted.as_secs_f64(),
+        "seconds": elapsed.as_secs_f64(),
+        "points_per_second": done as f64 / elapsed.as_secs_f64(),
+        "lease_ms": {"p50": percentile(&mut lease_ms, 0.5), "p99": percentile(&mut lease_ms, 0.99)},
+        "complete_ms": {"p50": percentile(&mut complete_ms, 0.5), "p99": percentile(&mut complete_ms, 0.99)},
+    }))
+}
+
+fn main() -> ExitCode {
+    let result = parse_args().and_then(|args| {
+        tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(run(args))
+    });
+    match result {
+        Ok(v) => {
+            println!("{v}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,587 @@
+//! Pool mode (`glissade-worker pool --coordinator URL`): pulls design points from a glissade
+//! coordinator, solves them, sends the interface solutions back.
+//!
+//! Two halves, so that MPI stays on the main thread: [`run_pool`] runs the conversation with the
+//! coordinator (register, lease with the warm start, heartbeats, complete or fail, reconnect with
+//! back-off) on a small tokio runtime, and hands each point to a [`PoolSolver`] on the calling
+//! thread — one call per point. A one-process pool uses [`SerialPoolSolver`]; an MPI pool wraps the
+//! solve so that rank 0 broadcasts each [`PointJob`] to the other ranks (only rank 0 runs
+//! `run_pool` and talks to the coordinator).
+//!
+//! SIGTERM or SIGINT: a pool waiting for work stops at once; a pool solving finishes the point,
+//! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
+//! started is released).
+
+use std::collections::VecDeque;
+use std::sync::mpsc as std_mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, anyhow, bail};
+use glissade_proto::v1::pool_client::PoolClient;
+use glissade_proto::v1::{self, complete_point_message, lease_message};
+use glissade_proto::{Assembler, chunks};
+use tokio::sync::{oneshot, watch};
+use tonic::transport::{Channel, Endpoint};
+use tonic::{Code, Status};
+
+use crate::io::solution_file::{self, SolutionMeta};
+use crate::latin::field::InterfaceSolution;
+use crate::comm::Serial;
+use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
+use crate::scene::Scene;
+
+/// Largest warm-start solution accepted from the coordinator (a paper-size scene's is ~100 MB).
+const MAX_INIT_BYTES: u64 = 4 << 30;
+
+/// How a pool reaches its coordinator and waits.
+#[derive(Debug, Clone)]
+pub struct PoolOptions {
+    /// `http://host:port` of glissade-server.
+    pub coordinator: String,
+    /// Stable id of this pool (logs, leases); None: the coordinator assigns one.
+    pub pool_id: Option<String>,
+    /// MPI ranks of the pool.
+    pub ranks: u32,
+    /// Host name of rank 0.
+    pub host: String,
+    /// How long one LeasePoint call waits for work.
+    pub wait: Duration,
+    /// First and largest pause between reconnection attempts (doubling in between).
+    pub backoff: (Duration, Duration),
+    /// Stop after this long without work (None: never).
+    pub idle_exit: Option<Duration>,
+}
+
+impl PoolOptions {
+    /// Defaults for `coordinator`: coordinator-assigned id, one rank, 10 s polls, back-off
+    /// 0.2 s to 5 s, never idle out.
+    pub fn new(coordinator: impl Into<String>) -> Self {
+        Self {
+            coordinator: coordinator.into(),
+            pool_id: None,
+            ranks: 1,
+            host: host_name(),
+            wait: Duration::from_secs(10),
+            backoff: (Duration::from_millis(200), Duration::from_secs(5)),
+            idle_exit: None,
+        }
+    }
+}
+
+/// Host name of this machine, for the coordinator's logs.
+pub fn host_name() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|s| s.trim().to_owned())
+        .ok()
+        .filter(|s| !s.is_empty())
+        .or_else(|| std::env::var("HOSTNAME").ok())
+        .unwrap_or_else(|| "unknown".into())
+}
+
+/// One design point to solve, with what a wrapper needs to send it to other ranks: the scene's
+/// text and the warm start's file bytes beside their parsed forms.
+#[derive(Debug, Clone)]
+pub struct PointJob {
+    pub scene_text: String,
+    pub scene: Scene,
+    /// The swept parameters as `--set` pairs, the tolerance and the iteration limit.
+    pub request: SolveRequest,
+    /// The warm start as a solution file (empty: cold start).
+    pub init_bytes: Vec<u8>,
+    pub init: Option<InterfaceSolution>,
+}
+
+/// The solve of one design point. Called on the thread that called [`run_pool`].
+pub trait PoolSolver {
+    fn solve(&mut self, job: &PointJob) -> Result<SolveOutcome, RunError>;
+}
+
+/// A pool of one process: the solver's [`PointSolver`], which keeps the factorised operators
+/// from one point to the next while only friction coefficients change.
+#[derive(Default)]
+pub struct SerialPoolSolver {
+    solver: PointSolver,
+}
+
+impl PoolSolver for SerialPoolSolver {
+    fn solve(&mut self, job: &PointJob) -> Result<SolveOutcome, RunError> {
+        self.solver.solve(&Serial, &job.scene, &job.request, job.init.as_ref())
+    }
+}
+
+/// A job for the solving thread, and where its outcome (or why there is none) goes.
+type Work = (PointJob, oneshot::Sender<Result<SolveOutcome, String>>);
+
+/// Runs the pool until SIGTERM/SIGINT (or `idle_exit`): the coordinator conversation on a
+/// background runtime, every solve on this thread through `solver`.
+pub fn run_pool(options: PoolOptions, solver: &mut dyn PoolSolver) -> Result<()> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .context("starting the tokio runtime")?;
+    let (stop_tx, stop_rx) = watch::channel(false);
+    // Handlers first: a SIGTERM from now on must not kill the pool mid-delivery.
+    runtime.block_on(install_signal_handlers(stop_tx))?;
+    let (work_tx, work_rx) = std_mpsc::channel::<Work>();
+    let talker = runtime.spawn(converse(options, work_tx, stop_rx));
+    // Ends when the conversation drops its sender.
+    for (job, reply) in work_rx {
+        // A panicking solve fails its point (FailPoint) instead of taking the pool down with it.
+        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| solver.solve(&job)));
+        let outcome = match outcome {
+            Ok(result) => result.map_err(|e| e.to_string()),
+            Err(panic) => {
+                let what = panic.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| panic.downcast_ref::<String>().cloned());
+                Err(format!("the solver panicked: {}", what.unwrap_or_else(|| "(no message)".into())))
+            }
+        };
+        let _ = reply.send(outcome);
+    }
+    runtime.block_on(talker).context("pool task panicked")?
+}
+
+async fn install_signal_handlers(stop: watch::Sender<bool>) -> Result<()> {
+    use tokio::signal::unix::{SignalKind, signal};
+    let mut term = signal(SignalKind::terminate()).context("installing the SIGTERM handler")?;
+    let mut int = signal(SignalKind::interrupt()).context("installing the SIGINT handler")?;
+    tokio::spawn(async move {
+        tokio::select! {
+            _ = term.recv() => tracing::info!("SIGTERM: stopping after the current point"),
+            _ = int.recv() => tracing::info!("SIGINT: stopping after the current point"),
+        }
+        let _ = stop.send(true);
+    });
+    Ok(())
+}
+
+/// A solved (or failed) point waiting to be delivered, kept across reconnections.
+struct Report {
+    lease: v1::Lease,
+    /// The scene solved and the outcome, or why there is none (one line).
+    outcome: Result<(Scene, SolveOutcome), String>,
+}
+
+/// Why the conversation with the coordinator broke off.
+enum Break {
+    /// Transport down or coordinator restarting: reconnect with back-off.
+    Reconnect(String),
+    /// Stop requested (and nothing left to deliver), or idle too long.
+    Stop,
+}
+
+struct Session {
+    client: PoolClient<Channel>,
+    pool_id: String,
+    heartbeat: Duration,
+}
+
+async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: watch::Receiver<bool>) -> Result<()> {
+    let mut pool_id = options.pool_id.clone();
+    let mut pending: VecDeque<Report> = VecDeque::new();
+    let mut backoff = options.backoff.0;
+    let mut idle_since = Instant::now();
+    loop {
+        if *stop.borrow() && pending.is_empty() {
+            return Ok(());
+        }
+        let session = match connect(&options, pool_id.as_deref()).await {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::warn!(coordinator = %options.coordinator, error = %format!("{e:#}"), retry_in = ?backoff, "cannot reach the coordinator");
+                tokio::select! {
+                    _ = tokio::time::sleep(backoff) => {}
+                    _ = stop.changed(), if pending.is_empty() => return Ok(()),
+                }
+                backoff = (backoff * 2).min(options.backoff.1);
+                continue;
+            }
+        };
+        backoff = options.backoff.0;
+        if pool_id.as_deref() != Some(&session.pool_id) {
+            tracing::info!(pool = %session.pool_id, coordinator = %options.coordinator, "registered");
+        }
+        pool_id = Some(session.pool_id.clone());
+        let mut serving = Serving { session, delivering: None, pending: &mut pending, lost: None, last_solved: None };
+        let result = serving.serve(&options, &work, &mut stop, &mut idle_since).await;
+        // Nothing leaves before its delivery is settled (delivered, refused, or kept for later).
+        serving.settle().await;
+        match result {
+            Break::Stop if pending.is_empty() => return Ok(()),
+            Break::Stop => tracing::warn!("stopping, but a result is still to deliver; reconnecting"),
+            Break::Reconnect(why) => tracing::warn!(reason = %why, "lost the coordinator; reconnecting"),
+        }
+    }
+}
+
+async fn connect(options: &PoolOptions, pool_id: Option<&str>) -> Result<Session> {
+    let endpoint = Endpoint::from_shared(options.coordinator.clone())
+        .map_err(|_| anyhow!("invalid coordinator URL `{}` (expected http://host:port)", options.coordinator))?
+        .connect_timeout(Duration::from_secs(5))
+        .tcp_keepalive(Some(Duration::from_secs(30)));
+    let channel = endpoint.connect().await.context("connecting")?;
+    let mut client = PoolClient::new(channel);
+    let reply = client
+        .register_pool(v1::RegisterPoolRequest {
+            pool_id: pool_id.unwrap_or_default().to_owned(),
+            ranks: options.ranks,
+            host: options.host.clone(),
+            solver_version: env!("CARGO_PKG_VERSION").to_owned(),
+        })
+        .await
+        .map_err(|s| anyhow!("registering: {}", s.message()))?
+        .into_inner();
+    Ok(Session { client, pool_id: reply.pool_id, heartbeat: Duration::from_millis(reply.heartbeat_ms.max(20)) })
+}
+
+/// Transport failures and a restarting coordinator are worth a reconnect; anything else is an
+/// answer about the request itself.
+fn is_transient(status: &Status) -> bool {
+    matches!(status.code(), Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded)
+        || (status.code() == Code::NotFound && status.message().contains("is not registered"))
+}
+
+/// A delivery running in the background, and the lease it completes.
+type Delivery = (u64, tokio::task::JoinHandle<(Report, Result<(), Status>)>);
+
+/// One connection's worth of pool work. A solved point is delivered in the background while the
+/// next one is leased and solved, so the delivery (solution file, transfer, the coordinator's
+/// checks, compression and commit) costs the pool no time.
+struct Serving<'a> {
+    session: Session,
+    delivering: Option<Delivery>,
+    /// Results to deliver first (kept across reconnections), oldest first.
+    pending: &'a mut VecDeque<Report>,
+    /// Set when a background delivery found the coordinator gone.
+    lost: Option<String>,
+    /// When the last solve ended: the pool's time between solves is the service's cost.
+    last_solved: Option<Instant>,
+}
+
+impl Serving<'_> {
+    /// Waits for the background delivery, if any, and records how it went.
+    async fn settle(&mut self) {
+        if let Some((_, handle)) = self.delivering.take() {
+            match handle.await {
+                Ok((report, result)) => self.record(report, result),
+                Err(e) => tracing::error!(error = %e, "the delivery task failed"),
+            }
+        }
+    }
+
+    fn record(&mut self, report: Report, result: Result<(), Status>) {
+        match result {
+            Ok(()) => {}
+            Err(status) if is_transient(&status) => {
+                self.lost.get_or_insert_with(|| status.message().to_owned());
+                self.pending.push_back(report);
+            }
+            Err(status) => tracing::error!(
+                study = report.lease.study_id,
+                point = report.lease.point_id,
+                code = ?status.code(),
+                error = status.message(),
+                "the coordinator refused the result"
+            ),
+        }
+    }
+
+    /// Starts delivering `report` in the background (after the previous delivery settled).
+    async fn deliver_in_background(&mut self, report: Report) {
+        self.settle().await;
+        let (mut client, pool_id) = (self.session.client.clone(), self.session.pool_id.clone());
+        let lease_id = report.lease.lease_id;
+        let handle = tokio::spawn(async move {
+            let result = deliver(&mut client, &pool_id, &report).await;
+            (report, result)
+        });
+        self.delivering = Some((lease_id, handle));
+    }
+
+    async fn serve(
+        &mut self,
+        options: &PoolOptions,
+        work: &std_mpsc::Sender<Work>,
+        stop: &mut watch::Receiver<bool>,
+        idle_since: &mut Instant,
+    ) -> Break {
+        loop {
+            // Results kept from before a reconnection go first, in order.
+            while let Some(report) = self.pending.pop_front() {
+                let result = deliver(&mut self.session.client, &self.session.pool_id, &report).await;
+                self.record(report, result);
+                if let Some(why) = self.lost.take() {
+                    return Break::Reconnect(why);
+                }
+                *idle_since = Instant::now();
+            }
+            if *stop.borrow() {
+                return Break::Stop;
+            }
+            if self.delivering.is_none() && options.idle_exit.is_some_and(|limit| idle_since.elapsed() >= limit) {
+                tracing::info!(idle = ?idle_since.elapsed(), "no work for too long: stopping");
+                return Break::Stop;
+            }
+            // Poll no longer than the idle limit leaves, so that the limit is kept.
+            let wait = options
+                .idle_exit
+                .map_or(options.wait, |limit| options.wait.min(limit.saturating_sub(idle_since.elapsed())));
+            let request =
+                v1::LeasePointRequest { pool_id: self.session.pool_id.clone(), wait_ms: wait.as_millis() as u64 };
+            let asked = Instant::now();
+            let leased = tokio::select! {
+                r = receive_lease(&mut self.session.client, request) => r,
+                _ = stop.changed() => return Break::Stop,
+            };
+            let (lease, init_bytes) = match leased {
+                Ok(Some(l)) => l,
+                Ok(None) => {
+                    self.settle().await;
+                    match self.lost.take() {
+                        Some(why) => return Break::Reconnect(why),
+                        None => continue,
+                    }
+                }
+                Err(status) if is_transient(&status) => return Break::Reconnect(status.message().to_owned()),
+                Err(status) => {
+                    // A lease stream we could not use: the lease expires, the point goes elsewhere.
+                    tracing::error!(code = ?status.code(), error = status.message(), "leasing failed");
+                    tokio::time::sleep(options.backoff.0).await;
+                    continue;
+                }
+            };
+            *idle_since = Instant::now();
+            // Timings of the coordinator's share of a point (docs/performance.md, Service).
+            tracing::info!(
+                study = lease.study_id,
+                point = lease.point_id,
+                lease = lease.lease_id,
+                init_bytes = lease.init_bytes,
+                lease_ms = asked.elapsed().as_secs_f64() * 1e3,
+                "leased"
+            );
+            if *stop.borrow() {
+                release(&mut self.session, &lease).await;
+                return Break::Stop;
+            }
+            let job = match prepare(&lease, init_bytes) {
+                Ok(job) => job,
+                Err(e) => {
+                    self.pending.push_back(Report { lease, outcome: Err(one_line(&format!("{e:#}"))) });
+                    continue;
+                }
+            };
+            let scene = job.scene.clone();
+            let (reply_tx, mut reply_rx) = oneshot::channel();
+            let solve_started = Instant::now();
+            if work.send((job, reply_tx)).is_err() {
+                return Break::Stop;
+            }
+            // Heartbeat while the point is solved on the main thread (for the point delivered in
+            // the background too, until it is).
+            let mut ticker = tokio::time::interval(self.session.heartbeat);
+            ticker.tick().await;
+            let outcome = loop {
+                tokio::select! {
+                    r = &mut reply_rx => break r,
+                    _ = ticker.tick() => {
+                        let mut ids = vec![lease.lease_id];
+                        ids.extend(self.delivering.as_ref().filter(|(_, h)| !h.is_finished()).map(|(id, _)| *id));
+                        heartbeat(&mut self.session, &ids).await;
+                    }
+                }
+            };
+            let Ok(outcome) = outcome else { return Break::Stop };
+            // What the pool spent between two solves: lease, warm start, waiting on the last
+            // delivery (docs/performance.md, Service).
+            let gap = solve_started - self.last_solved.unwrap_or(asked).min(solve_started);
+            self.last_solved = Some(Instant::now());
+            tracing::info!(
+                study = lease.study_id,
+                point = lease.point_id,
+                seconds = solve_started.elapsed().as_secs_f64(),
+                gap_ms = gap.as_secs_f64() * 1e3,
+                "solved"
+            );
+            let outcome = outcome.map(|o| (scene, o)).map_err(|e| one_line(&e));
+            let report = Report { lease, outcome };
+            self.settle().await;
+            if let Some(why) = self.lost.take() {
+                self.pending.push_back(report);
+                return Break::Reconnect(why);
+            }
+            self.deliver_in_background(report).await;
+        }
+    }
+}
+
+/// LeasePoint: the lease, then the warm start's chunks. None when there was no work.
+async fn receive_lease(
+    client: &mut PoolClient<Channel>,
+    request: v1::LeasePointRequest,
+) -> Result<Option<(v1::Lease, Vec<u8>)>, Status> {
+    let mut stream = client.lease_point(request).await?.into_inner();
+    let lease = match stream.message().await? {
+        Some(v1::LeaseMessage { body: Some(lease_message::Body::Lease(lease)) }) => lease,
+        Some(v1::LeaseMessage { body: Some(lease_message::Body::NoWork(_)) }) | None => return Ok(None),
+        Some(_) => return Err(Status::internal("LeasePoint: expected a lease first")),
+    };
+    let mut assembler =
+        Assembler::new(lease.init_bytes, MAX_INIT_BYTES).map_err(|e| Status::internal(format!("warm start: {e}")))?;
+    while let Some(message) = stream.message().await? {
+        match message.body {
+            Some(lease_message::Body::InitChunk(chunk)) => {
+                assembler.push(chunk).map_err(|e| Status::internal(format!("warm start: {e}")))?
+            }
+            _ => return Err(Status::internal("LeasePoint: only warm-start chunks may follow the lease")),
+        }
+    }
+    let bytes = assembler.finish().map_err(|e| Status::internal(format!("warm start: {e}")))?;
+    Ok(Some((lease, bytes)))
+}
+
+/// The job of a lease: the scene parsed, the request built, the warm start read and checked.
+fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>) -> Result<PointJob> {
+    let scene = Scene::parse(&lease.scene).context("scene")?;
+    if scene.content_hash() != lease.scene_hash {
+        bail!("the lease's scene text has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
+    }
+    let init = if init_bytes.is_empty() {
+        None
+    } else {
+        // A warm start that does not fit is not worth failing the point over: start cold.
+        match solution_file::read_from(&init_bytes[..]).map_err(anyhow::Error::from).and_then(|(meta, solution)| {
+            meta.check_fits(&scene)?;
+            Ok(solution)
+        }) {
+            Ok(solution) => Some(solution),
+            Err(e) => {
+                tracing::warn!(error = %e, "warm start unusable; starting cold");
+                None
+            }
+        }
+    };
+    let request = SolveRequest {
+        set: lease.parameters.iter().map(|(k, v)| (k.clone(), *v)).collect(),
+        tolerance: Some(lease.tolerance),
+        max_iterations: Some(lease.max_iterations as usize),
+        scale: None,
+        record_fields: false,
+    };
+    let init_bytes = if init.is_some() { init_bytes } else { Vec::new() };
+    Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init })
+}
+
+async fn heartbeat(session: &mut Session, lease_ids: &[u64]) {
+    let request = v1::HeartbeatRequest { pool_id: session.pool_id.clone(), lease_ids: lease_ids.to_vec() };
+    match session.client.heartbeat(request).await {
+        Ok(reply) => {
+            for lease in reply.into_inner().leases.iter().filter(|l| !l.valid) {
+                tracing::warn!(lease = lease.lease_id, "the coordinator says this lease is no longer ours");
+            }
+        }
+        // The coordinator may be restarting; the result is kept and delivered after reconnecting.
+        Err(status) => tracing::debug!(error = status.message(), "heartbeat failed"),
+    }
+}
+
+async fn release(session: &mut Session, lease: &v1::Lease) {
+    let request = v1::ReleasePointRequest {
+        pool_id: session.pool_id.clone(),
+        lease_id: lease.lease_id,
+        study_id: lease.study_id,
+        point_id: lease.point_id,
+    };
+    match session.client.release_point(request).await {
+        Ok(_) => tracing::info!(study = lease.study_id, point = lease.point_id, "released"),
+        Err(status) => tracing::warn!(error = status.message(), "release failed; the lease will expire"),
+    }
+}
+
+/// One line, bounded: what the coordinator stores as the reason of a failure.
+fn one_line(text: &str) -> String {
+    text.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" ").chars().take(2000).collect()
+}
+
+/// Sends a report: the solution (CompletePoint) or the error (FailPoint).
+async fn deliver(client: &mut PoolClient<Channel>, pool_id: &str, report: &Report) -> Result<(), Status> {
+    let started = Instant::now();
+    let lease = &report.lease;
+    let fail = |error: String, eta: Option<f64>, iterations: u64| v1::FailPointRequest {
+        pool_id: pool_id.to_owned(),
+        lease_id: lease.lease_id,
+        study_id: lease.study_id,
+        point_id: lease.point_id,
+        error,
+        error_indicator: eta,
+        iterations,
+    };
+    let (scene, outcome) = match &report.outcome {
+        Ok((scene, o)) => (scene, o),
+        Err(e) => {
+            let request = fail(e.clone(), None, 0);
+            tracing::warn!(study = lease.study_id, point = lease.point_id, error = %request.error, "point failed");
+            client.fail_point(request).await?;
+            return Ok(());
+        }
+    };
+    let s = &outcome.summary;
+    let qoi: std::collections::BTreeMap<String, f64> = s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect();
+    if !s.error_indicator.is_finite() || qoi.values().any(|v| !v.is_finite()) {
+        let request = fail("the solve diverged: eta or a QoI is not finite".into(), None, s.iterations as u64);
+        client.fail_point(request).await?;
+        return Ok(());
+    }
+    let meta = solution_meta(scene, outcome);
+    let mut bytes = Vec::new();
+    if let Err(e) = solution_file::write_to(&mut bytes, &outcome.solution, &meta) {
+        let request = fail(format!("writing the solution: {e}"), Some(s.error_indicator), s.iterations as u64);
+        client.fail_point(request).await?;
+        return Ok(());
+    }
+    let header = v1::CompletePointHeader {
+        pool_id: pool_id.to_owned(),
+        lease_id: lease.lease_id,
+        study_id: lease.study_id,
+        point_id: lease.point_id,
+        converged: s.converged,
+        iterations: s.iterations as u64,
+        error_indicator: s.error_indicator,
+        qoi,
+        wall_seconds: s.wall_seconds,
+        solution_bytes: bytes.len() as u64,
+    };
+    let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
+    messages.extend(
+        chunks(&bytes).map(|c| v1::CompletePointMessage { body: Some(complete_point_message::Body::Chunk(c)) }),
+    );
+    let reply = client.complete_point(tokio_stream::iter(messages)).await?.into_inner();
+    let state = reply.point.map(|p| p.state()).unwrap_or_default();
+    tracing::info!(
+        study = lease.study_id,
+        point = lease.point_id,
+        iterations = s.iterations,
+        eta = s.error_indicator,
+        seconds = s.wall_seconds,
+        state = ?state,
+        deliver_ms = started.elapsed().as_secs_f64() * 1e3,
+        "delivered"
+    );
+    Ok(())
+}
+
+/// The solution file header of a solve's outcome (what `solve --save` writes too).
+pub fn solution_meta(scene: &Scene, outcome: &SolveOutcome) -> SolutionMeta {
+    let s = &outcome.summary;
+    SolutionMeta {
+        solver_version: env!("CARGO_PKG_VERSION").into(),
+        scene_hash: scene.content_hash(),
+        dimension: scene.dimension,
+        time_steps: s.time_steps,
+        parameters: s.parameters.clone(),
+        converged: s.converged,
+        error_indicator: s.error_indicator,
+        iterations: s.iterations,
+        tolerance: s.tolerance,
+    }
+}

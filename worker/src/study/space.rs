@@ -1,0 +1,506 @@
+//! The parameter space of a study (METHOD.md 4): the scene's named parameters with their ranges,
+//! the normalised distance between design points, and the grids a study sweeps
+//! (`f1=0.10:0.20:11`, lists `f1=0.1,0.15,0.2`, Latin hypercube samples `f1=lhs:20:7`).
+
+use std::collections::BTreeMap;
+use std::fmt;
+
+use rand::Rng;
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+use serde::{Deserialize, Serialize};
+
+use crate::scene::Scene;
+
+/// Values of named parameters at one design point, ordered by name.
+///
+/// The same shape as `glissade_proto::ParameterVector` (a `BTreeMap<String, f64>`), so the
+/// coordinator converts with `DesignPoint::from(BTreeMap::from(vector))`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct DesignPoint(pub BTreeMap<String, f64>);
+
+impl DesignPoint {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub fn from_pairs<S: Into<String>>(pairs: impl IntoIterator<Item = (S, f64)>) -> Self {
+        Self(pairs.into_iter().map(|(k, v)| (k.into(), v)).collect())
+    }
+
+    pub fn get(&self, name: &str) -> Option<f64> {
+        self.0.get(name).copied()
+    }
+
+    pub fn insert(&mut self, name: impl Into<String>, value: f64) {
+        self.0.insert(name.into(), value);
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = (&str, f64)> {
+        self.0.iter().map(|(k, v)| (k.as_str(), *v))
+    }
+
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// The `--set` pairs of a solve at this point.
+    pub fn to_set(&self) -> Vec<(String, f64)> {
+        self.0.iter().map(|(k, v)| (k.clone(), *v)).collect()
+    }
+}
+
+impl From<BTreeMap<String, f64>> for DesignPoint {
+    fn from(map: BTreeMap<String, f64>) -> Self {
+        Self(map)
+    }
+}
+
+impl From<DesignPoint> for BTreeMap<String, f64> {
+    fn from(point: DesignPoint) -> Self {
+        point.0
+    }
+}
+
+impl fmt::Display for DesignPoint {
+    /// `f1=0.1 f2=0.15`
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let mut first = true;
+        for (k, v) in &self.0 {
+            if !first {
+                f.write_str(" ")?;
+            }
+            first = false;
+            write!(f, "{k}={v}")?;
+        }
+        Ok(())
+    }
+}
+
+/// One named parameter of the space.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParameterRange {
+    pub name: String,
+    pub default: f64,
+    /// the scene's `min`, else its default
+    pub min: f64,
+    /// the scene's `max`, else its default
+    pub max: f64,
+    /// false when the scene gives no `min`/`max` (the range is then the default alone)
+    pub declared: bool,
+}
+
+impl ParameterRange {
+    /// The length distances are divided by: `max - min`, or 1 for a zero-width range (the raw
+    /// difference then counts, so that distinct values never look identical).
+    pub fn scale(&self) -> f64 {
+        let w = self.max - self.min;
+        if w > 0.0 { w } else { 1.0 }
+    }
+}
+
+/// Errors of the parameter space and of grid specifications; each names the offending spec.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SpaceError {
+    #[error("--grid {spec}: expected NAME=SPEC (START:STOP:COUNT, V1,V2,..., or lhs:N:SEED[:LO:HI])")]
+    Malformed { spec: String },
+    #[error("--grid {spec}: no parameter '{name}' in the scene (declared: {declared})")]
+    UnknownParameter { spec: String, name: String, declared: String },
+    #[error("--grid {spec}: '{value}' is not a finite number")]
+    NotANumber { spec: String, value: String },
+    #[error("--grid {spec}: {message}")]
+    Invalid { spec: String, message: String },
+    #[error("--grid {spec}: parameter '{name}' is swept twice")]
+    Duplicate { spec: String, name: String },
+    #[error("the study has no design points (give at least one --grid NAME=SPEC)")]
+    EmptyGrid,
+    #[error("point {point}: parameter '{name}' is not in the scene")]
+    PointUnknownParameter { point: String, name: String },
+    #[error("point {point}: parameter '{name}' = {value} is not a finite number")]
+    PointNotFinite { point: String, name: String, value: f64 },
+}
+
+/// The named parameters of a scene with their ranges, in name order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ParameterSpace {
+    parameters: Vec<ParameterRange>,
+}
+
+impl ParameterSpace {
+    /// Every `[parameters]` entry of the scene; a parameter without `min`/`max` gets the
+    /// zero-width range of its default.
+    pub fn from_scene(scene: &Scene) -> Self {
+        let parameters = scene
+            .parameters
+            .iter()
+            .map(|(name, p)| {
+                let declared = p.min.is_some() && p.max.is_some();
+                let min = p.min.unwrap_or(p.default);
+                let max = p.max.unwrap_or(p.default).max(min);
+                ParameterRange { name: name.clone(), default: p.default, min, max, declared }
+            })
+            .collect();
+        Self { parameters }
+    }
+
+    /// A space from explicit ranges (tests, and services that know no scene).
+    pub fn new(mut parameters: Vec<ParameterRange>) -> Self {
+        parameters.sort_by(|a, b| a.name.cmp(&b.name));
+        Self { parameters }
+    }
+
+    pub fn parameters(&self) -> &[ParameterRange] {
+        &self.parameters
+    }
+
+    pub fn names(&self) -> impl Iterator<Item = &str> {
+        self.parameters.iter().map(|p| p.name.as_str())
+    }
+
+    /// Number of parameters (the dimension of the space).
+    pub fn dimension(&self) -> usize {
+        self.parameters.len()
+    }
+
+    pub fn range(&self, name: &str) -> Option<&ParameterRange> {
+        self.parameters.iter().find(|p| p.name == name)
+    }
+
+    /// The point with every parameter at its default.
+    pub fn defaults(&self) -> DesignPoint {
+        DesignPoint(self.parameters.iter().map(|p| (p.name.clone(), p.default)).collect())
+    }
+
+    /// The centre of every range.
+    pub fn centre(&self) -> DesignPoint {
+        DesignPoint(self.parameters.iter().map(|p| (p.name.clone(), 0.5 * (p.min + p.max))).collect())
+    }
+
+    /// `point` with every parameter it lacks at its default; refuses names not in the space and
+    /// non-finite values.
+    pub fn complete(&self, point: &DesignPoint) -> Result<DesignPoint, SpaceError> {
+        for (name, value) in point.iter() {
+            if self.range(name).is_none() {
+                return Err(SpaceError::PointUnknownParameter { point: point.to_string(), name: name.into() });
+            }
+            if !value.is_finite() {
+                return Err(SpaceError::PointNotFinite { point: point.to_string(), name: name.into(), value });
+            }
+        }
+        let mut full = self.defaults();
+        for (name, value) in point.iter() {
+            full.insert(name, value);
+        }
+        Ok(full)
+    }
+
+    /// Coordinates of a point in the unit-scaled space: (value - min) / scale per parameter, in
+    /// name order; a parameter the point lacks is at its default.
+    pub fn normalised_coordinates(&self, point: &DesignPoint) -> Vec<f64> {
+        self.parameters.iter().map(|p| (point.get(&p.name).unwrap_or(p.default) - p.min) / p.scale()).collect()
+    }
+
+    /// Euclidean distance with each parameter's difference divided by its range (a zero-width
+    /// range counts as 1); parameters a point lacks are at their defaults.
+    pub fn normalised_distance(&self, a: &DesignPoint, b: &DesignPoint) -> f64 {
+        self.parameters
+            .iter()
+            .map(|p| {
+                let d = (a.get(&p.name).unwrap_or(p.default) - b.get(&p.name).unwrap_or(p.default)) / p.scale();
+                d * d
+            })
+            .sum::<f64>()
+            .sqrt()
+    }
+}
+
+/// How one parameter is swept.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum AxisValues {
+    /// explicit values (a range `START:STOP:COUNT` is expanded into these)
+    Values(Vec<f64>),
+    /// a Latin hypercube of `samples` points drawn with `seed`; parameters with the same
+    /// (samples, seed) form one joint hypercube
+    Lhs { samples: usize, seed: u64, low: f64, high: f64 },
+}
+
+/// One `--grid NAME=SPEC`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct GridAxis {
+    pub name: String,
+    pub values: AxisValues,
+    /// the text it was parsed from, for messages
+    pub spec: String,
+}
+
+/// Rounds to 12 significant digits so `0.1:0.2:11` gives 0.11, not 0.11000000000000001.
+fn tidy(v: f64) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    format!("{v:.11e}").parse().unwrap_or(v)
+}
+
+fn number(spec: &str, s: &str) -> Result<f64, SpaceError> {
+    let v: f64 = s.trim().parse().map_err(|_| SpaceError::NotANumber { spec: spec.into(), value: s.trim().into() })?;
+    if !v.is_finite() {
+        return Err(SpaceError::NotANumber { spec: spec.into(), value: s.trim().into() });
+    }
+    Ok(v)
+}
+
+fn integer(spec: &str, what: &str, s: &str) -> Result<u64, SpaceError> {
+    s.trim().parse().map_err(|_| SpaceError::Invalid {
+        spec: spec.into(),
+        message: format!("{what} '{}' is not an integer", s.trim()),
+    })
+}
+
+impl GridAxis {
+    /// Parses `NAME=START:STOP:COUNT` (COUNT >= 1 evenly spaced values, START <= STOP; COUNT 1
+    /// gives START), `NAME=V1,V2,...` (a single value is a list of one) or
+    /// `NAME=lhs:N:SEED[:LO:HI]` (a Latin hypercube over [LO, HI], by default the parameter's
+    /// range in `space`), checking the name against `space`.
+    pub fn parse(spec: &str, space: &ParameterSpace) -> Result<Self, SpaceError> {
+        let malformed = || SpaceError::Malformed { spec: spec.into() };
+        let invalid = |message: String| SpaceError::Invalid { spec: spec.into(), message };
+        let (name, rhs) = spec.split_once('=').ok_or_else(malformed)?;
+        let (name, rhs) = (name.trim(), rhs.trim());
+        if name.is_empty() || rhs.is_empty() {
+            return Err(malformed());
+        }
+        let Some(range) = space.range(name) else {
+            return Err(SpaceError::UnknownParameter {
+                spec: spec.into(),
+                name: name.into(),
+                declared: space.names().collect::<Vec<_>>().join(", "),
+            });
+        };
+        let values = if let Some(lhs) = rhs.strip_prefix("lhs:") {
+            let parts: Vec<&str> = lhs.split(':').collect();
+            if parts.len() != 2 && parts.len() != 4 {
+                return Err(malformed());
+            }
+            let samples = integer(spec, "sample count", parts[0])? as usize;
+            if samples == 0 {
+                return Err(invalid("a Latin hypercube needs at least 1 sample".into()));
+            }
+            let seed = integer(spec, "seed", parts[1])?;
+            let (low, high) = if parts.len() == 4 {
+                (number(spec, parts[2])?, number(spec, parts[3])?)
+            } else {
+                if !range.declared {
+                    return Err(invalid(format!(
+                        "parameter '{name}' has no min/max in the scene: give the range, lhs:N:SEED:LO:HI"
+                    )));
+                }
+                (range.min, range.max)
+            };
+            if low > high {
+                return Err(invalid(format!("range [{low}, {high}] is empty (LO > HI)")));
+            }
+            AxisValues::Lhs { samples, seed, low, high }
+        } else if rhs.contains(':') {
+            let parts: Vec<&str> = rhs.split(':').collect();
+            if parts.len() != 3 {
+                return Err(malformed());
+            }
+            let (start, stop) = (number(spec, parts[0])?, number(spec, parts[1])?);
+            let count = integer(spec, "count", parts[2])? as usize;
+            if count == 0 {
+                return Err(invalid("COUNT must be at least 1".into()));
+            }
+            if start > stop {
+                return Err(invalid(format!("START {start} is above STOP {stop}")));
+            }
+            let values = if count == 1 {
+                vec![start]
+            } else {
+                (0..count)
+                    .map(|i| {
+                        if i + 1 == count { stop } else { tidy(start + (stop - start) * i as f64 / (count - 1) as f64) }
+                    })
+                    .collect()
+            };
+            AxisValues::Values(values)
+        } else {
+            let values = rhs.split(',').map(|s| number(spec, s)).collect::<Result<Vec<_>, _>>()?;
+            AxisValues::Values(values)
+        };
+        Ok(Self { name: name.into(), values, spec: spec.into() })
+    }
+}
+
+/// The design points of a study: the cartesian product of the axes, in lexicographic order of
+/// the axes as given (the first axis varies slowest). Parameters with `lhs` specs of the same
+/// (N, SEED) form one joint N-point Latin hypercube, which is one factor of the product. Points
+/// hold the swept parameters only ([`ParameterSpace::complete`] adds the defaults).
+pub fn design_points(axes: &[GridAxis]) -> Result<Vec<DesignPoint>, SpaceError> {
+    if axes.is_empty() {
+        return Err(SpaceError::EmptyGrid);
+    }
+    for (i, a) in axes.iter().enumerate() {
+        if axes[..i].iter().any(|b| b.name == a.name) {
+            return Err(SpaceError::Duplicate { spec: a.spec.clone(), name: a.name.clone() });
+        }
+    }
+    // factors of the product: each a list of partial points
+    let mut factors: Vec<Vec<DesignPoint>> = Vec::new();
+    let mut lhs_groups: Vec<((usize, u64), usize)> = Vec::new();
+    for a in axes {
+        match &a.values {
+            AxisValues::Values(vs) => {
+                factors.push(vs.iter().map(|&v| DesignPoint::from_pairs([(a.name.clone(), v)])).collect());
+            }
+            AxisValues::Lhs { samples, seed, .. } => {
+                if !lhs_groups.iter().any(|(key, _)| *key == (*samples, *seed)) {
+                    lhs_groups.push(((*samples, *seed), factors.len()));
+                    factors.push(Vec::new());
+                }
+            }
+        }
+    }
+    for ((samples, seed), slot) in lhs_groups {
+        let members: Vec<&GridAxis> = axes
+            .iter()
+            .filter(|a| matches!(a.values, AxisValues::Lhs { samples: n, seed: s, .. } if n == samples && s == seed))
+            .collect();
+        factors[slot] = latin_hypercube(&members, samples, seed);
+    }
+    let mut points = vec![DesignPoint::new()];
+    for factor in &factors {
+        let mut next = Vec::with_capacity(points.len() * factor.len());
+        for p in &points {
+            for q in factor {
+                let mut r = p.clone();
+                for (k, v) in q.iter() {
+                    r.insert(k, v);
+                }
+                next.push(r);
+            }
+        }
+        points = next;
+    }
+    if points.is_empty() || points.iter().all(DesignPoint::is_empty) {
+        return Err(SpaceError::EmptyGrid);
+    }
+    Ok(points)
+}
+
+/// A Latin hypercube: each parameter's range cut into `samples` equal strata, one sample drawn
+/// uniformly in each stratum, the strata permuted independently per parameter (ChaCha8 seeded
+/// with `seed`, so the same spec gives the same points on every machine).
+fn latin_hypercube(members: &[&GridAxis], samples: usize, seed: u64) -> Vec<DesignPoint> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut points = vec![DesignPoint::new(); samples];
+    for a in members {
+        let AxisValues::Lhs { low, high, .. } = a.values else { continue };
+        let mut strata: Vec<usize> = (0..samples).collect();
+        strata.shuffle(&mut rng);
+        for (p, s) in points.iter_mut().zip(strata) {
+            let u: f64 = rng.random();
+            p.insert(a.name.clone(), tidy(low + (high - low) * (s as f64 + u) / samples as f64));
+        }
+    }
+    points
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn space() -> ParameterSpace {
+        ParameterSpace::new(vec![
+            ParameterRange { name: "f1".into(), default: 0.1, min: 0.1, max: 0.2, declared: true },
+            ParameterRange { name: "f2".into(), default: 0.1, min: 0.1, max: 0.2, declared: true },
+            ParameterRange { name: "p".into(), default: 5.0, min: 5.0, max: 5.0, declared: false },
+        ])
+    }
+
+    #[test]
+    fn range_spec_gives_evenly_spaced_tidy_values() {
+        let a = GridAxis::parse("f1=0.10:0.20:11", &space()).unwrap();
+        let AxisValues::Values(v) = a.values else { panic!() };
+        assert_eq!(v.len(), 11);
+        assert_eq!(v[1], 0.11);
+        assert_eq!(v[3], 0.13);
+        assert_eq!(v[10], 0.2);
+        let a = GridAxis::parse("f1=0.15:0.2:1", &space()).unwrap();
+        assert_eq!(a.values, AxisValues::Values(vec![0.15]));
+        let a = GridAxis::parse("f2=0.1, 0.15,0.2", &space()).unwrap();
+        assert_eq!(a.values, AxisValues::Values(vec![0.1, 0.15, 0.2]));
+    }
+
+    #[test]
+    fn bad_specs_are_named() {
+        let s = space();
+        for (spec, needle) in [
+            ("f1=0.2:0.1:0", "COUNT"),
+            ("f1=0.2:0.1:3", "above STOP"),
+            ("f1=0.1:nan:3", "not a finite number"),
+            ("f1=NaN", "not a finite number"),
+            ("f1=inf", "not a finite number"),
+            ("f1=0.1:0.2", "expected NAME=SPEC"),
+            ("f1", "expected NAME=SPEC"),
+            ("f1=", "expected NAME=SPEC"),
+            ("g=0.1", "no parameter 'g'"),
+            ("f1=0.1,,0.2", "not a finite number"),
+            ("f1=lhs:0:1", "at least 1 sample"),
+            ("f1=lhs:x:1", "not an integer"),
+            ("p=lhs:4:1", "no min/max"),
+            ("f1=lhs:4:1:0.3:0.2", "LO > HI"),
+        ] {
+            let err = GridAxis::parse(spec, &s).unwrap_err().to_string();
+            assert!(err.contains(spec) && err.contains(needle), "{spec}: {err}");
+        }
+    }
+
+    #[test]
+    fn product_is_lexicographic_and_empty_grids_are_refused() {
+        let s = space();
+        let axes = vec![GridAxis::parse("f1=0.1,0.2", &s).unwrap(), GridAxis::parse("f2=0.1:0.2:3", &s).unwrap()];
+        let pts = design_points(&axes).unwrap();
+        assert_eq!(pts.len(), 6);
+        assert_eq!(pts[0], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1)]));
+        assert_eq!(pts[1], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.15)]));
+        assert_eq!(pts[5], DesignPoint::from_pairs([("f1", 0.2), ("f2", 0.2)]));
+        assert_eq!(design_points(&[]).unwrap_err(), SpaceError::EmptyGrid);
+        let dup = vec![axes[0].clone(), axes[0].clone()];
+        assert!(matches!(design_points(&dup), Err(SpaceError::Duplicate { .. })));
+    }
+
+    #[test]
+    fn latin_hypercube_hits_every_stratum_once_and_is_reproducible() {
+        let s = space();
+        let axes = vec![GridAxis::parse("f1=lhs:10:7", &s).unwrap(), GridAxis::parse("f2=lhs:10:7", &s).unwrap()];
+        let pts = design_points(&axes).unwrap();
+        assert_eq!(pts.len(), 10, "one joint hypercube, not a product");
+        for name in ["f1", "f2"] {
+            let mut strata: Vec<usize> =
+                pts.iter().map(|p| ((p.get(name).unwrap() - 0.1) / 0.01).floor() as usize).collect();
+            strata.sort();
+            assert_eq!(strata, (0..10).collect::<Vec<_>>(), "{name}");
+        }
+        assert_eq!(pts, design_points(&axes).unwrap());
+        let other = vec![GridAxis::parse("f1=lhs:10:8", &s).unwrap(), axes[1].clone()];
+        assert_eq!(design_points(&other).unwrap().len(), 100, "different seeds: two factors");
+    }
+
+    #[test]
+    fn distance_is_normalised_by_range_and_zero_width_counts_as_one() {
+        let s = space();
+        let a = DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1)]);
+        let b = DesignPoint::from_pairs([("f1", 0.2), ("f2", 0.2)]);
+        assert!((s.normalised_distance(&a, &b) - 2f64.sqrt()).abs() < 1e-12);
+        let c = DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1), ("p", 7.0)]);
+        assert!((s.normalised_distance(&a, &c) - 2.0).abs() < 1e-12, "p defaults to 5, width 1");
+        assert_eq!(s.normalised_distance(&a, &s.complete(&a).unwrap()), 0.0);
+        assert!(s.complete(&DesignPoint::from_pairs([("q", 1.0)])).is_err());
+        assert!(s.complete(&DesignPoint::from_pairs([("f1", f64::NAN)])).is_err());
+    }
+}
