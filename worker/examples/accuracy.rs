@@ -277,7 +277,8 @@ fn mesh_convergence(args: &Args, samples: &[Sample], tol: f64) -> String {
         md += &format!("- `{mesh}` (h = 1/{:.0} of the block width): {q:.6e}\n", 1.0 / h);
     }
     if rows.len() >= 3 {
-        let [(h1, q1, _), (h2, q2, _), (h3, q3, _)] = [&rows[rows.len() - 3], &rows[rows.len() - 2], &rows[rows.len() - 1]];
+        let [(h1, q1, _), (h2, q2, _), (h3, q3, _)] =
+            [&rows[rows.len() - 3], &rows[rows.len() - 2], &rows[rows.len() - 1]];
         let target = (q1 - q2) / (q2 - q3);
         let ratio = |p: f64| (h1.powf(p) - h2.powf(p)) / (h2.powf(p) - h3.powf(p));
         if target > 0.0 && target.is_finite() {
@@ -364,8 +365,9 @@ fn write_markdown(args: &Args, samples: &[Sample], reference: &Sample, error: &d
     }
     md += "\nThese errors are against the finest mesh at the tightest tolerance, not against the exact solution: \
            the finest mesh's own discretisation error (mesh convergence, above) comes on top. A warm start at a \
-           loose tolerance can be far off (at 1e-2 it stops after one dynamic iteration with the neighbour's \
-           state); in a study, prefer the tolerance below the one a cold solve would need (docs/performance.md).\n\n";
+           loose tolerance can be far off (at 1e-2 it stops after a single dynamic iteration, in a state that \
+           does not slide yet); in a study, ask for a tolerance about 10 x tighter than a cold solve would need \
+           for the same error (docs/performance.md, Multiparametric study).\n\n";
     md += "## Measurements\n\n";
     md += &format!(
         "| mesh | tolerance | start | converged | iterations (static + dynamic) | wall s | {} | relative error |\n",

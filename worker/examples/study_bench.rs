@@ -216,7 +216,8 @@ fn main() {
     // ascending sweep) and the cost of points where an interface sticks (a slip QoI is zero).
     md += "\n| run | dynamic iterations of the first 11 points solved | warm points, some slip = 0: mean dynamic iterations | warm points, every slip > 0 |\n|---|---|---|---|\n";
     for (name, r) in &runs {
-        let first: Vec<String> = r.records.iter().take(11).map(|p| (p.iterations - p.static_iterations).to_string()).collect();
+        let first: Vec<String> =
+            r.records.iter().take(11).map(|p| (p.iterations - p.static_iterations).to_string()).collect();
         let sticks = |p: &glissade_worker::study::PointRecord| {
             p.qoi.iter().any(|(k, v)| k.starts_with("slip") && v.abs() < 1e-15)
         };
@@ -228,7 +229,11 @@ fn main() {
                 .filter(|p| sticks(p) == stick)
                 .map(|p| p.iterations - p.static_iterations)
                 .collect();
-            if v.is_empty() { "-".to_string() } else { format!("{:.1} ({} points)", v.iter().sum::<usize>() as f64 / v.len() as f64, v.len()) }
+            if v.is_empty() {
+                "-".to_string()
+            } else {
+                format!("{:.1} ({} points)", v.iter().sum::<usize>() as f64 / v.len() as f64, v.len())
+            }
         };
         md += &format!("| {name} | {} | {} | {} |\n", first.join(", "), mean(true), mean(false));
     }

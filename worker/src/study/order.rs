@@ -129,8 +129,7 @@ impl OrderingPolicy for Greedy {
             };
         }
         // O(|pending| x |done + in flight|) per call, on coordinates computed once per call
-        let refs: Vec<Vec<f64>> =
-            done.iter().chain(in_flight).map(|q| self.space.normalised_coordinates(q)).collect();
+        let refs: Vec<Vec<f64>> = done.iter().chain(in_flight).map(|q| self.space.normalised_coordinates(q)).collect();
         let nearest: Vec<f64> = pending
             .iter()
             .map(|p| {

@@ -190,8 +190,7 @@ fn linear_weights(space: &ParameterSpace, x: &DesignPoint, neighbours: &[(&Desig
     let cx = space.normalised_coordinates(x);
     let cy: Vec<Vec<f64>> = neighbours.iter().map(|(p, _)| space.normalised_coordinates(p)).collect();
     // the coordinates in which some neighbour differs from x
-    let dims: Vec<usize> =
-        (0..cx.len()).filter(|&j| cy.iter().any(|y| (y[j] - cx[j]).abs() > SAME_VALUE)).collect();
+    let dims: Vec<usize> = (0..cx.len()).filter(|&j| cy.iter().any(|y| (y[j] - cx[j]).abs() > SAME_VALUE)).collect();
     let n = dims.len() + 1;
     let rows: Vec<Vec<f64>> = std::iter::once(vec![1.0; neighbours.len()])
         .chain(dims.iter().map(|&j| cy.iter().map(|y| y[j] - cx[j]).collect()))
