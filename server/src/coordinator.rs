@@ -734,7 +734,7 @@ impl Coordinator {
             .store
             .get(Tree::SolutionFields, key.as_bytes())?
             .ok_or_else(|| CoordError::UnknownSolution(describe()))?;
-        zstd::decode_all(&compressed[..])
+        records::decode_fields(&compressed)
             .map_err(|e| CoordError::Corrupt(format!("stored solution {} does not decompress: {e}", describe())))
     }
 
@@ -898,7 +898,7 @@ impl Coordinator {
     /// and the point as DONE, or FAILED when not converged (retryable, its last iterate kept).
     pub fn complete(&self, c: Completion, file: Vec<u8>) -> Result<PointRecord, CoordError> {
         let started = std::time::Instant::now();
-        let (meta, _) = solution_file::read_from(&file[..]).map_err(|e| match e {
+        let (meta, solution) = solution_file::read_from(&file[..]).map_err(|e| match e {
             SolutionFileError::Checksum => CoordError::Corrupt(format!("solution of point {}: {e}", c.point)),
             e => CoordError::Invalid(format!("solution of point {}: {e}", c.point)),
         })?;
@@ -912,10 +912,9 @@ impl Coordinator {
             (entry.record.scene_hash.clone(), entry.full_parameters(i))
         };
         check_meta(&meta, &c, &study_hash, &full)?;
-        // Compress outside the lock: it is the costly part.
         let checked = started.elapsed();
-        let compressed =
-            zstd::encode_all(&file[..], 3).map_err(|e| CoordError::Invalid(format!("compressing: {e}")))?;
+        // Compress outside the lock: it is the costly part.
+        let compressed = records::encode_fields(&file).map_err(|e| CoordError::Invalid(format!("compressing: {e}")))?;
         let compressed_at = started.elapsed();
 
         let mut state = self.lock();
@@ -1001,10 +1000,11 @@ impl Coordinator {
         }
         state.leases.remove(&c.lease_id);
         if keep {
-            if record.converged {
-                if let Some(index) = state.by_scene.get_mut(&record.scene_hash) {
-                    index.index(key.clone(), &record)?;
-                }
+            let index = state.by_scene.get_mut(&record.scene_hash).filter(|_| record.converged);
+            if let Some(index) = index {
+                // The next point's warm start is likely this one: keep it decoded.
+                index.index(key.clone(), &record)?;
+                index.remember(&key, file, solution);
             }
             state.solutions.insert(key, record);
         }
@@ -1314,6 +1314,7 @@ mod tests {
         assert!(grant.init.is_none(), "nothing stored yet: cold");
         let (done, bytes) = solution_file(&grant, 5e-4, true);
         assert_eq!(c.complete(done, bytes.clone()).unwrap().state, PointState::Done);
+        assert_eq!(c.solution_bytes(&SolutionSelector::Point(a, PointId(0))).unwrap(), bytes);
 
         // same point, same version, looser tolerance: answered at once
         let b = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);

@@ -7,7 +7,7 @@
 //! | `studies`         | study id, u64 big-endian              | [`StudyRecord`]            |
 //! | `points`          | study id ++ point id, u64 BE each     | [`PointRecord`]            |
 //! | `solutions`       | [`SolutionKey`] bytes                 | [`SolutionRecord`]         |
-//! | `solution_fields` | [`SolutionKey`] bytes                 | zstd(solution file bytes)  |
+//! | `solution_fields` | [`SolutionKey`] bytes                 | solution file, zstd        |
 //! | `meta`            | `next-study-id`, `next-lease-id`      | u64 big-endian             |
 //!
 //! Big-endian ids make sled's key order the numeric order, so scans come sorted.
@@ -201,6 +201,21 @@ impl SolutionRecord {
             point: self.point,
         }
     }
+}
+
+/// zstd level of stored fields. On a three-blocks-small solution file (2.4 MB of f64 fields),
+/// measured with `zstd -b1 -e3`: level 1 at 450 MB/s to 68 % of the size, level 2 at 410 MB/s
+/// to 58 %, level 3 at 250 MB/s to 55 %; level 2 keeps a completion's cost low for 5 % more disk.
+const ZSTD_LEVEL: i32 = 2;
+
+/// Compresses a solution file for the `solution_fields` tree.
+pub fn encode_fields(file: &[u8]) -> std::io::Result<Vec<u8>> {
+    zstd::encode_all(file, ZSTD_LEVEL)
+}
+
+/// The solution file stored in `solution_fields`.
+pub fn decode_fields(stored: &[u8]) -> std::io::Result<Vec<u8>> {
+    zstd::decode_all(stored)
 }
 
 /// JSON encoding of a record (records hold only finite numbers: the coordinator checks them).

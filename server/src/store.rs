@@ -115,12 +115,15 @@ pub enum StoreError {
     },
 }
 
+/// A key and its value.
+pub type Entry = (Vec<u8>, Vec<u8>);
+
 /// What the coordinator needs from a storage engine.
 pub trait Store: Send + Sync {
     /// The value under `key` in `tree`, if any.
     fn get(&self, tree: Tree, key: &[u8]) -> Result<Option<Vec<u8>>, StoreError>;
     /// Every `(key, value)` of `tree` whose key starts with `prefix`, in key order.
-    fn scan_prefix(&self, tree: Tree, prefix: &[u8]) -> Result<Vec<(Vec<u8>, Vec<u8>)>, StoreError>;
+    fn scan_prefix(&self, tree: Tree, prefix: &[u8]) -> Result<Vec<Entry>, StoreError>;
     /// Applies every write of `batch` atomically, and durably: on disk when this returns, so a
     /// SIGKILL right after loses nothing.
     fn commit(&self, batch: Batch) -> Result<(), StoreError>;
@@ -199,7 +202,7 @@ impl Store for SledStore {
         self.tree(tree).get(key).map(|v| v.map(|ivec| ivec.to_vec())).map_err(|e| self.engine_error(e))
     }
 
-    fn scan_prefix(&self, tree: Tree, prefix: &[u8]) -> Result<Vec<(Vec<u8>, Vec<u8>)>, StoreError> {
+    fn scan_prefix(&self, tree: Tree, prefix: &[u8]) -> Result<Vec<Entry>, StoreError> {
         self.tree(tree)
             .scan_prefix(prefix)
             .map(|kv| kv.map(|(k, v)| (k.to_vec(), v.to_vec())))

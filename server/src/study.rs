@@ -232,6 +232,18 @@ impl SceneSolutions {
         Ok(())
     }
 
+    /// Keeps a solution just indexed decoded: the next point's warm start is likely it.
+    pub fn remember(&self, key: &SolutionKey, bytes: Vec<u8>, solution: InterfaceSolution) {
+        let Some(id) = self.id_of(key) else { return };
+        let loaded = Arc::new(Loaded { id, bytes: Arc::new(bytes), solution: Arc::new(solution) });
+        let mut recent = self.recent.lock().unwrap_or_else(PoisonError::into_inner);
+        recent.retain(|l| l.id != id);
+        if recent.len() == RECENT {
+            recent.remove(0);
+        }
+        recent.push(loaded);
+    }
+
     pub fn id_of(&self, key: &SolutionKey) -> Option<SolutionId> {
         self.ids.get(key).copied()
     }
@@ -246,7 +258,7 @@ impl SceneSolutions {
             .get(Tree::SolutionFields, key.as_bytes())
             .map_err(|e| StoreError::Backend(e.to_string()))?
             .ok_or_else(|| StoreError::Backend(format!("solution {id}: fields missing from the database")))?;
-        let bytes = zstd::decode_all(&compressed[..])
+        let bytes = crate::records::decode_fields(&compressed)
             .map_err(|e| StoreError::Backend(format!("solution {id}: fields do not decompress: {e}")))?;
         let (_, solution) =
             solution_file::read_from(&bytes[..]).map_err(|e| StoreError::Backend(format!("solution {id}: {e}")))?;

@@ -948,7 +948,9 @@ fn python_with_grpc() -> Option<std::path::PathBuf> {
     let python = venv.join("bin/python");
     let ready = |python: &Path| {
         python.is_file()
-            && run_with_timeout(Command::new(python).args(["-c", "import grpc, grpc_tools, grpc_reflection"]), LIMIT).status.success()
+            && run_with_timeout(Command::new(python).args(["-c", "import grpc, grpc_tools, grpc_reflection"]), LIMIT)
+                .status
+                .success()
     };
     if ready(&python) {
         return Some(python);
@@ -957,7 +959,14 @@ fn python_with_grpc() -> Option<std::path::PathBuf> {
     assert!(out.status.success(), "python3 -m venv failed (run deploy/install-deps.sh): {}", text(&out.stderr));
     let pip = venv.join("bin/pip");
     let out = run_with_timeout(
-        Command::new(&pip).args(["install", "--quiet", "--disable-pip-version-check", "grpcio", "grpcio-tools", "grpcio-reflection"]),
+        Command::new(&pip).args([
+            "install",
+            "--quiet",
+            "--disable-pip-version-check",
+            "grpcio",
+            "grpcio-tools",
+            "grpcio-reflection",
+        ]),
         Duration::from_secs(600),
     );
     if !out.status.success() {
@@ -965,7 +974,10 @@ fn python_with_grpc() -> Option<std::path::PathBuf> {
         if !run_with_timeout(Command::new("python3").args(["-c", reach]), LIMIT).status.success() {
             return None;
         }
-        panic!("pip install grpcio grpcio-tools grpcio-reflection failed although PyPI answers:\n{}", text(&out.stderr));
+        panic!(
+            "pip install grpcio grpcio-tools grpcio-reflection failed although PyPI answers:\n{}",
+            text(&out.stderr)
+        );
     }
     assert!(ready(&python), "grpcio installed but not importable");
     Some(python)

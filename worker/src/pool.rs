@@ -12,7 +12,6 @@
 //! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
 //! started is released).
 
-use std::collections::VecDeque;
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
 
@@ -24,9 +23,9 @@ use tokio::sync::{oneshot, watch};
 use tonic::transport::{Channel, Endpoint};
 use tonic::{Code, Status};
 
+use crate::comm::Serial;
 use crate::io::solution_file::{self, SolutionMeta};
 use crate::latin::field::InterfaceSolution;
-use crate::comm::Serial;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use crate::scene::Scene;
 
@@ -132,7 +131,10 @@ pub fn run_pool(options: PoolOptions, solver: &mut dyn PoolSolver) -> Result<()>
         let outcome = match outcome {
             Ok(result) => result.map_err(|e| e.to_string()),
             Err(panic) => {
-                let what = panic.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| panic.downcast_ref::<String>().cloned());
+                let what = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned());
                 Err(format!("the solver panicked: {}", what.unwrap_or_else(|| "(no message)".into())))
             }
         };
@@ -178,11 +180,11 @@ struct Session {
 
 async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: watch::Receiver<bool>) -> Result<()> {
     let mut pool_id = options.pool_id.clone();
-    let mut pending: VecDeque<Report> = VecDeque::new();
+    let mut pending: Option<Report> = None;
     let mut backoff = options.backoff.0;
     let mut idle_since = Instant::now();
     loop {
-        if *stop.borrow() && pending.is_empty() {
+        if *stop.borrow() && pending.is_none() {
             return Ok(());
         }
         let session = match connect(&options, pool_id.as_deref()).await {
@@ -191,7 +193,7 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
                 tracing::warn!(coordinator = %options.coordinator, error = %format!("{e:#}"), retry_in = ?backoff, "cannot reach the coordinator");
                 tokio::select! {
                     _ = tokio::time::sleep(backoff) => {}
-                    _ = stop.changed(), if pending.is_empty() => return Ok(()),
+                    _ = stop.changed(), if pending.is_none() => return Ok(()),
                 }
                 backoff = (backoff * 2).min(options.backoff.1);
                 continue;
@@ -202,14 +204,11 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
             tracing::info!(pool = %session.pool_id, coordinator = %options.coordinator, "registered");
         }
         pool_id = Some(session.pool_id.clone());
-        let mut serving = Serving { session, delivering: None, pending: &mut pending, lost: None, last_solved: None };
-        let result = serving.serve(&options, &work, &mut stop, &mut idle_since).await;
-        // Nothing leaves before its delivery is settled (delivered, refused, or kept for later).
-        serving.settle().await;
-        match result {
-            Break::Stop if pending.is_empty() => return Ok(()),
-            Break::Stop => tracing::warn!("stopping, but a result is still to deliver; reconnecting"),
-            Break::Reconnect(why) => tracing::warn!(reason = %why, "lost the coordinator; reconnecting"),
+        match serve(&options, session, &work, &mut stop, &mut pending, &mut idle_since).await {
+            Break::Stop => return Ok(()),
+            Break::Reconnect(why) => {
+                tracing::warn!(reason = %why, "lost the coordinator; reconnecting");
+            }
         }
     }
 }
@@ -241,177 +240,122 @@ fn is_transient(status: &Status) -> bool {
         || (status.code() == Code::NotFound && status.message().contains("is not registered"))
 }
 
-/// A delivery running in the background, and the lease it completes.
-type Delivery = (u64, tokio::task::JoinHandle<(Report, Result<(), Status>)>);
-
-/// One connection's worth of pool work. A solved point is delivered in the background while the
-/// next one is leased and solved, so the delivery (solution file, transfer, the coordinator's
-/// checks, compression and commit) costs the pool no time.
-struct Serving<'a> {
-    session: Session,
-    delivering: Option<Delivery>,
-    /// Results to deliver first (kept across reconnections), oldest first.
-    pending: &'a mut VecDeque<Report>,
-    /// Set when a background delivery found the coordinator gone.
-    lost: Option<String>,
-    /// When the last solve ended: the pool's time between solves is the service's cost.
-    last_solved: Option<Instant>,
-}
-
-impl Serving<'_> {
-    /// Waits for the background delivery, if any, and records how it went.
-    async fn settle(&mut self) {
-        if let Some((_, handle)) = self.delivering.take() {
-            match handle.await {
-                Ok((report, result)) => self.record(report, result),
-                Err(e) => tracing::error!(error = %e, "the delivery task failed"),
-            }
-        }
-    }
-
-    fn record(&mut self, report: Report, result: Result<(), Status>) {
-        match result {
-            Ok(()) => {}
-            Err(status) if is_transient(&status) => {
-                self.lost.get_or_insert_with(|| status.message().to_owned());
-                self.pending.push_back(report);
-            }
-            Err(status) => tracing::error!(
-                study = report.lease.study_id,
-                point = report.lease.point_id,
-                code = ?status.code(),
-                error = status.message(),
-                "the coordinator refused the result"
-            ),
-        }
-    }
-
-    /// Starts delivering `report` in the background (after the previous delivery settled).
-    async fn deliver_in_background(&mut self, report: Report) {
-        self.settle().await;
-        let (mut client, pool_id) = (self.session.client.clone(), self.session.pool_id.clone());
-        let lease_id = report.lease.lease_id;
-        let handle = tokio::spawn(async move {
-            let result = deliver(&mut client, &pool_id, &report).await;
-            (report, result)
-        });
-        self.delivering = Some((lease_id, handle));
-    }
-
-    async fn serve(
-        &mut self,
-        options: &PoolOptions,
-        work: &std_mpsc::Sender<Work>,
-        stop: &mut watch::Receiver<bool>,
-        idle_since: &mut Instant,
-    ) -> Break {
-        loop {
-            // Results kept from before a reconnection go first, in order.
-            while let Some(report) = self.pending.pop_front() {
-                let result = deliver(&mut self.session.client, &self.session.pool_id, &report).await;
-                self.record(report, result);
-                if let Some(why) = self.lost.take() {
-                    return Break::Reconnect(why);
+/// One connection's worth of pool work: deliver what is pending, lease, solve, repeat.
+///
+/// A solved point is delivered before the next one is leased, never in the background: the
+/// next point's warm start may be the solution just delivered (the nearest, for a single pool),
+/// and a start from an older one costs more iterations than the delivery costs time.
+async fn serve(
+    options: &PoolOptions,
+    mut session: Session,
+    work: &std_mpsc::Sender<Work>,
+    stop: &mut watch::Receiver<bool>,
+    pending: &mut Option<Report>,
+    idle_since: &mut Instant,
+) -> Break {
+    // When the last solve ended: the pool's time between solves is the service's cost.
+    let mut last_solved: Option<Instant> = None;
+    loop {
+        if let Some(report) = pending.take() {
+            match deliver(&mut session.client, &session.pool_id, &report).await {
+                Ok(()) => {}
+                Err(status) if is_transient(&status) => {
+                    *pending = Some(report);
+                    return Break::Reconnect(status.message().to_owned());
                 }
-                *idle_since = Instant::now();
-            }
-            if *stop.borrow() {
-                return Break::Stop;
-            }
-            if self.delivering.is_none() && options.idle_exit.is_some_and(|limit| idle_since.elapsed() >= limit) {
-                tracing::info!(idle = ?idle_since.elapsed(), "no work for too long: stopping");
-                return Break::Stop;
-            }
-            // Poll no longer than the idle limit leaves, so that the limit is kept.
-            let wait = options
-                .idle_exit
-                .map_or(options.wait, |limit| options.wait.min(limit.saturating_sub(idle_since.elapsed())));
-            let request =
-                v1::LeasePointRequest { pool_id: self.session.pool_id.clone(), wait_ms: wait.as_millis() as u64 };
-            let asked = Instant::now();
-            let leased = tokio::select! {
-                r = receive_lease(&mut self.session.client, request) => r,
-                _ = stop.changed() => return Break::Stop,
-            };
-            let (lease, init_bytes) = match leased {
-                Ok(Some(l)) => l,
-                Ok(None) => {
-                    self.settle().await;
-                    match self.lost.take() {
-                        Some(why) => return Break::Reconnect(why),
-                        None => continue,
-                    }
-                }
-                Err(status) if is_transient(&status) => return Break::Reconnect(status.message().to_owned()),
                 Err(status) => {
-                    // A lease stream we could not use: the lease expires, the point goes elsewhere.
-                    tracing::error!(code = ?status.code(), error = status.message(), "leasing failed");
-                    tokio::time::sleep(options.backoff.0).await;
-                    continue;
+                    tracing::error!(
+                        study = report.lease.study_id,
+                        point = report.lease.point_id,
+                        code = ?status.code(),
+                        error = status.message(),
+                        "the coordinator refused the result"
+                    );
                 }
-            };
+            }
             *idle_since = Instant::now();
-            // Timings of the coordinator's share of a point (docs/performance.md, Service).
-            tracing::info!(
-                study = lease.study_id,
-                point = lease.point_id,
-                lease = lease.lease_id,
-                init_bytes = lease.init_bytes,
-                lease_ms = asked.elapsed().as_secs_f64() * 1e3,
-                "leased"
-            );
-            if *stop.borrow() {
-                release(&mut self.session, &lease).await;
-                return Break::Stop;
-            }
-            let job = match prepare(&lease, init_bytes) {
-                Ok(job) => job,
-                Err(e) => {
-                    self.pending.push_back(Report { lease, outcome: Err(one_line(&format!("{e:#}"))) });
-                    continue;
-                }
-            };
-            let scene = job.scene.clone();
-            let (reply_tx, mut reply_rx) = oneshot::channel();
-            let solve_started = Instant::now();
-            if work.send((job, reply_tx)).is_err() {
-                return Break::Stop;
-            }
-            // Heartbeat while the point is solved on the main thread (for the point delivered in
-            // the background too, until it is).
-            let mut ticker = tokio::time::interval(self.session.heartbeat);
-            ticker.tick().await;
-            let outcome = loop {
-                tokio::select! {
-                    r = &mut reply_rx => break r,
-                    _ = ticker.tick() => {
-                        let mut ids = vec![lease.lease_id];
-                        ids.extend(self.delivering.as_ref().filter(|(_, h)| !h.is_finished()).map(|(id, _)| *id));
-                        heartbeat(&mut self.session, &ids).await;
-                    }
-                }
-            };
-            let Ok(outcome) = outcome else { return Break::Stop };
-            // What the pool spent between two solves: lease, warm start, waiting on the last
-            // delivery (docs/performance.md, Service).
-            let gap = solve_started - self.last_solved.unwrap_or(asked).min(solve_started);
-            self.last_solved = Some(Instant::now());
-            tracing::info!(
-                study = lease.study_id,
-                point = lease.point_id,
-                seconds = solve_started.elapsed().as_secs_f64(),
-                gap_ms = gap.as_secs_f64() * 1e3,
-                "solved"
-            );
-            let outcome = outcome.map(|o| (scene, o)).map_err(|e| one_line(&e));
-            let report = Report { lease, outcome };
-            self.settle().await;
-            if let Some(why) = self.lost.take() {
-                self.pending.push_back(report);
-                return Break::Reconnect(why);
-            }
-            self.deliver_in_background(report).await;
         }
+        if *stop.borrow() {
+            return Break::Stop;
+        }
+        if options.idle_exit.is_some_and(|limit| idle_since.elapsed() >= limit) {
+            tracing::info!(idle = ?idle_since.elapsed(), "no work for too long: stopping");
+            return Break::Stop;
+        }
+        // Poll no longer than the idle limit leaves, so that the limit is kept.
+        let wait = options
+            .idle_exit
+            .map_or(options.wait, |limit| options.wait.min(limit.saturating_sub(idle_since.elapsed())));
+        let request = v1::LeasePointRequest { pool_id: session.pool_id.clone(), wait_ms: wait.as_millis() as u64 };
+        let asked = Instant::now();
+        let leased = tokio::select! {
+            r = receive_lease(&mut session.client, request) => r,
+            _ = stop.changed() => return Break::Stop,
+        };
+        let (lease, init_bytes) = match leased {
+            Ok(Some(l)) => l,
+            Ok(None) => {
+                last_solved = None;
+                continue;
+            }
+            Err(status) if is_transient(&status) => return Break::Reconnect(status.message().to_owned()),
+            Err(status) => {
+                // A lease stream we could not use: the lease expires and the point goes elsewhere.
+                tracing::error!(code = ?status.code(), error = status.message(), "leasing failed");
+                tokio::time::sleep(options.backoff.0).await;
+                continue;
+            }
+        };
+        *idle_since = Instant::now();
+        // Timings of the coordinator's share of a point (docs/performance.md, Service).
+        tracing::info!(
+            study = lease.study_id,
+            point = lease.point_id,
+            lease = lease.lease_id,
+            init_bytes = lease.init_bytes,
+            lease_ms = asked.elapsed().as_secs_f64() * 1e3,
+            "leased"
+        );
+        if *stop.borrow() {
+            release(&mut session, &lease).await;
+            return Break::Stop;
+        }
+        let job = match prepare(&lease, init_bytes) {
+            Ok(job) => job,
+            Err(e) => {
+                *pending = Some(Report { lease, outcome: Err(one_line(&format!("{e:#}"))) });
+                continue;
+            }
+        };
+        let scene = job.scene.clone();
+        let (reply_tx, mut reply_rx) = oneshot::channel();
+        let solve_started = Instant::now();
+        if work.send((job, reply_tx)).is_err() {
+            return Break::Stop;
+        }
+        // Heartbeat while the point is solved on the main thread.
+        let mut ticker = tokio::time::interval(session.heartbeat);
+        ticker.tick().await;
+        let outcome = loop {
+            tokio::select! {
+                r = &mut reply_rx => break r,
+                _ = ticker.tick() => heartbeat(&mut session, &[lease.lease_id]).await,
+            }
+        };
+        let Ok(outcome) = outcome else { return Break::Stop };
+        // What the pool spent between two solves: delivering the last point, leasing this one
+        // with its warm start (docs/performance.md, Service).
+        let gap = solve_started - last_solved.unwrap_or(asked).min(solve_started);
+        last_solved = Some(Instant::now());
+        tracing::info!(
+            study = lease.study_id,
+            point = lease.point_id,
+            seconds = solve_started.elapsed().as_secs_f64(),
+            gap_ms = gap.as_secs_f64() * 1e3,
+            "solved"
+        );
+        let outcome = outcome.map(|o| (scene, o)).map_err(|e| one_line(&e));
+        *pending = Some(Report { lease, outcome });
     }
 }
 

@@ -69,8 +69,10 @@ fn fake_solution(scene: &Scene, hash: &str, lease: &v1::Lease) -> Result<Vec<u8>
         parameters.insert(name.clone(), lease.parameters.get(name).copied().unwrap_or(p.default));
     }
     let len = scene.time.steps * scene.dimension;
-    let solution =
-        InterfaceSolution { static_stage: None, dynamic: StageSolution { interfaces: vec![InterfaceField::zeros(2, len)] } };
+    let solution = InterfaceSolution {
+        static_stage: None,
+        dynamic: StageSolution { interfaces: vec![InterfaceField::zeros(2, len)] },
+    };
     let meta = SolutionMeta {
         solver_version: env!("CARGO_PKG_VERSION").into(),
         scene_hash: hash.into(),
@@ -103,7 +105,8 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
     let (mut lease_ms, mut complete_ms, mut last) = (Vec::new(), Vec::new(), None);
     loop {
         let t = Instant::now();
-        let mut stream = pool.lease_point(v1::LeasePointRequest { pool_id: id.clone(), wait_ms: 300 }).await?.into_inner();
+        let mut stream =
+            pool.lease_point(v1::LeasePointRequest { pool_id: id.clone(), wait_ms: 300 }).await?.into_inner();
         let lease = match stream.message().await? {
             Some(v1::LeaseMessage { body: Some(lease_message::Body::Lease(l)) }) => l,
             _ => return Ok((lease_ms, complete_ms, last)),
@@ -124,8 +127,7 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
             wall_seconds: 0.0,
             solution_bytes: bytes.len() as u64,
         };
-        let mut messages =
-            vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
+        let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
         messages.extend(
             glissade_proto::chunks(&bytes)
                 .map(|c| v1::CompletePointMessage { body: Some(complete_point_message::Body::Chunk(c)) }),
@@ -190,9 +192,8 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
 }
 
 fn main() -> ExitCode {
-    let result = parse_args().and_then(|args| {
-        tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(run(args))
-    });
+    let result = parse_args()
+        .and_then(|args| tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(run(args)));
     match result {
         Ok(v) => {
             println!("{v}");
