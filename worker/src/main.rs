@@ -253,17 +253,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
     }
     // Files first: the summary is printed only once everything asked for is written.
     if let Some(p) = &args.save {
-        let meta = solution_file::SolutionMeta {
-            solver_version: env!("CARGO_PKG_VERSION").into(),
-            scene_hash: scene_hash.clone(),
-            dimension: scene.dimension,
-            time_steps: s.time_steps,
-            parameters: s.parameters.clone(),
-            converged: s.converged,
-            error_indicator: s.error_indicator,
-            iterations: s.iterations,
-            tolerance: s.tolerance,
-        };
+        let meta = glissade_worker::pool::solution_meta(&scene, &outcome);
         solution_file::write(p, &outcome.solution, &meta).with_context(|| format!("--save {}", p.display()))?;
     }
     let field_files = match (&args.fields, &outcome.fields) {
