@@ -60,6 +60,10 @@ const POOL_EXAMPLES: &str = "\
 Examples:
   glissade-worker pool --coordinator http://coordinator:50051
   glissade-worker pool --coordinator http://10.0.0.5:50051 --pool-id node17 --idle-exit 600
+  mpiexec -n 16 glissade-worker pool --coordinator http://coordinator:50051
+
+Under mpiexec the ranks form one pool: rank 0 talks to the coordinator and all ranks solve each
+point together (the substructures are shared out among them).
 
 Runs until SIGTERM or Ctrl-C: a pool waiting for work stops at once, a pool solving finishes and
 delivers its point first. Reconnects by itself (with back-off) when the coordinator goes away.
@@ -78,15 +82,10 @@ struct PoolArgs {
     idle_exit: Option<f64>,
 }
 
-/// Pool mode on one process (MPI pools of several ranks: see glissade_worker::pool).
+/// Pool mode: one process, or P MPI ranks of which rank 0 talks to the coordinator.
 fn pool(args: PoolArgs) -> Result<bool> {
+    use glissade_worker::pool::ranks::{RootSolver, follow_root};
     use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
-    // Under mpiexec, every rank would otherwise run a pool of its own under the same id.
-    let Some(universe) = mpi::initialize() else { bail!("MPI could not be initialised") };
-    let ranks = mpi::topology::Communicator::size(&universe.world());
-    if ranks > 1 {
-        bail!("a pool runs on one MPI rank for now, not {ranks}: start one pool per rank (srun -n 1)");
-    }
     let mut options = PoolOptions::new(args.coordinator);
     options.pool_id = args.pool_id;
     if let Some(s) = args.idle_exit {
@@ -95,8 +94,38 @@ fn pool(args: PoolArgs) -> Result<bool> {
         }
         options.idle_exit = Some(std::time::Duration::from_secs_f64(s));
     }
-    run_pool(options, &mut SerialPoolSolver::default())?;
-    Ok(true)
+    let Some(universe) = mpi::initialize() else { bail!("MPI could not be initialised") };
+    let comm = Mpi { world: universe.world() };
+    if comm.size() == 1 {
+        run_pool(options, &mut SerialPoolSolver::default())?;
+        return Ok(true);
+    }
+    // A rank that panics mid-point would leave the others in a collective: the whole pool ends,
+    // its lease expires and the coordinator hands the point out again (up to its attempt limit).
+    abort_all_ranks_on_panic();
+    if comm.rank() > 0 {
+        follow_root(&comm).inspect_err(|_| mpi::traits::Communicator::abort(&comm.world, 1))?;
+        return Ok(true);
+    }
+    options.ranks = comm.size() as u32;
+    let mut root = RootSolver::new(&comm);
+    let result = run_pool(options, &mut root);
+    // Whatever ended the pool, the other ranks are waiting for a job: tell them to stop.
+    root.stop();
+    result.map(|()| true)
+}
+
+/// Ends every rank of the job when one panics (MPI_Abort from the panic hook).
+fn abort_all_ranks_on_panic() {
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        default_hook(info);
+        // SAFETY: MPI is initialised (the universe lives until main returns); MPI_Abort on the
+        // world ends every rank of the job.
+        unsafe {
+            mpi::ffi::MPI_Abort(mpi::ffi::RSMPI_COMM_WORLD, 101);
+        }
+    }));
 }
 
 #[derive(Args)]
@@ -332,16 +361,7 @@ fn main() -> ExitCode {
             };
             let comm = Mpi { world: universe.world() };
             if comm.size() > 1 {
-                // A panicking rank must not leave the others waiting in a collective.
-                let default_hook = std::panic::take_hook();
-                std::panic::set_hook(Box::new(move |info| {
-                    default_hook(info);
-                    // SAFETY: MPI is initialised (the universe lives until main returns);
-                    // MPI_Abort on the world ends every rank of the job.
-                    unsafe {
-                        mpi::ffi::MPI_Abort(mpi::ffi::RSMPI_COMM_WORLD, 101);
-                    }
-                }));
+                abort_all_ranks_on_panic();
             }
             let result = solve(args, &comm);
             if let (Err(e), true) = (&result, comm.size() > 1) {

@@ -4,9 +4,10 @@
 //! Two halves, so that MPI stays on the main thread: [`run_pool`] runs the conversation with the
 //! coordinator (register, lease with the warm start, heartbeats, complete or fail, reconnect with
 //! back-off) on a small tokio runtime, and hands each point to a [`PoolSolver`] on the calling
-//! thread — one call per point. A one-process pool uses [`SerialPoolSolver`]; an MPI pool wraps the
-//! solve so that rank 0 broadcasts each [`PointJob`] to the other ranks (only rank 0 runs
-//! `run_pool` and talks to the coordinator).
+//! thread — one call per point. A one-process pool uses [`SerialPoolSolver`]; a pool of P > 1 MPI
+//! ranks uses [`ranks::RootSolver`] on rank 0, which sends each [`PointJob`] to the other ranks
+//! (waiting in [`ranks::follow_root`]) and solves it with them; only rank 0 talks to the
+//! coordinator.
 //!
 //! SIGTERM or SIGINT: a pool waiting for work stops at once; a pool solving finishes the point,
 //! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
@@ -28,6 +29,8 @@ use crate::io::solution_file::{self, SolutionMeta};
 use crate::latin::field::InterfaceSolution;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use crate::scene::Scene;
+
+pub mod ranks;
 
 /// Largest warm-start solution accepted from the coordinator (a paper-size scene's is ~100 MB).
 const MAX_INIT_BYTES: u64 = 4 << 30;
