@@ -226,6 +226,10 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
         if !m.error_indicator.is_finite() {
             return Err(Invalid(format!("error_indicator is not finite: {}", m.error_indicator)));
         }
+        // Divergence is reported with FailPoint; a completed history is finite like eta.
+        if let Some(x) = m.eta_history.iter().find(|x| !x.is_finite()) {
+            return Err(Invalid(format!("eta_history holds a non-finite value: {x}")));
+        }
         Ok(Completion {
             pool: pool_id(&m.pool_id)?,
             lease_id: m.lease_id,
@@ -236,6 +240,7 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
             error_indicator: m.error_indicator,
             qoi: m.qoi,
             wall_seconds: m.wall_seconds,
+            eta_history: m.eta_history,
         })
     }
 }
@@ -338,6 +343,7 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
         wall_seconds: r.map_or(0.0, |r| r.wall_seconds),
         error: p.error.clone().unwrap_or_default(),
         lease_deadline_unix_ms: deadline,
+        eta_history: r.map(|r| r.eta_history.clone()).unwrap_or_default(),
     }
 }
 

@@ -164,6 +164,7 @@ pub struct Completion {
     pub error_indicator: f64,
     pub qoi: BTreeMap<String, f64>,
     pub wall_seconds: f64,
+    pub eta_history: Vec<f64>,
 }
 
 /// A pool's failure report.
@@ -837,6 +838,7 @@ impl Coordinator {
             wall_seconds: 0.0,
             started_from: Some(answer.origin()),
             answered: true,
+            eta_history: Vec::new(),
         });
         let mut batch = Batch::new();
         batch.put(Tree::Points, point_key(id, point.id), encode(&point));
@@ -954,6 +956,7 @@ impl Coordinator {
             wall_seconds: c.wall_seconds,
             started_from,
             answered: false,
+            eta_history: c.eta_history.clone(),
         });
         if converged {
             point.state = PointState::Done;
@@ -1028,6 +1031,7 @@ impl Coordinator {
             wall_seconds: 0.0,
             started_from: leased_from(&entry.points[i]),
             answered: false,
+            eta_history: Vec::new(),
         });
         let mut batch = Batch::new();
         batch.put(Tree::Points, point_key(f.study, f.point), encode(&point));
@@ -1292,6 +1296,7 @@ mod tests {
             error_indicator: eta,
             qoi: [("slip_A".to_string(), 1e-6)].into(),
             wall_seconds: 0.5,
+            eta_history: vec![1.0, eta],
         };
         (completion, bytes)
     }

@@ -131,6 +131,9 @@ pub struct PointResult {
     pub started_from: Option<SolutionOrigin>,
     /// Answered from a stored solution without iterations.
     pub answered: bool,
+    /// eta after each dynamic-stage iteration (absent in records written before it existed).
+    #[serde(default)]
+    pub eta_history: Vec<f64>,
 }
 
 /// One design point of a study.

@@ -796,6 +796,7 @@ async fn complete(
         qoi: [("slip_A".to_string(), 1.0)].into(),
         wall_seconds: 0.1,
         solution_bytes: announced as u64,
+        eta_history: Vec::new(),
     };
     let mut messages = vec![v1::CompletePointMessage { body: Some(v1::complete_point_message::Body::Header(header)) }];
     messages.extend(

@@ -126,6 +126,7 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
             qoi: [("q".to_string(), 1.0)].into(),
             wall_seconds: 0.0,
             solution_bytes: bytes.len() as u64,
+            eta_history: Vec::new(),
         };
         let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
         messages.extend(

@@ -1,0 +1,133 @@
+//! The glissade coordinator as a library: [`serve`] runs the gRPC service (User, Pool, Health,
+//! reflection) over a sled database until a shutdown future resolves. `glissade-server` is a thin
+//! binary around it; `glissade demo` embeds it on a temporary directory.
+
+mod convert;
+mod coordinator;
+mod health;
+mod pool;
+mod records;
+mod store;
+mod study;
+mod user;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+
+use anyhow::{Context, Result};
+use coordinator::{Config, Coordinator};
+use glissade_proto::v1::health_server::HealthServer;
+use glissade_proto::v1::pool_server::PoolServer;
+use glissade_proto::v1::user_server::UserServer;
+use store::SledStore;
+use tonic::transport::Server;
+use tonic::transport::server::TcpIncoming;
+
+/// How long a stopping coordinator waits for open connections to finish their calls.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
+/// What a coordinator needs to start.
+#[derive(Debug, Clone)]
+pub struct ServerOptions {
+    /// Directory of the database (created if missing).
+    pub data: PathBuf,
+    /// How long a pool holds a design point without a heartbeat.
+    pub lease: Duration,
+    /// Leases granted to one point before a lost lease marks it failed.
+    pub max_attempts: u32,
+    /// Largest solution file a pool may send.
+    pub max_solution_bytes: u64,
+}
+
+impl ServerOptions {
+    /// The defaults of `glissade-server` for a database in `data`.
+    pub fn new(data: impl Into<PathBuf>) -> Self {
+        Self { data: data.into(), lease: Duration::from_secs(60), max_attempts: 3, max_solution_bytes: 4 << 30 }
+    }
+}
+
+/// Opens the database and binds `listen`; returns the bound address (port 0 picks one) and the
+/// future that serves until `shutdown` resolves, then flushes the database.
+pub async fn bind(
+    options: ServerOptions,
+    listen: SocketAddr,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(SocketAddr, impl Future<Output = Result<()>>)> {
+    std::fs::create_dir_all(&options.data)
+        .with_context(|| format!("creating data directory {}", options.data.display()))?;
+    if options.lease < Duration::from_millis(50) {
+        anyhow::bail!("lease of {:?}: give at least 0.05 s", options.lease);
+    }
+    if options.max_attempts == 0 {
+        anyhow::bail!("max attempts 0: give at least 1");
+    }
+    let store = SledStore::open(&options.data).context("opening the database")?;
+    let config = Config {
+        lease: options.lease,
+        max_attempts: options.max_attempts,
+        max_solution_bytes: options.max_solution_bytes,
+        solver_version: env!("CARGO_PKG_VERSION").to_owned(),
+    };
+    let coordinator = Arc::new(Coordinator::open(Arc::new(store), config).context("loading the database")?);
+    // Both reflection versions: grpcurl asks v1 first, older tools (grpcio-reflection) v1alpha.
+    let reflection = || {
+        tonic_reflection::server::Builder::configure()
+            .register_encoded_file_descriptor_set(glissade_proto::FILE_DESCRIPTOR_SET)
+    };
+    let reflection_v1 = reflection().build_v1().context("building the reflection service")?;
+    let reflection_v1alpha = reflection().build_v1alpha().context("building the reflection service")?;
+    let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("binding {listen}"))?;
+    let addr = listener.local_addr().context("reading the bound address")?;
+
+    let serve = async move {
+        // Leases of pools that stopped answering expire even while no pool asks for work.
+        let expiry = {
+            let c = coordinator.clone();
+            let tick = (c.config().lease / 4).clamp(Duration::from_millis(20), Duration::from_secs(1));
+            tokio::spawn(async move {
+                loop {
+                    tokio::time::sleep(tick).await;
+                    let c = c.clone();
+                    match tokio::task::spawn_blocking(move || c.expire_leases()).await {
+                        Ok(Ok(_)) => {}
+                        Ok(Err(e)) => tracing::error!(error = %e, "expiring leases"),
+                        Err(e) => tracing::error!(error = %e, "expiring leases panicked"),
+                    }
+                }
+            })
+        };
+        let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
+        let serve = Server::builder()
+            .add_service(HealthServer::new(health::HealthService))
+            .add_service(UserServer::new(user::UserService { coordinator: coordinator.clone() }))
+            .add_service(PoolServer::new(pool::PoolService::new(coordinator.clone())))
+            .add_service(reflection_v1)
+            .add_service(reflection_v1alpha)
+            // No Nagle: a lease is several small messages, and delayed ACKs would add 40 ms to each.
+            .serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), {
+                let c = coordinator.clone();
+                async move {
+                    shutdown.await;
+                    // End long polls and event streams, or the graceful shutdown would wait for them.
+                    c.stop();
+                    let _ = stopping_tx.send(());
+                }
+            });
+        tokio::pin!(serve);
+        tokio::select! {
+            served = &mut serve => served.context("serving gRPC")?,
+            // A client that never reads the goaway (a stalled process) must not keep us up.
+            _ = async {
+                let _ = stopping_rx.await;
+                tokio::time::sleep(SHUTDOWN_GRACE).await;
+            } => tracing::warn!(grace = ?SHUTDOWN_GRACE, "connections still open after the grace period: closing"),
+        }
+        expiry.abort();
+        coordinator.flush().context("flushing the database at shutdown")?;
+        tracing::info!("stopped");
+        Ok(())
+    };
+    Ok((addr, serve))
+}
