@@ -11,7 +11,8 @@ PACKAGES=(
   libclang-dev                # bindgen, used by mpi-sys
   python3 python3-venv        # the Python gRPC example client (its test pip-installs grpcio,
                               # grpcio-tools, grpcio-reflection from PyPI into a venv under
-                              # target/) and the HDF5 reader check
+                              # target/)
+  python3-h5py python3-numpy  # an independent reader of `glissade fields` output in the tests
 )
 
 missing=()

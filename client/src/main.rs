@@ -1,14 +1,24 @@
-//! `glissade`: command-line client of the glissade coordinator.
+//! `glissade`: the command-line client of the glissade coordinator: submit design grids, watch
+//! them run, read and plot response surfaces, fetch fields, or run everything locally (`demo`).
+
+mod demo;
+mod fields;
 
 use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result, anyhow, bail};
 use clap::{Parser, Subcommand, ValueEnum};
+use glissade_cli::names::{describe_parameters, order_name, point_state_name, strategy_name, study_state_name};
+use glissade_cli::plot::{self, Axis, ConvergenceSeries, Surface};
+use glissade_cli::progress::WatchState;
+use glissade_cli::surface::{SurfaceTable, parse_fixed};
 use glissade_proto::v1::health_client::HealthClient;
 use glissade_proto::v1::user_client::UserClient;
 use glissade_proto::v1::{self, HealthRequest};
+use glissade_worker::scene::{QoiKind, Scene};
 use tonic::transport::{Channel, Endpoint};
 use tracing_subscriber::EnvFilter;
 
@@ -21,10 +31,14 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 #[command(
     version,
     after_help = "Examples:\n  \
-      glissade health\n  \
-      glissade --server http://10.0.0.5:50051 health --json\n  \
-      glissade submit scenes/three-blocks-tiny.toml --grid f1=0.1:0.2:3 --grid f2=0.1:0.2:3\n  \
-      glissade show 1 --points\n  \
+      glissade demo                                  # everything on this machine, in a minute\n  \
+      glissade submit scenes/three-blocks-tiny.toml --grid f1=0.1:0.2:11 --grid f2=0.1:0.2:11 --watch\n  \
+      glissade watch 1\n  \
+      glissade studies\n  \
+      glissade surface 1 --qoi slip_A --png slip_A.png\n  \
+      glissade surface 1 --qoi slip_A --fix f2=0.15 --csv slice.csv\n  \
+      glissade convergence 1 --png convergence.png\n  \
+      glissade fields 1 --point f1=0.12,f2=0.15 --out point.h5   # open point.xdmf in ParaView\n  \
       GLISSADE_SERVER=http://coordinator:50051 glissade health\n\n\
       Logs go to stderr; set RUST_LOG=debug for details."
 )]
@@ -44,11 +58,23 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Submit a parametric study of a scene; prints the study id.
+    /// Submit a parametric study of a scene; prints the study id (--watch: then follows it).
     Submit(SubmitArgs),
+    /// Follow a study until it ends: points done / running / pending, iterations cold vs warm,
+    /// ETA; a summary at the end. Without a terminal, one plain line per event.
+    Watch {
+        /// The study id (from `glissade submit`).
+        study: u64,
+    },
+    /// List the studies with their state and progress.
+    Studies {
+        /// Print one JSON object instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
     /// Show a study: its state, progress and (with --points) every design point.
     Show {
-        /// The study id (from `glissade submit`).
+        /// The study id.
         study: u64,
         /// List every design point with its parameters, iterations, eta and QoIs.
         #[arg(long)]
@@ -57,12 +83,34 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Stop handing out a study's points (points being solved still finish and are kept).
+    Cancel {
+        /// The study id.
+        study: u64,
+    },
+    /// Put a study's failed points back in the queue.
+    Retry {
+        /// The study id.
+        study: u64,
+    },
+    /// The response surface of a study: a table, CSV, JSON, or a PNG (a colour map with contour
+    /// lines over two parameters, a curve over one).
+    Surface(SurfaceArgs),
+    /// The error indicator against the iterations of every point of a study (PNG or JSON).
+    Convergence(ConvergenceArgs),
+    /// The displacement and velocity fields of one design point as HDF5 + XDMF (ParaView):
+    /// re-solved here from the nearest stored solution of the study (a few iterations).
+    Fields(fields::FieldsArgs),
+    /// Run a small study of the three-blocks scene on this machine, with no set-up: an embedded
+    /// coordinator on a temporary database, one local pool, progress, the response surface and
+    /// its pictures.
+    Demo(demo::DemoArgs),
 }
 
 #[derive(Debug, clap::Args)]
 struct SubmitArgs {
     /// Scene file (TOML); its text is sent to the coordinator.
-    scene: std::path::PathBuf,
+    scene: PathBuf,
     /// A swept parameter, NAME=START:STOP:COUNT, NAME=V1,V2,... or NAME=lhs:N:SEED (repeatable;
     /// the study is the product of the grids).
     #[arg(long, value_name = "NAME=SPEC", required = true)]
@@ -85,6 +133,9 @@ struct SubmitArgs {
     /// Free text shown with the study.
     #[arg(long, default_value = "")]
     label: String,
+    /// Follow the study until it ends (as `glissade watch`).
+    #[arg(long)]
+    watch: bool,
     /// Print one JSON object instead of the study id.
     #[arg(long)]
     json: bool,
@@ -106,6 +157,65 @@ enum OrderArg {
     Greedy,
 }
 
+#[derive(Debug, clap::Args)]
+struct SurfaceArgs {
+    /// The study id.
+    study: u64,
+    /// The quantity of interest (default: every QoI in the table; required for --png).
+    #[arg(long, value_name = "NAME")]
+    qoi: Option<String>,
+    /// Keep only the points where a swept parameter has this value (repeatable): a slice.
+    #[arg(long, value_name = "NAME=VALUE")]
+    fix: Vec<String>,
+    /// Every stored solution of the study's scene (any study), not only this study's points.
+    #[arg(long)]
+    all_solutions: bool,
+    /// Write the surface as CSV to FILE ("-": stdout).
+    #[arg(long, value_name = "FILE")]
+    csv: Option<PathBuf>,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Draw the surface to a PNG file.
+    #[arg(long, value_name = "FILE")]
+    png: Option<PathBuf>,
+    /// Picture size, WIDTHxHEIGHT in pixels.
+    #[arg(long, value_name = "WxH", default_value = "900x700", value_parser = parse_size)]
+    size: (u32, u32),
+}
+
+#[derive(Debug, clap::Args)]
+struct ConvergenceArgs {
+    /// The study id.
+    study: u64,
+    /// Draw eta against the iterations of every point to a PNG file.
+    #[arg(long, value_name = "FILE")]
+    png: Option<PathBuf>,
+    /// Print every point's history as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Picture size, WIDTHxHEIGHT in pixels.
+    #[arg(long, value_name = "WxH", default_value = "900x600", value_parser = parse_size)]
+    size: (u32, u32),
+}
+
+/// `900x700` -> (900, 700), within what a PNG viewer shows.
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("`{text}`: expected WIDTHxHEIGHT in pixels, e.g. 900x700");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.trim().parse().map_err(|_| bad())?, h.trim().parse().map_err(|_| bad())?);
+    if !(100..=10_000).contains(&w) || !(100..=10_000).contains(&h) {
+        return Err(format!("`{text}`: each side between 100 and 10000 pixels"));
+    }
+    Ok((w, h))
+}
+
+/// Exit status of a command that ran: success, or "ran, but the study did not succeed".
+enum Outcome {
+    Success,
+    StudyFailed,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     tracing_subscriber::fmt()
@@ -113,26 +223,42 @@ fn main() -> ExitCode {
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal())
         .init();
-    let result = tokio::runtime::Builder::new_current_thread()
+    let result = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
         .enable_all()
         .build()
         .context("starting the tokio runtime")
         .and_then(|rt| rt.block_on(run(cli)));
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(Outcome::Success) => ExitCode::SUCCESS,
+        Ok(Outcome::StudyFailed) => ExitCode::from(2),
         Err(e) => {
             // A CLI user wants one readable line, not a Debug dump or a backtrace.
-            eprintln!("error: {e:#}");
+            let message = format!("{e:#}");
+            eprintln!("error: {}", message.lines().map(str::trim).collect::<Vec<_>>().join(" "));
             ExitCode::FAILURE
         }
     }
 }
 
-async fn run(cli: Cli) -> Result<()> {
+async fn run(cli: Cli) -> Result<Outcome> {
+    let server = cli.server.as_str();
+    let done = |r: Result<()>| r.map(|()| Outcome::Success);
     match cli.command {
-        Command::Health { json } => health(&cli.server, json).await,
-        Command::Submit(args) => submit(&cli.server, args).await,
-        Command::Show { study, points, json } => show(&cli.server, study, points, json).await,
+        Command::Health { json } => done(health(server, json).await),
+        Command::Submit(args) => submit(server, args).await,
+        Command::Watch { study } => {
+            let mut client = user(server).await?;
+            watch(&mut client, study).await
+        }
+        Command::Studies { json } => done(studies(server, json).await),
+        Command::Show { study, points, json } => done(show(server, study, points, json).await),
+        Command::Cancel { study } => done(cancel(server, study).await),
+        Command::Retry { study } => done(retry(server, study).await),
+        Command::Surface(args) => done(surface(server, args).await),
+        Command::Convergence(args) => done(convergence(server, args).await),
+        Command::Fields(args) => done(fields::fields(&mut user(server).await?, args).await),
+        Command::Demo(args) => demo::demo(args).await,
     }
 }
 
@@ -142,9 +268,40 @@ fn refused(what: &str, status: tonic::Status) -> anyhow::Error {
     anyhow!("{what}: {message} ({:?})", status.code())
 }
 
-async fn submit(server: &str, args: SubmitArgs) -> Result<()> {
-    let scene =
-        std::fs::read_to_string(&args.scene).with_context(|| format!("cannot read scene {}", args.scene.display()))?;
+async fn user(server: &str) -> Result<UserClient<Channel>> {
+    Ok(UserClient::new(connect(server).await?))
+}
+
+/// The study with its points and (when asked) its scene text; errors start with `command ID`.
+async fn get_study(
+    client: &mut UserClient<Channel>,
+    command: &str,
+    id: u64,
+    points: bool,
+    scene: bool,
+) -> Result<v1::Study> {
+    Ok(client
+        .get_study(v1::GetStudyRequest { study_id: id, points, scene })
+        .await
+        .map_err(|s| refused(&format!("{command} {id}"), s))?
+        .into_inner())
+}
+
+/// Reads a scene file and checks it, and the grid, as the coordinator will.
+fn read_submission(path: &Path, grid: &[String]) -> Result<(String, usize)> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
+    let scene = Scene::parse(&text).with_context(|| format!("scene {}", path.display()))?;
+    let (_, points) = glissade_server::check_grid(&scene, grid).map_err(|e| anyhow!("--grid: {e}"))?;
+    Ok((text, points))
+}
+
+async fn submit(server: &str, args: SubmitArgs) -> Result<Outcome> {
+    if let Some(t) = args.tol {
+        if !(t.is_finite() && t > 0.0) {
+            bail!("--tol {t}: give a positive number");
+        }
+    }
+    let (scene, _) = read_submission(&args.scene, &args.grid)?;
     let request = v1::SubmitStudyRequest {
         scene,
         grid: args.grid,
@@ -168,8 +325,8 @@ async fn submit(server: &str, args: SubmitArgs) -> Result<()> {
         label: args.label,
         blend_neighbours: args.k,
     };
-    let channel = connect(server).await?;
-    let reply = UserClient::new(channel)
+    let mut client = user(server).await?;
+    let reply = client
         .submit_study(request)
         .await
         .map_err(|s| refused(&format!("submit {}", args.scene.display()), s))?
@@ -181,51 +338,310 @@ async fn submit(server: &str, args: SubmitArgs) -> Result<()> {
             "scene_hash": reply.scene_hash,
         });
         println!("{value}");
+    } else if args.watch {
+        println!("study {} submitted: {} points", reply.study_id, reply.points);
     } else {
         println!("{}", reply.study_id);
+    }
+    if args.watch { watch(&mut client, reply.study_id).await } else { Ok(Outcome::Success) }
+}
+
+/// Follows a study to its end: an indicatif bar on a terminal, plain lines otherwise; then the
+/// summary. StudyFailed when it ended with failed or cancelled points.
+async fn watch(client: &mut UserClient<Channel>, id: u64) -> Result<Outcome> {
+    let mut stream = client
+        .watch_study(v1::WatchStudyRequest { study_id: id })
+        .await
+        .map_err(|s| refused(&format!("watch {id}"), s))?
+        .into_inner();
+    let started = Instant::now();
+    let mut state = WatchState::new(id);
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let bar = indicatif::ProgressBar::new(0);
+        bar.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{spinner} study {prefix} [{bar:30}] {pos}/{len} {msg}\n  {wide_msg:.dim}",
+            )
+            .map(|s| s.progress_chars("=> "))
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar.set_prefix(id.to_string());
+        bar.enable_steady_tick(Duration::from_millis(200));
+        bar
+    });
+    loop {
+        let event = match stream.message().await {
+            Ok(Some(e)) => e,
+            Ok(None) => break,
+            Err(s) => {
+                if let Some(bar) = &bar {
+                    bar.abandon();
+                }
+                return Err(refused(&format!("watch {id}: the stream broke off"), s));
+            }
+        };
+        let line = state.apply(&event);
+        match &bar {
+            Some(bar) => {
+                let (position, total) = state.position();
+                bar.set_length(total);
+                bar.set_position(position);
+                let eta = state.eta(started.elapsed()).map_or(String::new(), |d| format!(", ETA {}", clock(d)));
+                bar.set_message(format!("{}; {}{eta}\n  {}", state.counts(), state.iterations(), {
+                    let running = state.running_line(now_unix_ms());
+                    if running.is_empty() { "-".to_owned() } else { format!("running: {running}") }
+                }));
+            }
+            None => {
+                if let Some(line) = line {
+                    let eta = state.eta(started.elapsed()).map_or(String::new(), |d| format!(" (ETA {})", clock(d)));
+                    println!("{line}{eta}");
+                }
+            }
+        }
+        if state.ended() {
+            break;
+        }
+    }
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    if !state.ended() {
+        bail!("watch {id}: the coordinator closed the stream before the study ended");
+    }
+    println!("{}", state.summary(started.elapsed()));
+    Ok(if state.state == v1::StudyState::Done as i32 { Outcome::Success } else { Outcome::StudyFailed })
+}
+
+fn clock(d: Duration) -> String {
+    let s = d.as_secs();
+    if s >= 3600 { format!("{}h{:02}m", s / 3600, s % 3600 / 60) } else { format!("{}m{:02}s", s / 60, s % 60) }
+}
+
+fn now_unix_ms() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
+}
+
+async fn studies(server: &str, json: bool) -> Result<()> {
+    let list = user(server)
+        .await?
+        .list_studies(v1::ListStudiesRequest {})
+        .await
+        .map_err(|s| refused("list studies", s))?
+        .into_inner()
+        .studies;
+    if json {
+        println!("{}", serde_json::Value::Array(list.iter().map(study_json).collect()));
+        return Ok(());
+    }
+    if list.is_empty() {
+        println!("no studies yet (glissade submit SCENE --grid ...)");
+        return Ok(());
+    }
+    println!(
+        "{:>5}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8}  label",
+        "id", "state", "done/total", "strategy", "parameters", "tol"
+    );
+    for s in &list {
+        let p = s.progress.unwrap_or_default();
+        println!(
+            "{:>5}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8.1e}  {}",
+            s.study_id,
+            study_state_name(s.state),
+            format!("{}/{}", p.done, p.total),
+            strategy_name(s.strategy),
+            s.parameters.join(","),
+            s.tolerance,
+            s.label
+        );
     }
     Ok(())
 }
 
-fn state_name(state: i32) -> &'static str {
-    match v1::StudyState::try_from(state) {
-        Ok(v1::StudyState::Active) => "active",
-        Ok(v1::StudyState::Done) => "done",
-        Ok(v1::StudyState::Failed) => "failed",
-        Ok(v1::StudyState::Cancelled) => "cancelled",
-        _ => "unknown",
-    }
+fn study_json(s: &v1::Study) -> serde_json::Value {
+    let p = s.progress.unwrap_or_default();
+    serde_json::json!({
+        "study_id": s.study_id,
+        "label": s.label,
+        "scene_hash": s.scene_hash,
+        "state": study_state_name(s.state),
+        "strategy": strategy_name(s.strategy),
+        "order": order_name(s.order),
+        "tolerance": s.tolerance,
+        "max_iterations": s.max_iterations,
+        "parameters": s.parameters,
+        "progress": {
+            "total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
+            "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations,
+        },
+        "created_unix_ms": s.created_unix_ms,
+    })
 }
 
-fn point_state_name(state: i32) -> &'static str {
-    match v1::PointState::try_from(state) {
-        Ok(v1::PointState::Pending) => "pending",
-        Ok(v1::PointState::Leased) => "leased",
-        Ok(v1::PointState::Done) => "done",
-        Ok(v1::PointState::Failed) => "failed",
-        Ok(v1::PointState::Cancelled) => "cancelled",
-        _ => "unknown",
-    }
+async fn cancel(server: &str, id: u64) -> Result<()> {
+    let s = user(server)
+        .await?
+        .cancel_study(v1::CancelStudyRequest { study_id: id })
+        .await
+        .map_err(|s| refused(&format!("cancel {id}"), s))?
+        .into_inner();
+    let p = s.progress.unwrap_or_default();
+    println!(
+        "study {id} {}: {} done, {} cancelled, {} still running",
+        study_state_name(s.state),
+        p.done,
+        p.cancelled,
+        p.leased
+    );
+    Ok(())
 }
 
-fn strategy_name(strategy: i32) -> &'static str {
-    match v1::InitStrategy::try_from(strategy) {
-        Ok(v1::InitStrategy::Cold) => "cold",
-        Ok(v1::InitStrategy::Previous) => "previous",
-        Ok(v1::InitStrategy::Nearest) => "nearest",
-        Ok(v1::InitStrategy::Blend) => "blend",
-        Ok(v1::InitStrategy::Linear) => "linear",
-        _ => "unknown",
-    }
+async fn retry(server: &str, id: u64) -> Result<()> {
+    let r = user(server)
+        .await?
+        .retry_failed(v1::RetryFailedRequest { study_id: id })
+        .await
+        .map_err(|s| refused(&format!("retry {id}"), s))?
+        .into_inner();
+    println!("study {id}: {} failed points back in the queue", r.requeued);
+    Ok(())
 }
 
-fn order_name(order: i32) -> &'static str {
-    match v1::PointOrder::try_from(order) {
-        Ok(v1::PointOrder::Ascending) => "asc",
-        Ok(v1::PointOrder::Descending) => "desc",
-        Ok(v1::PointOrder::Greedy) => "greedy",
-        _ => "unknown",
+/// The unit of a QoI, from its kind.
+fn qoi_unit(scene: &Scene, name: &str) -> Option<String> {
+    let q = scene.qoi.iter().find(|q| q.name == name)?;
+    Some(
+        match q.kind {
+            QoiKind::Slip | QoiKind::Displacement => "m",
+            QoiKind::Velocity => "m/s",
+            QoiKind::Force => "N",
+        }
+        .to_owned(),
+    )
+}
+
+fn parameter_axis(scene: Option<&Scene>, name: &str) -> Axis {
+    Axis { name: name.to_owned(), unit: scene.and_then(|s| s.parameters.get(name)).and_then(|p| p.unit.clone()) }
+}
+
+/// Writes `text` to `path`, or to stdout for "-".
+fn write_output(path: &Path, text: &str) -> Result<()> {
+    if path == Path::new("-") {
+        print!("{text}");
+        return Ok(());
     }
+    std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
+}
+
+async fn surface(server: &str, args: SurfaceArgs) -> Result<()> {
+    let mut client = user(server).await?;
+    let study = get_study(&mut client, "surface", args.study, false, true).await?;
+    let fixed = args
+        .fix
+        .iter()
+        .map(|f| parse_fixed(f, &study.parameters))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| anyhow!(e))?;
+    let source = if args.all_solutions {
+        v1::query_surface_request::Source::SceneHash(study.scene_hash.clone())
+    } else {
+        v1::query_surface_request::Source::StudyId(study.study_id)
+    };
+    let reply = client
+        .query_surface(v1::QuerySurfaceRequest {
+            source: Some(source),
+            fixed: fixed.iter().cloned().collect(),
+            qoi: vec![],
+        })
+        .await
+        .map_err(|s| refused(&format!("surface {}", args.study), s))?
+        .into_inner();
+    let mut table = SurfaceTable::new(&reply, args.qoi.as_deref())?;
+    if args.all_solutions {
+        // Every parameter comes back; keep the study's swept ones as columns.
+        table = table.restricted_to(&study.parameters);
+    }
+    if let Some(path) = &args.csv {
+        write_output(path, &table.to_csv())?;
+    }
+    if let Some(path) = &args.png {
+        let Some(qoi) = &args.qoi else {
+            bail!("--png: say which QoI to draw with --qoi (one of {})", reply.qoi.join(", "))
+        };
+        let scene = Scene::parse(&study.scene).ok();
+        let free: Vec<usize> =
+            (0..table.parameters.len()).filter(|&i| !fixed.iter().any(|(n, _)| *n == table.parameters[i])).collect();
+        let points: Vec<(Vec<f64>, f64)> =
+            table.values(0).into_iter().map(|(p, v)| (free.iter().map(|&i| p[i]).collect(), v)).collect();
+        let fixed_text = fixed.iter().map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(", ");
+        let surface = Surface {
+            parameters: free.iter().map(|&i| parameter_axis(scene.as_ref(), &table.parameters[i])).collect(),
+            qoi: Axis { name: qoi.clone(), unit: scene.as_ref().and_then(|s| qoi_unit(s, qoi)) },
+            points,
+            title: format!(
+                "study {}: {qoi}{}",
+                args.study,
+                if fixed_text.is_empty() { String::new() } else { format!(" at {fixed_text}") }
+            ),
+        };
+        plot::surface_png(path, &surface, args.size).with_context(|| format!("--png {}", path.display()))?;
+        eprintln!("wrote {} ({}x{})", path.display(), args.size.0, args.size.1);
+    }
+    if args.json {
+        println!("{}", table.to_json());
+    } else if args.csv.is_none() && args.png.is_none() {
+        print!("{}", table.to_text());
+    }
+    Ok(())
+}
+
+async fn convergence(server: &str, args: ConvergenceArgs) -> Result<()> {
+    if args.png.is_none() && !args.json {
+        bail!("say where the histories go: --png FILE and/or --json");
+    }
+    let mut client = user(server).await?;
+    let study = get_study(&mut client, "convergence", args.study, true, false).await?;
+    let series: Vec<ConvergenceSeries> = study
+        .points
+        .iter()
+        .filter(|p| !p.eta_history.is_empty())
+        .map(|p| ConvergenceSeries {
+            label: format!("#{} {}", p.point_id, describe_parameters(&p.parameters)),
+            history: p.eta_history.clone(),
+        })
+        .collect();
+    if let Some(path) = &args.png {
+        if series.is_empty() {
+            bail!(
+                "study {}: no point has iterated yet (or every point was answered from a stored solution)",
+                args.study
+            );
+        }
+        let title = format!("study {}: error indicator of the dynamic stage", args.study);
+        plot::convergence_png(path, &series, Some(study.tolerance), &title, args.size)
+            .with_context(|| format!("--png {}", path.display()))?;
+        eprintln!("wrote {} ({} points, {}x{})", path.display(), series.len(), args.size.0, args.size.1);
+    }
+    if args.json {
+        let points: Vec<serde_json::Value> = study
+            .points
+            .iter()
+            .map(|p| {
+                serde_json::json!({
+                    "point_id": p.point_id,
+                    "parameters": p.parameters,
+                    "state": point_state_name(p.state),
+                    "started_from": p.started_from.as_ref().map(|f| &f.parameters),
+                    "eta_history": p.eta_history,
+                })
+            })
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({ "study_id": study.study_id, "tolerance": study.tolerance, "points": points })
+        );
+    }
+    Ok(())
 }
 
 fn point_json(p: &v1::PointStatus) -> serde_json::Value {
@@ -251,30 +667,10 @@ fn point_json(p: &v1::PointStatus) -> serde_json::Value {
 }
 
 async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> {
-    let channel = connect(server).await?;
-    let s = UserClient::new(channel)
-        .get_study(v1::GetStudyRequest { study_id: study, points })
-        .await
-        .map_err(|status| refused(&format!("show {study}"), status))?
-        .into_inner();
+    let s = get_study(&mut user(server).await?, "show", study, points, false).await?;
     let p = s.progress.unwrap_or_default();
     if json {
-        let mut value = serde_json::json!({
-            "study_id": s.study_id,
-            "label": s.label,
-            "scene_hash": s.scene_hash,
-            "state": state_name(s.state),
-            "strategy": strategy_name(s.strategy),
-            "order": order_name(s.order),
-            "tolerance": s.tolerance,
-            "max_iterations": s.max_iterations,
-            "parameters": s.parameters,
-            "progress": {
-                "total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
-                "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations,
-            },
-            "created_unix_ms": s.created_unix_ms,
-        });
+        let mut value = study_json(&s);
         if points {
             value["points"] = s.points.iter().map(point_json).collect();
         }
@@ -285,7 +681,7 @@ async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> 
         "study {}{}: {}",
         s.study_id,
         if s.label.is_empty() { String::new() } else { format!(" ({})", s.label) },
-        state_name(s.state)
+        study_state_name(s.state)
     );
     println!("  scene     {}", s.scene_hash);
     println!(

@@ -378,6 +378,7 @@ pub fn study(v: &StudyView) -> v1::Study {
         parameters: r.parameters.clone(),
         created_unix_ms: r.created_unix_ms,
         points: v.points.iter().map(point).collect(),
+        scene: String::new(),
     }
 }
 

@@ -131,3 +131,9 @@ pub async fn bind(
     };
     Ok((addr, serve))
 }
+
+/// Checks a grid submission against its scene exactly as SubmitStudy does, and returns the swept
+/// parameters and the number of design points (the CLI refuses a bad grid before it connects).
+pub fn check_grid(scene: &glissade_worker::scene::Scene, grid: &[String]) -> Result<(Vec<String>, usize), String> {
+    study::expand(scene, grid, &[]).map(|(names, points)| (names, points.len()))
+}

@@ -63,7 +63,11 @@ impl User for UserService {
     async fn get_study(&self, request: Request<v1::GetStudyRequest>) -> Result<Response<v1::Study>, Status> {
         let r = request.into_inner();
         let view = self.coordinator.study(StudyId(r.study_id), r.points)?;
-        Ok(Response::new(convert::study(&view)))
+        let mut study = convert::study(&view);
+        if r.scene {
+            study.scene = view.record.scene.clone();
+        }
+        Ok(Response::new(study))
     }
 
     async fn list_studies(

@@ -462,7 +462,7 @@ async fn watch(
 }
 
 async fn study(client: &mut UserClient<Channel>, id: u64) -> anyhow::Result<v1::Study> {
-    Ok(client.get_study(v1::GetStudyRequest { study_id: id, points: true }).await?.into_inner())
+    Ok(client.get_study(v1::GetStudyRequest { study_id: id, points: true, scene: false }).await?.into_inner())
 }
 
 /// The `--json` summary of a direct `glissade-worker solve` of the tiny scene at a point.
@@ -845,7 +845,9 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
     expect(rt.block_on(client.submit_study(grid_request(&["f1=0.1"], -1.0))), Code::InvalidArgument, "tolerance");
     // Unknown study ids.
     for status in [
-        rt.block_on(client.get_study(v1::GetStudyRequest { study_id: 42, points: false })).map(drop).expect_err("get"),
+        rt.block_on(client.get_study(v1::GetStudyRequest { study_id: 42, points: false, scene: false }))
+            .map(drop)
+            .expect_err("get"),
         rt.block_on(client.watch_study(v1::WatchStudyRequest { study_id: 42 })).map(drop).expect_err("watch"),
         rt.block_on(client.cancel_study(v1::CancelStudyRequest { study_id: 42 })).map(drop).expect_err("cancel"),
     ] {
@@ -1046,6 +1048,190 @@ fn python_example_client_submits_a_grid_and_reads_the_surface() -> anyhow::Resul
     assert_eq!(
         text(&out.stderr),
         "error: point 1: f1 = 0.5 is outside the scene's range [0.1, 0.2] (INVALID_ARGUMENT)\n"
+    );
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// The CLI (`glissade`) against a real coordinator and pool
+// ---------------------------------------------------------------------------------------------
+
+/// Width and height of a PNG file from its IHDR chunk (after checking the signature).
+fn png_size(path: &Path) -> (u32, u32) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert!(bytes.len() > 24 && bytes.starts_with(b"\x89PNG\r\n\x1a\n") && &bytes[12..16] == b"IHDR", "not a PNG");
+    let be = |i: usize| u32::from_be_bytes(bytes[i..i + 4].try_into().expect("4 bytes"));
+    (be(16), be(20))
+}
+
+/// Runs `glissade` with `args` against `url` (None: no --server), without a terminal.
+fn glissade(url: Option<&str>, args: &[&str]) -> std::process::Output {
+    let mut cmd = command(&workspace_bin("glissade"));
+    if let Some(url) = url {
+        cmd.args(["--server", url]);
+    }
+    run_with_timeout(cmd.args(args), LIMIT)
+}
+
+/// A refused command: non-zero exit, exactly one line on stderr that starts with `error:` and
+/// names `needle`, nothing on stdout.
+fn assert_one_line_error(out: &std::process::Output, needle: &str) {
+    let err = text(&out.stderr);
+    assert!(!out.status.success(), "expected a failure, got success; stdout: {}", text(&out.stdout));
+    assert!(
+        err.starts_with("error: ") && err.ends_with('\n') && err.lines().count() == 1,
+        "one line expected: {err:?}"
+    );
+    assert!(err.contains(needle), "expected `{needle}` in {err:?}");
+    assert!(out.stdout.is_empty(), "stdout: {}", text(&out.stdout));
+}
+
+#[test]
+fn cli_demo_runs_a_study_and_draws_its_pictures() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let out_dir = dir.path().join("demo");
+    let out = glissade(None, &["demo", "--grid", "3", "--out", out_dir.to_str().expect("utf-8")]);
+    assert!(out.status.success(), "demo failed:\n{}\n{}", text(&out.stdout), text(&out.stderr));
+    let stdout = text(&out.stdout);
+    // plain progress lines without a terminal, the summary, the surface table
+    assert_eq!(stdout.matches("done (f1=").count(), 9, "{stdout}");
+    assert!(stdout.contains("study 1 done: 9/9 done"), "{stdout}");
+    assert!(stdout.contains("fewer iterations than cold ones"), "{stdout}");
+    assert!(stdout.lines().any(|l| l.split_whitespace().take(2).eq(["f1", "f2"])), "{stdout}");
+    assert_eq!(png_size(&out_dir.join("slip_A.png")), (900, 700));
+    assert_eq!(png_size(&out_dir.join("convergence.png")), (900, 600));
+    let csv = std::fs::read_to_string(out_dir.join("surface.csv"))?;
+    assert_eq!(csv.lines().next(), Some("f1,f2,middle_ux,slip_A,slip_B,iterations,eta,state"));
+    assert_eq!(csv.lines().filter(|l| l.ends_with(",done")).count(), 9, "{csv}");
+    Ok(())
+}
+
+#[test]
+fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let logs = [dir.path().join("server.log"), dir.path().join("pool.log")];
+    let all_logs = || logs.iter().map(|l| format!("{}:\n{}", l.display(), log_of(l))).collect::<Vec<_>>().join("\n");
+    let (_server, addr) = start_server(&dir.path().join("db"), &logs[0]);
+    let url = format!("http://{addr}");
+    let _pool = start_pool(&url, "cli-pool", &logs[1]);
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let scene = scene.to_str().expect("utf-8");
+    let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_owned();
+
+    // submit --watch: plain lines per event (no terminal here), then the summary
+    let out = glissade(
+        Some(&url),
+        &["submit", scene, "--grid", "f1=0.1:0.2:3", "--grid", "f2=0.1:0.2:3", "--tol", "1e-3", "--watch"],
+    );
+    let stdout = text(&out.stdout);
+    assert!(out.status.success(), "submit --watch: {stdout}\n{}\n{}", text(&out.stderr), all_logs());
+    assert!(stdout.starts_with("study 1 submitted: 9 points\n"), "{stdout}");
+    assert_eq!(stdout.matches(" started on cli-pool ").count(), 9, "{stdout}");
+    assert_eq!(stdout.matches(" done (f1=").count(), 9, "{stdout}");
+    assert!(stdout.contains("study 1 done: 9/9 done, 0 running, 0 pending; mean iterations cold"), "{stdout}");
+
+    // watching a finished study replays it silently and prints the same summary
+    let out = glissade(Some(&url), &["watch", "1"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stdout).contains("study 1 done: 9/9 done"), "{}", text(&out.stdout));
+
+    // the stored results, straight from the API
+    let rt = runtime();
+    let stored = rt.block_on(async { study(&mut user(&url).await?, 1).await })?;
+    let stored_slip = |f1: f64, f2: f64| {
+        let p = stored.points.iter().find(|p| p.parameters["f1"] == f1 && p.parameters["f2"] == f2).expect("point");
+        p.qoi["slip_A"]
+    };
+
+    // CSV and JSON give back exactly the stored QoIs
+    let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A", "--csv", &path("s.csv")]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let csv = std::fs::read_to_string(path("s.csv"))?;
+    let mut lines = csv.lines();
+    assert_eq!(lines.next(), Some("f1,f2,slip_A,iterations,eta,state"));
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 9);
+    for r in &rows {
+        let (f1, f2, slip): (f64, f64, f64) = (r[0].parse()?, r[1].parse()?, r[2].parse()?);
+        assert_eq!(slip.to_bits(), stored_slip(f1, f2).to_bits(), "{r:?}");
+    }
+    let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A", "--fix", "f2=0.15", "--json"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    let points = json["points"].as_array().expect("points");
+    assert_eq!(points.len(), 3, "{json}");
+    for p in points {
+        let (f1, f2) = (p["parameters"]["f1"].as_f64().expect("f1"), p["parameters"]["f2"].as_f64().expect("f2"));
+        assert_eq!(f2, 0.15);
+        assert_eq!(p["qoi"]["slip_A"].as_f64(), Some(stored_slip(f1, f2)), "{p}");
+    }
+    // the table for people
+    let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A"]);
+    assert_eq!(text(&out.stdout).lines().count(), 10, "{}", text(&out.stdout));
+
+    // pictures of the stated size: a colour map, a curve (one free parameter), the convergence
+    for (args, size) in [
+        (vec!["surface", "1", "--qoi", "slip_A", "--png", &path("map.png"), "--size", "640x480"], (640, 480)),
+        (vec!["surface", "1", "--qoi", "slip_B", "--fix", "f1=0.1", "--png", &path("curve.png")], (900, 700)),
+        (vec!["convergence", "1", "--png", &path("conv.png"), "--size", "800x500"], (800, 500)),
+    ] {
+        let out = glissade(Some(&url), &args);
+        assert!(out.status.success(), "{args:?}: {}", text(&out.stderr));
+        assert_eq!(png_size(Path::new(args[args.iter().position(|a| *a == "--png").expect("png") + 1])), size);
+    }
+    let out = glissade(Some(&url), &["convergence", "1", "--json"]);
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    for p in json["points"].as_array().expect("points") {
+        let history = p["eta_history"].as_array().expect("history");
+        let last = history.last().and_then(|v| v.as_f64()).expect("a history");
+        let point = &stored.points[p["point_id"].as_u64().expect("id") as usize];
+        assert_eq!(last, point.error_indicator, "the history ends at the point's eta");
+    }
+
+    // studies / show / cancel
+    let out = glissade(Some(&url), &["studies", "--json"]);
+    let list: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(list[0]["state"], "done", "{list}");
+    let out = glissade(Some(&url), &["cancel", "1"]);
+    assert_one_line_error(&out, "FailedPrecondition");
+
+    // fields of a point between the grid's: re-solved from its nearest neighbour, read by h5py
+    let out = glissade(Some(&url), &["fields", "1", "--point", "f1=0.12,f2=0.15", "--out", &path("p.h5"), "--json"]);
+    assert!(out.status.success(), "fields: {}", text(&out.stderr));
+    let fields: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(fields["started_from"]["parameters"]["f1"], 0.1, "{fields}");
+    assert!(Path::new(&path("p.xdmf")).is_file());
+    let check = r#"
+import sys, h5py, numpy as np
+with h5py.File(sys.argv[1], "r") as f:
+    x = f["mesh/coordinates"][...]
+    top = f["mesh/topology"][...]
+    t = f["time"][...]
+    u0 = f["fields/displacement/000000"][...]
+    u = f["fields/displacement/%06d" % (len(t) - 1)][...]
+    assert x.shape[1] == 3 and top.shape[1] == 8 and u.shape == x.shape, (x.shape, top.shape, u.shape)
+    assert len(t) == 51 and abs(t[-1] - 2e-4) < 1e-15, t[-1]
+    # the prestress: the top face is pushed down by 0.1 mm before the dynamics start
+    z_top = x[:, 2].max()
+    on_top = np.isclose(x[:, 2], z_top)
+    assert np.allclose(u0[on_top, 2], -1e-4, rtol=1e-9, atol=1e-15), u0[on_top, 2]
+    print(x.shape[0], top.shape[0])
+"#;
+    let out = run_with_timeout(Command::new("/usr/bin/python3").args(["-c", check, &path("p.h5")]), LIMIT);
+    assert!(out.status.success(), "h5py check (deploy/install-deps.sh installs python3-h5py): {}", text(&out.stderr));
+
+    // bad input: one line and a non-zero exit each
+    assert_one_line_error(&glissade(Some(&url), &["show", "999"]), "NotFound");
+    assert_one_line_error(&glissade(Some(&url), &["surface", "1", "--qoi", "slip_C"]), "unknown QoI `slip_C`");
+    assert_one_line_error(&glissade(Some(&url), &["surface", "1", "--fix", "f9=0.1"]), "not a swept parameter");
+    assert_one_line_error(&glissade(Some(&url), &["submit", scene, "--grid", "f1=0.2:0.1:0"]), "--grid: ");
+    assert_one_line_error(
+        &glissade(Some(&url), &["fields", "1", "--point", "f1=0.1", "--out", &path("q.h5")]),
+        "every swept parameter",
+    );
+    assert_one_line_error(
+        &glissade(Some("http://127.0.0.1:9"), &["studies"]),
+        "cannot reach glissade server at http://127.0.0.1:9",
     );
     Ok(())
 }

@@ -367,6 +367,9 @@ fn main() -> ExitCode {
             if let (Err(e), true) = (&result, comm.size() > 1) {
                 // A failing rank must not leave the others waiting in a collective: abort all.
                 eprintln!("error: rank {}: {}", comm.rank(), one_line(&format!("{e:#}")));
+                // mpiexec forwards our stderr asynchronously and MPI_Abort kills the job at once:
+                // without a pause the one line that says what went wrong is sometimes lost.
+                std::thread::sleep(std::time::Duration::from_millis(300));
                 mpi::traits::Communicator::abort(&comm.world, 1);
             }
             result

@@ -175,7 +175,10 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
         last = last.max(end.unwrap_or(start));
     }
     // The final NoWork waits are not dispatch time: the clock stops at the last completion.
-    let study = user.get_study(v1::GetStudyRequest { study_id: reply.study_id, points: false }).await?.into_inner();
+    let study = user
+        .get_study(v1::GetStudyRequest { study_id: reply.study_id, points: false, scene: false })
+        .await?
+        .into_inner();
     let done = study.progress.map_or(0, |p| p.done);
     let elapsed = last - start;
     Ok(serde_json::json!({

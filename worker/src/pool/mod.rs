@@ -52,6 +52,9 @@ pub struct PoolOptions {
     pub backoff: (Duration, Duration),
     /// Stop after this long without work (None: never).
     pub idle_exit: Option<Duration>,
+    /// Stop when this turns true (a pool embedded in another program, e.g. `glissade demo`);
+    /// None: on SIGTERM or SIGINT, with handlers installed by [`run_pool`].
+    pub stop: Option<watch::Receiver<bool>>,
 }
 
 impl PoolOptions {
@@ -66,6 +69,7 @@ impl PoolOptions {
             wait: Duration::from_secs(10),
             backoff: (Duration::from_millis(200), Duration::from_secs(5)),
             idle_exit: None,
+            stop: None,
         }
     }
 }
@@ -122,9 +126,15 @@ pub fn run_pool(options: PoolOptions, solver: &mut dyn PoolSolver) -> Result<()>
         .enable_all()
         .build()
         .context("starting the tokio runtime")?;
-    let (stop_tx, stop_rx) = watch::channel(false);
-    // Handlers first: a SIGTERM from now on must not kill the pool mid-delivery.
-    runtime.block_on(install_signal_handlers(stop_tx))?;
+    let stop_rx = match options.stop.clone() {
+        Some(stop) => stop,
+        None => {
+            let (stop_tx, stop_rx) = watch::channel(false);
+            // Handlers first: a SIGTERM from now on must not kill the pool mid-delivery.
+            runtime.block_on(install_signal_handlers(stop_tx))?;
+            stop_rx
+        }
+    };
     let (work_tx, work_rx) = std_mpsc::channel::<Work>();
     let talker = runtime.spawn(converse(options, work_tx, stop_rx));
     // Ends when the conversation drops its sender.

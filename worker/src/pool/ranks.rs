@@ -92,7 +92,8 @@ pub fn follow_root(comm: &Mpi) -> Result<(), RanksError> {
             Message::Stop => return Ok(()),
             Message::Job { scene_text, request, init_bytes } => {
                 let scene = Scene::parse(&scene_text)?;
-                let init = if init_bytes.is_empty() { None } else { Some(solution_file::read_from(&init_bytes[..])?.1) };
+                let init =
+                    if init_bytes.is_empty() { None } else { Some(solution_file::read_from(&init_bytes[..])?.1) };
                 // Rank 0 reports the outcome; an error here is the same error as rank 0's (same
                 // inputs, same reductions), so there is nothing more to do with it.
                 if let Err(e) = solver.solve(comm, &scene, &request, init.as_ref()) {

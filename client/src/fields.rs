@@ -1,0 +1,163 @@
+//! `glissade fields`: the full fields of one design point, re-solved on this machine from the
+//! study's nearest stored solution (the same point's own solution when it is done: then the
+//! solve converges at once) and written as HDF5 + XDMF for ParaView.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, anyhow, bail};
+use glissade_proto::v1::{self, user_client::UserClient};
+use glissade_worker::io::{fields, solution_file};
+use glissade_worker::run::{SolveRequest, solve_scene};
+use glissade_worker::scene::Scene;
+use tonic::transport::Channel;
+
+use crate::{get_study, refused};
+
+#[derive(Debug, clap::Args)]
+pub struct FieldsArgs {
+    /// The study id.
+    study: u64,
+    /// The design point, every swept parameter: NAME=VALUE,NAME=VALUE (need not be a point of
+    /// the study: it is solved from the nearest one).
+    #[arg(long, value_name = "NAME=VALUE,...")]
+    point: String,
+    /// HDF5 file to write; the XDMF file ParaView opens goes beside it (OUT.xdmf).
+    #[arg(long, value_name = "OUT.h5")]
+    out: PathBuf,
+    /// Print one JSON object instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+/// `f1=0.12,f2=0.15` with exactly the swept parameters, finite values.
+fn parse_point(spec: &str, swept: &[String]) -> Result<BTreeMap<String, f64>> {
+    let mut point = BTreeMap::new();
+    for pair in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let (name, value) =
+            pair.split_once('=').ok_or_else(|| anyhow!("--point {spec}: `{pair}` is not NAME=VALUE"))?;
+        let value: f64 =
+            value.trim().parse().map_err(|_| anyhow!("--point {spec}: `{}` is not a number", value.trim()))?;
+        if !value.is_finite() {
+            bail!("--point {spec}: {name} must be finite");
+        }
+        if !swept.iter().any(|s| s == name.trim()) {
+            bail!("--point {spec}: `{}` is not a swept parameter of the study ({})", name.trim(), swept.join(", "));
+        }
+        if point.insert(name.trim().to_owned(), value).is_some() {
+            bail!("--point {spec}: {name} given twice");
+        }
+    }
+    if point.len() != swept.len() {
+        bail!("--point {spec}: give every swept parameter ({})", swept.join(", "));
+    }
+    Ok(point)
+}
+
+/// The done point of `study` nearest to `target`, distances normalised by the study's ranges.
+fn nearest_done<'a>(study: &'a v1::Study, target: &BTreeMap<String, f64>) -> Option<&'a v1::PointStatus> {
+    let done: Vec<&v1::PointStatus> = study.points.iter().filter(|p| p.state == v1::PointState::Done as i32).collect();
+    let range = |name: &str| {
+        let values = study.points.iter().filter_map(|p| p.parameters.get(name));
+        let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        if hi > lo { hi - lo } else { 1.0 }
+    };
+    let scales: BTreeMap<&str, f64> = target.keys().map(|k| (k.as_str(), range(k))).collect();
+    let distance = |p: &v1::PointStatus| {
+        target
+            .iter()
+            .map(|(k, v)| ((p.parameters.get(k).copied().unwrap_or(f64::NAN) - v) / scales[k.as_str()]).powi(2))
+            .sum::<f64>()
+    };
+    done.into_iter().min_by(|a, b| distance(a).total_cmp(&distance(b)))
+}
+
+pub async fn fields(client: &mut UserClient<Channel>, args: FieldsArgs) -> Result<()> {
+    if fields::xdmf_path(&args.out) == args.out {
+        bail!("--out {}: give the HDF5 file (e.g. point.h5); the .xdmf file is written beside it", args.out.display());
+    }
+    let study = get_study(client, "fields", args.study, true, true).await?;
+    let target = parse_point(&args.point, &study.parameters)?;
+    let scene = Scene::parse(&study.scene).context("the study's scene")?;
+    let from = nearest_done(&study, &target)
+        .ok_or_else(|| anyhow!("study {}: no point is done yet, nothing to start from", args.study))?;
+    let key = v1::PointKey { study_id: study.study_id, point_id: from.point_id };
+    let mut stream = client
+        .fetch_solution(v1::FetchSolutionRequest { solution: Some(v1::fetch_solution_request::Solution::Point(key)) })
+        .await
+        .map_err(|s| refused(&format!("solution of point {}", from.point_id), s))?
+        .into_inner();
+    let mut bytes = Vec::new();
+    while let Some(chunk) = stream.message().await.map_err(|s| refused("fetching the solution", s))? {
+        if chunk.offset as usize != bytes.len() {
+            bail!("fetching the solution: chunk at offset {} after {} bytes", chunk.offset, bytes.len());
+        }
+        bytes.extend_from_slice(&chunk.data);
+    }
+    let (meta, init) = solution_file::read_from(&bytes[..]).context("the stored solution")?;
+    meta.check_fits(&scene).context("the stored solution")?;
+    let request = SolveRequest {
+        set: target.iter().map(|(k, v)| (k.clone(), *v)).collect(),
+        tolerance: Some(study.tolerance),
+        max_iterations: Some(study.max_iterations as usize),
+        scale: None,
+        record_fields: true,
+    };
+    let out = args.out.clone();
+    let scene_hash = study.scene_hash.clone();
+    // The solve is seconds of CPU: off the async threads.
+    let (summary, xdmf) = tokio::task::spawn_blocking(move || -> Result<_> {
+        let outcome = solve_scene(&scene, &request, Some(&init))?;
+        let fields = outcome.fields.as_ref().ok_or_else(|| anyhow!("the solver returned no fields"))?;
+        let xdmf = fields::write(&out, fields, &scene_hash).with_context(|| format!("--out {}", out.display()))?;
+        Ok((outcome.summary, xdmf))
+    })
+    .await
+    .context("the solve panicked")??;
+    if !summary.converged {
+        bail!(
+            "the re-solve did not converge: eta = {:.3e} > {:.1e} after {} iterations",
+            summary.error_indicator,
+            summary.tolerance,
+            summary.iterations
+        );
+    }
+    let from_text = crate::describe_parameters(&from.parameters);
+    if args.json {
+        let value = serde_json::json!({
+            "parameters": target,
+            "started_from": { "point_id": from.point_id, "parameters": from.parameters },
+            "iterations": summary.iterations,
+            "error_indicator": summary.error_indicator,
+            "qoi": summary.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect::<BTreeMap<_, _>>(),
+            "h5": args.out,
+            "xdmf": xdmf,
+        });
+        println!("{value}");
+    } else {
+        println!(
+            "point {}: {} iterations from stored point #{} ({from_text}), eta {:.2e}",
+            crate::describe_parameters(&target),
+            summary.iterations,
+            from.point_id,
+            summary.error_indicator
+        );
+        println!("wrote {} and {} (open the .xdmf in ParaView)", args.out.display(), xdmf.display());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_point_gives_every_swept_parameter_once() {
+        let swept = ["f1".to_owned(), "f2".to_owned()];
+        let p = parse_point("f1=0.12, f2=0.15", &swept).unwrap();
+        assert_eq!(p, [("f1".to_owned(), 0.12), ("f2".to_owned(), 0.15)].into());
+        for bad in ["f1=0.12", "f1=0.1,f2=x", "f1=0.1,f3=0.1", "f1=0.1,f1=0.2", "f1=0.1,f2=inf", "f1"] {
+            assert!(parse_point(bad, &swept).is_err(), "{bad}");
+        }
+    }
+}

@@ -1,0 +1,7 @@
+//! Library half of the `glissade` CLI: what the binary draws, formats and counts, apart from its
+//! conversation with the coordinator (so that it is testable without a server).
+
+pub mod names;
+pub mod plot;
+pub mod progress;
+pub mod surface;

@@ -1,0 +1,224 @@
+//! A response surface as `glissade surface` prints it: a table, CSV or JSON, from the
+//! coordinator's QuerySurface reply. CSV values are printed in Rust's shortest round-trip form
+//! (`{:e}` for QoIs and eta), so a CSV or JSON reader gets back exactly the stored numbers.
+
+use glissade_proto::v1;
+
+use crate::names::point_state_name;
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum SurfaceError {
+    #[error("unknown QoI `{name}`: the scene's are {}", known.join(", "))]
+    UnknownQoi { name: String, known: Vec<String> },
+    #[error("--fix {name}: `{name}` is not a swept parameter of the study (they are {})", known.join(", "))]
+    UnknownParameter { name: String, known: Vec<String> },
+}
+
+/// One point of the surface.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceRow {
+    /// In [`SurfaceTable::parameters`] order.
+    pub parameters: Vec<f64>,
+    /// In [`SurfaceTable::qoi`] order; None where the point has no value (not done).
+    pub qoi: Vec<Option<f64>>,
+    pub iterations: u64,
+    pub error_indicator: f64,
+    pub converged: bool,
+    pub state: &'static str,
+}
+
+/// The points of a surface with the columns asked for.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceTable {
+    pub scene_hash: String,
+    pub parameters: Vec<String>,
+    pub qoi: Vec<String>,
+    pub rows: Vec<SurfaceRow>,
+}
+
+impl SurfaceTable {
+    /// The table of `reply` with one QoI (`Some`) or all of them.
+    pub fn new(reply: &v1::QuerySurfaceReply, qoi: Option<&str>) -> Result<Self, SurfaceError> {
+        let columns = match qoi {
+            Some(name) if !reply.qoi.iter().any(|q| q == name) => {
+                return Err(SurfaceError::UnknownQoi { name: name.to_owned(), known: reply.qoi.clone() });
+            }
+            Some(name) => vec![name.to_owned()],
+            None => reply.qoi.clone(),
+        };
+        let rows = reply
+            .points
+            .iter()
+            .map(|p| SurfaceRow {
+                parameters: reply.parameters.iter().map(|n| p.parameters.get(n).copied().unwrap_or(f64::NAN)).collect(),
+                qoi: columns.iter().map(|q| p.qoi.get(q).copied()).collect(),
+                iterations: p.iterations,
+                error_indicator: p.error_indicator,
+                converged: p.converged,
+                state: point_state_name(p.state),
+            })
+            .collect();
+        Ok(Self { scene_hash: reply.scene_hash.clone(), parameters: reply.parameters.clone(), qoi: columns, rows })
+    }
+
+    /// The same table with only the parameter columns named in `names` (in that order): a
+    /// scene-wide query returns every parameter, a study's surface is over its swept ones.
+    pub fn restricted_to(mut self, names: &[String]) -> Self {
+        let keep: Vec<usize> = names.iter().filter_map(|n| self.parameters.iter().position(|p| p == n)).collect();
+        for row in &mut self.rows {
+            row.parameters = keep.iter().map(|&i| row.parameters[i]).collect();
+        }
+        self.parameters = keep.iter().map(|&i| self.parameters[i].clone()).collect();
+        self
+    }
+
+    /// Parameters, QoIs, iterations, eta, state; a header line first.
+    pub fn to_csv(&self) -> String {
+        let mut out = self.header().join(",") + "\n";
+        for row in &self.rows {
+            out += &self.cells(row, true).join(",");
+            out.push('\n');
+        }
+        out
+    }
+
+    /// `{"scene_hash", "parameters", "qoi", "points": [{"parameters": {..}, "qoi": {..}, ...}]}`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let points: Vec<serde_json::Value> = self
+            .rows
+            .iter()
+            .map(|r| {
+                let parameters: serde_json::Map<String, serde_json::Value> =
+                    self.parameters.iter().cloned().zip(r.parameters.iter().map(|&v| v.into())).collect();
+                let qoi: serde_json::Map<String, serde_json::Value> =
+                    self.qoi.iter().zip(&r.qoi).filter_map(|(name, v)| v.map(|v| (name.clone(), v.into()))).collect();
+                serde_json::json!({
+                    "parameters": parameters,
+                    "qoi": qoi,
+                    "iterations": r.iterations,
+                    "error_indicator": r.error_indicator,
+                    "converged": r.converged,
+                    "state": r.state,
+                })
+            })
+            .collect();
+        serde_json::json!({
+            "scene_hash": self.scene_hash,
+            "parameters": self.parameters,
+            "qoi": self.qoi,
+            "points": points,
+        })
+    }
+
+    /// Aligned columns for people; QoIs with 6 significant digits.
+    pub fn to_text(&self) -> String {
+        let header = self.header();
+        let body: Vec<Vec<String>> = self.rows.iter().map(|r| self.cells(r, false)).collect();
+        let widths: Vec<usize> = (0..header.len())
+            .map(|c| body.iter().map(|row| row[c].len()).chain([header[c].len()]).max().unwrap_or(0))
+            .collect();
+        let line = |cells: &[String]| {
+            cells
+                .iter()
+                .zip(&widths)
+                .map(|(c, w)| format!("{c:>w$}"))
+                .collect::<Vec<_>>()
+                .join("  ")
+                .trim_end()
+                .to_owned()
+        };
+        let mut out = line(&header) + "\n";
+        for row in &body {
+            out += &line(row);
+            out.push('\n');
+        }
+        out
+    }
+
+    fn header(&self) -> Vec<String> {
+        let fixed = ["iterations", "eta", "state"].map(String::from);
+        self.parameters.iter().chain(&self.qoi).cloned().chain(fixed).collect()
+    }
+
+    /// `exact`: shortest round-trip numbers (files); else rounded ones (people).
+    fn cells(&self, row: &SurfaceRow, exact: bool) -> Vec<String> {
+        let number = |x: f64, digits: usize| if exact { format!("{x:e}") } else { format!("{x:.digits$e}") };
+        row.parameters
+            .iter()
+            .map(|p| format!("{p}"))
+            .chain(row.qoi.iter().map(|v| v.map(|x| number(x, 6)).unwrap_or_default()))
+            .chain([row.iterations.to_string(), number(row.error_indicator, 3), row.state.to_owned()])
+            .collect()
+    }
+
+    /// The (swept parameters, QoI value) pairs of the done points, for a picture of column `qoi`.
+    pub fn values(&self, qoi: usize) -> Vec<(Vec<f64>, f64)> {
+        self.rows.iter().filter_map(|r| r.qoi[qoi].map(|v| (r.parameters.clone(), v))).collect()
+    }
+}
+
+/// Parses `--fix NAME=VALUE` and checks the name against the swept parameters.
+pub fn parse_fixed(spec: &str, swept: &[String]) -> Result<(String, f64), String> {
+    let (name, value) =
+        spec.split_once('=').ok_or_else(|| format!("--fix {spec}: expected NAME=VALUE, e.g. --fix f2=0.15"))?;
+    let name = name.trim();
+    let value: f64 = value.trim().parse().map_err(|_| format!("--fix {spec}: `{}` is not a number", value.trim()))?;
+    if !value.is_finite() {
+        return Err(format!("--fix {spec}: the value must be finite"));
+    }
+    if !swept.iter().any(|s| s == name) {
+        return Err(SurfaceError::UnknownParameter { name: name.to_owned(), known: swept.to_vec() }.to_string());
+    }
+    Ok((name.to_owned(), value))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn reply() -> v1::QuerySurfaceReply {
+        let point = |f1: f64, slip: Option<f64>, state: v1::PointState| v1::SurfacePoint {
+            parameters: [("f1".to_owned(), f1)].into(),
+            qoi: slip.into_iter().map(|s| ("slip_A".to_owned(), s)).chain([("x".to_owned(), 1.0)]).collect(),
+            iterations: 12,
+            error_indicator: 1e-4,
+            converged: slip.is_some(),
+            state: state.into(),
+        };
+        v1::QuerySurfaceReply {
+            scene_hash: "ab".into(),
+            parameters: vec!["f1".into()],
+            qoi: vec!["slip_A".into(), "x".into()],
+            points: vec![point(0.1, Some(0.1 + 0.2), v1::PointState::Done), point(0.2, None, v1::PointState::Failed)],
+        }
+    }
+
+    #[test]
+    fn csv_and_json_give_back_the_exact_values() {
+        let t = SurfaceTable::new(&reply(), Some("slip_A")).unwrap();
+        let csv = t.to_csv();
+        let mut lines = csv.lines();
+        assert_eq!(lines.next(), Some("f1,slip_A,iterations,eta,state"));
+        let first: Vec<&str> = lines.next().unwrap().split(',').collect();
+        assert_eq!(first[1].parse::<f64>().unwrap().to_bits(), (0.1f64 + 0.2).to_bits());
+        assert_eq!(lines.next(), Some("0.2,,12,1e-4,failed"));
+        let json = t.to_json();
+        assert_eq!(json["points"][0]["qoi"]["slip_A"].as_f64(), Some(0.1 + 0.2));
+        assert!(json["points"][1]["qoi"].as_object().unwrap().is_empty());
+        assert_eq!(t.values(0), vec![(vec![0.1], 0.1 + 0.2)]);
+        assert!(t.to_text().lines().count() == 3);
+    }
+
+    #[test]
+    fn unknown_qoi_and_parameter_are_named() {
+        let e = SurfaceTable::new(&reply(), Some("slip_C")).unwrap_err();
+        assert_eq!(e.to_string(), "unknown QoI `slip_C`: the scene's are slip_A, x");
+        assert_eq!(SurfaceTable::new(&reply(), None).unwrap().qoi.len(), 2);
+        let swept = ["f1".to_owned(), "f2".to_owned()];
+        assert_eq!(parse_fixed("f2=0.15", &swept), Ok(("f2".into(), 0.15)));
+        assert!(parse_fixed("f3=0.1", &swept).unwrap_err().contains("not a swept parameter"));
+        assert!(parse_fixed("f2", &swept).is_err());
+        assert!(parse_fixed("f2=abc", &swept).is_err());
+        assert!(parse_fixed("f2=NaN", &swept).is_err());
+    }
+}
