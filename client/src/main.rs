@@ -359,11 +359,9 @@ async fn watch(client: &mut UserClient<Channel>, id: u64) -> Result<Outcome> {
     let bar = std::io::stderr().is_terminal().then(|| {
         let bar = indicatif::ProgressBar::new(0);
         bar.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{spinner} study {prefix} [{bar:30}] {pos}/{len} {msg}\n  {wide_msg:.dim}",
-            )
-            .map(|s| s.progress_chars("=> "))
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            indicatif::ProgressStyle::with_template("{spinner} study {prefix} [{bar:30}] {pos}/{len}  {msg}")
+                .map(|s| s.progress_chars("=> "))
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
         );
         bar.set_prefix(id.to_string());
         bar.enable_steady_tick(Duration::from_millis(200));

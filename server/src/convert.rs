@@ -390,11 +390,17 @@ pub fn event(e: &Event) -> v1::StudyEvent {
         EventKind::Requeued => v1::EventKind::PointRequeued,
         EventKind::StudyEnded => v1::EventKind::StudyEnded,
         EventKind::Snapshot => v1::EventKind::Snapshot,
+        EventKind::Progress => v1::EventKind::PointProgress,
     };
+    let mut status = e.point.as_ref().map(point);
+    if let (Some(s), Some((iterations, eta))) = (status.as_mut(), e.solving) {
+        s.iterations = iterations;
+        s.error_indicator = eta;
+    }
     v1::StudyEvent {
         kind: kind.into(),
         study_id: e.study.0,
-        point: e.point.as_ref().map(point),
+        point: status,
         progress: Some(progress(e.progress)),
         state: study_state(e.state).into(),
         replay: e.replay,

@@ -100,6 +100,8 @@ pub enum EventKind {
     Requeued,
     StudyEnded,
     Snapshot,
+    /// A pool's report of a point it is solving (iterations, eta so far); never stored.
+    Progress,
 }
 
 /// A change of a study, as broadcast to watchers.
@@ -112,6 +114,8 @@ pub struct Event {
     pub state: StudyState,
     pub replay: bool,
     pub unix_ms: i64,
+    /// Iterations and eta so far of the point being solved (Progress events).
+    pub solving: Option<(u64, f64)>,
 }
 
 /// A study as GetStudy shows it.
@@ -413,6 +417,7 @@ impl Coordinator {
             state: entry.state(),
             replay: false,
             unix_ms: now_unix_ms(),
+            solving: None,
         });
     }
 
@@ -540,6 +545,7 @@ impl Coordinator {
             state: study_state,
             replay: true,
             unix_ms,
+            solving: None,
         };
         let mut replay = vec![event(EventKind::Snapshot, None)];
         for p in &entry.points {
@@ -1073,11 +1079,13 @@ impl Coordinator {
 
     /// Extends the pool's valid leases; returns for each its new deadline, or None if no longer
     /// the pool's.
-    pub fn heartbeat(&self, pool: &str, lease_ids: &[u64]) -> Vec<Option<i64>> {
+    /// Extends the pool's leases (None for a lease no longer its own) and forwards the progress
+    /// it reports for them, (lease, iterations, eta), to the studies' watchers.
+    pub fn heartbeat(&self, pool: &str, lease_ids: &[u64], progress: &[(u64, u64, f64)]) -> Vec<Option<i64>> {
         let mut state = self.lock();
         let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
         let State { studies, leases, .. } = &mut *state;
-        lease_ids
+        let deadlines = lease_ids
             .iter()
             .map(|lease_id| {
                 let (study, point) = leases.get(lease_id)?;
@@ -1092,7 +1100,26 @@ impl Coordinator {
                     _ => None,
                 }
             })
-            .collect()
+            .collect();
+        for &(lease_id, iterations, eta) in progress.iter().filter(|p| p.2.is_finite()) {
+            let Some((study, point)) = leases.get(&lease_id) else { continue };
+            let Some(entry) = studies.get(study) else { continue };
+            let Some(p) = entry.points.get(point.0 as usize) else { continue };
+            if matches!(&p.state, PointState::Leased { pool: holder, lease_id: l, .. } if holder == pool && *l == lease_id)
+            {
+                let _ = self.events.send(Event {
+                    kind: EventKind::Progress,
+                    study: entry.record.id,
+                    point: Some(p.clone()),
+                    progress: entry.progress(),
+                    state: entry.state(),
+                    replay: false,
+                    unix_ms: now_unix_ms(),
+                    solving: Some((iterations, eta)),
+                });
+            }
+        }
+        deadlines
     }
 
     /// Requeues (or fails, after `max_attempts`) every point whose lease deadline passed.
@@ -1365,12 +1392,12 @@ mod tests {
         assert_eq!((&p.state, p.attempts), (&PointState::Pending, 1));
         assert!(p.error.as_deref().unwrap().contains("expired"), "{p:?}");
         // the old lease is no longer the pool's: heartbeats say so, completion is refused
-        assert_eq!(c.heartbeat("p", &[first.lease_id]), vec![None]);
+        assert_eq!(c.heartbeat("p", &[first.lease_id], &[]), vec![None]);
         let (late, bytes) = solution_file(&first, 5e-4, true);
         assert!(matches!(c.complete(late, bytes), Err(CoordError::Precondition(_))));
 
         let second = c.lease("p").unwrap().unwrap();
-        assert!(c.heartbeat("p", &[second.lease_id])[0].is_some());
+        assert!(c.heartbeat("p", &[second.lease_id], &[])[0].is_some());
         std::thread::sleep(Duration::from_millis(80));
         c.expire_leases().unwrap();
         let p = state_of(&c, id, 0);

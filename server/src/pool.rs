@@ -43,7 +43,10 @@ impl Pool for PoolService {
             .unwrap_or_else(|| format!("pool-{:x}-{}", now_unix_ms(), self.next_pool.fetch_add(1, Ordering::Relaxed)));
         self.coordinator.register_pool(id.clone(), info);
         let lease_ms = self.coordinator.config().lease.as_millis() as u64;
-        Ok(Response::new(v1::RegisterPoolReply { pool_id: id, lease_ms, heartbeat_ms: (lease_ms / 4).max(50) }))
+        // A quarter of the lease keeps it alive through a missed beat; at most 2 s, because the
+        // beats also carry the solve's progress to watchers.
+        let heartbeat_ms = (lease_ms / 4).clamp(50, 2000);
+        Ok(Response::new(v1::RegisterPoolReply { pool_id: id, lease_ms, heartbeat_ms }))
     }
 
     type LeasePointStream = Pin<Box<dyn Stream<Item = Result<LeaseMessage, Status>> + Send>>;
@@ -116,7 +119,9 @@ impl Pool for PoolService {
     async fn heartbeat(&self, request: Request<v1::HeartbeatRequest>) -> Result<Response<v1::HeartbeatReply>, Status> {
         let r = request.into_inner();
         let pool = convert::pool_id(&r.pool_id)?;
-        let deadlines = self.coordinator.heartbeat(&pool, &r.lease_ids);
+        let progress: Vec<(u64, u64, f64)> =
+            r.progress.iter().map(|p| (p.lease_id, p.iterations, p.error_indicator)).collect();
+        let deadlines = self.coordinator.heartbeat(&pool, &r.lease_ids, &progress);
         let leases = r
             .lease_ids
             .iter()

@@ -1235,3 +1235,35 @@ with h5py.File(sys.argv[1], "r") as f:
     );
     Ok(())
 }
+
+#[test]
+fn service_forwards_solve_progress_to_watchers() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let logs = [dir.path().join("server.log"), dir.path().join("pool.log")];
+    // short leases: heartbeats (a quarter of the lease) come every 125 ms during a ~0.6 s solve
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &logs[0], "127.0.0.1:0", &["--lease-seconds", "0.5"]);
+    let url = format!("http://{addr}");
+    let _pool = start_pool(&url, "p", &logs[1]);
+    let rt = runtime();
+    let mut client = rt.block_on(user(&url))?;
+    let id = rt.block_on(client.submit_study(grid_request(&["f1=0.1"], 1e-6)))?.into_inner().study_id;
+    let events = rt.block_on(watch(&mut client, id, |_| true))?;
+    let progress: Vec<&v1::PointStatus> = events
+        .iter()
+        .filter(|e| kind(e) == v1::EventKind::PointProgress)
+        .map(|e| e.point.as_ref().expect("a progress event names its point"))
+        .collect();
+    let done = rt.block_on(study(&mut client, id))?.points.remove(0);
+    assert_eq!(done.state, v1::PointState::Done as i32);
+    assert!(!progress.is_empty(), "no progress event during a {} s solve:\n{}", done.wall_seconds, log_of(&logs[1]));
+    let mut last = 0;
+    for p in &progress {
+        // iterations so far, increasing, below the final count; eta not yet converged
+        assert_eq!(p.state, v1::PointState::Leased as i32, "{p:?}");
+        assert!(p.iterations > last && p.iterations <= done.iterations, "{p:?} vs {} in all", done.iterations);
+        assert!(p.error_indicator > 0.0 && p.error_indicator.is_finite(), "{p:?}");
+        last = p.iterations;
+    }
+    Ok(())
+}

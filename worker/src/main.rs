@@ -239,6 +239,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             ScaleArg::Multi => Scale::Multi,
         }),
         record_fields: args.fields.is_some(),
+        progress: None,
     };
     if let Some(p) = &args.save {
         check_output("--save", p)?;

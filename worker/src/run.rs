@@ -29,6 +29,8 @@ pub struct SolveRequest {
     pub max_iterations: Option<usize>,
     pub scale: Option<Scale>,
     pub record_fields: bool,
+    /// Counts the iterations while they run (for progress reports).
+    pub progress: Option<std::sync::Arc<crate::latin::SolveProgress>>,
 }
 
 /// A QoI time series and its final value.
@@ -188,7 +190,8 @@ fn solve_dim<const D: usize>(
         Some(ops) => LatinSolver::with_operators(&model, comm, ops),
         None => LatinSolver::new(&model, comm)?,
     };
-    let report = solver.solve(init, &SolveOptions { record_fields: request.record_fields });
+    let options = SolveOptions { record_fields: request.record_fields, progress: request.progress.clone() };
+    let report = solver.solve(init, &options);
     let operators = solver.into_operators();
     let report = report?;
     let qoi = report

@@ -15,7 +15,7 @@ fn build<const D: usize>(text: &str, set: &[(&str, f64)]) -> Model<D> {
 
 fn solve<const D: usize>(m: &Model<D>, fields: bool) -> SolveReport {
     let mut solver = LatinSolver::serial(m).expect("factorisation");
-    let r = solver.solve(None, &SolveOptions { record_fields: fields }).expect("solve");
+    let r = solver.solve(None, &SolveOptions { record_fields: fields, ..SolveOptions::default() }).expect("solve");
     assert!(r.converged(), "LATIN did not converge: eta = {}", r.dynamic.error_indicator);
     r
 }

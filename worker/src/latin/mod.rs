@@ -110,6 +110,30 @@ impl SolveReport {
 pub struct SolveOptions {
     /// record every node's displacement and velocity at every step
     pub record_fields: bool,
+    /// where to count the iterations while they run (read by another thread)
+    pub progress: Option<std::sync::Arc<SolveProgress>>,
+}
+
+/// Iterations of a running solve (static and dynamic stages) and the last eta, readable from
+/// another thread: a worker pool's heartbeats report them to the coordinator's watchers.
+#[derive(Debug, Default)]
+pub struct SolveProgress {
+    iterations: std::sync::atomic::AtomicU64,
+    eta_bits: std::sync::atomic::AtomicU64,
+}
+
+impl SolveProgress {
+    fn record(&self, eta: f64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.eta_bits.store(eta.to_bits(), Relaxed);
+        self.iterations.fetch_add(1, Relaxed);
+    }
+
+    /// (iterations so far, last eta); eta is 0 before the first iteration.
+    pub fn get(&self) -> (u64, f64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (self.iterations.load(Relaxed), f64::from_bits(self.eta_bits.load(Relaxed)))
+    }
 }
 
 /// A LATIN solver over one model: the substructure operators are factorised once in `new` and
@@ -313,7 +337,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 None => self.zero_stage(1),
             };
             let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
-            let report = self.iterate(Stage::Static, &mut st.interfaces, &start, &[], &u0, &mut timings)?;
+            let report = self.iterate(
+                Stage::Static,
+                &mut st.interfaces,
+                &start,
+                &[],
+                &u0,
+                &mut timings,
+                options.progress.as_deref(),
+            )?;
             // the initial state of the dynamics: displacements of the converged static solution
             let t = Instant::now();
             let mut scratch = st.interfaces.clone();
@@ -356,7 +388,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
         }
         let (gap_start, vn_start) = self.dynamic_initial_gaps(static_solution.as_ref());
-        let report = self.iterate(Stage::Dynamic, &mut dynamic.interfaces, &gap_start, &vn_start, &u0, &mut timings)?;
+        let report = self.iterate(
+            Stage::Dynamic,
+            &mut dynamic.interfaces,
+            &gap_start,
+            &vn_start,
+            &u0,
+            &mut timings,
+            options.progress.as_deref(),
+        )?;
 
         // Post-processing sweep on the converged local-stage fields.
         let t = Instant::now();
@@ -417,6 +457,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         vn_start: &[Vec<f64>],
         u0: &[Option<Vec<f64>>],
         timings: &mut Timings,
+        progress: Option<&SolveProgress>,
     ) -> Result<StageReport, SolverError> {
         let m = self.model;
         let settings = &m.settings;
@@ -468,6 +509,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             report.iterations = iteration;
             report.error_indicator = eta;
             report.history.push(eta);
+            if let Some(p) = progress {
+                p.record(eta);
+            }
             tracing::debug!(stage = stage_name, iteration, eta, "LATIN iteration");
             if !eta.is_finite() {
                 return Err(SolverError::NonFinite { stage: stage_name, iteration, eta });

@@ -341,6 +341,7 @@ async fn serve(
             }
         };
         let scene = job.scene.clone();
+        let progress = job.request.progress.clone();
         let (reply_tx, mut reply_rx) = oneshot::channel();
         let solve_started = Instant::now();
         if work.send((job, reply_tx)).is_err() {
@@ -352,7 +353,10 @@ async fn serve(
         let outcome = loop {
             tokio::select! {
                 r = &mut reply_rx => break r,
-                _ = ticker.tick() => heartbeat(&mut session, &[lease.lease_id]).await,
+                _ = ticker.tick() => {
+                    let solving = progress.as_ref().map(|p| p.get()).filter(|&(iterations, _)| iterations > 0);
+                    heartbeat(&mut session, lease.lease_id, solving).await
+                }
             }
         };
         let Ok(outcome) = outcome else { return Break::Stop };
@@ -424,13 +428,22 @@ fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>) -> Result<PointJob> {
         max_iterations: Some(lease.max_iterations as usize),
         scale: None,
         record_fields: false,
+        progress: Some(Default::default()),
     };
     let init_bytes = if init.is_some() { init_bytes } else { Vec::new() };
     Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init })
 }
 
-async fn heartbeat(session: &mut Session, lease_ids: &[u64]) {
-    let request = v1::HeartbeatRequest { pool_id: session.pool_id.clone(), lease_ids: lease_ids.to_vec() };
+/// Extends the lease, reporting how far its solve got: (iterations, eta).
+async fn heartbeat(session: &mut Session, lease_id: u64, solving: Option<(u64, f64)>) {
+    let request = v1::HeartbeatRequest {
+        pool_id: session.pool_id.clone(),
+        lease_ids: vec![lease_id],
+        progress: solving
+            .map(|(iterations, error_indicator)| v1::SolveProgress { lease_id, iterations, error_indicator })
+            .into_iter()
+            .collect(),
+    };
     match session.client.heartbeat(request).await {
         Ok(reply) => {
             for lease in reply.into_inner().leases.iter().filter(|l| !l.valid) {

@@ -407,6 +407,7 @@ fn solve_point(
         max_iterations: options.max_iterations,
         scale: options.scale,
         record_fields: false,
+        progress: None,
     };
     let mut outcome = solver.solve(&Serial, scene, &request, init.solution.as_deref());
     if outcome.is_err() && init.solution.is_some() {
