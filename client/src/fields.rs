@@ -102,6 +102,7 @@ pub async fn fields(client: &mut UserClient<Channel>, args: FieldsArgs) -> Resul
         max_iterations: Some(study.max_iterations as usize),
         scale: None,
         record_fields: true,
+        init_parameters: Some(meta.parameters.clone()),
         progress: None,
     };
     let out = args.out.clone();

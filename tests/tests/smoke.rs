@@ -602,8 +602,10 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
         assert_eq!(p.state, v1::PointState::Done as i32, "{p:?}");
         assert_eq!(p.started_from.as_ref().map(|f| f.study_id), Some(first), "{p:?}");
     }
+    // Warm starts from neighbours converge 4x tighter (warm_tolerance_ratio 0.25, for cold-like
+    // accuracy) and still cost less: measured 97 against 136 per point (0.71).
     assert!(
-        mean(&second_study) < 0.6 * mean(&first_study),
+        mean(&second_study) < 0.8 * mean(&first_study),
         "second study: {} iterations per point, the first (cold) {}",
         mean(&second_study),
         mean(&first_study)

@@ -230,7 +230,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         std::fs::read_to_string(scene_path).with_context(|| format!("cannot read scene {}", scene_path.display()))?;
     let scene = parse_scene(&text, scene_path)?;
     let scene_hash = scene.content_hash();
-    let request = SolveRequest {
+    let mut request = SolveRequest {
         set: args.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
         tolerance: args.tol,
         max_iterations: args.max_iter,
@@ -239,7 +239,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             ScaleArg::Multi => Scale::Multi,
         }),
         record_fields: args.fields.is_some(),
-        progress: None,
+        ..SolveRequest::default()
     };
     if let Some(p) = &args.save {
         check_output("--save", p)?;
@@ -261,6 +261,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
                 parameters = ?meta.parameters,
                 "warm start"
             );
+            request.init_parameters = Some(meta.parameters);
             Some(solution)
         }
         None => None,

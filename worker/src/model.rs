@@ -152,6 +152,8 @@ pub struct SolverSettings {
     pub max_iterations: usize,
     pub relaxation: f64,
     pub scale: Scale,
+    /// the dynamic stage of a warm-started solve stops at tolerance x this
+    pub warm_tolerance_ratio: f64,
 }
 
 /// The whole decomposed problem of one design point.
@@ -217,11 +219,15 @@ impl<const D: usize> Model<D> {
         if !(st.relaxation > 0.0 && st.relaxation <= 1.0) {
             return Err(invalid("solver.relaxation", "must be in (0, 1]"));
         }
+        if !(st.warm_tolerance_ratio > 0.0 && st.warm_tolerance_ratio <= 1.0) {
+            return Err(invalid("solver.warm_tolerance_ratio", "must be in (0, 1]"));
+        }
         let settings = SolverSettings {
             tolerance: st.tolerance,
             max_iterations: st.max_iterations,
             relaxation: st.relaxation,
             scale: st.scale,
+            warm_tolerance_ratio: st.warm_tolerance_ratio,
         };
 
         let mut materials = BTreeMap::new();

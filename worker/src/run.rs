@@ -31,6 +31,10 @@ pub struct SolveRequest {
     pub record_fields: bool,
     /// Counts the iterations while they run (for progress reports).
     pub progress: Option<std::sync::Arc<crate::latin::SolveProgress>>,
+    /// Every parameter's value at the design point the warm start converged at, when known:
+    /// a restart of this very point converges to the tolerance as asked, one from another
+    /// point to `warm_tolerance_ratio` times it (docs/scenes.md).
+    pub init_parameters: Option<ParameterValues>,
 }
 
 /// A QoI time series and its final value.
@@ -190,7 +194,11 @@ fn solve_dim<const D: usize>(
         Some(ops) => LatinSolver::with_operators(&model, comm, ops),
         None => LatinSolver::new(&model, comm)?,
     };
-    let options = SolveOptions { record_fields: request.record_fields, progress: request.progress.clone() };
+    let options = SolveOptions {
+        record_fields: request.record_fields,
+        progress: request.progress.clone(),
+        init_at_this_point: request.init_parameters.as_ref() == Some(&values),
+    };
     let report = solver.solve(init, &options);
     let operators = solver.into_operators();
     let report = report?;

@@ -174,6 +174,9 @@ pub struct SolverSpec {
     pub relaxation: f64,
     #[serde(default)]
     pub scale: Scale,
+    /// a warm-started solve stops at `tolerance` times this (see docs/scenes.md)
+    #[serde(default = "default_warm_tolerance_ratio")]
+    pub warm_tolerance_ratio: f64,
 }
 
 fn default_tolerance() -> f64 {
@@ -184,6 +187,9 @@ fn default_max_iterations() -> usize {
 }
 fn default_relaxation() -> f64 {
     0.8
+}
+fn default_warm_tolerance_ratio() -> f64 {
+    0.25
 }
 fn one() -> Scalar {
     Scalar::Number(1.0)
@@ -197,6 +203,7 @@ impl Default for SolverSpec {
             k0_factor: one(),
             relaxation: default_relaxation(),
             scale: Scale::Single,
+            warm_tolerance_ratio: default_warm_tolerance_ratio(),
         }
     }
 }

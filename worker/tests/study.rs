@@ -444,3 +444,52 @@ fn study_command_writes_its_tables() {
     assert_eq!(json["summary"]["points"], 2);
     assert_eq!(json["records"][1]["sources"][0]["id"], 0);
 }
+
+/// A warm start from a neighbour stops at tolerance x warm_tolerance_ratio (default 0.25) and is
+/// then as accurate as a cold solve at the tolerance; at the tolerance itself it is not. The
+/// hard case of the tiny scene: f1 from 0.125 to 0.15 crosses into the stick regime of
+/// interface A (slip falls from 8e-6 to 2e-6), against a reference at eta <= 1e-7.
+#[test]
+fn warm_starts_from_a_neighbour_are_as_accurate_as_cold_solves() {
+    use glissade_worker::run::{SolveRequest, solve_scene};
+    let tol = 2e-4;
+    let at = |f1: f64, tolerance: f64| SolveRequest {
+        set: vec![("f1".into(), f1), ("f2".into(), 0.1)],
+        tolerance: Some(tolerance),
+        ..SolveRequest::default()
+    };
+    let tiny = scene(TINY);
+    let slip = |o: &glissade_worker::run::SolveOutcome| o.summary.qoi["slip_A"].final_value;
+    let reference = slip(&solve_scene(&tiny, &at(0.15, 1e-7), None).unwrap());
+    let cold = solve_scene(&tiny, &at(0.15, tol), None).unwrap();
+    let neighbour = solve_scene(&tiny, &at(0.125, tol), None).unwrap();
+    let init_parameters = Some(neighbour.summary.parameters.clone());
+    let warm_with = |ratio: &str| {
+        let text = TINY.replace("[time]", &format!("[solver]\nwarm_tolerance_ratio = {ratio}\n\n[time]"));
+        let request = SolveRequest { init_parameters: init_parameters.clone(), ..at(0.15, tol) };
+        solve_scene(&scene(&text), &request, Some(&neighbour.solution)).unwrap()
+    };
+    let (warm, warm_at_tol) = (
+        solve_scene(
+            &tiny,
+            &SolveRequest { init_parameters: init_parameters.clone(), ..at(0.15, tol) },
+            Some(&neighbour.solution),
+        )
+        .unwrap(),
+        warm_with("1.0"),
+    );
+    let error = |o: &glissade_worker::run::SolveOutcome| (slip(o) - reference).abs() / reference.abs();
+    eprintln!(
+        "slip_A at f1 = 0.15: reference {reference:.6e}; cold {} it, error {:.2e}; warm (ratio 0.25) {} it, error {:.2e}; warm at tol {} it, error {:.2e}",
+        cold.summary.iterations,
+        error(&cold),
+        warm.summary.iterations,
+        error(&warm),
+        warm_at_tol.summary.iterations,
+        error(&warm_at_tol)
+    );
+    assert!(warm.summary.error_indicator <= 0.25 * tol && warm_at_tol.summary.error_indicator <= tol);
+    assert!(error(&warm) <= 2.0 * error(&cold).max(1e-3), "warm {:.2e} vs cold {:.2e}", error(&warm), error(&cold));
+    assert!(error(&warm_at_tol) > 10.0 * error(&warm), "the ratio should matter in this case");
+    assert!(warm.summary.iterations < cold.summary.iterations, "a warm start must still pay");
+}

@@ -396,7 +396,8 @@ fn warm_start_from_own_solution_converges_at_once() {
     let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
     let mut solver = LatinSolver::serial(&m).unwrap();
     let cold = solver.solve(None, &SolveOptions::default()).unwrap();
-    let warm = solver.solve(Some(&cold.solution), &SolveOptions::default()).unwrap();
+    let options = SolveOptions { init_at_this_point: true, ..SolveOptions::default() };
+    let warm = solver.solve(Some(&cold.solution), &options).unwrap();
     eprintln!("cold {} iterations, warm {} iterations", cold.iterations(), warm.iterations());
     assert!(warm.converged() && warm.dynamic.iterations <= 2 && warm.static_stage.as_ref().unwrap().iterations <= 2);
     for (a, b) in cold.qoi.iter().zip(&warm.qoi) {

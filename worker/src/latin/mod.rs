@@ -112,6 +112,9 @@ pub struct SolveOptions {
     pub record_fields: bool,
     /// where to count the iterations while they run (read by another thread)
     pub progress: Option<std::sync::Arc<SolveProgress>>,
+    /// the warm start is a solution of this very design point (not a neighbour's): its
+    /// dynamic stage converges to the tolerance, not to `warm_tolerance_ratio` times it
+    pub init_at_this_point: bool,
 }
 
 /// Iterations of a running solve (static and dynamic stages) and the last eta, readable from
@@ -337,8 +340,11 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 None => self.zero_stage(1),
             };
             let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
+            // The static stage's error is carried by every step of the dynamics, and its
+            // iterations cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
             let report = self.iterate(
                 Stage::Static,
+                m.settings.tolerance * STATIC_TOLERANCE_RATIO,
                 &mut st.interfaces,
                 &start,
                 &[],
@@ -388,8 +394,13 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
         }
         let (gap_start, vn_start) = self.dynamic_initial_gaps(static_solution.as_ref());
+        // A warm start begins near in eta but not as near in the solution: it converges tighter
+        // (warm_tolerance_ratio, docs/scenes.md; measured in docs/performance.md).
+        let from_neighbour = init.is_some() && !options.init_at_this_point;
+        let ratio = if from_neighbour { m.settings.warm_tolerance_ratio } else { 1.0 };
         let report = self.iterate(
             Stage::Dynamic,
+            m.settings.tolerance * ratio,
             &mut dynamic.interfaces,
             &gap_start,
             &vn_start,
@@ -452,6 +463,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     fn iterate(
         &mut self,
         stage: Stage,
+        tolerance: f64,
         fields: &mut [InterfaceField],
         gap_start: &[Vec<f64>],
         vn_start: &[Vec<f64>],
@@ -464,12 +476,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut report = StageReport::default();
         let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
         let stage_name = stage.name();
-        // The static stage's error is carried by every step of the dynamics, and its iterations
-        // cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
-        let tolerance = match stage {
-            Stage::Static => settings.tolerance * STATIC_TOLERANCE_RATIO,
-            Stage::Dynamic => settings.tolerance,
-        };
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
             for (f, p) in fields.iter().zip(previous.iter_mut()) {

@@ -407,15 +407,19 @@ fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>) -> Result<PointJob> {
     if scene.content_hash() != lease.scene_hash {
         bail!("the lease's scene text has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
     }
+    let mut init_parameters = None;
     let init = if init_bytes.is_empty() {
         None
     } else {
         // A warm start that does not fit is not worth failing the point over: start cold.
         match solution_file::read_from(&init_bytes[..]).map_err(anyhow::Error::from).and_then(|(meta, solution)| {
             meta.check_fits(&scene)?;
-            Ok(solution)
+            Ok((meta, solution))
         }) {
-            Ok(solution) => Some(solution),
+            Ok((meta, solution)) => {
+                init_parameters = Some(meta.parameters);
+                Some(solution)
+            }
             Err(e) => {
                 tracing::warn!(error = %e, "warm start unusable; starting cold");
                 None
@@ -429,6 +433,7 @@ fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>) -> Result<PointJob> {
         scale: None,
         record_fields: false,
         progress: Some(Default::default()),
+        init_parameters,
     };
     let init_bytes = if init.is_some() { init_bytes } else { Vec::new() };
     Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init })

@@ -123,13 +123,17 @@ fn encode(message: &Message) -> Vec<u8> {
         Message::Job { scene_text, request, init_bytes } => {
             out.push(1);
             put_bytes(&mut out, scene_text.as_bytes());
-            out.extend((request.set.len() as u64).to_le_bytes());
-            for (name, value) in &request.set {
-                put_bytes(&mut out, name.as_bytes());
-                out.extend(value.to_bits().to_le_bytes());
-            }
+            put_pairs(&mut out, request.set.iter().map(|(k, v)| (k.as_str(), *v)));
             put_option(&mut out, request.tolerance.map(f64::to_bits));
             put_option(&mut out, request.max_iterations.map(|n| n as u64));
+            // every rank must stop at the same tolerance, which depends on where the init is from
+            match &request.init_parameters {
+                None => out.push(0),
+                Some(values) => {
+                    out.push(1);
+                    put_pairs(&mut out, values.iter().map(|(k, v)| (k.as_str(), *v)));
+                }
+            }
             out.extend_from_slice(init_bytes);
         }
     }
@@ -142,14 +146,15 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
         0 => Ok(Message::Stop),
         1 => {
             let scene_text = reader.string()?;
-            let n = reader.u64()? as usize;
-            let mut set = Vec::with_capacity(n.min(1024));
-            for _ in 0..n {
-                set.push((reader.string()?, f64::from_bits(reader.u64()?)));
-            }
+            let set = reader.pairs()?;
             let tolerance = reader.option()?.map(f64::from_bits);
             let max_iterations = reader.option()?.map(|n| n as usize);
-            let request = SolveRequest { set, tolerance, max_iterations, ..SolveRequest::default() };
+            let init_parameters = match reader.take(1)?[0] {
+                0 => None,
+                1 => Some(reader.pairs()?.into_iter().collect()),
+                _ => return Err(RanksError::Malformed("bad option flag")),
+            };
+            let request = SolveRequest { set, tolerance, max_iterations, init_parameters, ..SolveRequest::default() };
             Ok(Message::Job { scene_text, request, init_bytes: reader.0.to_vec() })
         }
         _ => Err(RanksError::Malformed("unknown message kind")),
@@ -159,6 +164,15 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
 fn put_bytes(out: &mut Vec<u8>, bytes: &[u8]) {
     out.extend((bytes.len() as u64).to_le_bytes());
     out.extend_from_slice(bytes);
+}
+
+/// A count, then (name, f64 bits) pairs.
+fn put_pairs<'a>(out: &mut Vec<u8>, pairs: impl ExactSizeIterator<Item = (&'a str, f64)>) {
+    out.extend((pairs.len() as u64).to_le_bytes());
+    for (name, value) in pairs {
+        put_bytes(out, name.as_bytes());
+        out.extend(value.to_bits().to_le_bytes());
+    }
 }
 
 fn put_option(out: &mut Vec<u8>, value: Option<u64>) {
@@ -189,6 +203,15 @@ impl<'a> Reader<'a> {
         let n = self.u64()? as usize;
         String::from_utf8(self.take(n)?.to_vec()).map_err(|_| RanksError::Malformed("text is not UTF-8"))
     }
+    fn pairs(&mut self) -> Result<Vec<(String, f64)>, RanksError> {
+        let n = self.u64()? as usize;
+        let mut pairs = Vec::with_capacity(n.min(1024));
+        for _ in 0..n {
+            pairs.push((self.string()?, f64::from_bits(self.u64()?)));
+        }
+        Ok(pairs)
+    }
+
     fn option(&mut self) -> Result<Option<u64>, RanksError> {
         match self.take(1)?[0] {
             0 => Ok(None),
@@ -208,6 +231,7 @@ mod tests {
             set: vec![("f1".into(), 0.1 + 0.2), ("prestress".into(), -1e-300)],
             tolerance: Some(2e-4),
             max_iterations: Some(77),
+            init_parameters: Some([("f1".to_owned(), 0.1), ("f2".to_owned(), 1.0 / 3.0)].into()),
             ..SolveRequest::default()
         };
         let message = Message::Job { scene_text: "dimension = 2\n".into(), request, init_bytes: vec![9, 8, 7] };
@@ -218,6 +242,7 @@ mod tests {
         assert_eq!(request.set[0].1.to_bits(), (0.1f64 + 0.2).to_bits());
         assert_eq!(request.set[1], ("prestress".into(), -1e-300));
         assert_eq!((request.tolerance, request.max_iterations), (Some(2e-4), Some(77)));
+        assert_eq!(request.init_parameters.unwrap()["f2"].to_bits(), (1.0f64 / 3.0).to_bits());
         assert_eq!(init_bytes, vec![9, 8, 7]);
         assert!(matches!(decode(&encode(&Message::Stop)).unwrap(), Message::Stop));
     }

@@ -408,6 +408,12 @@ fn solve_point(
         scale: options.scale,
         record_fields: false,
         progress: None,
+        // a continued solve of this very point needs only the tolerance (see SolveRequest)
+        init_parameters: if start_kind == StartKind::Continued {
+            scene.parameter_values(&point.to_set()).ok()
+        } else {
+            None
+        },
     };
     let mut outcome = solver.solve(&Serial, scene, &request, init.solution.as_deref());
     if outcome.is_err() && init.solution.is_some() {
