@@ -59,6 +59,10 @@ enum Command {
         json: bool,
     },
     /// Submit a parametric study of a scene; prints the study id (--watch: then follows it).
+    #[command(after_help = "Examples:\n  \
+        glissade submit scenes/three-blocks-small.toml --grid f1=0.10:0.20:11 --grid f2=0.10:0.20:11 --watch\n  \
+        glissade submit scene.toml --grid f1=0.1,0.15,0.2 --grid v0=lhs:20:7 --tol 1e-4 --strategy linear --k 8\n  \
+        glissade submit scene.toml --grid f1=0.1:0.2:5 --json | jq .study_id")]
     Submit(SubmitArgs),
     /// Follow a study until it ends: points done / running / pending, iterations cold vs warm,
     /// ETA; a summary at the end. Without a terminal, one plain line per event.
@@ -95,15 +99,30 @@ enum Command {
     },
     /// The response surface of a study: a table, CSV, JSON, or a PNG (a colour map with contour
     /// lines over two parameters, a curve over one).
+    #[command(after_help = "Examples:\n  \
+        glissade surface 3                                   # every QoI of every point, a table\n  \
+        glissade surface 3 --qoi slip_A --png slip_A.png     # colour map over the two swept parameters\n  \
+        glissade surface 3 --qoi slip_A --fix f2=0.15 --png slice.png --csv slice.csv   # a curve over f1\n  \
+        glissade surface 3 --all-solutions --json            # every stored solution of the scene")]
     Surface(SurfaceArgs),
     /// The error indicator against the iterations of every point of a study (PNG or JSON).
+    #[command(after_help = "Examples:\n  \
+        glissade convergence 3 --png convergence.png\n  \
+        glissade convergence 3 --json | jq '.points[0].eta_history | length'")]
     Convergence(ConvergenceArgs),
     /// The displacement and velocity fields of one design point as HDF5 + XDMF (ParaView):
     /// re-solved here from the nearest stored solution of the study (a few iterations).
+    #[command(after_help = "Examples:\n  \
+        glissade fields 3 --point f1=0.15,f2=0.15 --out p.h5          # a point of the study: 1 iteration\n  \
+        glissade fields 3 --point f1=0.123,f2=0.187 --out q.h5        # any point: from its nearest neighbour\n\n\
+        Then open p.xdmf in ParaView (displacement and velocity at every time step).")]
     Fields(fields::FieldsArgs),
     /// Run a small study of the three-blocks scene on this machine, with no set-up: an embedded
     /// coordinator on a temporary database, one local pool, progress, the response surface and
     /// its pictures.
+    #[command(after_help = "Examples:\n  \
+        glissade demo\n  \
+        glissade demo --grid 9 --out /tmp/demo     # 81 points")]
     Demo(demo::DemoArgs),
 }
 
@@ -204,8 +223,9 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     let bad = || format!("`{text}`: expected WIDTHxHEIGHT in pixels, e.g. 900x700");
     let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
     let (w, h): (u32, u32) = (w.trim().parse().map_err(|_| bad())?, h.trim().parse().map_err(|_| bad())?);
-    if !(100..=10_000).contains(&w) || !(100..=10_000).contains(&h) {
-        return Err(format!("`{text}`: each side between 100 and 10000 pixels"));
+    let (min, max) = (plot::MIN_SIZE, plot::MAX_SIZE);
+    if !(min.0..=max.0).contains(&w) || !(min.1..=max.1).contains(&h) {
+        return Err(format!("`{text}`: from {}x{} to {}x{} pixels", min.0, min.1, max.0, max.1));
     }
     Ok((w, h))
 }
