@@ -316,10 +316,10 @@ fn read_submission(path: &Path, grid: &[String]) -> Result<(String, usize)> {
 }
 
 async fn submit(server: &str, args: SubmitArgs) -> Result<Outcome> {
-    if let Some(t) = args.tol {
-        if !(t.is_finite() && t > 0.0) {
-            bail!("--tol {t}: give a positive number");
-        }
+    if let Some(t) = args.tol
+        && !(t.is_finite() && t > 0.0)
+    {
+        bail!("--tol {t}: give a positive number");
     }
     let (scene, _) = read_submission(&args.scene, &args.grid)?;
     let request = v1::SubmitStudyRequest {

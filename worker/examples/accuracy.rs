@@ -216,7 +216,7 @@ fn plot(args: &Args, samples: &[Sample], error: &dyn Fn(&Sample) -> f64) {
                     .map(|s| (xval(s), err(s), s.tol))
                     .collect();
                 pts.sort_by(|a, b| b.2.total_cmp(&a.2));
-                let style = if warm { colour.stroke_width(2) } else { colour.stroke_width(2) };
+                let style = colour.stroke_width(2);
                 let line: Vec<(f64, f64)> = pts.iter().map(|p| (p.0, p.1)).collect();
                 let label = format!("{mesh}, {}", if warm { "warm start" } else { "cold" });
                 if warm {

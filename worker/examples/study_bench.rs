@@ -64,11 +64,11 @@ fn run(
     max_iter: usize,
     path: &Path,
 ) -> StudyResult {
-    if let Ok(text) = std::fs::read_to_string(path) {
-        if let Ok(r) = serde_json::from_str::<StudyResult>(&text) {
-            eprintln!("{}: already there", path.display());
-            return r;
-        }
+    if let Ok(text) = std::fs::read_to_string(path)
+        && let Ok(r) = serde_json::from_str::<StudyResult>(&text)
+    {
+        eprintln!("{}: already there", path.display());
+        return r;
     }
     let space = ParameterSpace::from_scene(scene);
     let mut store = MemoryStore::new(space.clone()).expect("store");
@@ -76,7 +76,7 @@ fn run(
     let options = StudyOptions { strategy, tolerance: Some(tol), max_iterations: Some(max_iter), scale: None };
     let label = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let mut progress = |r: &glissade_worker::study::PointRecord, done: usize, total: usize| {
-        if done == 1 || done % 10 == 0 || done == total {
+        if done == 1 || done.is_multiple_of(10) || done == total {
             eprintln!("{label}: [{done}/{total}] {} {} it., {:.2} s", r.point, r.iterations, r.wall_seconds);
         }
     };

@@ -296,7 +296,7 @@ impl<const D: usize> Model<D> {
             for s in 0..n_sub {
                 let elements: Vec<usize> = (0..partition.len()).filter(|&e| partition[e] == offset + s).collect();
                 substructures.push(assemble_substructure(bi, &mesh, &elements, material, v0).map_err(|det| {
-                    invalid(format!("{key}"), format!("element with non-positive Jacobian determinant {det}"))
+                    invalid(key.to_string(), format!("element with non-positive Jacobian determinant {det}"))
                 })?);
             }
             body_material.push(material);

@@ -246,10 +246,10 @@ impl Scene {
             if !p.default.is_finite() {
                 return Err(invalid(key, "default must be a finite number"));
             }
-            if let (Some(lo), Some(hi)) = (p.min, p.max) {
-                if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
-                    return Err(invalid(key, format!("range [{lo}, {hi}] is not a finite interval")));
-                }
+            if let (Some(lo), Some(hi)) = (p.min, p.max)
+                && !(lo.is_finite() && hi.is_finite() && lo <= hi)
+            {
+                return Err(invalid(key, format!("range [{lo}, {hi}] is not a finite interval")));
             }
         }
         Ok(scene)
@@ -389,10 +389,10 @@ impl Resolver<'_> {
         for (i, [t, v]) in h.iter().enumerate() {
             let t = self.get(&format!("{key}[{i}][0]"), t)?;
             let v = self.get(&format!("{key}[{i}][1]"), v)?;
-            if let Some(&(tp, _)) = points.last() {
-                if t < tp {
-                    return Err(invalid(format!("{key}[{i}]"), "times must not decrease"));
-                }
+            if let Some(&(tp, _)) = points.last()
+                && t < tp
+            {
+                return Err(invalid(format!("{key}[{i}]"), "times must not decrease"));
             }
             points.push((t, v));
         }

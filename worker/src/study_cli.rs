@@ -96,10 +96,10 @@ pub fn study(args: StudyArgs) -> Result<bool> {
     let space = ParameterSpace::from_scene(&scene);
     let axes = args.grid.iter().map(|g| GridAxis::parse(g, &space)).collect::<Result<Vec<_>, _>>()?;
     let points = design_points(&axes)?;
-    if let Some(t) = args.tol {
-        if !(t > 0.0 && t.is_finite()) {
-            bail!("--tol {t}: must be a positive number");
-        }
+    if let Some(t) = args.tol
+        && !(t > 0.0 && t.is_finite())
+    {
+        bail!("--tol {t}: must be a positive number");
     }
     if args.k == 0 {
         bail!("--k 0: blend needs at least 1 neighbour");

@@ -255,9 +255,9 @@ fn sliding_block_obeys_coulomb() {
     let f_n = f * 1e7 * 0.02;
     let final_slip = slip[m.steps];
     assert!(final_slip > 1e-6, "the block slides in the end: {final_slip}");
-    for n in 0..=m.steps {
+    for (n, &s) in slip.iter().enumerate().take(m.steps + 1) {
         if push(n) < 0.9 * f_n {
-            assert!(slip[n] < 1e-9 * final_slip, "slip {} at push {} < f N {}", slip[n], push(n), f_n);
+            assert!(s < 1e-9 * final_slip, "slip {s} at push {} < f N {}", push(n), f_n);
         }
     }
     let first_slip = (0..=m.steps).find(|&n| slip[n] > 1e-6 * final_slip).unwrap();

@@ -107,8 +107,11 @@ impl Distribution {
                 let owner = self.interface_rank[i];
                 itf.sides.iter().enumerate().filter_map(move |(k, s)| {
                     let side_rank = self.substructure_rank[s.substructure];
-                    (side_rank != owner)
-                        .then(|| if to_owner { (i, k, side_rank, owner) } else { (i, k, owner, side_rank) })
+                    (side_rank != owner).then_some(if to_owner {
+                        (i, k, side_rank, owner)
+                    } else {
+                        (i, k, owner, side_rank)
+                    })
                 })
             })
             .collect();

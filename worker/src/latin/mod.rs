@@ -374,20 +374,20 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             None => self.zero_stage(m.steps),
         };
-        if init.is_none() {
-            if let Some(st) = &static_solution {
-                // Start the dynamics from the prestressed interface forces held over the whole
-                // interval (velocities zero): the state the assembly is in before loading.
-                for (f, sf) in dynamic.interfaces.iter_mut().zip(&st.interfaces) {
-                    let per_step = sf.len();
-                    if per_step == 0 || f.is_empty() {
-                        continue;
-                    }
-                    for (sides, static_sides) in [(&mut f.s, &sf.s), (&mut f.hat, &sf.hat)] {
-                        for (side, static_side) in sides.iter_mut().zip(static_sides) {
-                            for chunk in side.force.chunks_mut(per_step) {
-                                chunk.copy_from_slice(&static_side.force);
-                            }
+        if init.is_none()
+            && let Some(st) = &static_solution
+        {
+            // Start the dynamics from the prestressed interface forces held over the whole
+            // interval (velocities zero): the state the assembly is in before loading.
+            for (f, sf) in dynamic.interfaces.iter_mut().zip(&st.interfaces) {
+                let per_step = sf.len();
+                if per_step == 0 || f.is_empty() {
+                    continue;
+                }
+                for (sides, static_sides) in [(&mut f.s, &sf.s), (&mut f.hat, &sf.hat)] {
+                    for (side, static_side) in sides.iter_mut().zip(static_sides) {
+                        for chunk in side.force.chunks_mut(per_step) {
+                            chunk.copy_from_slice(&static_side.force);
                         }
                     }
                 }
@@ -460,6 +460,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     }
 
     /// LATIN iterations of one stage until the error indicator is below the tolerance.
+    #[allow(clippy::too_many_arguments)] // the stage's start data; a struct would be used once
     fn iterate(
         &mut self,
         stage: Stage,
