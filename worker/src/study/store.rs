@@ -91,14 +91,17 @@ pub trait SolutionStore {
 
 /// Solutions in memory, indexed by a kd-tree over the normalised coordinates.
 ///
-/// The tree is kiddo's immutable one, rebuilt at each insert (O(n log n), negligible next to a
-/// solve): its soft buckets accept any number of points sharing a coordinate, which the grids of
-/// a study and the zero padding produce (kiddo's mutable tree refuses to split such buckets).
+/// The tree is kiddo's immutable one, rebuilt by the first query after inserts (O(n log n),
+/// negligible next to a solve; n inserts in a row, as a coordinator loading its database does,
+/// build it once): its soft buckets accept any number of points sharing a coordinate, which the
+/// grids of a study and the zero padding produce (kiddo's mutable tree refuses to split such
+/// buckets).
 pub struct MemoryStore {
     space: ParameterSpace,
     solutions: Vec<StoredSolution>,
     coordinates: Vec<[f64; MAX_DIMENSION]>,
-    tree: Option<ImmutableKdTree<f64, MAX_DIMENSION>>,
+    /// None until a query needs it after an insert.
+    tree: std::sync::Mutex<Option<ImmutableKdTree<f64, MAX_DIMENSION>>>,
 }
 
 impl MemoryStore {
@@ -107,7 +110,7 @@ impl MemoryStore {
         if space.dimension() > MAX_DIMENSION {
             return Err(StoreError::TooManyParameters { count: space.dimension(), max: MAX_DIMENSION });
         }
-        Ok(Self { space, solutions: Vec::new(), coordinates: Vec::new(), tree: None })
+        Ok(Self { space, solutions: Vec::new(), coordinates: Vec::new(), tree: Default::default() })
     }
 
     pub fn space(&self) -> &ParameterSpace {
@@ -151,19 +154,22 @@ impl MemoryStore {
 impl SolutionStore for MemoryStore {
     fn insert(&mut self, solution: StoredSolution) -> Result<SolutionId, StoreError> {
         let c = self.coordinates_of(&solution.point)?;
-        let tree = ImmutableKdTree::new_from_slice(&[self.coordinates.as_slice(), &[c]].concat())
-            .map_err(|e| StoreError::Index(e.to_string()))?;
         self.coordinates.push(c);
         self.solutions.push(solution);
-        self.tree = Some(tree);
+        *self.tree.get_mut().unwrap_or_else(std::sync::PoisonError::into_inner) = None;
         Ok((self.solutions.len() - 1) as SolutionId)
     }
 
     fn nearest(&self, point: &DesignPoint, k: usize) -> Result<Vec<(f64, SolutionId)>, StoreError> {
         let query = self.coordinates_of(point)?;
-        let (Some(tree), Some(k)) = (&self.tree, NonZeroUsize::new(k.min(self.solutions.len()))) else {
-            return Ok(Vec::new());
-        };
+        let Some(k) = NonZeroUsize::new(k.min(self.solutions.len())) else { return Ok(Vec::new()) };
+        let mut tree = self.tree.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if tree.is_none() {
+            let built =
+                ImmutableKdTree::new_from_slice(&self.coordinates).map_err(|e| StoreError::Index(e.to_string()))?;
+            *tree = Some(built);
+        }
+        let tree = tree.as_ref().expect("built above");
         let mut found: Vec<(f64, SolutionId)> = tree
             .query(&query)
             .nearest_n::<SquaredEuclidean<f64>>(k)
