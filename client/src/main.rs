@@ -155,8 +155,8 @@ struct SubmitArgs {
     /// Follow the study until it ends (as `glissade watch`).
     #[arg(long)]
     watch: bool,
-    /// Print one JSON object instead of the study id.
-    #[arg(long)]
+    /// Print one JSON object instead of the study id (not with --watch: its lines are for people).
+    #[arg(long, conflicts_with = "watch")]
     json: bool,
 }
 
