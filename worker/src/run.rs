@@ -144,12 +144,14 @@ impl PointSolver {
     }
 }
 
-/// What the operators depend on: the scene, the parameters other than interface laws, the scale.
+/// What the operators and the cached model depend on: the scene (its hash leaves out the
+/// `[solver]` section, whose k0_factor is in the operators and whose other settings are in the
+/// model: so the section too), the parameters other than interface laws, the scale.
 fn operator_key(scene: &Scene, values: &ParameterValues, scale: Option<Scale>) -> String {
     let law = scene.interface_law_parameters();
     let others: Vec<String> =
         values.iter().filter(|(k, _)| !law.contains(*k)).map(|(k, v)| format!("{k}={v:?}")).collect();
-    format!("{}|{scale:?}|{}", scene.content_hash(), others.join(","))
+    format!("{}|{:?}|{scale:?}|{}", scene.content_hash(), scene.solver, others.join(","))
 }
 
 fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &SolveRequest) -> Result<(), RunError> {

@@ -641,6 +641,17 @@ fn point_solver_reuses_factorisations_across_friction_changes() {
     }
     let third = pool.solve(&Serial, &scene, &at(&[("f1", 0.15), ("prestress", 2e-4)]), None).unwrap();
     assert!(third.summary.timings.factorisation > 0.0, "a prestress change rebuilds the operators");
+    // The same scene (same hash: the [solver] section is not hashed) with another search
+    // direction: the operators hold k0, so they are rebuilt, and the result is a fresh solve's.
+    let text =
+        include_str!("../../scenes/three-blocks-tiny.toml").replace("[time]", "[solver]\nk0_factor = 2\n\n[time]");
+    let other_k0 = Scene::parse(&text).unwrap();
+    assert_eq!(other_k0.content_hash(), scene.content_hash());
+    let fourth = pool.solve(&Serial, &other_k0, &at(&[("f1", 0.15), ("prestress", 2e-4)]), None).unwrap();
+    assert!(fourth.summary.timings.factorisation > 0.0, "a k0_factor change rebuilds the operators");
+    let fresh = solve_scene(&other_k0, &at(&[("f1", 0.15), ("prestress", 2e-4)]), None).unwrap();
+    assert_eq!(fourth.summary.iterations, fresh.summary.iterations);
+    assert_eq!(fourth.summary.qoi["slip_A"].values, fresh.summary.qoi["slip_A"].values);
 }
 
 /// `--fields` under P = 2 ranks gathers every substructure's history on rank 0: the written
