@@ -333,6 +333,8 @@ fn write_markdown(args: &Args, samples: &[Sample], reference: &Sample, error: &d
     if !args.note.is_empty() {
         md += &format!("{}\n\n", args.note);
     }
+    md += "Iteration counts are exact; wall times are those of a shared 2-core machine, release build, one \
+           process per run, and rows may come from different runs (each solve is cached).\n\n";
     md += "![error against wall time and iterations](accuracy.png)\n\n";
     md += &mesh_convergence(args, samples, reference.tol);
     md += "## How to choose\n\n";
@@ -364,10 +366,10 @@ fn write_markdown(args: &Args, samples: &[Sample], reference: &Sample, error: &d
         );
     }
     md += "\nThese errors are against the finest mesh at the tightest tolerance, not against the exact solution: \
-           the finest mesh's own discretisation error (mesh convergence, above) comes on top. A warm start at a \
-           loose tolerance can be far off (at 1e-2 it stops after a single dynamic iteration, in a state that \
-           does not slide yet); in a study, ask for a tolerance about 10 x tighter than a cold solve would need \
-           for the same error (docs/performance.md, Multiparametric study).\n\n";
+           the finest mesh's own discretisation error (mesh convergence, above) comes on top. A warm start \
+           from a neighbour stops at `warm_tolerance_ratio` (0.25 by default, docs/scenes.md) times the \
+           tolerance, so at one tolerance it is more accurate than a cold solve: read the warm rows for what \
+           a study gives (docs/performance.md, Warm starts at equal accuracy).\n\n";
     md += "## Measurements\n\n";
     md += &format!(
         "| mesh | tolerance | start | converged | iterations (static + dynamic) | wall s | {} | relative error |\n",
