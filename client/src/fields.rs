@@ -6,13 +6,18 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, anyhow, bail};
+use glissade_proto::Assembler;
 use glissade_proto::v1::{self, user_client::UserClient};
 use glissade_worker::io::{fields, solution_file};
 use glissade_worker::run::{SolveRequest, solve_scene};
 use glissade_worker::scene::Scene;
+use glissade_worker::study::space::{DesignPoint, ParameterSpace};
 use tonic::transport::Channel;
 
 use crate::{get_study, refused};
+
+/// Largest solution file accepted from the coordinator (a paper-size scene's is about 100 MB).
+const MAX_SOLUTION_BYTES: u64 = 4 << 30;
 
 #[derive(Debug, clap::Args)]
 pub struct FieldsArgs {
@@ -54,22 +59,20 @@ fn parse_point(spec: &str, swept: &[String]) -> Result<BTreeMap<String, f64>> {
     Ok(point)
 }
 
-/// The done point of `study` nearest to `target`, distances normalised by the study's ranges.
-fn nearest_done<'a>(study: &'a v1::Study, target: &BTreeMap<String, f64>) -> Option<&'a v1::PointStatus> {
-    let done: Vec<&v1::PointStatus> = study.points.iter().filter(|p| p.state == v1::PointState::Done as i32).collect();
-    let range = |name: &str| {
-        let values = study.points.iter().filter_map(|p| p.parameters.get(name));
-        let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
-        if hi > lo { hi - lo } else { 1.0 }
-    };
-    let scales: BTreeMap<&str, f64> = target.keys().map(|k| (k.as_str(), range(k))).collect();
-    let distance = |p: &v1::PointStatus| {
-        target
-            .iter()
-            .map(|(k, v)| ((p.parameters.get(k).copied().unwrap_or(f64::NAN) - v) / scales[k.as_str()]).powi(2))
-            .sum::<f64>()
-    };
-    done.into_iter().min_by(|a, b| distance(a).total_cmp(&distance(b)))
+/// The done point of `study` nearest to `target`, in the scene's normalised parameter space (the
+/// distance the coordinator's warm starts use).
+fn nearest_done<'a>(
+    scene: &Scene,
+    study: &'a v1::Study,
+    target: &BTreeMap<String, f64>,
+) -> Option<&'a v1::PointStatus> {
+    let space = ParameterSpace::from_scene(scene);
+    let coordinates = |p: &BTreeMap<String, f64>| space.normalised_coordinates(&DesignPoint::from(p.clone()));
+    let goal = coordinates(target);
+    let distance =
+        |p: &v1::PointStatus| coordinates(&p.parameters).iter().zip(&goal).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
+    let done = study.points.iter().filter(|p| p.state == v1::PointState::Done as i32);
+    done.min_by(|a, b| distance(a).total_cmp(&distance(b)))
 }
 
 pub async fn fields(client: &mut UserClient<Channel>, args: FieldsArgs) -> Result<()> {
@@ -79,7 +82,7 @@ pub async fn fields(client: &mut UserClient<Channel>, args: FieldsArgs) -> Resul
     let study = get_study(client, "fields", args.study, true, true).await?;
     let target = parse_point(&args.point, &study.parameters)?;
     let scene = Scene::parse(&study.scene).context("the study's scene")?;
-    let from = nearest_done(&study, &target)
+    let from = nearest_done(&scene, &study, &target)
         .ok_or_else(|| anyhow!("study {}: no point is done yet, nothing to start from", args.study))?;
     let key = v1::PointKey { study_id: study.study_id, point_id: from.point_id };
     let mut stream = client
@@ -87,13 +90,15 @@ pub async fn fields(client: &mut UserClient<Channel>, args: FieldsArgs) -> Resul
         .await
         .map_err(|s| refused(&format!("solution of point {}", from.point_id), s))?
         .into_inner();
-    let mut bytes = Vec::new();
+    let mut assembler: Option<Assembler> = None;
     while let Some(chunk) = stream.message().await.map_err(|s| refused("fetching the solution", s))? {
-        if chunk.offset as usize != bytes.len() {
-            bail!("fetching the solution: chunk at offset {} after {} bytes", chunk.offset, bytes.len());
-        }
-        bytes.extend_from_slice(&chunk.data);
+        let assembler = match &mut assembler {
+            Some(a) => a,
+            None => assembler.insert(Assembler::new(chunk.total_bytes, MAX_SOLUTION_BYTES)?),
+        };
+        assembler.push(chunk).context("fetching the solution")?;
     }
+    let bytes = assembler.map_or(Ok(Vec::new()), Assembler::finish).context("fetching the solution")?;
     let (meta, init) = solution_file::read_from(&bytes[..]).context("the stored solution")?;
     meta.check_fits(&scene).context("the stored solution")?;
     let request = SolveRequest {

@@ -553,7 +553,8 @@ fn write_output(path: &Path, text: &str) -> Result<()> {
 
 async fn surface(server: &str, args: SurfaceArgs) -> Result<()> {
     let mut client = user(server).await?;
-    let study = get_study(&mut client, "surface", args.study, false, true).await?;
+    // the scene's text only for the picture's units
+    let study = get_study(&mut client, "surface", args.study, false, args.png.is_some()).await?;
     let fixed = args
         .fix
         .iter()

@@ -3,6 +3,7 @@
 use std::collections::BTreeMap;
 
 use glissade_proto::v1;
+use glissade_worker::study::space::DesignPoint;
 
 pub fn study_state_name(state: i32) -> &'static str {
     match v1::StudyState::try_from(state) {
@@ -45,7 +46,7 @@ pub fn order_name(order: i32) -> &'static str {
     }
 }
 
-/// `f1=0.1 f2=0.15`, in name order.
+/// `f1=0.1 f2=0.15`, in name order: the study library's `DesignPoint` display.
 pub fn describe_parameters(parameters: &BTreeMap<String, f64>) -> String {
-    parameters.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" ")
+    DesignPoint::from(parameters.clone()).to_string()
 }

@@ -409,6 +409,16 @@ impl Coordinator {
     }
 
     fn emit(&self, kind: EventKind, entry: &StudyEntry, point: Option<&PointRecord>) {
+        self.send_event(kind, entry, point, None);
+    }
+
+    fn send_event(
+        &self,
+        kind: EventKind,
+        entry: &StudyEntry,
+        point: Option<&PointRecord>,
+        solving: Option<(u64, f64)>,
+    ) {
         let _ = self.events.send(Event {
             kind,
             study: entry.record.id,
@@ -417,7 +427,7 @@ impl Coordinator {
             state: entry.state(),
             replay: false,
             unix_ms: now_unix_ms(),
-            solving: None,
+            solving,
         });
     }
 
@@ -1085,7 +1095,7 @@ impl Coordinator {
         let mut state = self.lock();
         let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
         let State { studies, leases, .. } = &mut *state;
-        let deadlines = lease_ids
+        let deadlines: Vec<Option<i64>> = lease_ids
             .iter()
             .map(|lease_id| {
                 let (study, point) = leases.get(lease_id)?;
@@ -1101,23 +1111,12 @@ impl Coordinator {
                 }
             })
             .collect();
-        for &(lease_id, iterations, eta) in progress.iter().filter(|p| p.2.is_finite()) {
-            let Some((study, point)) = leases.get(&lease_id) else { continue };
-            let Some(entry) = studies.get(study) else { continue };
-            let Some(p) = entry.points.get(point.0 as usize) else { continue };
-            if matches!(&p.state, PointState::Leased { pool: holder, lease_id: l, .. } if holder == pool && *l == lease_id)
-            {
-                let _ = self.events.send(Event {
-                    kind: EventKind::Progress,
-                    study: entry.record.id,
-                    point: Some(p.clone()),
-                    progress: entry.progress(),
-                    state: entry.state(),
-                    replay: false,
-                    unix_ms: now_unix_ms(),
-                    solving: Some((iterations, eta)),
-                });
-            }
+        // Progress only for the leases just found to be this pool's.
+        let held = |id: u64| lease_ids.iter().zip(&deadlines).any(|(&l, d)| l == id && d.is_some());
+        for &(lease_id, iterations, eta) in progress.iter().filter(|p| p.2.is_finite() && held(p.0)) {
+            let (study, point) = leases[&lease_id];
+            let entry = &studies[&study];
+            self.send_event(EventKind::Progress, entry, Some(&entry.points[point.0 as usize]), Some((iterations, eta)));
         }
         deadlines
     }
