@@ -763,7 +763,8 @@ impl Coordinator {
     }
 
     /// Leases the next point to `pool`, if any is pending. Points that a stored solution answers
-    /// (same scene and solver version, eta within the tolerance) are marked done on the way.
+    /// (same scene and solver version, converged at this tolerance or a tighter one: the
+    /// solver's stopping test bounds every QoI's error by its tolerance) are marked done on the way.
     pub fn lease(&self, pool: &str) -> Result<Option<LeaseGrant>, CoordError> {
         self.expire_leases()?;
         let mut state = self.lock();
@@ -785,7 +786,7 @@ impl Coordinator {
                     entry.record.strategy != InitStrategy::Cold
                         && s.converged
                         && s.solver_version == version
-                        && s.error_indicator <= entry.record.tolerance
+                        && s.tolerance <= entry.record.tolerance
                 });
                 if let Some(answer) = answer {
                     let answer = answer.clone();

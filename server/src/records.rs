@@ -182,7 +182,8 @@ pub struct SolutionRecord {
 
 impl SolutionRecord {
     /// Whether this (new) solution should replace `old` under the same key: converged beats
-    /// not converged, the current solver version beats another, then the smaller eta wins.
+    /// not converged, the current solver version beats another, then the tighter tolerance (the
+    /// accuracy its stopping test vouches for), then the smaller eta.
     pub fn replaces(&self, old: &SolutionRecord, current_version: &str) -> bool {
         if self.converged != old.converged {
             return self.converged;
@@ -191,6 +192,9 @@ impl SolutionRecord {
             (self.solver_version == current_version, old.solver_version == current_version);
         if new_current != old_current {
             return new_current;
+        }
+        if self.tolerance != old.tolerance {
+            return self.tolerance < old.tolerance;
         }
         self.error_indicator <= old.error_indicator
     }

@@ -130,6 +130,17 @@ pub enum QoiTarget {
     },
 }
 
+impl QoiTarget {
+    pub fn unit(&self) -> crate::latin::stopping::QoiUnit {
+        use crate::latin::stopping::QoiUnit;
+        match self {
+            QoiTarget::Slip { .. } | QoiTarget::Displacement { .. } => QoiUnit::Length,
+            QoiTarget::Velocity { .. } => QoiUnit::Velocity,
+            QoiTarget::Force { .. } => QoiUnit::Force,
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct Qoi {
     pub name: String,

@@ -200,6 +200,7 @@ fn solve_dim<const D: usize>(
         record_fields: request.record_fields,
         progress: request.progress.clone(),
         init_at_this_point: request.init_parameters.as_ref() == Some(&values),
+        trace_qois: false,
     };
     let report = solver.solve(init, &options);
     let operators = solver.into_operators();

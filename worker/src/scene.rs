@@ -189,7 +189,7 @@ fn default_relaxation() -> f64 {
     0.8
 }
 fn default_warm_tolerance_ratio() -> f64 {
-    0.25
+    1.0
 }
 fn one() -> Scalar {
     Scalar::Number(1.0)

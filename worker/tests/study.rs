@@ -445,51 +445,46 @@ fn study_command_writes_its_tables() {
     assert_eq!(json["records"][1]["sources"][0]["id"], 0);
 }
 
-/// A warm start from a neighbour stops at tolerance x warm_tolerance_ratio (default 0.25) and is
-/// then as accurate as a cold solve at the tolerance; at the tolerance itself it is not. The
-/// hard case of the tiny scene: f1 from 0.125 to 0.15 crosses into the stick regime of
-/// interface A (slip falls from 8e-6 to 2e-6), against a reference at eta <= 1e-7.
+/// The stopping test keeps its word for warm starts as for cold ones: every QoI history is
+/// within 10 x the tolerance of the converged one (relative L2 over time), at two tolerances.
+/// The hard case of the tiny scene: f1 from 0.125 to 0.15 crosses into the stick regime of
+/// interface A (slip falls from 8e-6 to 2e-6); with eta <= tolerance as the only test, the
+/// warm start's slip_A was 12 % off at 2e-4 (docs/performance.md).
 #[test]
 fn warm_starts_from_a_neighbour_are_as_accurate_as_cold_solves() {
-    use glissade_worker::run::{SolveRequest, solve_scene};
-    let tol = 2e-4;
+    use glissade_worker::run::{SolveOutcome, SolveRequest, solve_scene};
     let at = |f1: f64, tolerance: f64| SolveRequest {
         set: vec![("f1".into(), f1), ("f2".into(), 0.1)],
         tolerance: Some(tolerance),
         ..SolveRequest::default()
     };
     let tiny = scene(TINY);
-    let slip = |o: &glissade_worker::run::SolveOutcome| o.summary.qoi["slip_A"].final_value;
-    let reference = slip(&solve_scene(&tiny, &at(0.15, 1e-7), None).unwrap());
-    let cold = solve_scene(&tiny, &at(0.15, tol), None).unwrap();
-    let neighbour = solve_scene(&tiny, &at(0.125, tol), None).unwrap();
-    let init_parameters = Some(neighbour.summary.parameters.clone());
-    let warm_with = |ratio: &str| {
-        let text = TINY.replace("[time]", &format!("[solver]\nwarm_tolerance_ratio = {ratio}\n\n[time]"));
-        let request = SolveRequest { init_parameters: init_parameters.clone(), ..at(0.15, tol) };
-        solve_scene(&scene(&text), &request, Some(&neighbour.solution)).unwrap()
+    let reference = solve_scene(&tiny, &at(0.15, 1e-9), None).unwrap();
+    let neighbour = solve_scene(&tiny, &at(0.125, 2e-4), None).unwrap();
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let worst = |o: &SolveOutcome| -> (String, f64) {
+        o.summary
+            .qoi
+            .iter()
+            .map(|(name, q)| {
+                let r = &reference.summary.qoi[name].values;
+                let d: Vec<f64> = q.values.iter().zip(r).map(|(a, b)| a - b).collect();
+                (name.clone(), norm(&d) / norm(r))
+            })
+            .fold((String::new(), 0.0), |a, b| if b.1 > a.1 { b } else { a })
     };
-    let (warm, warm_at_tol) = (
-        solve_scene(
-            &tiny,
-            &SolveRequest { init_parameters: init_parameters.clone(), ..at(0.15, tol) },
-            Some(&neighbour.solution),
-        )
-        .unwrap(),
-        warm_with("1.0"),
-    );
-    let error = |o: &glissade_worker::run::SolveOutcome| (slip(o) - reference).abs() / reference.abs();
-    eprintln!(
-        "slip_A at f1 = 0.15: reference {reference:.6e}; cold {} it, error {:.2e}; warm (ratio 0.25) {} it, error {:.2e}; warm at tol {} it, error {:.2e}",
-        cold.summary.iterations,
-        error(&cold),
-        warm.summary.iterations,
-        error(&warm),
-        warm_at_tol.summary.iterations,
-        error(&warm_at_tol)
-    );
-    assert!(warm.summary.error_indicator <= 0.25 * tol && warm_at_tol.summary.error_indicator <= tol);
-    assert!(error(&warm) <= 2.0 * error(&cold).max(1e-3), "warm {:.2e} vs cold {:.2e}", error(&warm), error(&cold));
-    assert!(error(&warm_at_tol) > 10.0 * error(&warm), "the ratio should matter in this case");
-    assert!(warm.summary.iterations < cold.summary.iterations, "a warm start must still pay");
+    for tol in [1e-3, 2e-5] {
+        let cold = solve_scene(&tiny, &at(0.15, tol), None).unwrap();
+        let request = SolveRequest { init_parameters: Some(neighbour.summary.parameters.clone()), ..at(0.15, tol) };
+        let warm = solve_scene(&tiny, &request, Some(&neighbour.solution)).unwrap();
+        let (wc, ww) = (worst(&cold), worst(&warm));
+        eprintln!(
+            "tol {tol:.0e}: cold {} it., worst {} {:.2e}; warm {} it., worst {} {:.2e}",
+            cold.summary.iterations, wc.0, wc.1, warm.summary.iterations, ww.0, ww.1
+        );
+        assert!(cold.summary.converged && warm.summary.converged);
+        assert!(wc.1 <= 10.0 * tol, "cold at {tol:e}: {} off by {:.2e}", wc.0, wc.1);
+        assert!(ww.1 <= 10.0 * tol, "warm at {tol:e}: {} off by {:.2e}", ww.0, ww.1);
+        assert!(warm.summary.history.len() < cold.summary.history.len(), "a warm start must still pay");
+    }
 }

@@ -2,7 +2,7 @@
 //! the monolithic Newmark solve, d'Alembert wave solutions, Coulomb's law, energy balance.
 
 use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
-use glissade_worker::model::Model;
+use glissade_worker::model::{Model, QoiTarget};
 use glissade_worker::monolithic;
 use glissade_worker::scene::{Scale, Scene};
 
@@ -162,6 +162,102 @@ fn perfect_interfaces_match_monolithic_2d() {
 fn perfect_interfaces_match_monolithic_3d_with_prestress() {
     assert!(build::<3>(BOX_3D, &[]).needs_static_stage());
     check_against_monolithic::<3>(BOX_3D);
+}
+
+/// A clamped box under a pressure pulse on its top, cut 2 x 2 x 4, with the QoIs a user reads
+/// most: the velocity and the displacement at the top centre, a displacement on a side face.
+const BOX_PULSE_3D: &str = r#"
+dimension = 3
+[time]
+duration = 4e-5
+steps = 40
+[parameters]
+pressure = { default = 5e7, min = 0, max = 1e8, unit = "Pa" }
+[materials.steel]
+E = 200e9
+nu = 0.3
+rho = 7800
+[[bodies]]
+name = "box"
+material = "steel"
+size = [0.02, 0.02, 0.04]
+elements = [4, 4, 8]
+substructures = [2, 2, 4]
+[[boundary]]
+face = "box.z-"
+clamped = true
+[[loads]]
+face = "box.z+"
+pressure = "pressure"
+history = [[0, 0], [5e-6, 1], [1e-5, 0]]
+[[qoi]]
+name = "top_vz"
+kind = "velocity"
+body = "box"
+point = [0.01, 0.01, 0.04]
+component = "z"
+[[qoi]]
+name = "top_uz"
+kind = "displacement"
+body = "box"
+point = [0.01, 0.01, 0.04]
+component = "z"
+[[qoi]]
+name = "side_ux"
+kind = "displacement"
+body = "box"
+point = [0.02, 0.01, 0.02]
+component = "x"
+"#;
+
+/// The monolithic history of a displacement or velocity QoI.
+fn monolithic_qoi<const D: usize>(reference: &monolithic::MonolithicHistory, target: &QoiTarget) -> Vec<f64> {
+    let (s, dof, velocity) = match *target {
+        QoiTarget::Displacement { substructure, dof } => (substructure, dof, false),
+        QoiTarget::Velocity { substructure, dof } => (substructure, dof, true),
+        _ => panic!("a body QoI"),
+    };
+    let g = reference.dof_map[s][dof];
+    let steps = if velocity { &reference.velocity } else { &reference.displacement };
+    steps.iter().map(|u| u[g]).collect()
+}
+
+/// The stopping test's promise, against the monolithic solve: when LATIN reports convergence
+/// at tolerance tol, every QoI history (velocity included) is within 10 x tol in relative L2
+/// over time, single- and multiscale, cold and warm-started from a neighbouring load, at two
+/// tolerances. (With eta <= tol as the test, the velocity was 40-60 x tol off.)
+#[test]
+fn every_qoi_history_is_within_ten_times_the_tolerance_of_the_monolithic_solve() {
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    for scale in [Scale::Single, Scale::Multi] {
+        let mut near = build::<3>(BOX_PULSE_3D, &[("pressure", 4.5e7)]);
+        near.settings.scale = scale;
+        near.settings.tolerance = 1e-3;
+        let neighbour = solve(&near, false).solution;
+        for tol in [1e-3, 1e-5] {
+            let mut m = build::<3>(BOX_PULSE_3D, &[]);
+            m.settings.scale = scale;
+            m.settings.tolerance = tol;
+            let reference = monolithic::solve(&m).expect("monolithic");
+            let mut solver = LatinSolver::serial(&m).expect("factorisation");
+            for (start, init) in [("cold", None), ("warm", Some(&neighbour))] {
+                let r = solver.solve(init, &SolveOptions::default()).expect("solve");
+                assert!(r.converged(), "{scale:?} {start} at {tol:e}: not converged");
+                for (q, series) in m.qois.iter().zip(&r.qoi) {
+                    let expected = monolithic_qoi::<3>(&reference, &q.target);
+                    let d: Vec<f64> = series.values.iter().zip(&expected).map(|(a, b)| a - b).collect();
+                    let err = norm(&d) / norm(&expected);
+                    eprintln!(
+                        "{scale:?} {start} tol {tol:.0e}: {} error {err:.2e} ({:.2} x tol), {} iterations",
+                        q.name,
+                        err / tol,
+                        r.iterations()
+                    );
+                    assert!(err <= 10.0 * tol, "{scale:?} {start} at {tol:e}: {} off by {err:.2e}", q.name);
+                }
+            }
+        }
+    }
 }
 
 /// Mass-weighted mean velocity along x of the whole model at step `n`.
@@ -392,14 +488,18 @@ fn energy_balance_closes_perfect_contact_friction() {
 /// A point warm-started from its own converged solution converges at once (at most 2
 /// iterations), to the same QoIs.
 #[test]
-fn warm_start_from_own_solution_converges_at_once() {
+fn warm_start_from_own_solution_converges_within_two_windows() {
     let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
     let mut solver = LatinSolver::serial(&m).unwrap();
     let cold = solver.solve(None, &SolveOptions::default()).unwrap();
     let options = SolveOptions { init_at_this_point: true, ..SolveOptions::default() };
     let warm = solver.solve(Some(&cold.solution), &options).unwrap();
     eprintln!("cold {} iterations, warm {} iterations", cold.iterations(), warm.iterations());
-    assert!(warm.converged() && warm.dynamic.iterations <= 2 && warm.static_stage.as_ref().unwrap().iterations <= 2);
+    // The stopping test measures the contraction over two windows before it trusts a small
+    // change (latin::stopping): a restart costs those iterations, a tenth of a cold solve here.
+    let windows = 2 * glissade_worker::latin::stopping::WINDOW + 2;
+    assert!(warm.converged() && warm.dynamic.iterations <= windows && warm.static_stage.as_ref().unwrap().iterations <= 2);
+    assert!(10 * warm.dynamic.iterations <= cold.dynamic.iterations);
     for (a, b) in cold.qoi.iter().zip(&warm.qoi) {
         let (x, y) = (a.values[m.steps], b.values[m.steps]);
         assert!((x - y).abs() <= 10.0 * m.settings.tolerance * x.abs().max(1e-30), "{}: {x} vs {y}", a.name);
@@ -563,7 +663,8 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
                 "--scale",
                 scale,
                 "--tol",
-                "1e-3",
+                // 3 ranks share 2 cores in CI, and MPICH's ranks spin while they wait
+                "1e-2",
                 "--json",
                 "--save",
                 save.to_str().unwrap(),

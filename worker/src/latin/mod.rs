@@ -6,6 +6,7 @@ pub mod field;
 pub mod linear_stage;
 pub mod local_stage;
 pub mod macro_problem;
+pub mod stopping;
 
 use std::time::Instant;
 
@@ -21,6 +22,7 @@ use field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};
+use stopping::{ErrorEstimator, UnitScales};
 
 /// Tolerance of the static prestress stage relative to the asked one.
 pub const STATIC_TOLERANCE_RATIO: f64 = 0.01;
@@ -48,8 +50,15 @@ pub struct StageReport {
     pub iterations: usize,
     pub converged: bool,
     pub error_indicator: f64,
+    /// estimated relative error of the worst QoI history when the stage stopped (dynamic
+    /// stage; the static stage reports eta here)
+    pub error_estimate: f64,
     /// eta after each iteration
     pub history: Vec<f64>,
+    /// every QoI's history after each iteration, `[iteration][qoi][step]`, when
+    /// [`SolveOptions::trace_qois`] asks for it
+    #[serde(skip)]
+    pub qoi_trace: Vec<Vec<Vec<f64>>>,
 }
 
 /// A quantity of interest as a time series over t_0 .. t_N.
@@ -115,6 +124,8 @@ pub struct SolveOptions {
     /// the warm start is a solution of this very design point (not a neighbour's): its
     /// dynamic stage converges to the tolerance, not to `warm_tolerance_ratio` times it
     pub init_at_this_point: bool,
+    /// keep every QoI's history after each dynamic iteration (`StageReport::qoi_trace`)
+    pub trace_qois: bool,
 }
 
 /// Iterations of a running solve (static and dynamic stages) and the last eta, readable from
@@ -350,7 +361,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 &[],
                 &u0,
                 &mut timings,
-                options.progress.as_deref(),
+                options,
+                None,
             )?;
             // the initial state of the dynamics: displacements of the converged static solution
             let t = Instant::now();
@@ -406,7 +418,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             &vn_start,
             &u0,
             &mut timings,
-            options.progress.as_deref(),
+            options,
+            static_solution.as_ref(),
         )?;
 
         // Post-processing sweep on the converged local-stage fields.
@@ -470,19 +483,25 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         vn_start: &[Vec<f64>],
         u0: &[Option<Vec<f64>>],
         timings: &mut Timings,
-        progress: Option<&SolveProgress>,
+        options: &SolveOptions,
+        statics: Option<&StageSolution>,
     ) -> Result<StageReport, SolverError> {
         let m = self.model;
         let settings = &m.settings;
+        let progress = options.progress.as_deref();
         let mut report = StageReport::default();
         let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
         let stage_name = stage.name();
+        let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect());
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
             for (f, p) in fields.iter().zip(previous.iter_mut()) {
                 p.clone_from(&f.s);
             }
-            self.linear_stage(stage, fields, u0, None);
+            let mut body = BodyQois::new(m);
+            let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
+            let dynamic = stage == Stage::Dynamic;
+            self.linear_stage(stage, fields, u0, dynamic.then_some(&mut record as StepRecorder));
             // relaxation (mu = 1 at the first iteration), on the sides this rank computed
             if iteration > 1 {
                 for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
@@ -516,6 +535,19 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             report.iterations = iteration;
             report.error_indicator = eta;
             report.history.push(eta);
+            // The static stage is one step, converged far tighter than asked; the dynamic stage
+            // stops on the QoIs' estimated error (stopping.rs).
+            report.error_estimate = if dynamic {
+                let (series, scales) = self.qois_and_scales(fields, statics, body);
+                let series: Vec<Vec<f64>> = series.into_iter().map(|q| q.values).collect();
+                let estimate = estimator.update(&series, &scales, eta);
+                if options.trace_qois {
+                    report.qoi_trace.push(series);
+                }
+                estimate
+            } else {
+                eta
+            };
             if let Some(p) = progress {
                 p.record(eta);
             }
@@ -523,7 +555,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if !eta.is_finite() {
                 return Err(SolverError::NonFinite { stage: stage_name, iteration, eta });
             }
-            if eta <= tolerance {
+            if eta <= tolerance && report.error_estimate <= tolerance {
                 report.converged = true;
                 break;
             }
@@ -632,46 +664,50 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         options: &SolveOptions,
     ) -> (Vec<QoiSeries>, Option<FieldHistory>) {
         let m = self.model;
-        let times: Vec<f64> = (0..=m.steps).map(|n| n as f64 * m.dt).collect();
-        let mut series: Vec<QoiSeries> = m
-            .qois
-            .iter()
-            .map(|q| QoiSeries { name: q.name.clone(), times: times.clone(), values: vec![0.0; m.steps + 1] })
-            .collect();
         let mut history = options.record_fields.then(FieldHistory::default);
         // The sweep writes `s` fields: run it on a copy so the returned solution stays the
         // converged iterate.
         let mut scratch = fields.to_vec();
-        let wanted: Vec<(usize, usize, usize, bool)> = m
-            .qois
-            .iter()
-            .enumerate()
-            .filter_map(|(q, qoi)| match qoi.target {
-                QoiTarget::Displacement { substructure, dof } => Some((q, substructure, dof, true)),
-                QoiTarget::Velocity { substructure, dof } => Some((q, substructure, dof, false)),
-                _ => None,
-            })
-            .collect();
+        let mut body = BodyQois::new(m);
         let n_sub = m.substructures.len();
         if let Some(h) = history.as_mut() {
             h.displacement = vec![Vec::with_capacity(m.steps + 1); n_sub];
             h.velocity = vec![Vec::with_capacity(m.steps + 1); n_sub];
         }
         let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| {
-            for &(q, sub, dof, is_u) in &wanted {
-                if sub == s {
-                    series[q].values[step] = if is_u { u[dof] } else { v[dof] };
-                }
-            }
+            body.record(s, step, u, v);
             if let Some(h) = history.as_mut() {
                 h.displacement[s].push(u.to_vec());
                 h.velocity[s].push(v.to_vec());
             }
         };
         self.linear_stage(Stage::Dynamic, &mut scratch, u0, Some(&mut record));
-        // Interface QoIs: computed by each interface's owner, as blocks of steps + 1 values
-        // (one block per part for forces), then summed over ranks: one contribution per value.
+        let series = self.qoi_series(fields, statics, body);
+        if let Some(h) = history.as_mut() {
+            self.gather_field_history(h);
+        }
+        (series, history)
+    }
+
+    /// Every QoI's history from the local-stage fields (slips, forces) and the substructure
+    /// values a linear stage recorded (displacements, velocities), reduced over ranks: one
+    /// contribution per value, so every rank gets the same series.
+    fn qoi_series(&self, fields: &[InterfaceField], statics: Option<&StageSolution>, body: BodyQois) -> Vec<QoiSeries> {
+        self.qois_and_scales(fields, statics, body).0
+    }
+
+    /// [`Self::qoi_series`] and the interface fields' own scales, in one reduction.
+    fn qois_and_scales(
+        &self,
+        fields: &[InterfaceField],
+        statics: Option<&StageSolution>,
+        body: BodyQois,
+    ) -> (Vec<QoiSeries>, UnitScales) {
+        let m = self.model;
         let len = m.steps + 1;
+        let mut body_values = body.values;
+        // Interface QoIs: computed by each interface's owner, as blocks of steps + 1 values
+        // (one block per part for forces), then summed over ranks.
         let mut blocks: Vec<f64> = Vec::new();
         for (q, qoi) in m.qois.iter().enumerate() {
             match qoi.target {
@@ -697,12 +733,42 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         blocks.extend((0..m.steps).map(|step| resultant(&fields[i].hat[0].force, step)));
                     }
                 }
-                _ => blocks.extend(std::mem::take(&mut series[q].values)),
+                _ => blocks.extend(std::mem::take(&mut body_values[q])),
             }
         }
+        // Area-weighted sums of squares over every side, step and node of the local-stage
+        // velocities, forces and static displacements, and the area they cover.
+        // One block of five per interface, from its owner, added up in interface order after
+        // the reduction (as eta's parts: the result does not depend on the ranks).
+        for (i, itf) in m.interfaces.iter().enumerate() {
+            let mut sums = [0.0; 5];
+            if self.dist.owns_interface(i) {
+                let n = itf.n_nodes();
+                for (k, side) in fields[i].hat.iter().enumerate() {
+                    let weighted =
+                        |v: &[f64]| -> f64 { v.iter().enumerate().map(|(x, y)| itf.area[(x / D) % n] * y * y).sum() };
+                    sums[0] += weighted(&side.velocity);
+                    sums[1] += weighted(&side.force);
+                    sums[2] += statics.map_or(0.0, |st| weighted(&st.interfaces[i].hat[k].velocity));
+                    sums[3] += itf.area.iter().sum::<f64>();
+                    sums[4] += 1.0;
+                }
+            }
+            blocks.extend(sums);
+        }
         self.comm.sum_in_place(&mut blocks);
+        let per_interface = blocks.split_off(blocks.len() - 5 * m.interfaces.len());
+        let sums = per_interface.chunks(5).fold([0.0; 5], |mut acc, c| {
+            for (a, x) in acc.iter_mut().zip(c) {
+                *a += x;
+            }
+            acc
+        });
+        let scales = UnitScales::from_sums(&sums, m.steps, m.dt);
+        let times: Vec<f64> = (0..=m.steps).map(|n| n as f64 * m.dt).collect();
         let mut at = 0;
-        for (q, qoi) in m.qois.iter().enumerate() {
+        let mut series = Vec::with_capacity(m.qois.len());
+        for qoi in &m.qois {
             let parts = match qoi.target {
                 QoiTarget::Force { ref interfaces, .. } => interfaces.len(),
                 _ => 1,
@@ -713,13 +779,42 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     *v += p;
                 }
             }
-            series[q].values = values;
+            series.push(QoiSeries { name: qoi.name.clone(), times: times.clone(), values });
             at += parts * len;
         }
-        if let Some(h) = history.as_mut() {
-            self.gather_field_history(h);
+        (series, scales)
+    }
+}
+
+/// The displacement and velocity QoIs of this rank's substructures, recorded step by step
+/// during a dynamic linear stage (zeros for the QoIs of other ranks' substructures).
+struct BodyQois {
+    /// (QoI, substructure, dof, displacement rather than velocity)
+    wanted: Vec<(usize, usize, usize, bool)>,
+    values: Vec<Vec<f64>>,
+}
+
+impl BodyQois {
+    fn new<const D: usize>(m: &Model<D>) -> Self {
+        let wanted = m
+            .qois
+            .iter()
+            .enumerate()
+            .filter_map(|(q, qoi)| match qoi.target {
+                QoiTarget::Displacement { substructure, dof } => Some((q, substructure, dof, true)),
+                QoiTarget::Velocity { substructure, dof } => Some((q, substructure, dof, false)),
+                _ => None,
+            })
+            .collect();
+        Self { wanted, values: vec![vec![0.0; m.steps + 1]; m.qois.len()] }
+    }
+
+    fn record(&mut self, s: usize, step: usize, u: &[f64], v: &[f64]) {
+        for &(q, sub, dof, is_u) in &self.wanted {
+            if sub == s {
+                self.values[q][step] = if is_u { u[dof] } else { v[dof] };
+            }
         }
-        (series, history)
     }
 }
 

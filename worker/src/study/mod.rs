@@ -262,8 +262,9 @@ fn csv_field(s: &str) -> String {
 /// total).
 ///
 /// Tolerance-aware reuse (every strategy but `Cold`, which never reads the store): a stored
-/// solution of this very point whose eta is at most the tolerance answers at once with 0
-/// iterations; one above the tolerance is continued from instead of restarting.
+/// solution of this very point converged at this tolerance or a tighter one answers at once with
+/// 0 iterations (the stopping test vouches for its QoIs at its tolerance); one converged at a
+/// looser tolerance is continued from instead of restarting.
 pub fn run_study(
     scene: &Scene,
     points: &[DesignPoint],
@@ -369,13 +370,13 @@ fn solve_point(
                 break;
             }
             let s = store.get(id)?;
-            if same.as_ref().is_none_or(|(_, b)| s.eta < b.eta) {
+            if same.as_ref().is_none_or(|(_, b)| s.tolerance < b.tolerance) {
                 same = Some((id, s));
             }
         }
         if let Some((id, s)) = same {
             let source = InitSource { id, point: s.point.clone(), distance: 0.0, weight: 1.0 };
-            if s.converged && s.eta <= tolerance {
+            if s.converged && s.tolerance <= tolerance {
                 record.status = PointStatus::Reused;
                 record.converged = true;
                 record.eta = Some(s.eta);

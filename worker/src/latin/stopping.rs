@@ -1,0 +1,220 @@
+//! The stopping test: an estimate of how far each QoI history still is from the converged one
+//! (docs/method.md, "Stopping test").
+//!
+//! eta measures the gap between the two LATIN spaces over every interface and step; it says
+//! little about one velocity or one slip (measured: velocity histories 40x eta, slips at 2e-4
+//! still 5-500x off). So the test follows what users read. A LATIN iteration with settled
+//! interface statuses is a linear contraction: each QoI's change between iterations shrinks by
+//! a factor rho, and the error left is the sum of the changes to come, d rho / (1 - rho). The
+//! change d is the largest of the last `WINDOW` iterations (an oscillating QoI pauses at its
+//! turning points; a window longer than its half-period still sees it move) and rho compares
+//! it with the largest of the window before.
+
+/// Iterations per window; rho is measured over two windows.
+pub const WINDOW: usize = 10;
+/// Slowest contraction the estimate trusts: beyond it (or before two windows exist, or while
+/// the changes grow) the remaining error is taken as RHO_MAX / (1 - RHO_MAX) = 99 times the
+/// change, which only a QoI that has hardly moved for every recent iteration passes.
+pub const RHO_MAX: f64 = 0.99;
+/// A QoI's history norm is floored at this share of the largest norm among the QoIs of the same
+/// unit and of the interface fields' scale of that unit ([`UnitScales`]): a slip that sticks
+/// (1e-22 m) is measured against the displacements beside it, not against its own noise.
+pub const NORM_FLOOR: f64 = 1e-3;
+
+/// What the interface fields say a QoI history of each unit is worth, as an L2 norm over the
+/// steps: the area-weighted RMS of the local-stage velocities, of the tractions times the mean
+/// area of an interface side, and for lengths the larger of velocity x duration and the RMS of
+/// the static (prestress) displacements held over the interval.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct UnitScales {
+    pub length: f64,
+    pub velocity: f64,
+    pub force: f64,
+}
+
+impl UnitScales {
+    /// From reduced sums: [sum a |W|^2, sum a |F|^2, sum a |U_static|^2, total area, sides].
+    pub fn from_sums(sums: &[f64], steps: usize, dt: f64) -> Self {
+        let area = sums[3];
+        if area <= 0.0 {
+            return Self::default();
+        }
+        let velocity = (sums[0] / area).sqrt();
+        let statics = (sums[2] / area * (steps + 1) as f64).sqrt();
+        Self {
+            length: (velocity * steps as f64 * dt).max(statics),
+            velocity,
+            force: (sums[1] / area).sqrt() * area / sums[4],
+        }
+    }
+
+    fn of(&self, unit: QoiUnit) -> f64 {
+        match unit {
+            QoiUnit::Length => self.length,
+            QoiUnit::Velocity => self.velocity,
+            QoiUnit::Force => self.force,
+        }
+    }
+}
+
+/// The physical unit of a QoI: norms are compared within a unit only.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum QoiUnit {
+    Length,
+    Velocity,
+    Force,
+}
+
+/// Follows the QoI histories of successive iterates and estimates their remaining error.
+#[derive(Debug, Clone)]
+pub struct ErrorEstimator {
+    units: Vec<QoiUnit>,
+    previous: Option<Vec<Vec<f64>>>,
+    /// relative change of each QoI (or eta, when there is none) at each iteration so far
+    changes: Vec<Vec<f64>>,
+}
+
+impl ErrorEstimator {
+    /// An estimator of QoIs with these units; with none, it follows eta's sequence instead.
+    pub fn new(units: Vec<QoiUnit>) -> Self {
+        Self { units, previous: None, changes: Vec::new() }
+    }
+
+    /// Takes the iterate's QoI histories (`[qoi][step]`) and eta; returns the estimated relative
+    /// L2 error (over time, relative to the history's norm) of the worst QoI.
+    pub fn update(&mut self, series: &[Vec<f64>], scales: &UnitScales, eta: f64) -> f64 {
+        if self.units.is_empty() {
+            // Nothing to follow but eta, itself a distance between iterates.
+            self.changes.push(vec![eta]);
+            return self.estimate();
+        }
+        let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let norms: Vec<f64> = series.iter().map(|v| norm(v)).collect();
+        let largest = |unit: QoiUnit| {
+            norms.iter().zip(&self.units).filter(|(_, u)| **u == unit).map(|(n, _)| *n).fold(scales.of(unit), f64::max)
+        };
+        if let Some(prev) = &self.previous {
+            let change = series
+                .iter()
+                .zip(prev)
+                .zip(norms.iter().zip(&self.units))
+                .map(|((now, before), (&n, &unit))| {
+                    let diff = norm(&now.iter().zip(before).map(|(a, b)| a - b).collect::<Vec<_>>());
+                    let mut scale = n.max(NORM_FLOOR * largest(unit));
+                    if scale == 0.0 {
+                        // everything of this unit just fell to zero: measure against before
+                        scale = norm(before);
+                    }
+                    if diff == 0.0 { 0.0 } else { diff / scale }
+                })
+                .collect();
+            self.changes.push(change);
+        }
+        self.previous = Some(series.to_vec());
+        self.estimate()
+    }
+
+    /// The worst QoI's estimated remaining error from the changes so far: each change of the
+    /// last window decayed to today at the measured rate (the envelope of an oscillation, the
+    /// change itself for a monotone contraction), times rho / (1 - rho).
+    fn estimate(&self) -> f64 {
+        let k = self.changes.len();
+        let Some(last) = self.changes.last() else { return f64::INFINITY };
+        let window_max = |q: usize, from: usize, to: usize| -> f64 {
+            self.changes[from..to].iter().map(|c| c[q]).fold(0.0, f64::max)
+        };
+        (0..last.len())
+            .map(|q| {
+                let recent = window_max(q, k.saturating_sub(WINDOW), k);
+                if recent == 0.0 {
+                    return 0.0;
+                }
+                let rho = if k >= 2 * WINDOW {
+                    let before = window_max(q, k - 2 * WINDOW, k - WINDOW);
+                    (recent / before).powf(1.0 / WINDOW as f64).min(RHO_MAX)
+                } else {
+                    RHO_MAX
+                };
+                let now = (0..WINDOW.min(k)).map(|age| self.changes[k - 1 - age][q] * rho.powi(age as i32)).fold(0.0, f64::max);
+                now * rho / (1.0 - rho)
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A QoI converging geometrically towards `limit`: the estimate must bound the true error
+    /// within a small factor once two windows exist.
+    #[test]
+    fn geometric_convergence_is_estimated_within_a_factor_two() {
+        for rho in [0.5, 0.9, 0.97] {
+            let limit = vec![1.0, 2.0, -1.0];
+            let mut e = ErrorEstimator::new(vec![QoiUnit::Length]);
+            for k in 0..200 {
+                let x: Vec<f64> = limit.iter().map(|l| l + 0.3 * rho_pow(rho, k)).collect();
+                let est = e.update(&[x.clone()], &UnitScales::default(), 1.0);
+                let truth = 0.3 * rho_pow(rho, k) * 3f64.sqrt() / x.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if k >= 2 * WINDOW && truth > 1e-12 {
+                    assert!(est >= 0.9 * truth && est <= 2.0 * truth, "rho {rho}, k {k}: estimate {est}, error {truth}");
+                }
+            }
+        }
+    }
+
+    fn rho_pow(rho: f64, k: usize) -> f64 {
+        rho.powi(k as i32)
+    }
+
+    /// An oscillation whose amplitude decays slowly is not taken as converged at a turning
+    /// point: the window still holds the motion.
+    #[test]
+    fn a_slow_oscillation_is_not_converged_at_its_turning_points() {
+        let mut e = ErrorEstimator::new(vec![QoiUnit::Length]);
+        let mut smallest: f64 = f64::INFINITY;
+        for k in 0..100 {
+            let amplitude = 0.1 * 0.995f64.powi(k);
+            let x = 1.0 + amplitude * (k as f64 * 0.3).cos();
+            smallest = smallest.min(e.update(&[vec![x]], &UnitScales::default(), 1.0));
+        }
+        assert!(smallest > 0.1, "estimate fell to {smallest} while the QoI swings by 5 %");
+    }
+
+    /// A QoI that is zero (a stuck slip) is measured against the other lengths, not against its
+    /// own vanishing norm; a QoI of another unit does not give it a floor.
+    #[test]
+    fn a_vanishing_qoi_is_floored_by_its_unit() {
+        let mut e = ErrorEstimator::new(vec![QoiUnit::Length, QoiUnit::Length, QoiUnit::Velocity]);
+        let mut last = f64::INFINITY;
+        for k in 0..40 {
+            let noise = 1e-24 * (k % 2) as f64;
+            last = e.update(&[vec![noise], vec![1e-3; 4], vec![5.0; 4]], &UnitScales::default(), 1.0);
+        }
+        assert!(last < 1e-15, "a stuck slip's noise is negligible against 1e-3 m: {last}");
+        let mut alone = ErrorEstimator::new(vec![QoiUnit::Length, QoiUnit::Velocity]);
+        for k in 0..40 {
+            last = alone.update(&[vec![1e-24 * (k % 2) as f64], vec![5.0]], &UnitScales::default(), 1.0);
+        }
+        assert!(last > 1.0, "with no other length, the noise is all there is: {last}");
+        // ... unless the interface fields give lengths a scale
+        let mut scaled = ErrorEstimator::new(vec![QoiUnit::Length]);
+        let scales = UnitScales { length: 1e-5, ..UnitScales::default() };
+        for k in 0..40 {
+            last = scaled.update(&[vec![1e-24 * (k % 2) as f64]], &scales, 1.0);
+        }
+        assert!(last < 1e-12, "noise against the fields' lengths: {last}");
+    }
+
+    #[test]
+    fn without_qois_eta_is_followed() {
+        let mut e = ErrorEstimator::new(Vec::new());
+        let mut est = 0.0;
+        for k in 0..40 {
+            est = e.update(&[], &UnitScales::default(), 0.8f64.powi(k));
+        }
+        let eta = 0.8f64.powi(39);
+        assert!(est > eta && est < 5.0 * eta, "estimate {est}, eta {eta}");
+    }
+}
