@@ -30,7 +30,6 @@ fn run<const D: usize>(scene: &Scene, p: &[(String, f64)], q: Option<&[(String, 
         if let Some(k) = k0 {
             for sub in m.interfaces.iter_mut().flat_map(|i| i.sides.iter_mut()) {
                 sub.k_dynamic *= k;
-                sub.k_static *= k;
             }
         }
         m

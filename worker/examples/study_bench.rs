@@ -163,19 +163,20 @@ fn main() {
         })
         .collect();
     runs.sort_by(|a, b| a.0.cmp(&b.0));
+    let steps = scene.time.steps;
     let cold = runs
         .iter()
         .filter(|(_, r)| r.strategy == InitStrategy::Cold)
-        .map(|(_, r)| (r.tolerance, r.summary.total_iterations, dynamic(r), r.summary.wall_seconds))
+        .map(|(_, r)| (r.tolerance, work(r, steps), r.summary.wall_seconds))
         .collect::<Vec<_>>();
     let mut md = String::new();
     md += &format!("Scene `{}`, {} points.\n\n", args.scene.display(), pts.len());
     let qoi_names: Vec<String> = reference.as_ref().map_or(vec![], |r| r.records[0].qoi.keys().cloned().collect());
-    md += "| run | tol | converged | iterations (static + dynamic) | dynamic iterations | first point | later points (mean) | wall s | gain (iterations) | gain (dynamic) | gain (wall) |";
+    md += "| run | tol | converged | work | dynamic iterations | static iterations | first point (work) | wall s | gain (work) | gain (wall) |";
     for q in &qoi_names {
         md += &format!(" error {q} |");
     }
-    md += "\n|---|---|---|---|---|---|---|---|---|---|---|";
+    md += "\n|---|---|---|---|---|---|---|---|---|---|";
     md += &"---|".repeat(qoi_names.len());
     md += "\n";
     for (name, r) in &runs {
@@ -183,19 +184,19 @@ fn main() {
         // gains against the cold run at the same tolerance, else the loosest cold run
         let c = cold.iter().find(|c| c.0 == r.tolerance).or(cold.iter().max_by(|a, b| a.0.total_cmp(&b.0)));
         let gain = |x: f64, y: f64| if y > 0.0 { format!("{:.2}", x / y) } else { "-".into() };
+        let first = r.records.first().map_or(0.0, |p| point_work(p, steps));
         md += &format!(
-            "| {name} | {:.0e} | {}/{} | {} | {} | {} | {:.1} | {:.1} | {} | {} | {} |",
+            "| {name} | {:.0e} | {}/{} | {:.0} | {} | {} | {:.0} | {:.1} | {} | {} |",
             r.tolerance,
             s.converged,
             s.points,
-            s.total_iterations,
+            work(r, steps),
             dynamic(r),
-            s.first_iterations,
-            s.mean_later_iterations,
+            s.total_iterations - dynamic(r),
+            first,
             s.wall_seconds,
-            c.map_or("-".into(), |c| gain(c.1 as f64, s.total_iterations as f64)),
-            c.map_or("-".into(), |c| gain(c.2 as f64, dynamic(r) as f64)),
-            c.map_or("-".into(), |c| gain(c.3, s.wall_seconds)),
+            c.map_or("-".into(), |c| gain(c.1, work(r, steps))),
+            c.map_or("-".into(), |c| gain(c.2, s.wall_seconds)),
         );
         if let Some(reference) = &reference {
             for (_, e) in accuracy(r, reference, &space) {
@@ -204,6 +205,10 @@ fn main() {
         }
         md += "\n";
     }
+    md += &format!(
+        "\nWork: dynamic iterations + static iterations / {steps} (a dynamic iteration sweeps every step, a \
+         static one a single step).\n"
+    );
     if let Some(reference) = &reference {
         md += &format!(
             "\nErrors: largest |q - q_ref| over the {} reference points divided by the largest |q_ref|; \
@@ -239,6 +244,16 @@ fn main() {
     }
     std::fs::write(args.out.join("summary.md"), &md).expect("summary");
     print!("{md}");
+}
+
+/// Work of one point: dynamic iterations + static iterations / steps.
+fn point_work(p: &glissade_worker::study::PointRecord, steps: usize) -> f64 {
+    (p.iterations - p.static_iterations) as f64 + p.static_iterations as f64 / steps as f64
+}
+
+/// Work of a study: see [`point_work`].
+fn work(r: &StudyResult, steps: usize) -> f64 {
+    r.records.iter().map(|p| point_work(p, steps)).sum()
 }
 
 /// Iterations of the dynamic stage alone.

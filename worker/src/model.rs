@@ -130,6 +130,23 @@ pub enum QoiTarget {
     },
 }
 
+impl<const D: usize> Interface<D> {
+    /// The area-weighted mean unit normal (the normal of a flat interface).
+    pub fn mean_normal(&self) -> [f64; D] {
+        let mut n = [0.0; D];
+        for (a, nj) in self.area.iter().zip(&self.normal) {
+            for c in 0..D {
+                n[c] += a * nj[c];
+            }
+        }
+        let len = n.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if len > 0.0 {
+            n.iter_mut().for_each(|x| *x /= len);
+        }
+        n
+    }
+}
+
 impl QoiTarget {
     pub fn unit(&self) -> crate::latin::stopping::QoiUnit {
         use crate::latin::stopping::QoiUnit;
@@ -671,18 +688,48 @@ impl<const D: usize> Model<D> {
             qois.push(Qoi { name: q.name.clone(), target });
         }
 
+        let dt = duration / scene.time.steps as f64;
+        for itf in interfaces.iter_mut() {
+            let normal = itf.mean_normal();
+            for side in itf.sides.iter_mut() {
+                side.k_dynamic = k0_factor * dynamic_search_direction(&substructures[side.substructure], &normal, dt);
+            }
+        }
+
         Ok(Model {
             bodies,
             substructures,
             interfaces,
             histories,
-            dt: duration / scene.time.steps as f64,
+            dt,
             steps: scene.time.steps,
             qois,
             settings,
             parameters: values.clone(),
         })
     }
+}
+
+/// Bounds of the dynamic search direction relative to the impedance sqrt(rho E).
+pub const SEARCH_DIRECTION_BOUNDS: (f64, f64) = (0.25, 4.0);
+
+/// The dynamic search direction of one side: the stiffness E dt / L that the substructure
+/// (depth L along the interface normal) opposes within one time step, i.e. the impedance
+/// sqrt(rho E) times c dt / L, bounded to [1/4, 4] times the impedance. The impedance alone is
+/// right for a half-space; a substructure that a wave crosses in about one step behaves rather
+/// like a spring. Measured (docs/performance.md, "Search direction"): on a box cut 2 x 2 x 4
+/// (c dt / L = 0.51) 69 iterations at 0.5 x impedance against 131 at 1; on three-blocks-tiny
+/// (c dt / L = 1.35) 152 against 211 cold, and 71 against 93 for a warm start.
+pub fn dynamic_search_direction<const D: usize>(sub: &Substructure<D>, normal: &[f64; D], dt: f64) -> f64 {
+    let along = |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
+    let (lo, hi) = sub.coords.iter().map(along).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let depth = hi - lo;
+    let impedance = sub.material.impedance();
+    if !(depth > 0.0) {
+        return impedance;
+    }
+    let ratio = sub.material.bar_wave_speed() * dt / depth;
+    impedance * ratio.clamp(SEARCH_DIRECTION_BOUNDS.0, SEARCH_DIRECTION_BOUNDS.1)
 }
 
 /// The law of a declared interface at a design point.
