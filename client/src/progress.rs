@@ -8,21 +8,23 @@ use glissade_proto::v1;
 
 use crate::names::{describe_parameters, point_state_name, study_state_name};
 
-/// Mean of a set of iteration counts.
+/// Mean work of a set of points: dynamic iterations + static iterations / time steps (a
+/// dynamic iteration sweeps every step, a static one a single step).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct IterationStats {
+pub struct WorkStats {
     pub points: u32,
-    pub iterations: u64,
+    pub work: f64,
 }
 
-impl IterationStats {
-    fn add(&mut self, iterations: u64) {
+impl WorkStats {
+    fn add(&mut self, p: &v1::PointStatus) {
         self.points += 1;
-        self.iterations += iterations;
+        // records written before work was reported count their iterations
+        self.work += if p.work > 0.0 { p.work } else { p.iterations as f64 };
     }
 
     pub fn mean(&self) -> Option<f64> {
-        (self.points > 0).then(|| self.iterations as f64 / self.points as f64)
+        (self.points > 0).then(|| self.work / self.points as f64)
     }
 
     fn describe(&self) -> String {
@@ -51,9 +53,9 @@ pub struct WatchState {
     pub state: i32,
     pub running: BTreeMap<u64, Running>,
     /// Points started from zero fields.
-    pub cold: IterationStats,
+    pub cold: WorkStats,
     /// Points started from a stored solution.
-    pub warm: IterationStats,
+    pub warm: WorkStats,
     /// Points answered by a stored solution without iterations.
     pub answered: u32,
     /// Finished points seen live (not replayed): the rate behind the ETA.
@@ -111,9 +113,9 @@ impl WatchState {
                 if p.answered {
                     self.answered += 1;
                 } else if p.started_from.is_some() {
-                    self.warm.add(p.iterations);
+                    self.warm.add(p);
                 } else {
-                    self.cold.add(p.iterations);
+                    self.cold.add(p);
                 }
                 if !event.replay {
                     self.finished_live += 1;
@@ -123,8 +125,8 @@ impl WatchState {
                 } else {
                     let start = if p.started_from.is_some() { "warm" } else { "cold" };
                     format!(
-                        "{} iterations ({start}), eta {:.2e}, {:.2} s",
-                        p.iterations, p.error_indicator, p.wall_seconds
+                        "{} iterations, work {:.1} ({start}), eta {:.2e}, {:.2} s",
+                        p.iterations, p.work, p.error_indicator, p.wall_seconds
                     )
                 };
                 Some(format!("point {id} done ({what}): {how}; {}", self.counts()))
@@ -171,9 +173,9 @@ impl WatchState {
         s + &format!(", {} running, {} pending", p.leased, p.pending)
     }
 
-    /// Mean iterations cold vs warm so far.
+    /// Mean work cold vs warm so far.
     pub fn iterations(&self) -> String {
-        let mut s = format!("mean iterations cold {} warm {}", self.cold.describe(), self.warm.describe());
+        let mut s = format!("mean work cold {} warm {}", self.cold.describe(), self.warm.describe());
         if self.answered > 0 {
             s += &format!(", {} answered", self.answered);
         }
@@ -218,7 +220,10 @@ impl WatchState {
             watched.as_secs_f64()
         );
         if let (Some(c), Some(w)) = (self.cold.mean(), self.warm.mean()) {
-            s += &format!("\nwarm starts needed {:.1}x fewer iterations than cold ones", c / w);
+            s += &format!(
+                "\n{} (work: dynamic iterations + static iterations / time steps)",
+                glissade_worker::study::warm_against_cold(c, w)
+            );
         }
         let mut failures: Vec<_> = self.failures.iter().collect();
         failures.sort();
@@ -255,6 +260,7 @@ mod tests {
             parameters: [("f1".to_owned(), 0.1 * (id + 1) as f64)].into(),
             pool_id: "a".into(),
             iterations,
+            work: iterations as f64 * 0.9,
             started_from: warm.then(v1::SolutionRef::default),
             ..Default::default()
         }
@@ -270,14 +276,17 @@ mod tests {
         w.apply(&event(v1::EventKind::PointFinished, Some(point(0, 100, false)), progress(1, 0, 2)));
         w.apply(&event(v1::EventKind::PointStarted, Some(point(1, 0, true)), progress(1, 1, 1)));
         let line = w.apply(&event(v1::EventKind::PointFinished, Some(point(1, 20, true)), progress(2, 0, 1)));
-        assert!(line.unwrap().contains("20 iterations (warm)"));
-        assert_eq!((w.cold.mean(), w.warm.mean()), (Some(100.0), Some(20.0)));
+        assert!(line.unwrap().contains("20 iterations, work 18.0 (warm)"));
+        assert_eq!((w.cold.mean(), w.warm.mean()), (Some(90.0), Some(18.0)));
         assert!(w.running.is_empty());
         assert_eq!(w.position(), (2, 3));
         // two points in 10 s: the last one in about 5 s
         assert_eq!(w.eta(Duration::from_secs(10)), Some(Duration::from_secs(5)));
-        assert!(w.summary(Duration::from_secs(10)).contains("5.0x fewer iterations"));
+        assert!(w.summary(Duration::from_secs(10)).contains("warm starts cost 5.0x less work than cold ones"));
         assert!(!w.ended());
+        // warm points that cost more are said to
+        w.apply(&event(v1::EventKind::PointFinished, Some(point(2, 400, true)), progress(3, 0, 0)));
+        assert!(w.summary(Duration::from_secs(10)).contains("warm starts cost 2.1x MORE work than cold ones"));
     }
 
     #[test]
@@ -286,7 +295,7 @@ mod tests {
         let mut e = event(v1::EventKind::PointFinished, Some(point(0, 50, false)), progress(1, 0, 2));
         e.replay = true;
         assert_eq!(w.apply(&e), None);
-        assert_eq!(w.cold.mean(), Some(50.0));
+        assert_eq!(w.cold.mean(), Some(45.0));
         // replays do not count towards the rate of the ETA
         assert_eq!(w.eta(Duration::from_secs(10)), None);
         let mut end = event(v1::EventKind::StudyEnded, None, progress(3, 0, 0));

@@ -230,6 +230,9 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
         if let Some(x) = m.eta_history.iter().find(|x| !x.is_finite()) {
             return Err(Invalid(format!("eta_history holds a non-finite value: {x}")));
         }
+        if !(m.work.is_finite() && m.work >= 0.0 && m.work <= m.iterations as f64) {
+            return Err(Invalid(format!("work must be in 0..=iterations, got {}", m.work)));
+        }
         Ok(Completion {
             pool: pool_id(&m.pool_id)?,
             lease_id: m.lease_id,
@@ -241,6 +244,7 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
             qoi: m.qoi,
             wall_seconds: m.wall_seconds,
             eta_history: m.eta_history,
+            work: m.work,
         })
     }
 }
@@ -344,6 +348,7 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
         error: p.error.clone().unwrap_or_default(),
         lease_deadline_unix_ms: deadline,
         eta_history: r.map(|r| r.eta_history.clone()).unwrap_or_default(),
+        work: r.map_or(0.0, |r| r.work),
     }
 }
 

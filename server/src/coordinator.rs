@@ -169,6 +169,7 @@ pub struct Completion {
     pub qoi: BTreeMap<String, f64>,
     pub wall_seconds: f64,
     pub eta_history: Vec<f64>,
+    pub work: f64,
 }
 
 /// A pool's failure report.
@@ -856,6 +857,7 @@ impl Coordinator {
             started_from: Some(answer.origin()),
             answered: true,
             eta_history: Vec::new(),
+            work: 0.0,
         });
         let mut batch = Batch::new();
         batch.put(Tree::Points, point_key(id, point.id), encode(&point));
@@ -974,6 +976,7 @@ impl Coordinator {
             started_from,
             answered: false,
             eta_history: c.eta_history.clone(),
+            work: c.work,
         });
         if converged {
             point.state = PointState::Done;
@@ -1049,6 +1052,7 @@ impl Coordinator {
             started_from: leased_from(&entry.points[i]),
             answered: false,
             eta_history: Vec::new(),
+            work: 0.0,
         });
         let mut batch = Batch::new();
         batch.put(Tree::Points, point_key(f.study, f.point), encode(&point));
@@ -1324,6 +1328,7 @@ mod tests {
             qoi: [("slip_A".to_string(), 1e-6)].into(),
             wall_seconds: 0.5,
             eta_history: vec![1.0, eta],
+            work: 8.0,
         };
         (completion, bytes)
     }

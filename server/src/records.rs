@@ -134,6 +134,9 @@ pub struct PointResult {
     /// eta after each dynamic-stage iteration (absent in records written before it existed).
     #[serde(default)]
     pub eta_history: Vec<f64>,
+    /// Dynamic iterations + static iterations / steps (0 in records written before it existed).
+    #[serde(default)]
+    pub work: f64,
 }
 
 /// One design point of a study.

@@ -68,6 +68,15 @@ pub struct SolveSummary {
     pub timings: Timings,
 }
 
+impl SolveSummary {
+    /// Dynamic iterations + static iterations / time steps: a dynamic iteration sweeps every
+    /// step, a static one a single step.
+    pub fn work(&self) -> f64 {
+        let statics = self.static_stage.as_ref().map_or(0, |s| s.iterations);
+        self.history.len() as f64 + statics as f64 / self.time_steps.max(1) as f64
+    }
+}
+
 /// Node coordinates and connectivity of every substructure, for field output.
 #[derive(Debug, Clone)]
 pub struct SubstructureMesh {

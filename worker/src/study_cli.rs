@@ -176,6 +176,10 @@ pub fn study(args: StudyArgs) -> Result<bool> {
             "  iterations: {} in all; first point {}, later points {:.1} on average",
             s.total_iterations, s.first_iterations, s.mean_later_iterations
         );
+        println!("  work: {:.1} (dynamic iterations + static iterations / time steps)", s.work);
+        if let Some(line) = s.warm_against_cold() {
+            println!("  {line}");
+        }
         println!("  wall time: {:.2} s", s.wall_seconds);
         if let Some(dir) = &args.out {
             println!("  results: {}, {}", dir.join("results.csv").display(), dir.join("results.json").display());

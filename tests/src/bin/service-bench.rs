@@ -127,6 +127,7 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
             wall_seconds: 0.0,
             solution_bytes: bytes.len() as u64,
             eta_history: Vec::new(),
+            work: 1.0,
         };
         let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
         messages.extend(

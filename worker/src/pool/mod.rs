@@ -526,6 +526,7 @@ async fn deliver(client: &mut PoolClient<Channel>, pool_id: &str, report: &Repor
         wall_seconds: s.wall_seconds,
         solution_bytes: bytes.len() as u64,
         eta_history: s.history.clone(),
+        work: s.work(),
     };
     let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
     messages.extend(
