@@ -671,6 +671,7 @@ fn point_json(p: &v1::PointStatus) -> serde_json::Value {
         "attempts": p.attempts,
         "pool_id": p.pool_id,
         "iterations": p.iterations,
+        "work": p.work,
         "error_indicator": p.error_indicator,
         "qoi": p.qoi,
         "answered": p.answered,
@@ -720,6 +721,22 @@ async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> 
         if p.cancelled > 0 { format!(", {} cancelled", p.cancelled) } else { String::new() },
         p.iterations
     );
+    // cold against warm in work (dynamic iterations + static iterations / steps)
+    let mean = |warm: bool| {
+        let w: Vec<f64> = s
+            .points
+            .iter()
+            .filter(|x| x.state == v1::PointState::Done as i32 && !x.answered && x.started_from.is_some() == warm)
+            .map(|x| x.work)
+            .collect();
+        (!w.is_empty()).then(|| w.iter().sum::<f64>() / w.len() as f64)
+    };
+    if let (Some(cold), Some(warm)) = (mean(false), mean(true)) {
+        println!(
+            "  work      {} (work: dynamic iterations + static iterations / time steps)",
+            glissade_worker::study::warm_against_cold(cold, warm)
+        );
+    }
     for point in &s.points {
         let params: Vec<String> = point.parameters.iter().map(|(k, v)| format!("{k}={v}")).collect();
         let qoi: Vec<String> = point.qoi.iter().map(|(k, v)| format!("{k}={v:.6e}")).collect();
@@ -732,11 +749,12 @@ async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> 
             None => String::new(),
         };
         println!(
-            "  #{:<4} {:<28} {:<9} {:>5} it  eta {:.2e}  {}  {}{}",
+            "  #{:<4} {:<28} {:<9} {:>5} it  work {:>6.1}  eta {:.2e}  {}  {}{}",
             point.point_id,
             params.join(" "),
             point_state_name(point.state),
             point.iterations,
+            point.work,
             point.error_indicator,
             qoi.join(" "),
             from,

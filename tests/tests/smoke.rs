@@ -801,6 +801,7 @@ async fn complete(
         wall_seconds: 0.1,
         solution_bytes: announced as u64,
         eta_history: Vec::new(),
+        work: 1.0,
     };
     let mut messages = vec![v1::CompletePointMessage { body: Some(v1::complete_point_message::Body::Header(header)) }];
     messages.extend(
