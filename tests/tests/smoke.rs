@@ -245,7 +245,7 @@ fn converged_json(out: &std::process::Output) -> serde_json::Value {
 }
 
 #[test]
-fn worker_warm_start_from_a_saved_solution_converges_at_once() -> anyhow::Result<()> {
+fn worker_warm_start_from_a_saved_solution_converges_within_two_windows() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
     let scene = bar_scene();
     let cold = converged_json(&worker_solve(dir.path(), &[scene.as_os_str(), os("--json"), os("--save"), os("s.bin")]));
@@ -259,7 +259,9 @@ fn worker_warm_start_from_a_saved_solution_converges_at_once() -> anyhow::Result
     assert_eq!(warm["initialised_from"], "s.bin", "{warm}");
     assert_eq!(warm["scene_hash"], cold["scene_hash"]);
     let iterations = warm["iterations"].as_u64().unwrap();
-    assert!(iterations <= 2, "warm start from the converged solution took {iterations} iterations");
+    // the stopping test measures the contraction over two windows before it trusts a small change
+    let windows = 2 * glissade_worker::latin::stopping::WINDOW as u64 + 2;
+    assert!(iterations <= windows, "warm start from the converged solution took {iterations} iterations");
 
     // Both runs satisfy the same tolerance, so their QoIs agree to about its size: allow 10x the
     // tolerance, relative to each QoI's largest magnitude over time (a final value may be 0).
@@ -1133,7 +1135,7 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     assert!(stdout.starts_with("study 1 submitted: 9 points\n"), "{stdout}");
     assert_eq!(stdout.matches(" started on cli-pool ").count(), 9, "{stdout}");
     assert_eq!(stdout.matches(" done (f1=").count(), 9, "{stdout}");
-    assert!(stdout.contains("study 1 done: 9/9 done, 0 running, 0 pending; mean iterations cold"), "{stdout}");
+    assert!(stdout.contains("study 1 done: 9/9 done, 0 running, 0 pending; mean work cold"), "{stdout}");
 
     // watching a finished study replays it silently and prints the same summary
     let out = glissade(Some(&url), &["watch", "1"]);

@@ -711,15 +711,16 @@ impl<const D: usize> Model<D> {
 }
 
 /// Bounds of the dynamic search direction relative to the impedance sqrt(rho E).
-pub const SEARCH_DIRECTION_BOUNDS: (f64, f64) = (0.25, 4.0);
+pub const SEARCH_DIRECTION_BOUNDS: (f64, f64) = (1.0, 4.0);
 
-/// The dynamic search direction of one side: the stiffness E dt / L that the substructure
-/// (depth L along the interface normal) opposes within one time step, i.e. the impedance
-/// sqrt(rho E) times c dt / L, bounded to [1/4, 4] times the impedance. The impedance alone is
-/// right for a half-space; a substructure that a wave crosses in about one step behaves rather
-/// like a spring. Measured (docs/performance.md, "Search direction"): on a box cut 2 x 2 x 4
-/// (c dt / L = 0.51) 69 iterations at 0.5 x impedance against 131 at 1; on three-blocks-tiny
-/// (c dt / L = 1.35) 152 against 211 cold, and 71 against 93 for a warm start.
+/// The dynamic search direction of one side: the impedance sqrt(rho E), or, for a substructure
+/// that a wave crosses in less than a step (depth L along the interface normal below c dt), the
+/// stiffness E dt / L it opposes within one step (= impedance x c dt / L), at most 4 x the
+/// impedance. Measured (docs/performance.md, "Search direction"): three-blocks-tiny (c dt / L =
+/// 1.35) 211 -> 185 dynamic iterations cold. Below c dt / L = 1 the impedance stays: a 3D box at
+/// 0.51 preferred 0.5 x impedance (69 iterations against 131), but the 1D impact bar at 0.04
+/// needs the impedance (190 iterations against 643 at 0.25 x, and no convergence in 1000 with 50
+/// elements).
 pub fn dynamic_search_direction<const D: usize>(sub: &Substructure<D>, normal: &[f64; D], dt: f64) -> f64 {
     let along = |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
     let (lo, hi) = sub.coords.iter().map(along).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
