@@ -496,10 +496,10 @@ fn warm_start_from_own_solution_converges_within_two_windows() {
     let warm = solver.solve(Some(&cold.solution), &options).unwrap();
     eprintln!("cold {} iterations, warm {} iterations", cold.iterations(), warm.iterations());
     // The stopping test measures the contraction over two windows before it trusts a small
-    // change (latin::stopping): a restart costs those iterations, a tenth of a cold solve here.
+    // change (latin::stopping): a restart costs those iterations, under a fifth of a cold solve.
     let windows = 2 * glissade_worker::latin::stopping::WINDOW + 2;
     assert!(warm.converged() && warm.dynamic.iterations <= windows && warm.static_stage.as_ref().unwrap().iterations <= 2);
-    assert!(10 * warm.dynamic.iterations <= cold.dynamic.iterations);
+    assert!(5 * warm.dynamic.iterations <= cold.dynamic.iterations);
     for (a, b) in cold.qoi.iter().zip(&warm.qoi) {
         let (x, y) = (a.values[m.steps], b.values[m.steps]);
         assert!((x - y).abs() <= 10.0 * m.settings.tolerance * x.abs().max(1e-30), "{}: {x} vs {y}", a.name);
