@@ -184,7 +184,7 @@ fn main() {
         // gains against the cold run at the same tolerance, else the loosest cold run
         let c = cold.iter().find(|c| c.0 == r.tolerance).or(cold.iter().max_by(|a, b| a.0.total_cmp(&b.0)));
         let gain = |x: f64, y: f64| if y > 0.0 { format!("{:.2}", x / y) } else { "-".into() };
-        let first = r.records.first().map_or(0.0, |p| point_work(p, steps));
+        let first = r.records.first().map_or(0.0, |p| p.work(steps));
         md += &format!(
             "| {name} | {:.0e} | {}/{} | {:.0} | {} | {} | {:.0} | {:.1} | {} | {} |",
             r.tolerance,
@@ -246,14 +246,11 @@ fn main() {
     print!("{md}");
 }
 
-/// Work of one point: dynamic iterations + static iterations / steps.
-fn point_work(p: &glissade_worker::study::PointRecord, steps: usize) -> f64 {
-    (p.iterations - p.static_iterations) as f64 + p.static_iterations as f64 / steps as f64
-}
-
-/// Work of a study: see [`point_work`].
+/// Work of a study: dynamic iterations + static iterations / steps ([`PointRecord::work`]).
+///
+/// [`PointRecord::work`]: glissade_worker::study::PointRecord::work
 fn work(r: &StudyResult, steps: usize) -> f64 {
-    r.records.iter().map(|p| point_work(p, steps)).sum()
+    r.records.iter().map(|p| p.work(steps)).sum()
 }
 
 /// Iterations of the dynamic stage alone.
