@@ -30,7 +30,7 @@ fn text(bytes: &[u8]) -> String {
 #[test]
 fn mpiexec_runs_two_ranks_and_all_reduces() {
     let bin = env!("CARGO_BIN_EXE_mpi-allreduce");
-    let out = run_with_timeout(Command::new("mpiexec").args(["-n", "2", bin]), LIMIT);
+    let out = run_with_timeout(Command::new("mpiexec.mpich").args(["-n", "2", bin]), LIMIT);
     assert!(out.status.success(), "mpiexec failed ({}):\n{}", out.status, text(&out.stderr));
     assert_eq!(text(&out.stdout).trim(), "size=2 sum=3");
 }
@@ -396,7 +396,7 @@ const STUDY_TOL: f64 = 1e-3;
 /// `log`. Killing mpiexec (SIGKILL) ends its ranks too; SIGTERM reaches all of them.
 fn start_pool(url: &str, id: &str, log: &Path) -> ServerGuard {
     let token = child_token();
-    let child = command(Path::new("mpiexec"))
+    let child = command(Path::new("mpiexec.mpich"))
         .args(["-n", "2"])
         .arg(workspace_bin("glissade-worker"))
         .args(["pool", "--coordinator", url, "--pool-id", id])

@@ -629,7 +629,7 @@ fn non_finite_iterates_stop_with_an_error() {
 fn mpiexec(args: &[&str]) -> std::process::Output {
     std::process::Command::new("timeout")
         .arg("120")
-        .arg("mpiexec")
+        .arg("mpiexec.mpich")
         .args(args)
         .output()
         .expect("mpiexec runs (deploy/install-deps.sh installs MPICH)")
