@@ -173,10 +173,6 @@ pub struct Body<const D: usize> {
     pub partition: Vec<usize>,
 }
 
-/// Past iterations Anderson acceleration may combine: each keeps two copies of the interface
-/// fields, and beyond a few the least-squares problem is ill-conditioned anyway.
-pub const MAX_ACCELERATION_DEPTH: usize = 20;
-
 /// Solver settings with parameters resolved.
 #[derive(Debug, Clone)]
 pub struct SolverSettings {
@@ -186,8 +182,6 @@ pub struct SolverSettings {
     pub scale: Scale,
     /// the dynamic stage of a warm-started solve stops at tolerance x this
     pub warm_tolerance_ratio: f64,
-    /// Anderson acceleration depth (0: off)
-    pub acceleration_depth: usize,
 }
 
 /// The whole decomposed problem of one design point.
@@ -256,16 +250,12 @@ impl<const D: usize> Model<D> {
         if !(st.warm_tolerance_ratio > 0.0 && st.warm_tolerance_ratio <= 1.0) {
             return Err(invalid("solver.warm_tolerance_ratio", "must be in (0, 1]"));
         }
-        if st.acceleration_depth > MAX_ACCELERATION_DEPTH {
-            return Err(invalid("solver.acceleration_depth", &format!("must be at most {MAX_ACCELERATION_DEPTH}")));
-        }
         let settings = SolverSettings {
             tolerance: st.tolerance,
             max_iterations: st.max_iterations,
             relaxation: st.relaxation,
             scale: st.scale,
             warm_tolerance_ratio: st.warm_tolerance_ratio,
-            acceleration_depth: st.acceleration_depth,
         };
 
         let mut materials = BTreeMap::new();

@@ -177,9 +177,6 @@ pub struct SolverSpec {
     /// a warm-started solve stops at `tolerance` times this (see docs/scenes.md)
     #[serde(default = "default_warm_tolerance_ratio")]
     pub warm_tolerance_ratio: f64,
-    /// how many past iterations Anderson acceleration combines (0: plain LATIN iterations)
-    #[serde(default = "default_acceleration_depth")]
-    pub acceleration_depth: usize,
 }
 
 fn default_tolerance() -> f64 {
@@ -194,9 +191,6 @@ fn default_relaxation() -> f64 {
 fn default_warm_tolerance_ratio() -> f64 {
     1.0
 }
-fn default_acceleration_depth() -> usize {
-    0
-}
 fn one() -> Scalar {
     Scalar::Number(1.0)
 }
@@ -210,7 +204,6 @@ impl Default for SolverSpec {
             relaxation: default_relaxation(),
             scale: Scale::Single,
             warm_tolerance_ratio: default_warm_tolerance_ratio(),
-            acceleration_depth: default_acceleration_depth(),
         }
     }
 }

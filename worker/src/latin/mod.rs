@@ -1,7 +1,6 @@
 //! The LATIN mixed domain-decomposition solver (METHOD.md 3): linear stage (substructures),
 //! relaxation, local stage (interfaces), error indicator — iterated over the whole time interval.
 
-pub mod acceleration;
 pub mod distribution;
 pub mod field;
 pub mod linear_stage;
@@ -18,7 +17,6 @@ use crate::model::{Model, QoiTarget};
 use crate::scene::Scale;
 use crate::sparse::SparseError;
 
-use acceleration::Anderson;
 use distribution::Distribution;
 use field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
@@ -495,7 +493,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
         let stage_name = stage.name();
         let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect());
-        let mut anderson = Anderson::new(m, &self.dist, stage, settings.acceleration_depth);
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
             for (f, p) in fields.iter().zip(previous.iter_mut()) {
@@ -505,22 +502,21 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
             let dynamic = stage == Stage::Dynamic;
             self.linear_stage(stage, fields, u0, dynamic.then_some(&mut record as StepRecorder));
-            let c = Instant::now();
-            self.dist.send_sides_to_owners(self.comm, m, fields);
-            timings.communication += c.elapsed().as_secs_f64();
-            // relaxation (mu = 1 at the first iteration) and acceleration, by interface owners
+            // relaxation (mu = 1 at the first iteration), on the sides this rank computed
             if iteration > 1 {
                 for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
-                    if self.dist.owns_interface(i) {
-                        for (side, old) in f.s.iter_mut().zip(p) {
+                    for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
+                        if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
                             let mut relaxed = old.clone();
                             relaxed.relax_towards(side, settings.relaxation);
                             *side = relaxed;
                         }
                     }
                 }
-                anderson.step(self.comm, fields, &previous);
             }
+            let c = Instant::now();
+            self.dist.send_sides_to_owners(self.comm, m, fields);
+            timings.communication += c.elapsed().as_secs_f64();
             timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
             self.local_stage(stage, fields, gap_start, vn_start);
