@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use glissade_proto::v1;
 use glissade_proto::{ParameterVector, PointId, StudyId};
+use glissade_worker::text::{MAX_NAME_CHARS, excerpt, one_line};
 use tonic::{Code, Status};
 
 use crate::coordinator::{
@@ -19,8 +20,6 @@ use crate::records::{PointRecord, PointState, SolutionOrigin};
 
 /// Largest scene text accepted (scenes are a few kilobytes; a mesh file would be another story).
 pub const MAX_SCENE_BYTES: usize = 1 << 20;
-/// Most design points in one study.
-pub const MAX_POINTS: usize = 1_000_000;
 
 /// An invalid message: becomes INVALID_ARGUMENT with this text.
 #[derive(Debug)]
@@ -28,7 +27,7 @@ pub struct Invalid(pub String);
 
 impl From<Invalid> for Status {
     fn from(e: Invalid) -> Self {
-        Status::invalid_argument(e.0)
+        Status::invalid_argument(one_line(&e.0))
     }
 }
 
@@ -47,7 +46,8 @@ pub fn status(e: CoordError) -> Status {
             Code::Internal
         }
     };
-    Status::new(code, e.to_string())
+    // bounded: a message that echoes a huge input must not outgrow the metadata limit
+    Status::new(code, one_line(&e.to_string()))
 }
 
 impl From<CoordError> for Status {
@@ -58,8 +58,9 @@ impl From<CoordError> for Status {
 
 fn parameters(what: &str, values: BTreeMap<String, f64>) -> Result<ParameterVector, Invalid> {
     for name in values.keys() {
-        if name.len() > 256 || name.chars().any(char::is_control) {
-            return Err(Invalid(format!("{what}: parameter name `{}` is not a plain short name", name.escape_debug())));
+        if name.chars().count() > MAX_NAME_CHARS || name.chars().any(char::is_control) {
+            let shown = excerpt(&name.escape_debug().to_string(), MAX_NAME_CHARS);
+            return Err(Invalid(format!("{what}: parameter name `{shown}` is not a plain short name")));
         }
     }
     ParameterVector::try_from(values).map_err(|e| Invalid(format!("{what}: {e}")))
@@ -109,9 +110,6 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
         }
         if !m.grid.is_empty() && !m.points.is_empty() {
             return Err(Invalid("give either a grid or a list of points, not both".into()));
-        }
-        if m.points.len() > MAX_POINTS {
-            return Err(Invalid(format!("{} points, more than the {MAX_POINTS} accepted", m.points.len())));
         }
         let points = m
             .points

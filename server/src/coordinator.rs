@@ -8,6 +8,7 @@
 //! Heartbeats only move deadlines forward in memory; after a restart every lease gets a fresh
 //! deadline, so pools have one lease period to come back.
 
+use glissade_worker::text::one_line;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -37,6 +38,10 @@ pub struct Config {
     pub max_attempts: u32,
     /// Largest solution file accepted from a pool.
     pub max_solution_bytes: u64,
+    /// Most design points in one study (counted from the grid before any is built).
+    pub max_points: usize,
+    /// Largest estimated memory of one solve of a submitted scene ([`Scene::size`]).
+    pub max_scene_bytes: u64,
     /// The solver version the coordinator was built with (the pools' normally).
     pub solver_version: String,
 }
@@ -290,6 +295,9 @@ struct State {
     by_scene: HashMap<String, SceneSolutions>,
     /// Lease id -> the point holding it.
     leases: HashMap<u64, (StudyId, PointId)>,
+    /// Lease id -> the last progress its pool reported (iterations, eta): what is known of a
+    /// point whose pool then vanished.
+    lease_progress: HashMap<u64, (u64, f64)>,
     pools: HashMap<String, PoolInfo>,
     next_study: u64,
     next_lease: u64,
@@ -446,6 +454,16 @@ impl Coordinator {
     pub fn submit(&self, submission: Submission) -> Result<(StudyId, u32, String), CoordError> {
         let scene = Scene::parse(&submission.scene_text)
             .map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
+        let size = scene.size();
+        if size.bytes() > self.config.max_scene_bytes {
+            return Err(CoordError::Invalid(format!(
+                "scene: a solve would need about {} MiB ({} dofs, {} steps, estimated from the text), more than the {} MiB accepted (glissade-server --max-scene-mib)",
+                size.bytes() >> 20,
+                size.dofs,
+                size.steps,
+                self.config.max_scene_bytes >> 20
+            )));
+        }
         let scene_hash = scene.content_hash();
         let tolerance = submission.tolerance.unwrap_or(scene.solver.tolerance);
         if !(tolerance > 0.0 && tolerance.is_finite()) {
@@ -457,7 +475,7 @@ impl Coordinator {
             None => u32::try_from(scene.solver.max_iterations).unwrap_or(u32::MAX),
         };
         let (names, points) =
-            crate::study::expand(&scene, &submission.grid, &submission.points).map_err(CoordError::Invalid)?;
+            crate::study::expand(&scene, &submission.grid, &submission.points, self.config.max_points).map_err(CoordError::Invalid)?;
         if submission.strategy != InitStrategy::Cold {
             // The index refuses scenes of too many parameters: say so now, not at the first lease.
             SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
@@ -1022,6 +1040,7 @@ impl Coordinator {
             state.next_finish_seq = seq + 1;
         }
         state.leases.remove(&c.lease_id);
+        state.lease_progress.remove(&c.lease_id);
         if keep {
             let index = state.by_scene.get_mut(&record.scene_hash).filter(|_| record.converged);
             if let Some(index) = index {
@@ -1062,6 +1081,7 @@ impl Coordinator {
         self.emit(EventKind::Failed, entry, Some(&point));
         self.emit_if_ended(entry, was);
         state.leases.remove(&f.lease_id);
+        state.lease_progress.remove(&f.lease_id);
         Ok(point)
     }
 
@@ -1087,6 +1107,7 @@ impl Coordinator {
         self.emit(EventKind::Requeued, entry, Some(&p));
         self.emit_if_ended(entry, was);
         state.leases.remove(&lease_id);
+        state.lease_progress.remove(&lease_id);
         drop(state);
         self.work.notify_waiters();
         Ok(p)
@@ -1099,7 +1120,7 @@ impl Coordinator {
     pub fn heartbeat(&self, pool: &str, lease_ids: &[u64], progress: &[(u64, u64, f64)]) -> Vec<Option<i64>> {
         let mut state = self.lock();
         let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
-        let State { studies, leases, .. } = &mut *state;
+        let State { studies, leases, lease_progress, .. } = &mut *state;
         let deadlines: Vec<Option<i64>> = lease_ids
             .iter()
             .map(|lease_id| {
@@ -1119,6 +1140,7 @@ impl Coordinator {
         // Progress only for the leases just found to be this pool's.
         let held = |id: u64| lease_ids.iter().zip(&deadlines).any(|(&l, d)| l == id && d.is_some());
         for &(lease_id, iterations, eta) in progress.iter().filter(|p| p.2.is_finite() && held(p.0)) {
+            lease_progress.insert(lease_id, (iterations, eta));
             let (study, point) = leases[&lease_id];
             let entry = &studies[&study];
             self.send_event(EventKind::Progress, entry, Some(&entry.points[point.0 as usize]), Some((iterations, eta)));
@@ -1130,7 +1152,7 @@ impl Coordinator {
     pub fn expire_leases(&self) -> Result<usize, CoordError> {
         let now = now_unix_ms();
         let mut state = self.lock();
-        let State { studies, leases, .. } = &mut *state;
+        let State { studies, leases, lease_progress, .. } = &mut *state;
         let mut expired = 0;
         for entry in studies.values_mut() {
             let was = entry.state();
@@ -1142,17 +1164,21 @@ impl Coordinator {
                     continue;
                 }
                 let mut q = p.clone();
+                let last = match lease_progress.get(lease_id) {
+                    Some((iterations, eta)) => format!("last heard solving at iteration {iterations}, eta {eta:.2e}"),
+                    None => "it never reported progress: the pool may have died building the model (memory?)".into(),
+                };
                 if entry.record.cancelled {
                     q.state = PointState::Cancelled;
                 } else if p.attempts >= self.config.max_attempts {
                     q.state = PointState::Failed;
                     q.error = Some(format!(
-                        "lease expired {} times (last held by pool `{pool}`): the pools solving it stopped answering",
+                        "lease expired {} times (last held by pool `{pool}`): the pools solving it stopped answering; {last}",
                         p.attempts
                     ));
                 } else {
                     q.state = PointState::Pending;
-                    q.error = Some(format!("lease {lease_id} of pool `{pool}` expired"));
+                    q.error = Some(format!("a lease of pool `{pool}` expired; {last}"));
                 }
                 tracing::warn!(study = %p.study, point = i, pool = %pool, lease_id, "lease expired");
                 batch.put(Tree::Points, point_key(p.study, p.id), encode(&q));
@@ -1164,6 +1190,7 @@ impl Coordinator {
             self.store.commit(batch)?;
             for (i, q, lease_id) in changed {
                 leases.remove(&lease_id);
+                lease_progress.remove(&lease_id);
                 let kind = if q.state == PointState::Failed { EventKind::Failed } else { EventKind::Requeued };
                 entry.points[i] = q;
                 self.emit(kind, entry, Some(&entry.points[i]));
@@ -1235,10 +1262,6 @@ fn same_number(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-12 * a.abs().max(b.abs())
 }
 
-/// A message on one line (toml's parse errors span several).
-fn one_line(text: &str) -> String {
-    text.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" ")
-}
 
 pub fn state_word(s: StudyState) -> &'static str {
     match s {
@@ -1274,6 +1297,8 @@ mod tests {
             lease: Duration::from_millis(lease_ms),
             max_attempts,
             max_solution_bytes: 1 << 30,
+            max_points: glissade_worker::study::space::DEFAULT_MAX_POINTS,
+            max_scene_bytes: crate::DEFAULT_MAX_SCENE_MIB << 20,
             solver_version: VERSION.into(),
         };
         Coordinator::open(store, config).unwrap()
@@ -1291,6 +1316,52 @@ mod tests {
             label: String::new(),
         };
         c.submit(submission).unwrap().0
+    }
+
+    fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
+        let submission = Submission {
+            scene_text: scene.into(),
+            grid: grid.iter().map(|s| s.to_string()).collect(),
+            points: vec![],
+            tolerance: None,
+            max_iterations: None,
+            strategy: InitStrategy::Nearest,
+            order: OrderKind::Asc,
+            label: String::new(),
+        };
+        match c.submit(submission) {
+            Err(CoordError::Invalid(message)) => message,
+            other => panic!("{grid:?} must be refused as invalid, got {:?}", other.map(|r| r.1)),
+        }
+    }
+
+    #[test]
+    fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = open(dir.path(), 60_000, 3);
+        let started = std::time::Instant::now();
+        for grid in [
+            &["f1=0.1:0.2:1000000000000"][..],
+            &["f1=lhs:1000000000000:1"],
+            &["f1=0.1:0.2:100000", "f2=0.1:0.2:100000"],
+            &["f1=0.1:0.2:1000", "f2=0.1:0.2:1000"],
+            &["f1=0.1:0.2:18446744073709551615", "f2=0.1:0.2:3"],
+        ] {
+            let message = refused(&c, TINY, grid);
+            assert!(message.contains("design points, more than the 100000 accepted"), "{message}");
+        }
+        // 10^7 elements in a kilobyte of text
+        let poison = TINY.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
+        let message = refused(&c, &poison, &["f1=0.1"]);
+        assert!(message.contains("MiB") && message.contains("--max-scene-mib"), "{message}");
+        assert!(started.elapsed() < Duration::from_secs(2), "refusals must not build anything");
+        // nothing was stored, and a proper study still goes through
+        assert!(c.studies().is_empty());
+        submit(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Nearest);
+        // a 10 kB name comes back as a bounded excerpt
+        let name = "n".repeat(10_000);
+        let message = refused(&c, TINY, &[&format!("{name}=0.1")]);
+        assert!(message.len() < 1000, "{} bytes", message.len());
     }
 
     /// A solution file of the tiny scene at `grant`'s point, with the outcome given.

@@ -22,6 +22,7 @@ use glissade_proto::v1::health_server::HealthServer;
 use glissade_proto::v1::pool_server::PoolServer;
 use glissade_proto::v1::user_server::UserServer;
 use store::SledStore;
+pub use glissade_worker::study::space::DEFAULT_MAX_POINTS;
 use tonic::transport::Server;
 use tonic::transport::server::TcpIncoming;
 
@@ -39,12 +40,27 @@ pub struct ServerOptions {
     pub max_attempts: u32,
     /// Largest solution file a pool may send.
     pub max_solution_bytes: u64,
+    /// Most design points in one study.
+    pub max_points: usize,
+    /// Largest estimated memory of one solve of a submitted scene, bytes.
+    pub max_scene_bytes: u64,
 }
+
+/// Default of `--max-scene-mib`: 64 GiB, the memory of a large compute node (the paper's
+/// bolted joint, 450,000 dofs, is estimated at about 4.5 GB).
+pub const DEFAULT_MAX_SCENE_MIB: u64 = 64 << 10;
 
 impl ServerOptions {
     /// The defaults of `glissade-server` for a database in `data`.
     pub fn new(data: impl Into<PathBuf>) -> Self {
-        Self { data: data.into(), lease: Duration::from_secs(60), max_attempts: 3, max_solution_bytes: 4 << 30 }
+        Self {
+            data: data.into(),
+            lease: Duration::from_secs(60),
+            max_attempts: 3,
+            max_solution_bytes: 4 << 30,
+            max_points: DEFAULT_MAX_POINTS,
+            max_scene_bytes: DEFAULT_MAX_SCENE_MIB << 20,
+        }
     }
 }
 
@@ -68,6 +84,8 @@ pub async fn bind(
         lease: options.lease,
         max_attempts: options.max_attempts,
         max_solution_bytes: options.max_solution_bytes,
+        max_points: options.max_points,
+        max_scene_bytes: options.max_scene_bytes,
         solver_version: env!("CARGO_PKG_VERSION").to_owned(),
     };
     let coordinator = Arc::new(Coordinator::open(Arc::new(store), config).context("loading the database")?);
@@ -132,8 +150,22 @@ pub async fn bind(
     Ok((addr, serve))
 }
 
-/// Checks a grid submission against its scene exactly as SubmitStudy does, and returns the swept
+/// Checks a grid submission against its scene as SubmitStudy does, and returns the swept
 /// parameters and the number of design points (the CLI refuses a bad grid before it connects).
+/// The points are counted from the specs; a grid above [`DEFAULT_MAX_POINTS`] is not expanded
+/// here (the coordinator's own `--max-points` decides).
 pub fn check_grid(scene: &glissade_worker::scene::Scene, grid: &[String]) -> Result<(Vec<String>, usize), String> {
-    study::expand(scene, grid, &[]).map(|(names, points)| (names, points.len()))
+    use glissade_worker::study::space::{GridAxis, ParameterSpace, point_count};
+    let space = ParameterSpace::from_scene(scene);
+    let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
+    let axes = axes.map_err(|e| e.to_string())?;
+    match point_count(&axes).map_err(|e| e.to_string())? {
+        Some(n) if n > DEFAULT_MAX_POINTS => {
+            let mut names: Vec<String> = axes.into_iter().map(|a| a.name).collect();
+            names.sort();
+            Ok((names, n))
+        }
+        None => Err("the grid gives more than 2^64 design points".into()),
+        Some(_) => study::expand(scene, grid, &[], DEFAULT_MAX_POINTS).map(|(names, points)| (names, points.len())),
+    }
 }

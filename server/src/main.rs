@@ -38,6 +38,14 @@ struct Args {
     /// Largest solution file a pool may send, MiB.
     #[arg(long, value_name = "MIB", default_value_t = 4096, env = "GLISSADE_MAX_SOLUTION_MIB")]
     max_solution_mib: u64,
+    /// Most design points in one study; a bigger grid is refused before it is built. Each point
+    /// costs the coordinator about 2 kB of memory and 0.5 kB on disk (docs/performance.md).
+    #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_POINTS, env = "GLISSADE_MAX_POINTS")]
+    max_points: usize,
+    /// Largest estimated memory of one solve of a submitted scene, MiB (estimated from the
+    /// scene's text: dofs and interface size; docs/performance.md, "Memory of a solve").
+    #[arg(long, value_name = "MIB", default_value_t = glissade_server::DEFAULT_MAX_SCENE_MIB, env = "GLISSADE_MAX_SCENE_MIB")]
+    max_scene_mib: u64,
 }
 
 fn main() -> ExitCode {
@@ -71,6 +79,8 @@ async fn run(args: Args) -> Result<()> {
         lease: Duration::from_secs_f64(args.lease_seconds),
         max_attempts: args.max_attempts,
         max_solution_bytes: args.max_solution_mib.saturating_mul(1 << 20),
+        max_points: args.max_points,
+        max_scene_bytes: args.max_scene_mib.saturating_mul(1 << 20),
     };
     // Install the handlers before announcing the port: a SIGTERM right after it must not kill us
     // with the default action and skip the database flush.

@@ -23,18 +23,22 @@ use crate::store::{Store, Tree};
 
 /// The design points of a submission: a grid (the library's `NAME=SPEC` parser and Cartesian
 /// product) or an explicit list, each checked against the scene's parameters and their declared
-/// ranges. Returns the swept names (sorted) and the points (swept parameters only).
+/// ranges, at most `max_points` of them (counted before any is built). Returns the swept names (sorted) and the points (swept parameters only).
 pub fn expand(
     scene: &Scene,
     grid: &[String],
     points: &[ParameterVector],
+    max_points: usize,
 ) -> Result<(Vec<String>, Vec<ParameterVector>), String> {
     let space = ParameterSpace::from_scene(scene);
     let design: Vec<DesignPoint> = if grid.is_empty() {
+        if points.len() > max_points {
+            return Err(format!("{} points, more than the {max_points} accepted", points.len()));
+        }
         points.iter().map(|p| DesignPoint::from(BTreeMap::from(p.clone()))).collect()
     } else {
         let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
-        design_points(&axes.map_err(|e| e.to_string())?).map_err(|e| e.to_string())?
+        design_points(&axes.map_err(|e| e.to_string())?, max_points).map_err(|e| e.to_string())?
     };
     if design.is_empty() {
         return Err("empty study: the grid or point list gives no design point".into());

@@ -850,6 +850,17 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
         "no parameter 'mu'",
     );
     expect(rt.block_on(client.submit_study(grid_request(&["f1=0.1"], -1.0))), Code::InvalidArgument, "tolerance");
+    // Hostile sizes: counted and refused before anything is built; the coordinator stays up.
+    for grid in [&["f1=0.1:0.2:1000000000000"][..], &["f1=lhs:1000000000000:1"], &["f1=0.1:0.2:100000", "f2=0.1:0.2:100000"]]
+    {
+        expect(rt.block_on(client.submit_study(grid_request(grid, STUDY_TOL))), Code::InvalidArgument, "design points");
+    }
+    let mut poison = grid_request(&["f1=0.1"], STUDY_TOL);
+    poison.scene = tiny_scene().replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
+    expect(rt.block_on(client.submit_study(poison)), Code::InvalidArgument, "--max-scene-mib");
+    // A 10 kB name is echoed as a bounded excerpt: INVALID_ARGUMENT, not RESOURCE_EXHAUSTED.
+    let long = format!("{}=0.1", "n".repeat(10_000));
+    expect(rt.block_on(client.submit_study(grid_request(&[&long], STUDY_TOL))), Code::InvalidArgument, "more characters");
     // Unknown study ids.
     for status in [
         rt.block_on(client.get_study(v1::GetStudyRequest { study_id: 42, points: false, scene: false }))
@@ -1272,5 +1283,34 @@ fn service_forwards_solve_progress_to_watchers() -> anyhow::Result<()> {
         assert!(p.error_indicator > 0.0 && p.error_indicator.is_finite(), "{p:?}");
         last = p.iterations;
     }
+    Ok(())
+}
+
+#[test]
+fn a_pool_fails_a_point_too_big_for_its_memory_with_the_reason_and_lives_on() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
+    let url = format!("http://{addr}");
+    // One rank with a budget of 1 MiB: the tiny scene is estimated at several MiB.
+    let token = child_token();
+    let pool = command(&workspace_bin("glissade-worker"))
+        .args(["pool", "--coordinator", &url, "--pool-id", "small", "--memory-mib", "1"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(File::create(dir.path().join("pool.log"))?)
+        .spawn()?;
+    let mut pool = ServerGuard(pool, token);
+    let rt = runtime();
+    let mut client = rt.block_on(user(&url))?;
+    let id = rt.block_on(client.submit_study(grid_request(&["f1=0.1,0.2"], STUDY_TOL)))?.into_inner().study_id;
+    rt.block_on(watch(&mut client, id, |_| true))?;
+    let s = rt.block_on(study(&mut client, id))?;
+    assert_eq!(s.state, v1::StudyState::Failed as i32, "{s:?}");
+    for p in &s.points {
+        assert_eq!(p.state, v1::PointState::Failed as i32, "{p:?}");
+        assert!(p.error.contains("MiB this pool has") && p.error.contains("dofs"), "{}", p.error);
+    }
+    // the pool did not die over it
+    assert!(pool.0.try_wait()?.is_none(), "the pool exited: {}", log_of(&dir.path().join("pool.log")));
     Ok(())
 }

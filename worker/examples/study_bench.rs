@@ -52,7 +52,7 @@ fn points(scene: &Scene, specs: &[String]) -> Vec<DesignPoint> {
     let space = ParameterSpace::from_scene(scene);
     let axes: Vec<GridAxis> =
         specs.iter().map(|s| GridAxis::parse(s, &space).unwrap_or_else(|e| panic!("{e}"))).collect();
-    design_points(&axes).unwrap_or_else(|e| panic!("{e}"))
+    design_points(&axes, usize::MAX).unwrap_or_else(|e| panic!("{e}"))
 }
 
 fn run(

@@ -22,3 +22,4 @@ pub mod run;
 pub mod scene;
 pub mod sparse;
 pub mod study;
+pub mod text;

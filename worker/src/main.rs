@@ -1,5 +1,6 @@
 //! `glissade-worker`: runs LATIN solves of scenes (and, later, MPI worker pools).
 
+use glissade_worker::text::one_line;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -80,6 +81,10 @@ struct PoolArgs {
     /// Stop after this many seconds without work (default: never)
     #[arg(long, value_name = "SECONDS")]
     idle_exit: Option<f64>,
+    /// Memory one solve may take, MiB; a point whose scene needs more (estimated from its text)
+    /// fails with that reason (default: the memory available when the point arrives)
+    #[arg(long, value_name = "MIB", env = "GLISSADE_POOL_MEMORY_MIB")]
+    memory_mib: Option<u64>,
 }
 
 /// Pool mode: one process, or P MPI ranks of which rank 0 talks to the coordinator.
@@ -88,6 +93,7 @@ fn pool(args: PoolArgs) -> Result<bool> {
     use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
     let mut options = PoolOptions::new(args.coordinator);
     options.pool_id = args.pool_id;
+    options.memory_budget = args.memory_mib.map(|m| m.saturating_mul(1 << 20));
     if let Some(s) = args.idle_exit {
         if !(s.is_finite() && s >= 0.0) {
             bail!("--idle-exit {s}: give a number of seconds");
@@ -339,10 +345,6 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
     Ok(s.converged)
 }
 
-/// Error messages are one line (`error: ...`): a nested cause may span several.
-fn one_line(message: &str) -> String {
-    message.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" ")
-}
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt()

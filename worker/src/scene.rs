@@ -3,6 +3,7 @@
 //! Any number may instead be the name of a declared parameter; [`Scene::resolve`] substitutes the
 //! design point's values and checks every physical constraint, naming the offending key.
 
+use crate::text::{MAX_NAME_CHARS, excerpt};
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
@@ -208,6 +209,35 @@ impl Default for SolverSpec {
     }
 }
 
+/// The size of a scene's problem, estimated from its text ([`Scene::size`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SceneSize {
+    /// degrees of freedom of all substructures (nodes on cuts counted once per side)
+    pub dofs: u64,
+    /// nodes on interfaces, counting each side
+    pub interface_nodes: u64,
+    pub steps: u64,
+    pub dimension: u64,
+}
+
+impl SceneSize {
+    /// Bytes per degree of freedom: operators and their factors, measured at 6-8 kB on 3D boxes
+    /// of 375-2187-dof substructures (docs/performance.md, "Memory of a solve").
+    pub const BYTES_PER_DOF: u64 = 10_000;
+    /// Bytes per interface node, step and dimension: F and W of both stages' copies.
+    pub const BYTES_PER_INTERFACE_VALUE: u64 = 100;
+
+    /// Estimated peak memory of one solve (an upper bound for the scenes measured).
+    pub fn bytes(&self) -> u64 {
+        self.dofs.saturating_mul(Self::BYTES_PER_DOF).saturating_add(
+            self.interface_nodes
+                .saturating_mul(self.steps)
+                .saturating_mul(self.dimension)
+                .saturating_mul(Self::BYTES_PER_INTERFACE_VALUE),
+        )
+    }
+}
+
 /// A parsed scene file.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -241,6 +271,7 @@ impl Scene {
         if !(1..=3).contains(&scene.dimension) {
             return Err(invalid("dimension", format!("must be 1, 2 or 3, got {}", scene.dimension)));
         }
+        scene.check_names()?;
         for (name, p) in &scene.parameters {
             let key = format!("parameters.{name}");
             if !p.default.is_finite() {
@@ -253,6 +284,64 @@ impl Scene {
             }
         }
         Ok(scene)
+    }
+
+    /// What solving this scene will take, from its text alone (nothing is built): the work of
+    /// refusing a scene too big for a coordinator or a pool before it allocates.
+    pub fn size(&self) -> SceneSize {
+        let nodes = |e: &[usize]| e.iter().fold(1u64, |n, &k| n.saturating_mul(k as u64 + 1));
+        let dim = self.dimension as u64;
+        let mut dofs = 0u64;
+        let mut interface_nodes = 0u64;
+        for b in &self.bodies {
+            dofs = dofs.saturating_add(nodes(&b.elements).saturating_mul(dim));
+            // substructure cuts: a plane of nodes per cut, held by both sides
+            let subs = b.substructures.clone().unwrap_or_default();
+            for (axis, &s) in subs.iter().enumerate().filter(|&(a, _)| a < b.elements.len()) {
+                let mut face = b.elements.clone();
+                face.remove(axis);
+                let cut = nodes(&face).saturating_mul(s.saturating_sub(1) as u64);
+                interface_nodes = interface_nodes.saturating_add(cut);
+                dofs = dofs.saturating_add(cut.saturating_mul(dim));
+            }
+        }
+        for itf in &self.interfaces {
+            for side in [&itf.a, &itf.b] {
+                let Some((body, face)) = side.split_once('.') else { continue };
+                let Some(b) = self.bodies.iter().find(|b| b.name == body) else { continue };
+                let Some(axis) = face.chars().next().and_then(|c| "xyz".find(c)) else { continue };
+                if axis < b.elements.len() {
+                    let mut f = b.elements.clone();
+                    f.remove(axis);
+                    interface_nodes = interface_nodes.saturating_add(nodes(&f));
+                }
+            }
+        }
+        SceneSize { dofs, interface_nodes, steps: self.time.steps as u64, dimension: dim }
+    }
+
+    /// Names are short and printable: they key records, label plots and come back in messages.
+    fn check_names(&self) -> Result<(), SceneError> {
+        let names = self
+            .parameters
+            .keys()
+            .map(|n| ("parameters", n))
+            .chain(self.materials.keys().map(|n| ("materials", n)))
+            .chain(self.bodies.iter().map(|b| ("bodies", &b.name)))
+            .chain(self.interfaces.iter().map(|i| ("interfaces", &i.name)))
+            .chain(self.qoi.iter().map(|q| ("qoi", &q.name)));
+        for (table, name) in names {
+            if name.is_empty() || name.chars().count() > MAX_NAME_CHARS || name.chars().any(char::is_control) {
+                return Err(invalid(
+                    table,
+                    format!(
+                        "name `{}` must be 1 to {MAX_NAME_CHARS} printable characters",
+                        excerpt(&name.escape_debug().to_string(), MAX_NAME_CHARS)
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Parameters used only as friction coefficients of interfaces (`interfaces[*].friction`):
@@ -515,6 +604,24 @@ initial_velocity = ["v0"]
         for text in &different {
             assert_ne!(Scene::parse(text).unwrap().content_hash(), base, "{text}");
         }
+    }
+
+    #[test]
+    fn names_are_bounded_and_sizes_estimated_from_the_text() {
+        let tiny = include_str!("../../scenes/three-blocks-tiny.toml");
+        let long = "q".repeat(MAX_NAME_CHARS + 1);
+        let err = Scene::parse(&tiny.replace("name = \"slip_A\"", &format!("name = \"{long}\""))).unwrap_err();
+        assert!(err.to_string().contains("printable characters"), "{err}");
+        // tiny: 3 blocks of 3 x 3 x 5 nodes, each cut once along z (9 nodes a side), two
+        // interfaces of 9 + 9 nodes
+        let size = Scene::parse(tiny).unwrap().size();
+        assert_eq!(size.dofs, 3 * (45 + 9) * 3);
+        assert_eq!(size.interface_nodes, 3 * 9 + 2 * 18);
+        assert!(size.bytes() < 100 << 20);
+        let poison = tiny.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
+        assert!(Scene::parse(&poison).unwrap().size().bytes() > 100 << 30);
+        let overflow = tiny.replacen("elements = [2, 2, 4]", "elements = [9223372036854775807, 2, 4]", 1);
+        assert_eq!(Scene::parse(&overflow).unwrap().size().bytes(), u64::MAX);
     }
 
     #[test]

@@ -9,7 +9,7 @@ use clap::{Args, ValueEnum};
 
 use glissade_worker::scene::Scale;
 use glissade_worker::study::order::OrderKind;
-use glissade_worker::study::space::{GridAxis, ParameterSpace, design_points};
+use glissade_worker::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, design_points};
 use glissade_worker::study::store::MemoryStore;
 use glissade_worker::study::strategy::InitStrategy;
 use glissade_worker::study::{PointRecord, StudyOptions, StudyResult, run_study};
@@ -86,6 +86,9 @@ pub struct StudyArgs {
     /// Print the whole result as one JSON object instead of the summary
     #[arg(long)]
     json: bool,
+    /// Refuse a grid of more design points than this
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_POINTS)]
+    max_points: usize,
 }
 
 /// Runs the study; Ok(false) when some point did not converge.
@@ -95,7 +98,7 @@ pub fn study(args: StudyArgs) -> Result<bool> {
     let scene = super::parse_scene(&text, path)?;
     let space = ParameterSpace::from_scene(&scene);
     let axes = args.grid.iter().map(|g| GridAxis::parse(g, &space)).collect::<Result<Vec<_>, _>>()?;
-    let points = design_points(&axes)?;
+    let points = design_points(&axes, args.max_points)?;
     if let Some(t) = args.tol
         && !(t > 0.0 && t.is_finite())
     {

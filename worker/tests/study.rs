@@ -25,7 +25,7 @@ fn scene(text: &str) -> Scene {
 fn grid(scene: &Scene, specs: &[&str]) -> Vec<DesignPoint> {
     let space = ParameterSpace::from_scene(scene);
     let axes: Vec<GridAxis> = specs.iter().map(|s| GridAxis::parse(s, &space).expect("grid spec")).collect();
-    design_points(&axes).expect("design points")
+    design_points(&axes, usize::MAX).expect("design points")
 }
 
 fn study(

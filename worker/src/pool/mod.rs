@@ -13,6 +13,7 @@
 //! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
 //! started is released).
 
+use crate::text::one_line;
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
 
@@ -52,6 +53,9 @@ pub struct PoolOptions {
     pub backoff: (Duration, Duration),
     /// Stop after this long without work (None: never).
     pub idle_exit: Option<Duration>,
+    /// Memory a solve may take, bytes (None: what the system says is available when a point
+    /// arrives). A point whose scene needs more fails with the reason instead of killing the pool.
+    pub memory_budget: Option<u64>,
     /// Stop when this turns true (a pool embedded in another program, e.g. `glissade demo`);
     /// None: on SIGTERM or SIGINT, with handlers installed by [`run_pool`].
     pub stop: Option<watch::Receiver<bool>>,
@@ -69,6 +73,7 @@ impl PoolOptions {
             wait: Duration::from_secs(10),
             backoff: (Duration::from_millis(200), Duration::from_secs(5)),
             idle_exit: None,
+            memory_budget: None,
             stop: None,
         }
     }
@@ -333,7 +338,7 @@ async fn serve(
             release(&mut session, &lease).await;
             return Break::Stop;
         }
-        let job = match prepare(&lease, init_bytes) {
+        let job = match prepare(&lease, init_bytes, options.memory_budget.or_else(available_memory)) {
             Ok(job) => job,
             Err(e) => {
                 *pending = Some(Report { lease, outcome: Err(one_line(&format!("{e:#}"))) });
@@ -401,11 +406,31 @@ async fn receive_lease(
     Ok(Some((lease, bytes)))
 }
 
-/// The job of a lease: the scene parsed, the request built, the warm start read and checked.
-fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>) -> Result<PointJob> {
+/// Bytes the system can give a new process now (`MemAvailable` of /proc/meminfo), if known.
+pub fn available_memory() -> Option<u64> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib.saturating_mul(1024))
+}
+
+/// The job of a lease: the scene parsed and its size checked against `memory` (bytes), the
+/// request built, the warm start read and checked.
+fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>, memory: Option<u64>) -> Result<PointJob> {
     let scene = Scene::parse(&lease.scene).context("scene")?;
     if scene.content_hash() != lease.scene_hash {
         bail!("the lease's scene text has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
+    }
+    let size = scene.size();
+    if let Some(memory) = memory
+        && size.bytes() > memory
+    {
+        bail!(
+            "the scene needs about {} MiB ({} dofs, estimated), more than the {} MiB this pool has",
+            size.bytes() >> 20,
+            size.dofs,
+            memory >> 20
+        );
     }
     let mut init_parameters = None;
     let init = if init_bytes.is_empty() {
@@ -473,10 +498,6 @@ async fn release(session: &mut Session, lease: &v1::Lease) {
     }
 }
 
-/// One line, bounded: what the coordinator stores as the reason of a failure.
-fn one_line(text: &str) -> String {
-    text.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" ").chars().take(2000).collect()
-}
 
 /// Sends a report: the solution (CompletePoint) or the error (FailPoint).
 async fn deliver(client: &mut PoolClient<Channel>, pool_id: &str, report: &Report) -> Result<(), Status> {

@@ -2,6 +2,7 @@
 //! the normalised distance between design points, and the grids a study sweeps
 //! (`f1=0.10:0.20:11`, lists `f1=0.1,0.15,0.2`, Latin hypercube samples `f1=lhs:20:7`).
 
+use crate::text::{MAX_NAME_CHARS, excerpt};
 use std::collections::BTreeMap;
 use std::fmt;
 
@@ -119,6 +120,8 @@ pub enum SpaceError {
     Duplicate { spec: String, name: String },
     #[error("the study has no design points (give at least one --grid NAME=SPEC)")]
     EmptyGrid,
+    #[error("the grid gives {count} design points, more than the {max} accepted (give fewer values or split the study)")]
+    TooManyPoints { count: String, max: usize },
     #[error("point {point}: parameter '{name}' is not in the scene")]
     PointUnknownParameter { point: String, name: String },
     #[error("point {point}: parameter '{name}' = {value} is not a finite number")]
@@ -222,12 +225,17 @@ impl ParameterSpace {
 /// How one parameter is swept.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub enum AxisValues {
-    /// explicit values (a range `START:STOP:COUNT` is expanded into these)
+    /// explicit values `V1,V2,...`
     Values(Vec<f64>),
+    /// `START:STOP:COUNT`, evenly spaced; expanded only once the study's size is accepted
+    Range { start: f64, stop: f64, count: usize },
     /// a Latin hypercube of `samples` points drawn with `seed`; parameters with the same
     /// (samples, seed) form one joint hypercube
     Lhs { samples: usize, seed: u64, low: f64, high: f64 },
 }
+
+/// Characters of a grid spec that an error message repeats.
+const MAX_SPEC_ECHO: usize = 120;
 
 /// One `--grid NAME=SPEC`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -267,9 +275,12 @@ impl GridAxis {
     /// `NAME=lhs:N:SEED[:LO:HI]` (a Latin hypercube over [LO, HI], by default the parameter's
     /// range in `space`), checking the name against `space`.
     pub fn parse(spec: &str, space: &ParameterSpace) -> Result<Self, SpaceError> {
+        let full = spec;
+        // errors echo the spec: a bounded excerpt of it, whatever a client sent
+        let spec = &excerpt(full, MAX_SPEC_ECHO);
         let malformed = || SpaceError::Malformed { spec: spec.into() };
         let invalid = |message: String| SpaceError::Invalid { spec: spec.into(), message };
-        let (name, rhs) = spec.split_once('=').ok_or_else(malformed)?;
+        let (name, rhs) = full.split_once('=').ok_or_else(malformed)?;
         let (name, rhs) = (name.trim(), rhs.trim());
         if name.is_empty() || rhs.is_empty() {
             return Err(malformed());
@@ -277,7 +288,7 @@ impl GridAxis {
         let Some(range) = space.range(name) else {
             return Err(SpaceError::UnknownParameter {
                 spec: spec.into(),
-                name: name.into(),
+                name: excerpt(name, MAX_NAME_CHARS),
                 declared: space.names().collect::<Vec<_>>().join(", "),
             });
         };
@@ -318,16 +329,7 @@ impl GridAxis {
             if start > stop {
                 return Err(invalid(format!("START {start} is above STOP {stop}")));
             }
-            let values = if count == 1 {
-                vec![start]
-            } else {
-                (0..count)
-                    .map(|i| {
-                        if i + 1 == count { stop } else { tidy(start + (stop - start) * i as f64 / (count - 1) as f64) }
-                    })
-                    .collect()
-            };
-            AxisValues::Values(values)
+            AxisValues::Range { start, stop, count }
         } else {
             let values = rhs.split(',').map(|s| number(spec, s)).collect::<Result<Vec<_>, _>>()?;
             AxisValues::Values(values)
@@ -336,47 +338,87 @@ impl GridAxis {
     }
 }
 
-/// The design points of a study: the cartesian product of the axes, in lexicographic order of
-/// the axes as given (the first axis varies slowest). Parameters with `lhs` specs of the same
-/// (N, SEED) form one joint N-point Latin hypercube, which is one factor of the product. Points
-/// hold the swept parameters only ([`ParameterSpace::complete`] adds the defaults).
-pub fn design_points(axes: &[GridAxis]) -> Result<Vec<DesignPoint>, SpaceError> {
+impl AxisValues {
+    /// How many values this axis contributes (a hypercube's samples once per group).
+    fn count(&self) -> usize {
+        match self {
+            AxisValues::Values(v) => v.len(),
+            AxisValues::Range { count, .. } => *count,
+            AxisValues::Lhs { samples, .. } => *samples,
+        }
+    }
+
+    fn expand(&self) -> Vec<f64> {
+        match *self {
+            AxisValues::Values(ref v) => v.clone(),
+            AxisValues::Range { start, count: 1, .. } => vec![start],
+            AxisValues::Range { start, stop, count } => (0..count)
+                .map(|i| if i + 1 == count { stop } else { tidy(start + (stop - start) * i as f64 / (count - 1) as f64) })
+                .collect(),
+            AxisValues::Lhs { .. } => unreachable!("hypercubes are drawn per group"),
+        }
+    }
+}
+
+/// Most design points a study may have by default (the coordinator's `--max-points` and the
+/// local study command use it; docs/performance.md has the bytes each point costs).
+pub const DEFAULT_MAX_POINTS: usize = 100_000;
+
+/// The factors of the cartesian product: each plain axis alone, each (samples, seed) hypercube
+/// group once; checks that no parameter is swept twice.
+fn factors(axes: &[GridAxis]) -> Result<Vec<Vec<&GridAxis>>, SpaceError> {
     if axes.is_empty() {
         return Err(SpaceError::EmptyGrid);
     }
+    let mut out: Vec<Vec<&GridAxis>> = Vec::new();
     for (i, a) in axes.iter().enumerate() {
         if axes[..i].iter().any(|b| b.name == a.name) {
             return Err(SpaceError::Duplicate { spec: a.spec.clone(), name: a.name.clone() });
         }
-    }
-    // factors of the product: each a list of partial points
-    let mut factors: Vec<Vec<DesignPoint>> = Vec::new();
-    let mut lhs_groups: Vec<((usize, u64), usize)> = Vec::new();
-    for a in axes {
-        match &a.values {
-            AxisValues::Values(vs) => {
-                factors.push(vs.iter().map(|&v| DesignPoint::from_pairs([(a.name.clone(), v)])).collect());
-            }
-            AxisValues::Lhs { samples, seed, .. } => {
-                if !lhs_groups.iter().any(|(key, _)| *key == (*samples, *seed)) {
-                    lhs_groups.push(((*samples, *seed), factors.len()));
-                    factors.push(Vec::new());
-                }
-            }
+        let group = match a.values {
+            AxisValues::Lhs { samples, seed, .. } => out.iter_mut().find(|f| {
+                matches!(f[0].values, AxisValues::Lhs { samples: n, seed: s, .. } if n == samples && s == seed)
+            }),
+            _ => None,
+        };
+        match group {
+            Some(f) => f.push(a),
+            None => out.push(vec![a]),
         }
     }
-    for ((samples, seed), slot) in lhs_groups {
-        let members: Vec<&GridAxis> = axes
-            .iter()
-            .filter(|a| matches!(a.values, AxisValues::Lhs { samples: n, seed: s, .. } if n == samples && s == seed))
-            .collect();
-        factors[slot] = latin_hypercube(&members, samples, seed);
+    Ok(out)
+}
+
+/// The number of design points the axes give, computed from the specs alone (nothing is
+/// allocated), or None when it does not fit in a usize.
+pub fn point_count(axes: &[GridAxis]) -> Result<Option<usize>, SpaceError> {
+    Ok(factors(axes)?.iter().try_fold(1usize, |n, f| n.checked_mul(f[0].values.count())))
+}
+
+/// The design points of a study: the cartesian product of the axes, in lexicographic order of
+/// the axes as given (the first axis varies slowest). Parameters with `lhs` specs of the same
+/// (N, SEED) form one joint N-point Latin hypercube, which is one factor of the product. Points
+/// hold the swept parameters only ([`ParameterSpace::complete`] adds the defaults). A grid of
+/// more than `max_points` points is refused before any is built.
+pub fn design_points(axes: &[GridAxis], max_points: usize) -> Result<Vec<DesignPoint>, SpaceError> {
+    match point_count(axes)? {
+        Some(n) if n <= max_points => {}
+        n => {
+            let count = n.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string());
+            return Err(SpaceError::TooManyPoints { count, max: max_points });
+        }
     }
     let mut points = vec![DesignPoint::new()];
-    for factor in &factors {
-        let mut next = Vec::with_capacity(points.len() * factor.len());
+    for factor in factors(axes)? {
+        let partial: Vec<DesignPoint> = match factor[0].values {
+            AxisValues::Lhs { samples, seed, .. } => latin_hypercube(&factor, samples, seed),
+            ref values => {
+                values.expand().into_iter().map(|v| DesignPoint::from_pairs([(factor[0].name.clone(), v)])).collect()
+            }
+        };
+        let mut next = Vec::with_capacity(points.len() * partial.len());
         for p in &points {
-            for q in factor {
+            for q in &partial {
                 let mut r = p.clone();
                 for (k, v) in q.iter() {
                     r.insert(k, v);
@@ -425,13 +467,13 @@ mod tests {
     #[test]
     fn range_spec_gives_evenly_spaced_tidy_values() {
         let a = GridAxis::parse("f1=0.10:0.20:11", &space()).unwrap();
-        let AxisValues::Values(v) = a.values else { panic!() };
+        let v: Vec<f64> = design_points(&[a], 11).unwrap().iter().map(|p| p.get("f1").unwrap()).collect();
         assert_eq!(v.len(), 11);
         assert_eq!(v[1], 0.11);
         assert_eq!(v[3], 0.13);
         assert_eq!(v[10], 0.2);
         let a = GridAxis::parse("f1=0.15:0.2:1", &space()).unwrap();
-        assert_eq!(a.values, AxisValues::Values(vec![0.15]));
+        assert_eq!(a.values.expand(), vec![0.15]);
         let a = GridAxis::parse("f2=0.1, 0.15,0.2", &space()).unwrap();
         assert_eq!(a.values, AxisValues::Values(vec![0.1, 0.15, 0.2]));
     }
@@ -464,21 +506,47 @@ mod tests {
     fn product_is_lexicographic_and_empty_grids_are_refused() {
         let s = space();
         let axes = vec![GridAxis::parse("f1=0.1,0.2", &s).unwrap(), GridAxis::parse("f2=0.1:0.2:3", &s).unwrap()];
-        let pts = design_points(&axes).unwrap();
+        let pts = design_points(&axes, DEFAULT_MAX_POINTS).unwrap();
         assert_eq!(pts.len(), 6);
         assert_eq!(pts[0], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1)]));
         assert_eq!(pts[1], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.15)]));
         assert_eq!(pts[5], DesignPoint::from_pairs([("f1", 0.2), ("f2", 0.2)]));
-        assert_eq!(design_points(&[]).unwrap_err(), SpaceError::EmptyGrid);
+        assert_eq!(design_points(&[], DEFAULT_MAX_POINTS).unwrap_err(), SpaceError::EmptyGrid);
         let dup = vec![axes[0].clone(), axes[0].clone()];
-        assert!(matches!(design_points(&dup), Err(SpaceError::Duplicate { .. })));
+        assert!(matches!(design_points(&dup, DEFAULT_MAX_POINTS), Err(SpaceError::Duplicate { .. })));
+    }
+
+    #[test]
+    fn errors_echo_a_bounded_excerpt_of_the_spec() {
+        let name = "n".repeat(10_000);
+        let err = GridAxis::parse(&format!("{name}=0.1:0.2:3"), &space()).unwrap_err().to_string();
+        assert!(err.len() < 600 && err.contains("more characters"), "{} bytes: {err}", err.len());
+    }
+
+    #[test]
+    fn huge_grids_are_counted_and_refused_before_anything_is_built() {
+        let s = space();
+        let parse = |spec: &str| GridAxis::parse(spec, &s).unwrap();
+        // 10^12 points, and a product that overflows 64 bits: parsing allocates nothing
+        let huge = vec![parse("f1=0.1:0.2:1000000000000")];
+        assert_eq!(point_count(&huge).unwrap(), Some(1_000_000_000_000));
+        let err = design_points(&huge, DEFAULT_MAX_POINTS).unwrap_err().to_string();
+        assert!(err.contains("1000000000000 design points") && err.contains("100000 accepted"), "{err}");
+        let overflow = vec![parse("f1=0.1:0.2:10000000000"), parse("f2=lhs:10000000000:1")];
+        assert_eq!(point_count(&overflow).unwrap(), None);
+        assert!(design_points(&overflow, usize::MAX).unwrap_err().to_string().contains("more than 2^64"));
+        // a hypercube group counts once; the cap is inclusive
+        let joint = vec![parse("f1=lhs:50:3"), parse("f2=lhs:50:3")];
+        assert_eq!(point_count(&joint).unwrap(), Some(50));
+        assert_eq!(design_points(&joint, 50).unwrap().len(), 50);
+        assert!(matches!(design_points(&joint, 49), Err(SpaceError::TooManyPoints { .. })));
     }
 
     #[test]
     fn latin_hypercube_hits_every_stratum_once_and_is_reproducible() {
         let s = space();
         let axes = vec![GridAxis::parse("f1=lhs:10:7", &s).unwrap(), GridAxis::parse("f2=lhs:10:7", &s).unwrap()];
-        let pts = design_points(&axes).unwrap();
+        let pts = design_points(&axes, DEFAULT_MAX_POINTS).unwrap();
         assert_eq!(pts.len(), 10, "one joint hypercube, not a product");
         for name in ["f1", "f2"] {
             let mut strata: Vec<usize> =
@@ -486,9 +554,9 @@ mod tests {
             strata.sort();
             assert_eq!(strata, (0..10).collect::<Vec<_>>(), "{name}");
         }
-        assert_eq!(pts, design_points(&axes).unwrap());
+        assert_eq!(pts, design_points(&axes, DEFAULT_MAX_POINTS).unwrap());
         let other = vec![GridAxis::parse("f1=lhs:10:8", &s).unwrap(), axes[1].clone()];
-        assert_eq!(design_points(&other).unwrap().len(), 100, "different seeds: two factors");
+        assert_eq!(design_points(&other, DEFAULT_MAX_POINTS).unwrap().len(), 100, "different seeds: two factors");
     }
 
     #[test]
