@@ -726,7 +726,8 @@ pub fn dynamic_search_direction<const D: usize>(sub: &Substructure<D>, normal: &
     let (lo, hi) = sub.coords.iter().map(along).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     let depth = hi - lo;
     let impedance = sub.material.impedance();
-    if !(depth > 0.0) {
+    // a flat (or degenerate, NaN) substructure has no depth to compare c dt with
+    if depth.is_nan() || depth <= 0.0 {
         return impedance;
     }
     let ratio = sub.material.bar_wave_speed() * dt / depth;

@@ -155,7 +155,7 @@ mod tests {
             let mut e = ErrorEstimator::new(vec![QoiUnit::Length]);
             for k in 0..200 {
                 let x: Vec<f64> = limit.iter().map(|l| l + 0.3 * rho_pow(rho, k)).collect();
-                let est = e.update(&[x.clone()], &UnitScales::default(), 1.0);
+                let est = e.update(std::slice::from_ref(&x), &UnitScales::default(), 1.0);
                 let truth = 0.3 * rho_pow(rho, k) * 3f64.sqrt() / x.iter().map(|v| v * v).sum::<f64>().sqrt();
                 if k >= 2 * WINDOW && truth > 1e-12 {
                     assert!(est >= 0.9 * truth && est <= 2.0 * truth, "rho {rho}, k {k}: estimate {est}, error {truth}");
