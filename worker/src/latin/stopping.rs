@@ -151,7 +151,7 @@ mod tests {
     #[test]
     fn geometric_convergence_is_estimated_within_a_factor_two() {
         for rho in [0.5, 0.9, 0.97] {
-            let limit = vec![1.0, 2.0, -1.0];
+            let limit = [1.0, 2.0, -1.0];
             let mut e = ErrorEstimator::new(vec![QoiUnit::Length]);
             for k in 0..200 {
                 let x: Vec<f64> = limit.iter().map(|l| l + 0.3 * rho_pow(rho, k)).collect();
