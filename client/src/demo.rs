@@ -3,6 +3,7 @@
 //! commands submit a study of the shipped `three-blocks` `tiny` scene, watch it, print its
 //! response surface and draw its pictures.
 
+use glissade_cli::outln;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -48,7 +49,7 @@ pub async fn demo(args: DemoArgs) -> Result<Outcome> {
     .context("starting the embedded coordinator")?;
     let server = tokio::spawn(serving);
     let url = format!("http://{addr}");
-    println!("coordinator on {url} (database in {}, removed at the end)", data.path().display());
+    outln!("coordinator on {url} (database in {}, removed at the end)", data.path().display());
 
     // One pool, on a thread of its own: the solver runs there, the pool's gRPC on its runtime.
     let (stop_pool, pool_stop) = tokio::sync::watch::channel(false);
@@ -93,7 +94,7 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         .map_err(|s| refused("submitting the demo study", s))?
         .into_inner();
     let id = reply.study_id;
-    println!(
+    outln!(
         "study {id}: three blocks (tiny), friction f1 x f2 on a {n} x {n} grid ({} points), \
          each point warm-started from the nearest solved one",
         reply.points
@@ -103,7 +104,7 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         return Ok(outcome);
     }
     let png = |name: &str| args.out.join(name);
-    println!("\nslip at A (centre of the upper interface) at the end of the load, m:");
+    outln!("\nslip at A (centre of the upper interface) at the end of the load, m:");
     let surface_args = |qoi: Option<&str>, csv: Option<PathBuf>, png: Option<PathBuf>| SurfaceArgs {
         study: id,
         qoi: qoi.map(str::to_owned),

@@ -2,6 +2,7 @@
 //! study's nearest stored solution (the same point's own solution when it is done: then the
 //! solve converges at once) and written as HDF5 + XDMF for ParaView.
 
+use glissade_cli::outln;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -140,16 +141,16 @@ pub async fn fields(client: &mut UserClient<Channel>, args: FieldsArgs) -> Resul
             "h5": args.out,
             "xdmf": xdmf,
         });
-        println!("{value}");
+        outln!("{value}");
     } else {
-        println!(
+        outln!(
             "point {}: {} iterations from stored point #{} ({from_text}), eta {:.2e}",
             crate::describe_parameters(&target),
             summary.iterations,
             from.point_id,
             summary.error_indicator
         );
-        println!("wrote {} and {} (open the .xdmf in ParaView)", args.out.display(), xdmf.display());
+        outln!("wrote {} and {} (open the .xdmf in ParaView)", args.out.display(), xdmf.display());
     }
     Ok(())
 }

@@ -2,6 +2,7 @@
 //! conversation with the coordinator (so that it is testable without a server).
 
 pub mod names;
+pub mod output;
 pub mod plot;
 pub mod progress;
 pub mod surface;

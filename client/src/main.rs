@@ -4,6 +4,8 @@
 mod demo;
 mod fields;
 
+use glissade_worker::text::one_line;
+use glissade_cli::{out, outln};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -20,6 +22,7 @@ use glissade_proto::v1::user_client::UserClient;
 use glissade_proto::v1::{self, HealthRequest};
 use glissade_worker::scene::{QoiKind, Scene};
 use tonic::transport::{Channel, Endpoint};
+use tonic::{Code, Status};
 use tracing_subscriber::EnvFilter;
 
 /// How long to wait for the coordinator to accept a connection before giving up.
@@ -255,7 +258,7 @@ fn main() -> ExitCode {
         Err(e) => {
             // A CLI user wants one readable line, not a Debug dump or a backtrace.
             let message = format!("{e:#}");
-            eprintln!("error: {}", message.lines().map(str::trim).collect::<Vec<_>>().join(" "));
+            eprintln!("error: {}", one_line(&message));
             ExitCode::FAILURE
         }
     }
@@ -357,11 +360,11 @@ async fn submit(server: &str, args: SubmitArgs) -> Result<Outcome> {
             "points": reply.points,
             "scene_hash": reply.scene_hash,
         });
-        println!("{value}");
+        outln!("{value}");
     } else if args.watch {
-        println!("study {} submitted: {} points", reply.study_id, reply.points);
+        outln!("study {} submitted: {} points", reply.study_id, reply.points);
     } else {
-        println!("{}", reply.study_id);
+        outln!("{}", reply.study_id);
     }
     if args.watch { watch(&mut client, reply.study_id).await } else { Ok(Outcome::Success) }
 }
@@ -387,15 +390,28 @@ async fn watch(client: &mut UserClient<Channel>, id: u64) -> Result<Outcome> {
         bar.enable_steady_tick(Duration::from_millis(200));
         bar
     });
+    let say = |text: &str| match &bar {
+        Some(bar) => bar.println(text),
+        None => eprintln!("{text}"),
+    };
     loop {
         let event = match stream.message().await {
             Ok(Some(e)) => e,
-            Ok(None) => break,
-            Err(s) => {
-                if let Some(bar) = &bar {
-                    bar.abandon();
+            // The coordinator went away (restart, crash, network): the study's events are
+            // durable, so a new watch starts from a snapshot. Reconnect with back-off.
+            broken @ (Ok(None) | Err(_)) => {
+                if let Err(s) = &broken
+                    && !is_transient(s)
+                {
+                    if let Some(bar) = &bar {
+                        bar.abandon();
+                    }
+                    return Err(refused(&format!("watch {id}: the stream broke off"), s.clone()));
                 }
-                return Err(refused(&format!("watch {id}: the stream broke off"), s));
+                let why = broken.err().map_or("the stream ended".to_owned(), |s| one_line(s.message()));
+                say(&format!("watch {id}: lost the coordinator ({why}); reconnecting"));
+                stream = reconnect_watch(client, id, &say).await?;
+                continue;
             }
         };
         let line = state.apply(&event);
@@ -413,7 +429,7 @@ async fn watch(client: &mut UserClient<Channel>, id: u64) -> Result<Outcome> {
             None => {
                 if let Some(line) = line {
                     let eta = state.eta(started.elapsed()).map_or(String::new(), |d| format!(" (ETA {})", clock(d)));
-                    println!("{line}{eta}");
+                    outln!("{line}{eta}");
                 }
             }
         }
@@ -424,11 +440,42 @@ async fn watch(client: &mut UserClient<Channel>, id: u64) -> Result<Outcome> {
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
-    if !state.ended() {
-        bail!("watch {id}: the coordinator closed the stream before the study ended");
-    }
-    println!("{}", state.summary(started.elapsed()));
+    outln!("{}", state.summary(started.elapsed()));
     Ok(if state.state == v1::StudyState::Done as i32 { Outcome::Success } else { Outcome::StudyFailed })
+}
+
+/// Statuses after which a watch reconnects: the coordinator or the network went away, not a
+/// refusal of this request.
+fn is_transient(s: &Status) -> bool {
+    matches!(s.code(), Code::Unavailable | Code::Unknown | Code::Cancelled | Code::Aborted)
+}
+
+/// A new watch of study `id`, retried with back-off (0.2 s doubling to 5 s) for as long as the
+/// coordinator is unreachable; a refusal (the study is gone) ends it.
+async fn reconnect_watch(
+    client: &mut UserClient<Channel>,
+    id: u64,
+    say: &impl Fn(&str),
+) -> Result<tonic::Streaming<v1::StudyEvent>> {
+    let mut pause = Duration::from_millis(200);
+    let mut attempts = 0u32;
+    loop {
+        tokio::time::sleep(pause).await;
+        attempts += 1;
+        match client.watch_study(v1::WatchStudyRequest { study_id: id }).await {
+            Ok(r) => {
+                say(&format!("watch {id}: reconnected after {attempts} attempt(s)"));
+                return Ok(r.into_inner());
+            }
+            Err(s) if is_transient(&s) => {
+                if attempts % 10 == 0 {
+                    say(&format!("watch {id}: still no coordinator after {attempts} attempts ({})", one_line(s.message())));
+                }
+                pause = (pause * 2).min(Duration::from_secs(5));
+            }
+            Err(s) => return Err(refused(&format!("watch {id}"), s)),
+        }
+    }
 }
 
 fn clock(d: Duration) -> String {
@@ -449,20 +496,20 @@ async fn studies(server: &str, json: bool) -> Result<()> {
         .into_inner()
         .studies;
     if json {
-        println!("{}", serde_json::Value::Array(list.iter().map(study_json).collect()));
+        outln!("{}", serde_json::Value::Array(list.iter().map(study_json).collect()));
         return Ok(());
     }
     if list.is_empty() {
-        println!("no studies yet (glissade submit SCENE --grid ...)");
+        outln!("no studies yet (glissade submit SCENE --grid ...)");
         return Ok(());
     }
-    println!(
+    outln!(
         "{:>5}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8}  label",
         "id", "state", "done/total", "strategy", "parameters", "tol"
     );
     for s in &list {
         let p = s.progress.unwrap_or_default();
-        println!(
+        outln!(
             "{:>5}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8.1e}  {}",
             s.study_id,
             study_state_name(s.state),
@@ -504,7 +551,7 @@ async fn cancel(server: &str, id: u64) -> Result<()> {
         .map_err(|s| refused(&format!("cancel {id}"), s))?
         .into_inner();
     let p = s.progress.unwrap_or_default();
-    println!(
+    outln!(
         "study {id} {}: {} done, {} cancelled, {} still running",
         study_state_name(s.state),
         p.done,
@@ -521,7 +568,7 @@ async fn retry(server: &str, id: u64) -> Result<()> {
         .await
         .map_err(|s| refused(&format!("retry {id}"), s))?
         .into_inner();
-    println!("study {id}: {} failed points back in the queue", r.requeued);
+    outln!("study {id}: {} failed points back in the queue", r.requeued);
     Ok(())
 }
 
@@ -545,7 +592,7 @@ fn parameter_axis(scene: Option<&Scene>, name: &str) -> Axis {
 /// Writes `text` to `path`, or to stdout for "-".
 fn write_output(path: &Path, text: &str) -> Result<()> {
     if path == Path::new("-") {
-        print!("{text}");
+        out!("{text}");
         return Ok(());
     }
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
@@ -607,9 +654,9 @@ async fn surface(server: &str, args: SurfaceArgs) -> Result<()> {
         eprintln!("wrote {} ({}x{})", path.display(), args.size.0, args.size.1);
     }
     if args.json {
-        println!("{}", table.to_json());
+        outln!("{}", table.to_json());
     } else if args.csv.is_none() && args.png.is_none() {
-        print!("{}", table.to_text());
+        out!("{}", table.to_text());
     }
     Ok(())
 }
@@ -655,7 +702,7 @@ async fn convergence(server: &str, args: ConvergenceArgs) -> Result<()> {
                 })
             })
             .collect();
-        println!(
+        outln!(
             "{}",
             serde_json::json!({ "study_id": study.study_id, "tolerance": study.tolerance, "points": points })
         );
@@ -694,25 +741,25 @@ async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> 
         if points {
             value["points"] = s.points.iter().map(point_json).collect();
         }
-        println!("{value}");
+        outln!("{value}");
         return Ok(());
     }
-    println!(
+    outln!(
         "study {}{}: {}",
         s.study_id,
         if s.label.is_empty() { String::new() } else { format!(" ({})", s.label) },
         study_state_name(s.state)
     );
-    println!("  scene     {}", s.scene_hash);
-    println!(
+    outln!("  scene     {}", s.scene_hash);
+    outln!(
         "  sweep     {} ({} points), strategy {}, order {}",
         s.parameters.join(", "),
         p.total,
         strategy_name(s.strategy),
         order_name(s.order)
     );
-    println!("  tolerance {:.1e}, at most {} iterations", s.tolerance, s.max_iterations);
-    println!(
+    outln!("  tolerance {:.1e}, at most {} iterations", s.tolerance, s.max_iterations);
+    outln!(
         "  progress  {} done, {} failed, {} running, {} pending{}; {} iterations in all",
         p.done,
         p.failed,
@@ -732,7 +779,7 @@ async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> 
         (!w.is_empty()).then(|| w.iter().sum::<f64>() / w.len() as f64)
     };
     if let (Some(cold), Some(warm)) = (mean(false), mean(true)) {
-        println!(
+        outln!(
             "  work      {} (work: dynamic iterations + static iterations / time steps)",
             glissade_worker::study::warm_against_cold(cold, warm)
         );
@@ -748,7 +795,7 @@ async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> 
             None if point.state == v1::PointState::Done as i32 => "cold".to_owned(),
             None => String::new(),
         };
-        println!(
+        outln!(
             "  #{:<4} {:<28} {:<9} {:>5} it  work {:>6.1}  eta {:.2e}  {}  {}{}",
             point.point_id,
             params.join(" "),
@@ -777,10 +824,10 @@ async fn health(server: &str, json: bool) -> Result<()> {
             "status": reply.status,
             "version": reply.version,
         });
-        println!("{value}");
+        outln!("{value}");
     } else {
-        println!("status:  {}", reply.status);
-        println!("version: {}", reply.version);
+        outln!("status:  {}", reply.status);
+        outln!("version: {}", reply.version);
     }
     Ok(())
 }

@@ -691,6 +691,15 @@ fn service_survives_a_killed_pool_and_a_killed_coordinator() -> anyhow::Result<(
     let mut client = rt.block_on(user(&url))?;
     let id =
         rt.block_on(client.submit_study(grid_request(&["f1=0.1:0.2:3", "f2=0.1:0.2:3"], TOL)))?.into_inner().study_id;
+    // The CLI watches the whole study, through the coordinator's restart below.
+    let cli_out = dir.path().join("watch.out");
+    let cli_err = dir.path().join("watch.err");
+    let mut cli_watch = command(&workspace_bin("glissade"))
+        .args(["--server", &url, "watch", &id.to_string()])
+        .stdin(Stdio::null())
+        .stdout(File::create(&cli_out)?)
+        .stderr(File::create(&cli_err)?)
+        .spawn()?;
     // Kill pool A with SIGKILL as soon as it starts its first point.
     let started = rt.block_on(watch(&mut client, id, |e| kind(e) != v1::EventKind::PointStarted))?;
     pool_a.0.kill()?;
@@ -759,6 +768,12 @@ fn service_survives_a_killed_pool_and_a_killed_coordinator() -> anyhow::Result<(
     assert_eq!(surface.into_inner().points.len(), 9);
     // pool B reconnected by itself
     assert!(log_of(&logs[3]).contains("reconnecting") || log_of(&logs[3]).contains("cannot reach"), "{}", all_logs());
+    // and so did `glissade watch`, which saw the study to its end
+    let status = wait_with_timeout(&mut cli_watch, LIMIT).expect("glissade watch did not end with the study");
+    let (out, err) = (log_of(&cli_out), log_of(&cli_err));
+    assert!(status.success(), "glissade watch: {status:?}\n{out}\n{err}");
+    assert!(err.contains("reconnecting") && err.contains("reconnected"), "{err}");
+    assert!(out.contains("9/9 done"), "{out}");
     Ok(())
 }
 
@@ -875,6 +890,10 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
     let out = run_with_timeout(command(&workspace_bin("glissade")).args(["--server", &url, "show", "42"]), LIMIT);
     assert_eq!(out.status.code(), Some(1));
     assert_eq!(text(&out.stderr), "error: show 42: no study 42 (NotFound)\n");
+    // A reader that goes away before the output comes (`| head`): a quiet exit, no panic.
+    let piped = format!("set -o pipefail; '{}' --server {url} studies --json | true", workspace_bin("glissade").display());
+    let out = run_with_timeout(Command::new("bash").args(["-c", &piped]), LIMIT);
+    assert!(out.status.success() && out.stderr.is_empty(), "{:?}: {}", out.status, text(&out.stderr));
 
     // A study of two points: one completed properly first, whose stored solution must survive.
     let id = rt.block_on(client.submit_study(grid_request(&["f1=0.1,0.2"], STUDY_TOL)))?.into_inner().study_id;
