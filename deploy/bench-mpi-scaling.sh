@@ -18,7 +18,7 @@ results=$(mktemp -d)
 trap 'rm -rf "$results"' EXIT
 for p in $ranks; do
   # exit 2 means "not converged": expected, the tolerance is unreachable on purpose
-  mpiexec ${MPIEXEC_FLAGS:-} -n "$p" "$worker" solve "$scene" --scale "$scale" --tol 1e-30 \
+  ${MPIEXEC:-mpiexec.mpich} ${MPIEXEC_FLAGS:-} -n "$p" "$worker" solve "$scene" --scale "$scale" --tol 1e-30 \
     --max-iter "$iterations" --json > "$results/$p.json" || [[ $? -eq 2 ]]
 done
 python3 - "$results" "$scene" "$iterations" "$scale" $ranks <<'PY'

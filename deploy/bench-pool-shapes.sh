@@ -35,7 +35,7 @@ run_shape() { # NAME POOLS RANKS_PER_POOL
   start=$(date +%s.%N)
   local shape_pids=()
   for i in $(seq "$pools"); do
-    mpiexec -n "$per" "$bin/glissade-worker" pool --coordinator "$url" --pool-id "$name-$i" 2> "$work/$name-pool-$i.log" &
+    mpiexec.mpich -n "$per" "$bin/glissade-worker" pool --coordinator "$url" --pool-id "$name-$i" 2> "$work/$name-pool-$i.log" &
     shape_pids+=($!)
   done
   until "$bin/glissade" --server "$url" show "$study" --json | grep -q '"state":"done"'; do sleep 0.2; done

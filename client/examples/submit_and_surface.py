@@ -48,6 +48,17 @@ def load_stubs(proto_path):
     return importlib.import_module("glissade_pb2"), importlib.import_module("glissade_pb2_grpc")
 
 
+def read_token(path):
+    """The user token: the file given, else GLISSADE_TOKEN, else the file GLISSADE_TOKEN_FILE names."""
+    if path is None and "GLISSADE_TOKEN" in os.environ:
+        return os.environ["GLISSADE_TOKEN"].strip()
+    path = path or os.environ.get("GLISSADE_TOKEN_FILE")
+    if path is None:
+        return None
+    with open(path, encoding="ascii") as f:
+        return f.read().strip()
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("scene", help="scene file (TOML)")
@@ -60,7 +71,11 @@ def main():
     parser.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
     parser.add_argument("--proto", default=DEFAULT_PROTO, help="path of glissade.proto")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of CSV")
+    parser.add_argument("--token-file", help="file holding the user token of a coordinator that asks for one "
+                        "(else GLISSADE_TOKEN, else the file GLISSADE_TOKEN_FILE names), as the CLI reads it")
     args = parser.parse_args()
+    token = read_token(args.token_file)
+    md = (("authorization", f"Bearer {token}"),) if token else ()
 
     pb, rpc = load_stubs(args.proto)
     with open(args.scene, encoding="utf-8") as f:
@@ -75,12 +90,13 @@ def main():
         )
         if args.tol is not None:
             request.tolerance = args.tol
-        reply = user.SubmitStudy(request, timeout=30)
+        reply = user.SubmitStudy(request, timeout=30, metadata=md)
         print(f"study {reply.study_id}: {reply.points} points of scene {reply.scene_hash[:12]}...",
               file=sys.stderr)
 
         # Follow the study until it ends: a server stream of events.
-        for event in user.WatchStudy(pb.WatchStudyRequest(study_id=reply.study_id), timeout=args.timeout):
+        for event in user.WatchStudy(pb.WatchStudyRequest(study_id=reply.study_id), timeout=args.timeout,
+                                    metadata=md):
             if event.kind == pb.EVENT_KIND_POINT_FINISHED and not event.replay:
                 p = event.point
                 where = " ".join(f"{k}={v:g}" for k, v in sorted(p.parameters.items()))
@@ -89,8 +105,8 @@ def main():
             if event.kind == pb.EVENT_KIND_STUDY_ENDED:
                 break
 
-        surface = user.QuerySurface(pb.QuerySurfaceRequest(study_id=reply.study_id), timeout=30)
-        study = user.GetStudy(pb.GetStudyRequest(study_id=reply.study_id), timeout=30)
+        surface = user.QuerySurface(pb.QuerySurfaceRequest(study_id=reply.study_id), timeout=30, metadata=md)
+        study = user.GetStudy(pb.GetStudyRequest(study_id=reply.study_id), timeout=30, metadata=md)
 
     rows = [
         {

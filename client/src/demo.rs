@@ -12,7 +12,7 @@ use glissade_proto::v1;
 use glissade_server::ServerOptions;
 use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
 
-use crate::{ConvergenceArgs, Outcome, SurfaceArgs, convergence, refused, surface, user, watch};
+use crate::{ConvergenceArgs, Outcome, Server, SurfaceArgs, convergence, refused, surface, user, watch};
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
 const SCENE: &str = include_str!("../../scenes/three-blocks-tiny.toml");
@@ -79,9 +79,11 @@ pub async fn demo(args: DemoArgs) -> Result<Outcome> {
 }
 
 async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
+    // the demo's own coordinator, on loopback: no token
+    let server = &Server { url: url.to_owned(), token: None };
     let n = args.grid;
     let grid = vec![format!("f1=0.1:0.2:{n}"), format!("f2=0.1:0.2:{n}")];
-    let mut client = user(url).await?;
+    let mut client = user(server).await?;
     let reply = client
         .submit_study(v1::SubmitStudyRequest {
             scene: SCENE.to_owned(),
@@ -115,10 +117,10 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         png,
         size: (900, 700),
     };
-    surface(url, surface_args(Some("slip_A"), None, None)).await?;
-    surface(url, surface_args(None, Some(png("surface.csv")), None)).await?;
-    surface(url, surface_args(Some("slip_A"), None, Some(png("slip_A.png")))).await?;
-    convergence(url, ConvergenceArgs { study: id, png: Some(png("convergence.png")), json: false, size: (900, 600) })
+    surface(server, surface_args(Some("slip_A"), None, None)).await?;
+    surface(server, surface_args(None, Some(png("surface.csv")), None)).await?;
+    surface(server, surface_args(Some("slip_A"), None, Some(png("slip_A.png")))).await?;
+    convergence(server, ConvergenceArgs { study: id, png: Some(png("convergence.png")), json: false, size: (900, 600) })
         .await?;
     eprintln!("wrote {} (every QoI of every point)", png("surface.csv").display());
     Ok(outcome)

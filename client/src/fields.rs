@@ -8,12 +8,11 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result, anyhow, bail};
 use glissade_proto::Assembler;
-use glissade_proto::v1::{self, user_client::UserClient};
+use glissade_proto::v1;
 use glissade_worker::io::{fields, solution_file};
 use glissade_worker::run::{SolveRequest, solve_scene};
 use glissade_worker::scene::Scene;
 use glissade_worker::study::space::{DesignPoint, ParameterSpace};
-use tonic::transport::Channel;
 
 use crate::{get_study, refused};
 
@@ -76,7 +75,7 @@ fn nearest_done<'a>(
     done.min_by(|a, b| distance(a).total_cmp(&distance(b)))
 }
 
-pub async fn fields(client: &mut UserClient<Channel>, args: FieldsArgs) -> Result<()> {
+pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
     if fields::xdmf_path(&args.out) == args.out {
         bail!("--out {}: give the HDF5 file (e.g. point.h5); the .xdmf file is written beside it", args.out.display());
     }

@@ -21,6 +21,8 @@ use glissade_proto::v1::health_client::HealthClient;
 use glissade_proto::v1::user_client::UserClient;
 use glissade_proto::v1::{self, HealthRequest};
 use glissade_worker::scene::{QoiKind, Scene};
+use glissade_proto::auth::{Token, WithToken};
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, Endpoint};
 use tonic::{Code, Status};
 use tracing_subscriber::EnvFilter;
@@ -49,6 +51,10 @@ struct Cli {
     /// URL of the glissade coordinator (glissade-server).
     #[arg(long, global = true, env = "GLISSADE_SERVER", value_name = "URL", default_value = "http://127.0.0.1:50051")]
     server: String,
+    /// File holding the user token of a coordinator that asks for one (else GLISSADE_TOKEN,
+    /// else the file GLISSADE_TOKEN_FILE names).
+    #[arg(long, global = true, value_name = "FILE")]
+    token_file: Option<PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -265,7 +271,8 @@ fn main() -> ExitCode {
 }
 
 async fn run(cli: Cli) -> Result<Outcome> {
-    let server = cli.server.as_str();
+    let token = Token::for_client(cli.token_file.as_deref())?;
+    let server = &Server { url: cli.server, token };
     let done = |r: Result<()>| r.map(|()| Outcome::Success);
     match cli.command {
         Command::Health { json } => done(health(server, json).await),
@@ -291,13 +298,28 @@ fn refused(what: &str, status: tonic::Status) -> anyhow::Error {
     anyhow!("{what}: {message} ({:?})", status.code())
 }
 
-async fn user(server: &str) -> Result<UserClient<Channel>> {
-    Ok(UserClient::new(connect(server).await?))
+/// The coordinator a command talks to: its URL and the user token (if it needs one).
+pub struct Server {
+    pub url: String,
+    pub token: Option<Token>,
+}
+
+impl std::fmt::Display for Server {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.url)
+    }
+}
+
+/// A user-service client that presents the token with every call.
+pub type User = UserClient<InterceptedService<Channel, WithToken>>;
+
+async fn user(server: &Server) -> Result<User> {
+    Ok(UserClient::with_interceptor(connect(server).await?, WithToken::new(server.token.as_ref())))
 }
 
 /// The study with its points and (when asked) its scene text; errors start with `command ID`.
 async fn get_study(
-    client: &mut UserClient<Channel>,
+    client: &mut User,
     command: &str,
     id: u64,
     points: bool,
@@ -318,7 +340,7 @@ fn read_submission(path: &Path, grid: &[String]) -> Result<(String, usize)> {
     Ok((text, points))
 }
 
-async fn submit(server: &str, args: SubmitArgs) -> Result<Outcome> {
+async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
     if let Some(t) = args.tol
         && !(t.is_finite() && t > 0.0)
     {
@@ -371,7 +393,7 @@ async fn submit(server: &str, args: SubmitArgs) -> Result<Outcome> {
 
 /// Follows a study to its end: an indicatif bar on a terminal, plain lines otherwise; then the
 /// summary. StudyFailed when it ended with failed or cancelled points.
-async fn watch(client: &mut UserClient<Channel>, id: u64) -> Result<Outcome> {
+async fn watch(client: &mut User, id: u64) -> Result<Outcome> {
     let mut stream = client
         .watch_study(v1::WatchStudyRequest { study_id: id })
         .await
@@ -453,7 +475,7 @@ fn is_transient(s: &Status) -> bool {
 /// A new watch of study `id`, retried with back-off (0.2 s doubling to 5 s) for as long as the
 /// coordinator is unreachable; a refusal (the study is gone) ends it.
 async fn reconnect_watch(
-    client: &mut UserClient<Channel>,
+    client: &mut User,
     id: u64,
     say: &impl Fn(&str),
 ) -> Result<tonic::Streaming<v1::StudyEvent>> {
@@ -487,7 +509,7 @@ fn now_unix_ms() -> i64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
 }
 
-async fn studies(server: &str, json: bool) -> Result<()> {
+async fn studies(server: &Server, json: bool) -> Result<()> {
     let list = user(server)
         .await?
         .list_studies(v1::ListStudiesRequest {})
@@ -543,7 +565,7 @@ fn study_json(s: &v1::Study) -> serde_json::Value {
     })
 }
 
-async fn cancel(server: &str, id: u64) -> Result<()> {
+async fn cancel(server: &Server, id: u64) -> Result<()> {
     let s = user(server)
         .await?
         .cancel_study(v1::CancelStudyRequest { study_id: id })
@@ -561,7 +583,7 @@ async fn cancel(server: &str, id: u64) -> Result<()> {
     Ok(())
 }
 
-async fn retry(server: &str, id: u64) -> Result<()> {
+async fn retry(server: &Server, id: u64) -> Result<()> {
     let r = user(server)
         .await?
         .retry_failed(v1::RetryFailedRequest { study_id: id })
@@ -598,7 +620,7 @@ fn write_output(path: &Path, text: &str) -> Result<()> {
     std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))
 }
 
-async fn surface(server: &str, args: SurfaceArgs) -> Result<()> {
+async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
     let mut client = user(server).await?;
     // the scene's text only for the picture's units
     let study = get_study(&mut client, "surface", args.study, false, args.png.is_some()).await?;
@@ -661,7 +683,7 @@ async fn surface(server: &str, args: SurfaceArgs) -> Result<()> {
     Ok(())
 }
 
-async fn convergence(server: &str, args: ConvergenceArgs) -> Result<()> {
+async fn convergence(server: &Server, args: ConvergenceArgs) -> Result<()> {
     if args.png.is_none() && !args.json {
         bail!("say where the histories go: --png FILE and/or --json");
     }
@@ -733,7 +755,7 @@ fn point_json(p: &v1::PointStatus) -> serde_json::Value {
     })
 }
 
-async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> {
+async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<()> {
     let s = get_study(&mut user(server).await?, "show", study, points, false).await?;
     let p = s.progress.unwrap_or_default();
     if json {
@@ -811,7 +833,7 @@ async fn show(server: &str, study: u64, points: bool, json: bool) -> Result<()> 
     Ok(())
 }
 
-async fn health(server: &str, json: bool) -> Result<()> {
+async fn health(server: &Server, json: bool) -> Result<()> {
     let channel = connect(server).await?;
     let reply = HealthClient::new(channel)
         .check(HealthRequest {})
@@ -820,28 +842,32 @@ async fn health(server: &str, json: bool) -> Result<()> {
         .into_inner();
     if json {
         let value = serde_json::json!({
-            "server": server,
+            "server": server.url,
             "status": reply.status,
             "version": reply.version,
+            "detail": reply.detail,
         });
         outln!("{value}");
     } else {
         outln!("status:  {}", reply.status);
         outln!("version: {}", reply.version);
     }
+    if reply.status != "SERVING" {
+        bail!("the coordinator at {server} is not serving: {}", reply.detail);
+    }
     Ok(())
 }
 
 /// Connects to `server`, turning transport errors into one line that says what went wrong.
-async fn connect(server: &str) -> Result<Channel> {
+async fn connect(server: &Server) -> Result<Channel> {
     let invalid = || anyhow!("invalid server URL `{server}` (expected e.g. http://host:50051)");
-    let endpoint = Endpoint::from_shared(server.to_owned()).map_err(|_| invalid())?.connect_timeout(CONNECT_TIMEOUT);
+    let endpoint = Endpoint::from_shared(server.url.clone()).map_err(|_| invalid())?.connect_timeout(CONNECT_TIMEOUT);
     // `Endpoint` accepts relative URIs such as `localhost:50051`; catch them before connecting.
     let uri = endpoint.uri();
     if !matches!(uri.scheme_str(), Some("http" | "https")) || uri.host().is_none() {
         return Err(invalid());
     }
-    tracing::debug!(server, "connecting");
+    tracing::debug!(server = %server, "connecting");
     endpoint.connect().await.map_err(|e| {
         tracing::debug!(error = ?e, "connect failed");
         anyhow!("cannot reach glissade server at {server}: {}", root_cause(&e))

@@ -1,5 +1,6 @@
 //! The gRPC contract of glissade (generated) and the small domain types both ends share.
 
+pub mod auth;
 pub mod chunks;
 pub mod domain;
 

@@ -17,6 +17,7 @@ use glissade_worker::study::order::OrderKind;
 use glissade_worker::study::strategy::InitStrategy;
 
 use crate::records::{PointRecord, PointState, SolutionOrigin};
+use crate::store::StoreError;
 
 /// Largest scene text accepted (scenes are a few kilobytes; a mesh file would be another story).
 pub const MAX_SCENE_BYTES: usize = 1 << 20;
@@ -41,6 +42,10 @@ pub fn status(e: CoordError) -> Status {
         | CoordError::UnknownSolution(_) => Code::NotFound,
         CoordError::Precondition(_) => Code::FailedPrecondition,
         CoordError::Corrupt(_) => Code::DataLoss,
+        CoordError::Store(StoreError::Full { .. }) => {
+            tracing::error!(error = %e, "storage full");
+            Code::ResourceExhausted
+        }
         CoordError::Store(_) | CoordError::Decode(_) | CoordError::Index(_) => {
             tracing::error!(error = %e, "storage error");
             Code::Internal

@@ -23,7 +23,7 @@ use glissade_worker::study::space::ParameterSpace;
 use glissade_worker::study::strategy::InitStrategy;
 
 use crate::records::{
-    self, NEXT_LEASE_KEY, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin,
+    self, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin,
     SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, StoreError, Tree};
@@ -300,7 +300,6 @@ struct State {
     lease_progress: HashMap<u64, (u64, f64)>,
     pools: HashMap<String, PoolInfo>,
     next_study: u64,
-    next_lease: u64,
     next_finish_seq: u64,
 }
 
@@ -329,7 +328,6 @@ impl Coordinator {
             Ok(store.get(Tree::Meta, key)?.as_deref().and_then(records::decode_u64).unwrap_or(1))
         };
         state.next_study = counter(NEXT_STUDY_KEY)?;
-        state.next_lease = counter(NEXT_LEASE_KEY)?;
 
         let mut in_key_order = Vec::new();
         for (key, value) in store.scan_prefix(Tree::Solutions, b"")? {
@@ -392,6 +390,11 @@ impl Coordinator {
 
     pub fn config(&self) -> &Config {
         &self.config
+    }
+
+    /// Why the database can no longer write, if it cannot (a full disk).
+    pub fn store_failure(&self) -> Option<String> {
+        self.store.write_failure()
     }
 
     fn lock(&self) -> MutexGuard<'_, State> {
@@ -818,7 +821,7 @@ impl Coordinator {
                     }
                     _ => None,
                 };
-                let lease_id = state.next_lease;
+                let lease_id = new_lease_id(&state.leases);
                 let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
                 let entry = state.studies.get_mut(&id).expect("id listed above");
                 let mut point = entry.points[i].clone();
@@ -831,7 +834,6 @@ impl Coordinator {
                 point.attempts += 1;
                 let mut batch = Batch::new();
                 batch.put(Tree::Points, point_key(id, point.id), encode(&point));
-                batch.put(Tree::Meta, NEXT_LEASE_KEY, (lease_id + 1).to_be_bytes());
                 self.store.commit(batch)?;
                 let grant = LeaseGrant {
                     lease_id,
@@ -848,7 +850,6 @@ impl Coordinator {
                 entry.points[i] = point;
                 tracing::info!(study = %id, point = i, pool, lease_id, "leased");
                 self.emit(EventKind::Started, entry, Some(&entry.points[i]));
-                state.next_lease = lease_id + 1;
                 state.leases.insert(lease_id, (id, PointId(i as u64)));
                 return Ok(Some(grant));
             }
@@ -914,14 +915,13 @@ impl Coordinator {
         };
         if !holds {
             let now = match &p.state {
-                PointState::Leased { pool: holder, lease_id: l, .. } if holder == pool => {
-                    format!("it is held under lease {l}, not {lease_id}")
-                }
+                // never the lease id: whoever knows it may speak for the lease
+                PointState::Leased { pool: holder, .. } if holder == pool => "it is held under another lease".into(),
                 PointState::Leased { pool: holder, .. } => format!("it is leased to pool `{holder}`"),
                 other => format!("it is {}", point_state_word(other)),
             };
             return Err(CoordError::Precondition(format!(
-                "pool `{pool}` does not hold point {point} of study {study} under lease {lease_id}: {now}"
+                "pool `{pool}` does not hold point {point} of study {study} under the lease given: {now}"
             )));
         }
         Ok((entry, i))
@@ -1258,6 +1258,17 @@ fn check_meta(meta: &SolutionMeta, c: &Completion, scene_hash: &str, full: &Para
 
 /// Equal but for the last bits: the solution file's header is JSON, and serde_json's default
 /// float parsing is not exactly round-trip (it may move the last bit).
+/// A lease id nobody can guess (64 random bits from the OS-seeded generator), unused and not 0:
+/// a lease id is what lets a pool complete, fail or release a point.
+fn new_lease_id(leases: &HashMap<u64, (StudyId, PointId)>) -> u64 {
+    loop {
+        let id: u64 = rand::random();
+        if id != 0 && !leases.contains_key(&id) {
+            return id;
+        }
+    }
+}
+
 fn same_number(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-12 * a.abs().max(b.abs())
 }
@@ -1527,8 +1538,8 @@ mod tests {
         assert_eq!(g.point, PointId(1));
         let from = g.init.expect("a warm start").origin;
         assert!(from.point == Some(PointId(0)) || from.point == Some(PointId(2)), "{from:?}");
-        // ids continue where they were
-        assert!(g.lease_id > held.lease_id);
+        // study ids continue where they were; lease ids are random, never reused
+        assert_ne!(g.lease_id, held.lease_id);
         assert_eq!(submit(&c, &["f1=0.1"], 1e-3, InitStrategy::Cold), StudyId(id.0 + 1));
     }
 }

@@ -2,6 +2,7 @@
 //! reflection) over a sled database until a shutdown future resolves. `glissade-server` is a thin
 //! binary around it; `glissade demo` embeds it on a temporary directory.
 
+pub mod auth;
 mod convert;
 mod coordinator;
 mod health;
@@ -44,6 +45,11 @@ pub struct ServerOptions {
     pub max_points: usize,
     /// Largest estimated memory of one solve of a submitted scene, bytes.
     pub max_scene_bytes: u64,
+    /// The user and pool tokens; None: no authentication, which is allowed on loopback only
+    /// unless `open` says otherwise.
+    pub tokens: Option<auth::Tokens>,
+    /// Serve without tokens on a non-loopback address (a network where every host is trusted).
+    pub open: bool,
 }
 
 /// Default of `--max-scene-mib`: 64 GiB, the memory of a large compute node (the paper's
@@ -60,6 +66,8 @@ impl ServerOptions {
             max_solution_bytes: 4 << 30,
             max_points: DEFAULT_MAX_POINTS,
             max_scene_bytes: DEFAULT_MAX_SCENE_MIB << 20,
+            tokens: None,
+            open: false,
         }
     }
 }
@@ -78,6 +86,11 @@ pub async fn bind(
     }
     if options.max_attempts == 0 {
         anyhow::bail!("max attempts 0: give at least 1");
+    }
+    if options.tokens.is_none() && !listen.ip().is_loopback() && !options.open {
+        anyhow::bail!(
+            "listening on {listen} without tokens would let anyone who reaches it submit, cancel or falsify results: give --user-token-file and --pool-token-file (README, Service), listen on 127.0.0.1, or pass --open on a network where every host is trusted"
+        );
     }
     let store = SledStore::open(&options.data).context("opening the database")?;
     let config = Config {
@@ -99,6 +112,7 @@ pub async fn bind(
     let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("binding {listen}"))?;
     let addr = listener.local_addr().context("reading the bound address")?;
 
+    let tokens = options.tokens.clone();
     let serve = async move {
         // Leases of pools that stopped answering expire even while no pool asks for work.
         let expiry = {
@@ -118,16 +132,25 @@ pub async fn bind(
         };
         let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
         let serve = Server::builder()
-            .add_service(HealthServer::new(health::HealthService))
-            .add_service(UserServer::new(user::UserService { coordinator: coordinator.clone() }))
-            .add_service(PoolServer::new(pool::PoolService::new(coordinator.clone())))
+            .add_service(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
+            .add_service(UserServer::with_interceptor(
+                user::UserService { coordinator: coordinator.clone() },
+                auth::RequireToken::users(tokens.as_ref()),
+            ))
+            .add_service(PoolServer::with_interceptor(
+                pool::PoolService::new(coordinator.clone()),
+                auth::RequireToken::pools(tokens.as_ref()),
+            ))
             .add_service(reflection_v1)
             .add_service(reflection_v1alpha)
             // No Nagle: a lease is several small messages, and delayed ACKs would add 40 ms to each.
             .serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), {
                 let c = coordinator.clone();
                 async move {
-                    shutdown.await;
+                    tokio::select! {
+                        () = shutdown => {}
+                        () = store_failed(c.clone()) => {}
+                    }
                     // End long polls and event streams, or the graceful shutdown would wait for them.
                     c.stop();
                     let _ = stopping_tx.send(());
@@ -143,11 +166,36 @@ pub async fn bind(
             } => tracing::warn!(grace = ?SHUTDOWN_GRACE, "connections still open after the grace period: closing"),
         }
         expiry.abort();
+        if let Some(cause) = coordinator.store_failure() {
+            // sled's write errors are sticky: only a new process writes again. Every answer
+            // given was committed first, so nothing is lost; pools keep their results. The
+            // database is not dropped: sled's drop would retry its failed flush for ever.
+            std::mem::forget(coordinator.clone());
+            anyhow::bail!(
+                "the database cannot write ({cause}): stopped so that the service manager restarts the coordinator once space is freed"
+            );
+        }
         coordinator.flush().context("flushing the database at shutdown")?;
         tracing::info!("stopped");
         Ok(())
     };
     Ok((addr, serve))
+}
+
+/// How long a coordinator whose database cannot write keeps answering (Health NOT_SERVING,
+/// RESOURCE_EXHAUSTED) before it stops to be restarted.
+const STORE_FAILURE_GRACE: Duration = Duration::from_secs(3);
+
+/// Resolves once the database has failed to write, after [`STORE_FAILURE_GRACE`].
+async fn store_failed(coordinator: Arc<Coordinator>) {
+    loop {
+        if let Some(cause) = coordinator.store_failure() {
+            tracing::error!(cause, grace = ?STORE_FAILURE_GRACE, "the database cannot write: stopping");
+            tokio::time::sleep(STORE_FAILURE_GRACE).await;
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
 }
 
 /// Checks a grid submission against its scene as SubmitStudy does, and returns the swept

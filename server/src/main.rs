@@ -9,7 +9,9 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use glissade_proto::auth::Token;
 use glissade_server::ServerOptions;
+use glissade_server::auth::Tokens;
 use tracing_subscriber::EnvFilter;
 
 /// Coordinator of glissade parametric studies: serves the gRPC API (services glissade.v1.User,
@@ -46,6 +48,17 @@ struct Args {
     /// scene's text: dofs and interface size; docs/performance.md, "Memory of a solve").
     #[arg(long, value_name = "MIB", default_value_t = glissade_server::DEFAULT_MAX_SCENE_MIB, env = "GLISSADE_MAX_SCENE_MIB")]
     max_scene_mib: u64,
+    /// File holding the token users present (submit, watch, cancel, query); with
+    /// --pool-token-file. Without tokens the coordinator listens on loopback only.
+    #[arg(long, value_name = "FILE", env = "GLISSADE_USER_TOKEN_FILE", requires = "pool_token_file")]
+    user_token_file: Option<PathBuf>,
+    /// File holding the token pools present (lease, heartbeat, complete, fail).
+    #[arg(long, value_name = "FILE", env = "GLISSADE_POOL_TOKEN_FILE", requires = "user_token_file")]
+    pool_token_file: Option<PathBuf>,
+    /// Serve without tokens on a non-loopback address: only where every host that can reach
+    /// the port is trusted.
+    #[arg(long, env = "GLISSADE_OPEN")]
+    open: bool,
 }
 
 fn main() -> ExitCode {
@@ -81,6 +94,17 @@ async fn run(args: Args) -> Result<()> {
         max_solution_bytes: args.max_solution_mib.saturating_mul(1 << 20),
         max_points: args.max_points,
         max_scene_bytes: args.max_scene_mib.saturating_mul(1 << 20),
+        tokens: match (&args.user_token_file, &args.pool_token_file) {
+            (Some(u), Some(p)) => {
+                let tokens = Tokens { user: Token::from_file(u)?, pool: Token::from_file(p)? };
+                if tokens.user == tokens.pool {
+                    anyhow::bail!("the user and pool tokens are the same: give each role its own");
+                }
+                Some(tokens)
+            }
+            _ => None,
+        },
+        open: args.open,
     };
     // Install the handlers before announcing the port: a SIGTERM right after it must not kill us
     // with the default action and skip the database flush.

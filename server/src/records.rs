@@ -21,8 +21,6 @@ use serde::{Deserialize, Serialize};
 
 /// `meta` key of the next study id to hand out.
 pub const NEXT_STUDY_KEY: &[u8] = b"next-study-id";
-/// `meta` key of the next lease id to hand out.
-pub const NEXT_LEASE_KEY: &[u8] = b"next-lease-id";
 
 /// Key of a study.
 pub fn study_key(study: StudyId) -> [u8; 8] {

@@ -100,6 +100,13 @@ pub enum StoreError {
         #[source]
         source: sled::Error,
     },
+    /// The disk under the database is full: nothing more can be written until space is freed
+    /// (and, sled's write error being sticky, the coordinator restarted).
+    #[error("database at {path}: the disk is full (no space left on the device)")]
+    Full {
+        /// The database directory.
+        path: PathBuf,
+    },
     /// The database was written by a different layout version; reading it would misinterpret data.
     #[error(
         "database at {path} has schema version {found}, this glissade-server expects {expected}; \
@@ -131,10 +138,16 @@ pub trait Store: Send + Sync {
     fn flush(&self) -> Result<(), StoreError>;
     /// Bytes the database occupies on disk.
     fn size_on_disk(&self) -> Result<u64, StoreError>;
+    /// Why the store can no longer write (the first write error), if it cannot.
+    fn write_failure(&self) -> Option<String> {
+        None
+    }
 }
 
 /// [`Store`] backed by a sled database directory.
 pub struct SledStore {
+    /// The first write error: sled keeps failing after one, until it is reopened.
+    failure: std::sync::Mutex<Option<String>>,
     db: sled::Db,
     /// Open trees, indexed like [`Tree::ALL`].
     trees: Vec<sled::Tree>,
@@ -185,7 +198,7 @@ impl SledStore {
         }
         let trees = Tree::ALL.iter().map(|t| db.open_tree(t.name())).collect::<Result<Vec<_>, _>>().map_err(engine)?;
         db.flush().map_err(engine)?;
-        Ok(Self { db, trees, path })
+        Ok(Self { failure: Default::default(), db, trees, path })
     }
 
     fn tree(&self, tree: Tree) -> &sled::Tree {
@@ -193,7 +206,23 @@ impl SledStore {
     }
 
     fn engine_error(&self, source: sled::Error) -> StoreError {
-        StoreError::Engine { path: self.path.clone(), source }
+        match source {
+            sled::Error::Io(ref io) if io.raw_os_error() == Some(28) || io.kind() == std::io::ErrorKind::StorageFull => {
+                StoreError::Full { path: self.path.clone() }
+            }
+            source => StoreError::Engine { path: self.path.clone(), source },
+        }
+    }
+
+    /// A write error, remembered as the store's failure (the first one is the cause).
+    fn write_error(&self, source: sled::Error) -> StoreError {
+        let e = self.engine_error(source);
+        let mut failure = self.failure.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        failure.get_or_insert_with(|| match std::error::Error::source(&e) {
+            Some(cause) => format!("{e}: {cause}"),
+            None => e.to_string(),
+        });
+        e
     }
 }
 
@@ -232,7 +261,7 @@ impl Store for SledStore {
                 Ok(())
             })
             .map_err(|e: sled::transaction::TransactionError<()>| match e {
-                sled::transaction::TransactionError::Storage(source) => self.engine_error(source),
+                sled::transaction::TransactionError::Storage(source) => self.write_error(source),
                 sled::transaction::TransactionError::Abort(()) => {
                     unreachable!("the transaction closure never aborts")
                 }
@@ -241,11 +270,15 @@ impl Store for SledStore {
     }
 
     fn flush(&self) -> Result<(), StoreError> {
-        self.db.flush().map(drop).map_err(|e| self.engine_error(e))
+        self.db.flush().map(drop).map_err(|e| self.write_error(e))
     }
 
     fn size_on_disk(&self) -> Result<u64, StoreError> {
         self.db.size_on_disk().map_err(|e| self.engine_error(e))
+    }
+
+    fn write_failure(&self) -> Option<String> {
+        self.failure.lock().unwrap_or_else(std::sync::PoisonError::into_inner).clone()
     }
 }
 

@@ -371,6 +371,15 @@ fn worker_rejects_bad_input_with_one_line() -> anyhow::Result<()> {
         assert!(stderr.starts_with("error: ") && stderr.contains(named), "{args:?}: {stderr}");
         assert!(out.stdout.is_empty(), "{args:?}: {}", text(&out.stdout));
     }
+    // Started by OpenMPI's launcher (as Debian's `mpiexec` becomes once ParaView is installed):
+    // one line that names the launcher to use, not a solve per rank.
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker")).arg("solve").arg(&scene).env("OMPI_COMM_WORLD_SIZE", "2"),
+        LIMIT,
+    );
+    let stderr = text(&out.stderr);
+    assert_eq!((out.status.code(), stderr.lines().count()), (Some(1), 1), "{stderr}");
+    assert!(stderr.contains("mpiexec.mpich"), "{stderr}");
     Ok(())
 }
 
@@ -1332,4 +1341,191 @@ fn a_pool_fails_a_point_too_big_for_its_memory_with_the_reason_and_lives_on() ->
     // the pool did not die over it
     assert!(pool.0.try_wait()?.is_none(), "the pool exited: {}", log_of(&dir.path().join("pool.log")));
     Ok(())
+}
+
+#[test]
+fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (user_token, pool_token) = ("u".repeat(40), "p".repeat(40));
+    let (user_file, pool_file) = (dir.path().join("user.token"), dir.path().join("pool.token"));
+    std::fs::write(&user_file, format!("{user_token}\n"))?;
+    std::fs::write(&pool_file, &pool_token)?;
+
+    // Without tokens a coordinator refuses to listen beyond loopback.
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-server")).args(["--listen", "0.0.0.0:0", "--data"]).arg(dir.path().join("x")),
+        LIMIT,
+    );
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("without tokens"), "{}", text(&out.stderr));
+
+    let files = ["--user-token-file", user_file.to_str().unwrap(), "--pool-token-file", pool_file.to_str().unwrap()];
+    let (_server, addr) = start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &files);
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let with = |token: &str| {
+        let value: tonic::metadata::MetadataValue<_> = format!("Bearer {token}").parse().expect("ascii");
+        move |mut r: tonic::Request<()>| {
+            r.metadata_mut().insert("authorization", value.clone());
+            Ok(r)
+        }
+    };
+    let channel = rt.block_on(tonic::transport::Endpoint::from_shared(url.clone())?.connect())?;
+
+    // A stranger, and a pool posing as a user: refused before anything is read.
+    let mut stranger = UserClient::new(channel.clone());
+    let s = rt.block_on(stranger.submit_study(grid_request(&["f1=0.1"], STUDY_TOL))).expect_err("no token");
+    assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
+    let mut posing = UserClient::with_interceptor(channel.clone(), with(&pool_token));
+    let s = rt.block_on(posing.list_studies(v1::ListStudiesRequest {})).expect_err("pool token");
+    assert_eq!(s.code(), Code::PermissionDenied, "{s:?}");
+    // ...and a user posing as a pool cannot lease or complete.
+    let mut fake = PoolClient::with_interceptor(channel.clone(), with(&user_token));
+    let s = rt
+        .block_on(fake.register_pool(v1::RegisterPoolRequest { pool_id: "fake".into(), ..Default::default() }))
+        .expect_err("user token");
+    assert_eq!(s.code(), Code::PermissionDenied, "{s:?}");
+    let mut wrong = PoolClient::with_interceptor(channel.clone(), with(&"w".repeat(40)));
+    let s = rt.block_on(wrong.lease_point(v1::LeasePointRequest::default())).map(drop).expect_err("wrong");
+    assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
+    // Health stays open for monitoring.
+    let out = glissade(Some(&url), &["health"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+
+    // The CLI with the user token submits; a pool with the user token is refused and says so.
+    let scene = dir.path().join("tiny.toml");
+    std::fs::write(&scene, tiny_scene())?;
+    let token_arg = user_file.to_str().unwrap();
+    let out = glissade(
+        Some(&url),
+        &["--token-file", token_arg, "submit", scene.to_str().unwrap(), "--grid", "f1=0.1,0.2", "--tol", "1e-3"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = glissade(Some(&url), &["studies"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("needs a user token"), "{}", text(&out.stderr));
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker")).args(["pool", "--coordinator", &url, "--token-file", token_arg]),
+        LIMIT,
+    );
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("refused this pool"), "{}", text(&out.stderr));
+
+    // A pool with its token (from the environment) solves the study.
+    let pool_log = dir.path().join("pool.log");
+    let token = child_token();
+    let pool = command(&workspace_bin("glissade-worker"))
+        .args(["pool", "--coordinator", &url, "--idle-exit", "3"])
+        .env("GLISSADE_TOKEN", &pool_token)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(File::create(&pool_log)?)
+        .spawn()?;
+    let _pool = ServerGuard(pool, token);
+    let mut user = UserClient::with_interceptor(channel, with(&user_token));
+    rt.block_on(async {
+        let mut stream = user.watch_study(v1::WatchStudyRequest { study_id: 1 }).await?.into_inner();
+        while let Some(e) = tokio::time::timeout(LIMIT, stream.message()).await?? {
+            if kind(&e) == v1::EventKind::StudyEnded {
+                break;
+            }
+        }
+        anyhow::Ok(())
+    })?;
+    let s = rt.block_on(user.get_study(v1::GetStudyRequest { study_id: 1, points: true, scene: false }))?.into_inner();
+    assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}\n{}", log_of(&pool_log));
+    Ok(())
+}
+
+/// A tmpfs of `mib` MiB mounted at `dir`, unmounted on drop; None where this process may not
+/// mount (not root, or a container without CAP_SYS_ADMIN).
+struct SmallDisk(std::path::PathBuf);
+
+impl SmallDisk {
+    fn mount(dir: &Path, mib: u32) -> Option<Self> {
+        std::fs::create_dir_all(dir).ok()?;
+        let out = Command::new("mount").args(["-t", "tmpfs", "-o", &format!("size={mib}m"), "tmpfs"]).arg(dir).output().ok()?;
+        out.status.success().then(|| Self(dir.to_path_buf()))
+    }
+
+    /// Fills the disk with a file `filler`.
+    fn fill(&self) {
+        let mut f = File::create(self.0.join("filler")).expect("filler");
+        let block = vec![0u8; 1 << 16];
+        while std::io::Write::write_all(&mut f, &block).is_ok() {}
+    }
+}
+
+impl Drop for SmallDisk {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
+    }
+}
+
+#[test]
+fn a_full_disk_is_named_and_the_coordinator_recovers_after_a_restart() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let Some(disk) = SmallDisk::mount(&dir.path().join("fs"), 16) else {
+        eprintln!("skipped: cannot mount a tmpfs here (needs root, as on the CI machine)");
+        return Ok(());
+    };
+    let data = disk.0.join("db");
+    let log = dir.path().join("server.log");
+    let (mut server, addr) = start_server_with(&data, &log, "127.0.0.1:0", &["--lease-seconds", "60"]);
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let mut client = rt.block_on(user(&url))?;
+    let id = rt.block_on(client.submit_study(grid_request(&["f1=0.1:0.2:4"], STUDY_TOL)))?.into_inner().study_id;
+
+    // A pool holds a point and its solution when the disk fills up.
+    let (mut pool, lease) = rt.block_on(fake_pool(&url, "tester"))?;
+    let file = dir.path().join("p.bin");
+    let mut args = vec!["solve".to_string(), tiny_path(), "--tol".into(), STUDY_TOL.to_string(), "--save".into()];
+    args.push(file.display().to_string());
+    for (k, v) in &lease.parameters {
+        args.extend(["--set".to_string(), format!("{k}={v}")]);
+    }
+    let out = run_with_timeout(command(&workspace_bin("glissade-worker")).args(&args), LIMIT);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let solution = std::fs::read(&file)?;
+    disk.fill();
+    let status = rt.block_on(complete(&mut pool, &lease, "tester", &solution, &solution, solution.len())).expect_err("full");
+    assert_eq!(status.code(), Code::ResourceExhausted, "{status:?}");
+    assert!(status.message().contains("disk is full"), "{}", status.message());
+    let health = glissade(Some(&url), &["health", "--json"]);
+    assert_eq!(health.status.code(), Some(1));
+    assert!(text(&health.stdout).contains("NOT_SERVING"), "{}", text(&health.stdout));
+    // It stops by itself, saying why, for its service manager to restart it.
+    let status = wait_with_timeout(&mut server.0, LIMIT)
+        .unwrap_or_else(|| panic!("the coordinator did not stop:\n{}", log_of(&log)));
+    assert_eq!(status.code(), Some(1));
+    assert!(log_of(&log).contains("restarts the coordinator once space is freed"), "{}", log_of(&log));
+
+    // Space freed, restarted on the same data: the held point completes, a real pool does the rest.
+    std::fs::remove_file(disk.0.join("filler"))?;
+    let (_server, _) = start_server_with(&data, &dir.path().join("server2.log"), &addr.to_string(), &[]);
+    // (the old connection broke with the coordinator: retry as a pool does)
+    let mut reply = Err(tonic::Status::unavailable("not tried"));
+    for _ in 0..50 {
+        reply = rt.block_on(complete(&mut pool, &lease, "tester", &solution, &solution, solution.len()));
+        match &reply {
+            Err(s) if matches!(s.code(), Code::Unknown | Code::Unavailable) => std::thread::sleep(Duration::from_millis(100)),
+            _ => break,
+        }
+    }
+    assert_eq!(reply?.point.expect("point").state, v1::PointState::Done as i32);
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker")).args(["pool", "--coordinator", &url, "--idle-exit", "2"]),
+        LIMIT,
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let mut client = rt.block_on(user(&url))?;
+    let s = rt.block_on(study(&mut client, id))?;
+    assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}");
+    assert!(s.points.iter().all(|p| p.attempts == 1), "each point leased once: {s:?}");
+    Ok(())
+}
+
+fn tiny_path() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml").display().to_string()
 }

@@ -61,7 +61,7 @@ const POOL_EXAMPLES: &str = "\
 Examples:
   glissade-worker pool --coordinator http://coordinator:50051
   glissade-worker pool --coordinator http://10.0.0.5:50051 --pool-id node17 --idle-exit 600
-  mpiexec -n 16 glissade-worker pool --coordinator http://coordinator:50051
+  mpiexec.mpich -n 16 glissade-worker pool --coordinator http://coordinator:50051
 
 Under mpiexec the ranks form one pool: rank 0 talks to the coordinator and all ranks solve each
 point together (the substructures are shared out among them).
@@ -85,6 +85,10 @@ struct PoolArgs {
     /// fails with that reason (default: the memory available when the point arrives)
     #[arg(long, value_name = "MIB", env = "GLISSADE_POOL_MEMORY_MIB")]
     memory_mib: Option<u64>,
+    /// File holding the pool token of a coordinator that asks for one (else GLISSADE_TOKEN,
+    /// else the file GLISSADE_TOKEN_FILE names)
+    #[arg(long, value_name = "FILE")]
+    token_file: Option<std::path::PathBuf>,
 }
 
 /// Pool mode: one process, or P MPI ranks of which rank 0 talks to the coordinator.
@@ -94,6 +98,7 @@ fn pool(args: PoolArgs) -> Result<bool> {
     let mut options = PoolOptions::new(args.coordinator);
     options.pool_id = args.pool_id;
     options.memory_budget = args.memory_mib.map(|m| m.saturating_mul(1 << 20));
+    options.token = glissade_proto::auth::Token::for_client(args.token_file.as_deref())?;
     if let Some(s) = args.idle_exit {
         if !(s.is_finite() && s >= 0.0) {
             bail!("--idle-exit {s}: give a number of seconds");
@@ -102,6 +107,7 @@ fn pool(args: PoolArgs) -> Result<bool> {
     }
     let Some(universe) = mpi::initialize() else { bail!("MPI could not be initialised") };
     let comm = Mpi { world: universe.world() };
+    check_launcher(comm.size())?;
     if comm.size() == 1 {
         run_pool(options, &mut SerialPoolSolver::default())?;
         return Ok(true);
@@ -119,6 +125,19 @@ fn pool(args: PoolArgs) -> Result<bool> {
     // Whatever ended the pool, the other ranks are waiting for a job: tell them to stop.
     root.stop();
     result.map(|()| true)
+}
+
+/// A process that OpenMPI's launcher started as one of several ranks, but that MPICH (which this
+/// binary links) sees alone: every rank would solve the whole problem by itself. Debian switches
+/// `mpiexec` to OpenMPI when a package pulls it in (ParaView does).
+fn check_launcher(world_size: usize) -> Result<()> {
+    let openmpi_ranks = std::env::var("OMPI_COMM_WORLD_SIZE").ok().and_then(|n| n.parse::<usize>().ok());
+    if let Some(n) = openmpi_ranks.filter(|&n| n > 1 && world_size == 1) {
+        bail!(
+            "started by OpenMPI's mpiexec as one of {n} ranks, but glissade-worker is built on MPICH and would run alone: launch it with mpiexec.mpich (or srun)"
+        );
+    }
+    Ok(())
 }
 
 /// Ends every rank of the job when one panics (MPI_Abort from the panic hook).
@@ -229,7 +248,7 @@ fn check_output(flag: &str, path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// One solve; under `mpiexec -n P` every rank runs it and rank 0 writes the files and prints.
+/// One solve; under `mpiexec.mpich -n P` every rank runs it and rank 0 writes the files and prints.
 fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
     let scene_path = &args.scene;
     let text =
@@ -364,6 +383,10 @@ fn main() -> ExitCode {
                 return ExitCode::FAILURE;
             };
             let comm = Mpi { world: universe.world() };
+            if let Err(e) = check_launcher(comm.size()) {
+                eprintln!("error: {e}");
+                return ExitCode::FAILURE;
+            }
             if comm.size() > 1 {
                 abort_all_ranks_on_panic();
             }

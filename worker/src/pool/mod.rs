@@ -13,6 +13,8 @@
 //! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
 //! started is released).
 
+use glissade_proto::auth::{Token, WithToken};
+use tonic::service::interceptor::InterceptedService;
 use crate::text::one_line;
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
@@ -53,6 +55,8 @@ pub struct PoolOptions {
     pub backoff: (Duration, Duration),
     /// Stop after this long without work (None: never).
     pub idle_exit: Option<Duration>,
+    /// The pool token of a coordinator that asks for one.
+    pub token: Option<Token>,
     /// Memory a solve may take, bytes (None: what the system says is available when a point
     /// arrives). A point whose scene needs more fails with the reason instead of killing the pool.
     pub memory_budget: Option<u64>,
@@ -74,6 +78,7 @@ impl PoolOptions {
             backoff: (Duration::from_millis(200), Duration::from_secs(5)),
             idle_exit: None,
             memory_budget: None,
+            token: None,
             stop: None,
         }
     }
@@ -190,8 +195,11 @@ enum Break {
     Stop,
 }
 
+/// A pool-service client that presents the pool token with every call.
+type Pool = PoolClient<InterceptedService<Channel, WithToken>>;
+
 struct Session {
-    client: PoolClient<Channel>,
+    client: Pool,
     pool_id: String,
     heartbeat: Duration,
 }
@@ -207,6 +215,8 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
         }
         let session = match connect(&options, pool_id.as_deref()).await {
             Ok(s) => s,
+            // A token the coordinator refuses will not get better by retrying.
+            Err(e) if e.downcast_ref::<Refused>().is_some() => return Err(e),
             Err(e) => {
                 tracing::warn!(coordinator = %options.coordinator, error = %format!("{e:#}"), retry_in = ?backoff, "cannot reach the coordinator");
                 tokio::select! {
@@ -217,15 +227,23 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
                 continue;
             }
         };
-        backoff = options.backoff.0;
         if pool_id.as_deref() != Some(&session.pool_id) {
             tracing::info!(pool = %session.pool_id, coordinator = %options.coordinator, "registered");
         }
         pool_id = Some(session.pool_id.clone());
-        match serve(&options, session, &work, &mut stop, &mut pending, &mut idle_since).await {
+        let mut progressed = false;
+        match serve(&options, session, &work, &mut stop, &mut pending, &mut idle_since, &mut progressed).await {
             Break::Stop => return Ok(()),
             Break::Reconnect(why) => {
-                tracing::warn!(reason = %why, "lost the coordinator; reconnecting");
+                // A coordinator that answers but cannot take the result (a full disk) must not
+                // be asked again every 200 ms: back off until something goes through.
+                let pause = if progressed { options.backoff.0 } else { backoff };
+                tracing::warn!(reason = %why, retry_in = ?pause, "lost the coordinator; reconnecting");
+                tokio::select! {
+                    _ = tokio::time::sleep(pause) => {}
+                    _ = stop.changed(), if pending.is_none() => return Ok(()),
+                }
+                backoff = if progressed { options.backoff.0 } else { (backoff * 2).min(options.backoff.1) };
             }
         }
     }
@@ -237,7 +255,7 @@ async fn connect(options: &PoolOptions, pool_id: Option<&str>) -> Result<Session
         .connect_timeout(Duration::from_secs(5))
         .tcp_keepalive(Some(Duration::from_secs(30)));
     let channel = endpoint.connect().await.context("connecting")?;
-    let mut client = PoolClient::new(channel);
+    let mut client = PoolClient::with_interceptor(channel, WithToken::new(options.token.as_ref()));
     let reply = client
         .register_pool(v1::RegisterPoolRequest {
             pool_id: pool_id.unwrap_or_default().to_owned(),
@@ -246,15 +264,27 @@ async fn connect(options: &PoolOptions, pool_id: Option<&str>) -> Result<Session
             solver_version: env!("CARGO_PKG_VERSION").to_owned(),
         })
         .await
-        .map_err(|s| anyhow!("registering: {}", s.message()))?
+        .map_err(|s| match s.code() {
+            Code::Unauthenticated | Code::PermissionDenied => anyhow::Error::new(Refused(one_line(s.message()))),
+            _ => anyhow!("registering: {}", s.message()),
+        })?
         .into_inner();
     Ok(Session { client, pool_id: reply.pool_id, heartbeat: Duration::from_millis(reply.heartbeat_ms.max(20)) })
 }
 
+/// The coordinator refused this pool's credentials.
+#[derive(Debug, thiserror::Error)]
+#[error("the coordinator refused this pool: {0} (give the pool token: --token-file, GLISSADE_TOKEN or GLISSADE_TOKEN_FILE)")]
+struct Refused(String);
+
 /// Transport failures and a restarting coordinator are worth a reconnect; anything else is an
 /// answer about the request itself.
 fn is_transient(status: &Status) -> bool {
-    matches!(status.code(), Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded)
+    // RESOURCE_EXHAUSTED: the coordinator's disk is full; it restarts once space is freed
+    matches!(
+        status.code(),
+        Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded | Code::ResourceExhausted
+    )
         || (status.code() == Code::NotFound && status.message().contains("is not registered"))
 }
 
@@ -270,13 +300,14 @@ async fn serve(
     stop: &mut watch::Receiver<bool>,
     pending: &mut Option<Report>,
     idle_since: &mut Instant,
+    progressed: &mut bool,
 ) -> Break {
     // When the last solve ended: the pool's time between solves is the service's cost.
     let mut last_solved: Option<Instant> = None;
     loop {
         if let Some(report) = pending.take() {
             match deliver(&mut session.client, &session.pool_id, &report).await {
-                Ok(()) => {}
+                Ok(()) => *progressed = true,
                 Err(status) if is_transient(&status) => {
                     *pending = Some(report);
                     return Break::Reconnect(status.message().to_owned());
@@ -311,8 +342,12 @@ async fn serve(
             _ = stop.changed() => return Break::Stop,
         };
         let (lease, init_bytes) = match leased {
-            Ok(Some(l)) => l,
+            Ok(Some(l)) => {
+                *progressed = true;
+                l
+            }
             Ok(None) => {
+                *progressed = true;
                 last_solved = None;
                 continue;
             }
@@ -383,7 +418,7 @@ async fn serve(
 
 /// LeasePoint: the lease, then the warm start's chunks. None when there was no work.
 async fn receive_lease(
-    client: &mut PoolClient<Channel>,
+    client: &mut Pool,
     request: v1::LeasePointRequest,
 ) -> Result<Option<(v1::Lease, Vec<u8>)>, Status> {
     let mut stream = client.lease_point(request).await?.into_inner();
@@ -500,7 +535,7 @@ async fn release(session: &mut Session, lease: &v1::Lease) {
 
 
 /// Sends a report: the solution (CompletePoint) or the error (FailPoint).
-async fn deliver(client: &mut PoolClient<Channel>, pool_id: &str, report: &Report) -> Result<(), Status> {
+async fn deliver(client: &mut Pool, pool_id: &str, report: &Report) -> Result<(), Status> {
     let started = Instant::now();
     let lease = &report.lease;
     let fail = |error: String, eta: Option<f64>, iterations: u64| v1::FailPointRequest {
