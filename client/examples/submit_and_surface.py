@@ -73,6 +73,8 @@ def main():
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of CSV")
     parser.add_argument("--token-file", help="file holding the user token of a coordinator that asks for one "
                         "(else GLISSADE_TOKEN, else the file GLISSADE_TOKEN_FILE names), as the CLI reads it")
+    parser.add_argument("--ca-cert", default=os.environ.get("GLISSADE_CA_CERT"),
+                        help="PEM certificate of the authority that signed an https:// coordinator's certificate")
     args = parser.parse_args()
     token = read_token(args.token_file)
     md = (("authorization", f"Bearer {token}"),) if token else ()
@@ -80,8 +82,12 @@ def main():
     pb, rpc = load_stubs(args.proto)
     with open(args.scene, encoding="utf-8") as f:
         scene = f.read()
-    server = args.server.removeprefix("http://")
-    with grpc.insecure_channel(server) as channel:
+    if args.server.startswith("https://"):
+        root = open(args.ca_cert, "rb").read() if args.ca_cert else None
+        channel = grpc.secure_channel(args.server.removeprefix("https://"), grpc.ssl_channel_credentials(root))
+    else:
+        channel = grpc.insecure_channel(args.server.removeprefix("http://"))
+    with channel:
         user = rpc.UserStub(channel)
         request = pb.SubmitStudyRequest(
             scene=scene,

@@ -80,7 +80,7 @@ pub async fn demo(args: DemoArgs) -> Result<Outcome> {
 
 async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
     // the demo's own coordinator, on loopback: no token
-    let server = &Server { url: url.to_owned(), token: None };
+    let server = &Server { url: url.to_owned(), token: None, ca_cert: None };
     let n = args.grid;
     let grid = vec![format!("f1=0.1:0.2:{n}"), format!("f2=0.1:0.2:{n}")];
     let mut client = user(server).await?;

@@ -23,7 +23,7 @@ use glissade_proto::v1::{self, HealthRequest};
 use glissade_worker::scene::{QoiKind, Scene};
 use glissade_proto::auth::{Token, WithToken};
 use tonic::service::interceptor::InterceptedService;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Channel;
 use tonic::{Code, Status};
 use tracing_subscriber::EnvFilter;
 
@@ -55,6 +55,10 @@ struct Cli {
     /// else the file GLISSADE_TOKEN_FILE names).
     #[arg(long, global = true, value_name = "FILE")]
     token_file: Option<PathBuf>,
+    /// PEM certificate of the authority that signed an https:// coordinator's certificate
+    /// (else GLISSADE_CA_CERT, else the system's roots).
+    #[arg(long, global = true, value_name = "FILE")]
+    ca_cert: Option<PathBuf>,
     #[command(subcommand)]
     command: Command,
 }
@@ -272,7 +276,7 @@ fn main() -> ExitCode {
 
 async fn run(cli: Cli) -> Result<Outcome> {
     let token = Token::for_client(cli.token_file.as_deref())?;
-    let server = &Server { url: cli.server, token };
+    let server = &Server { url: cli.server, token, ca_cert: cli.ca_cert };
     let done = |r: Result<()>| r.map(|()| Outcome::Success);
     match cli.command {
         Command::Health { json } => done(health(server, json).await),
@@ -302,6 +306,8 @@ fn refused(what: &str, status: tonic::Status) -> anyhow::Error {
 pub struct Server {
     pub url: String,
     pub token: Option<Token>,
+    /// CA certificate of an `https://` coordinator (else GLISSADE_CA_CERT, else system roots).
+    pub ca_cert: Option<PathBuf>,
 }
 
 impl std::fmt::Display for Server {
@@ -860,13 +866,7 @@ async fn health(server: &Server, json: bool) -> Result<()> {
 
 /// Connects to `server`, turning transport errors into one line that says what went wrong.
 async fn connect(server: &Server) -> Result<Channel> {
-    let invalid = || anyhow!("invalid server URL `{server}` (expected e.g. http://host:50051)");
-    let endpoint = Endpoint::from_shared(server.url.clone()).map_err(|_| invalid())?.connect_timeout(CONNECT_TIMEOUT);
-    // `Endpoint` accepts relative URIs such as `localhost:50051`; catch them before connecting.
-    let uri = endpoint.uri();
-    if !matches!(uri.scheme_str(), Some("http" | "https")) || uri.host().is_none() {
-        return Err(invalid());
-    }
+    let endpoint = glissade_proto::auth::endpoint(&server.url, server.ca_cert.as_deref())?.connect_timeout(CONNECT_TIMEOUT);
     tracing::debug!(server = %server, "connecting");
     endpoint.connect().await.map_err(|e| {
         tracing::debug!(error = ?e, "connect failed");

@@ -120,3 +120,44 @@ mod tests {
         assert_eq!(presented(&r), Some("0123456789abcdef0123456789abcdef"));
     }
 }
+
+/// Environment variable naming the PEM file of the certificate authority that signed the
+/// coordinator's certificate (for `https://` URLs; without it the system's roots are used).
+pub const CA_CERT_ENV: &str = "GLISSADE_CA_CERT";
+
+#[derive(Debug, thiserror::Error)]
+pub enum EndpointError {
+    #[error("invalid coordinator URL `{0}` (expected http://host:port or https://host:port)")]
+    Url(String),
+    #[error("cannot read the CA certificate {path}: {source}")]
+    Ca { path: String, source: std::io::Error },
+    #[error("TLS settings for {url}: {source}")]
+    Tls { url: String, source: tonic::transport::Error },
+}
+
+/// The endpoint of a coordinator URL: plain for `http://`, TLS for `https://` (verified against
+/// the CA file given, else `GLISSADE_CA_CERT`, else the system's roots).
+pub fn endpoint(url: &str, ca_file: Option<&Path>) -> Result<tonic::transport::Endpoint, EndpointError> {
+    use tonic::transport::{Certificate, ClientTlsConfig, Endpoint};
+    let endpoint = Endpoint::from_shared(url.to_owned()).map_err(|_| EndpointError::Url(url.into()))?;
+    // `Endpoint` accepts relative URIs such as `localhost:50051`; refuse them before connecting.
+    let uri = endpoint.uri().clone();
+    let Some(host) = uri.host() else { return Err(EndpointError::Url(url.into())) };
+    match uri.scheme_str() {
+        Some("http") => Ok(endpoint),
+        Some("https") => {
+            let ca = ca_file.map(Path::to_path_buf).or_else(|| std::env::var_os(CA_CERT_ENV).map(Into::into));
+            let mut tls = ClientTlsConfig::new().domain_name(host.trim_start_matches('[').trim_end_matches(']'));
+            tls = match ca {
+                Some(path) => {
+                    let pem = std::fs::read(&path)
+                        .map_err(|source| EndpointError::Ca { path: path.display().to_string(), source })?;
+                    tls.ca_certificate(Certificate::from_pem(pem))
+                }
+                None => tls.with_native_roots(),
+            };
+            endpoint.tls_config(tls).map_err(|source| EndpointError::Tls { url: url.into(), source })
+        }
+        _ => Err(EndpointError::Url(url.into())),
+    }
+}

@@ -21,6 +21,7 @@ use anyhow::{Context, Result};
 use coordinator::{Config, Coordinator};
 use glissade_proto::v1::health_server::HealthServer;
 use glissade_proto::v1::pool_server::PoolServer;
+use tonic::service::interceptor::InterceptedService;
 use glissade_proto::v1::user_server::UserServer;
 use store::SledStore;
 pub use glissade_worker::study::space::DEFAULT_MAX_POINTS;
@@ -50,6 +51,8 @@ pub struct ServerOptions {
     pub tokens: Option<auth::Tokens>,
     /// Serve without tokens on a non-loopback address (a network where every host is trusted).
     pub open: bool,
+    /// PEM certificate chain and private key: serve TLS (clients use https:// URLs).
+    pub tls: Option<(Vec<u8>, Vec<u8>)>,
 }
 
 /// Default of `--max-scene-mib`: 64 GiB, the memory of a large compute node (the paper's
@@ -68,6 +71,7 @@ impl ServerOptions {
             max_scene_bytes: DEFAULT_MAX_SCENE_MIB << 20,
             tokens: None,
             open: false,
+            tls: None,
         }
     }
 }
@@ -113,6 +117,13 @@ pub async fn bind(
     let addr = listener.local_addr().context("reading the bound address")?;
 
     let tokens = options.tokens.clone();
+    let mut builder = Server::builder();
+    if let Some((cert, key)) = &options.tls {
+        let identity = tonic::transport::Identity::from_pem(cert, key);
+        builder = builder
+            .tls_config(tonic::transport::ServerTlsConfig::new().identity(identity))
+            .context("TLS certificate and key")?;
+    }
     let serve = async move {
         // Leases of pools that stopped answering expire even while no pool asks for work.
         let expiry = {
@@ -131,14 +142,17 @@ pub async fn bind(
             })
         };
         let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
-        let serve = Server::builder()
+        let serve = builder
             .add_service(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
             .add_service(UserServer::with_interceptor(
                 user::UserService { coordinator: coordinator.clone() },
                 auth::RequireToken::users(tokens.as_ref()),
             ))
-            .add_service(PoolServer::with_interceptor(
-                pool::PoolService::new(coordinator.clone()),
+            .add_service(InterceptedService::new(
+                // a pool's messages are a chunk of at most 1 MiB plus a small header: a bigger
+                // one is refused as it is decoded, not after
+                PoolServer::new(pool::PoolService::new(coordinator.clone()))
+                    .max_decoding_message_size(glissade_proto::CHUNK_BYTES + (64 << 10)),
                 auth::RequireToken::pools(tokens.as_ref()),
             ))
             .add_service(reflection_v1)

@@ -41,7 +41,7 @@ struct Args {
     #[arg(long, value_name = "MIB", default_value_t = 4096, env = "GLISSADE_MAX_SOLUTION_MIB")]
     max_solution_mib: u64,
     /// Most design points in one study; a bigger grid is refused before it is built. Each point
-    /// costs the coordinator about 2 kB of memory and 0.5 kB on disk (docs/performance.md).
+    /// costs the coordinator about 6 kB of memory and 0.5 kB on disk (docs/performance.md).
     #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_POINTS, env = "GLISSADE_MAX_POINTS")]
     max_points: usize,
     /// Largest estimated memory of one solve of a submitted scene, MiB (estimated from the
@@ -59,6 +59,12 @@ struct Args {
     /// the port is trusted.
     #[arg(long, env = "GLISSADE_OPEN")]
     open: bool,
+    /// PEM certificate (chain) to serve TLS with; clients then use https:// URLs.
+    #[arg(long, value_name = "FILE", env = "GLISSADE_TLS_CERT", requires = "tls_key")]
+    tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long, value_name = "FILE", env = "GLISSADE_TLS_KEY", requires = "tls_cert")]
+    tls_key: Option<PathBuf>,
 }
 
 fn main() -> ExitCode {
@@ -105,6 +111,13 @@ async fn run(args: Args) -> Result<()> {
             _ => None,
         },
         open: args.open,
+        tls: match (&args.tls_cert, &args.tls_key) {
+            (Some(c), Some(k)) => Some((
+                std::fs::read(c).with_context(|| format!("reading --tls-cert {}", c.display()))?,
+                std::fs::read(k).with_context(|| format!("reading --tls-key {}", k.display()))?,
+            )),
+            _ => None,
+        },
     };
     // Install the handlers before announcing the port: a SIGTERM right after it must not kill us
     // with the default action and skip the database flush.

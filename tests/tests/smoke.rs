@@ -19,7 +19,9 @@ const LIMIT: Duration = Duration::from_secs(60);
 /// A command with the ambient settings that would change the binaries' output removed.
 fn command(program: &Path) -> Command {
     let mut cmd = Command::new(program);
-    cmd.env_remove("RUST_LOG").env_remove("GLISSADE_SERVER");
+    cmd.env_remove("RUST_LOG").env_remove("GLISSADE_SERVER").env_remove("GLISSADE_TOKEN").env_remove("GLISSADE_TOKEN_FILE");
+    // a pool that has to spool uses this run's directory, not the user's ~/.glissade/spool
+    cmd.env("GLISSADE_SPOOL", std::env::temp_dir().join(format!("glissade-e2e-spool-{}", std::process::id())));
     cmd
 }
 
@@ -1528,4 +1530,107 @@ fn a_full_disk_is_named_and_the_coordinator_recovers_after_a_restart() -> anyhow
 
 fn tiny_path() -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml").display().to_string()
+}
+
+#[test]
+fn a_pool_stopped_while_the_coordinator_is_down_spools_its_result_and_delivers_it_later() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let data = dir.path().join("db");
+    let spool = dir.path().join("spool");
+    let log = dir.path().join("server.log");
+    let (mut server, addr) = start_server_with(&data, &log, "127.0.0.1:0", &["--lease-seconds", "60"]);
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let mut client = rt.block_on(user(&url))?;
+    // long enough (seconds: 4 x the steps, a tight tolerance) for the coordinator to die during it
+    let mut request = grid_request(&["f1=0.15"], 1e-6);
+    request.scene = request.scene.replace("steps = 50", "steps = 200");
+    let id = rt.block_on(client.submit_study(request))?.into_inner().study_id;
+    let pool_log = dir.path().join("pool.log");
+    let pool_args = ["pool", "--coordinator", &url, "--stop-grace", "2", "--spool", spool.to_str().unwrap()];
+    let token = child_token();
+    let pool = command(&workspace_bin("glissade-worker"))
+        .args(pool_args)
+        .env("RUST_LOG", "glissade_worker::pool=info")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(File::create(&pool_log)?)
+        .spawn()?;
+    let mut pool = ServerGuard(pool, token);
+    rt.block_on(watch(&mut client, id, |e| kind(e) != v1::EventKind::PointStarted))?;
+    server.0.kill()?;
+    let _ = server.0.wait();
+    drop(server);
+    // SIGTERM while the coordinator is gone: the pool finishes its point, tries for the grace,
+    // spools the result and exits (it used to retry for ever and ignore further signals).
+    let started = std::time::Instant::now();
+    let status = terminate(&mut pool.0);
+    assert!(status.success(), "{status:?}\n{}", log_of(&pool_log));
+    assert!(started.elapsed() < Duration::from_secs(30), "took {:?}", started.elapsed());
+    let spooled: Vec<_> = std::fs::read_dir(&spool).map(|d| d.flatten().collect()).unwrap_or_default();
+    assert_eq!(spooled.len(), 1, "{spooled:?}\n{}", log_of(&pool_log));
+
+    // Coordinator back on the same data; the next pool delivers the spooled result first.
+    let (_server, _) = start_server_with(&data, &dir.path().join("server2.log"), &addr.to_string(), &[]);
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker"))
+            .args(["pool", "--coordinator", &url, "--idle-exit", "2", "--spool", spool.to_str().unwrap()])
+            .env("RUST_LOG", "glissade_worker::pool=info"),
+        LIMIT,
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stderr).contains("delivered a spooled result"), "{}", text(&out.stderr));
+    assert_eq!(std::fs::read_dir(&spool)?.count(), 0);
+    let mut client = rt.block_on(user(&url))?;
+    let s = rt.block_on(study(&mut client, id))?;
+    assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}");
+    assert_eq!(s.points[0].attempts, 1, "solved once, delivered late: {s:?}");
+    Ok(())
+}
+
+#[test]
+fn tls_serves_https_clients_that_trust_its_authority_and_no_one_else() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let d = dir.path().display();
+    // A test CA and a certificate for localhost / 127.0.0.1 signed by it.
+    let script = format!(
+        "set -e; cd {d}
+         openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -keyout ca.key -out ca.pem -days 1 -subj '/CN=glissade test CA' 2>/dev/null
+         openssl req -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -keyout server.key -out server.csr -subj '/CN=localhost' 2>/dev/null
+         printf 'subjectAltName=DNS:localhost,IP:127.0.0.1\\n' > san.ext
+         openssl x509 -req -in server.csr -CA ca.pem -CAkey ca.key -CAcreateserial -out server.pem -days 1 -extfile san.ext 2>/dev/null"
+    );
+    let out = run_with_timeout(Command::new("bash").args(["-c", &script]), LIMIT);
+    assert!(out.status.success(), "openssl: {}", text(&out.stderr));
+    let path = |f: &str| dir.path().join(f).display().to_string();
+    let tls = ["--tls-cert", &path("server.pem"), "--tls-key", &path("server.key")];
+    let (_server, addr) = start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &tls);
+    let https = format!("https://localhost:{}", addr.port());
+
+    // The CLI and a pool that trust the CA: a study goes through.
+    let out = glissade(Some(&https), &["--ca-cert", &path("ca.pem"), "health"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let scene = dir.path().join("tiny.toml");
+    std::fs::write(&scene, tiny_scene())?;
+    let out = glissade(
+        Some(&https),
+        &["--ca-cert", &path("ca.pem"), "submit", scene.to_str().unwrap(), "--grid", "f1=0.1", "--tol", "1e-3"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker"))
+            .args(["pool", "--coordinator", &https, "--idle-exit", "2"])
+            .env("GLISSADE_CA_CERT", path("ca.pem")),
+        LIMIT,
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = glissade(Some(&https), &["--ca-cert", &path("ca.pem"), "show", "1", "--json"]);
+    assert!(text(&out.stdout).contains("\"done\""), "{}{}", text(&out.stdout), text(&out.stderr));
+
+    // Without the CA (the system's roots do not know it), and in clear text: nothing.
+    let out = glissade(Some(&https), &["health"]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));
+    let out = glissade(Some(&format!("http://127.0.0.1:{}", addr.port())), &["health"]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));
+    Ok(())
 }

@@ -89,6 +89,18 @@ struct PoolArgs {
     /// else the file GLISSADE_TOKEN_FILE names)
     #[arg(long, value_name = "FILE")]
     token_file: Option<std::path::PathBuf>,
+    /// Where results that could not be delivered before a stop are kept, and delivered from at
+    /// the next start (default: $GLISSADE_SPOOL, else ~/.glissade/spool)
+    #[arg(long, value_name = "DIR")]
+    spool: Option<std::path::PathBuf>,
+    /// PEM certificate of the authority that signed an https:// coordinator's certificate
+    /// (else GLISSADE_CA_CERT, else the system's roots)
+    #[arg(long, value_name = "FILE")]
+    ca_cert: Option<std::path::PathBuf>,
+    /// After SIGTERM or SIGINT, how long to keep trying to deliver a result to an unreachable
+    /// coordinator before spooling it and exiting (a second signal: at once)
+    #[arg(long, value_name = "SECONDS", default_value_t = 10.0)]
+    stop_grace: f64,
 }
 
 /// Pool mode: one process, or P MPI ranks of which rank 0 talks to the coordinator.
@@ -99,6 +111,14 @@ fn pool(args: PoolArgs) -> Result<bool> {
     options.pool_id = args.pool_id;
     options.memory_budget = args.memory_mib.map(|m| m.saturating_mul(1 << 20));
     options.token = glissade_proto::auth::Token::for_client(args.token_file.as_deref())?;
+    options.ca_cert = args.ca_cert;
+    if let Some(dir) = args.spool {
+        options.spool = Some(glissade_worker::pool::delivery::Spool { dir });
+    }
+    if !(args.stop_grace.is_finite() && args.stop_grace >= 0.0) {
+        bail!("--stop-grace {}: give a number of seconds", args.stop_grace);
+    }
+    options.stop_grace = std::time::Duration::from_secs_f64(args.stop_grace);
     if let Some(s) = args.idle_exit {
         if !(s.is_finite() && s >= 0.0) {
             bail!("--idle-exit {s}: give a number of seconds");

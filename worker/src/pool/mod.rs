@@ -21,10 +21,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use glissade_proto::v1::pool_client::PoolClient;
-use glissade_proto::v1::{self, complete_point_message, lease_message};
-use glissade_proto::{Assembler, chunks};
+use glissade_proto::v1::{self, lease_message};
+use glissade_proto::Assembler;
 use tokio::sync::{oneshot, watch};
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Channel;
 use tonic::{Code, Status};
 
 use crate::comm::Serial;
@@ -33,7 +33,10 @@ use crate::latin::field::InterfaceSolution;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use crate::scene::Scene;
 
+pub mod delivery;
 pub mod ranks;
+
+use delivery::{Delivery, Spool};
 
 /// Largest warm-start solution accepted from the coordinator (a paper-size scene's is ~100 MB).
 const MAX_INIT_BYTES: u64 = 4 << 30;
@@ -57,6 +60,12 @@ pub struct PoolOptions {
     pub idle_exit: Option<Duration>,
     /// The pool token of a coordinator that asks for one.
     pub token: Option<Token>,
+    /// CA certificate of an `https://` coordinator (else GLISSADE_CA_CERT, else system roots).
+    pub ca_cert: Option<std::path::PathBuf>,
+    /// Where a stopping pool leaves results it could not deliver (delivered at the next start).
+    pub spool: Option<Spool>,
+    /// How long a stopping pool keeps trying to deliver before it spools and exits.
+    pub stop_grace: Duration,
     /// Memory a solve may take, bytes (None: what the system says is available when a point
     /// arrives). A point whose scene needs more fails with the reason instead of killing the pool.
     pub memory_budget: Option<u64>,
@@ -79,6 +88,9 @@ impl PoolOptions {
             idle_exit: None,
             memory_budget: None,
             token: None,
+            ca_cert: None,
+            spool: delivery::default_spool_dir().map(|dir| Spool { dir }),
+            stop_grace: Duration::from_secs(10),
             stop: None,
         }
     }
@@ -176,15 +188,23 @@ async fn install_signal_handlers(stop: watch::Sender<bool>) -> Result<()> {
             _ = int.recv() => tracing::info!("SIGINT: stopping after the current point"),
         }
         let _ = stop.send(true);
+        // A second signal: no more waiting for the coordinator (the result is spooled).
+        tokio::select! {
+            _ = term.recv() => {}
+            _ = int.recv() => {}
+        }
+        tracing::warn!("second signal: stopping now");
+        URGENT.store(true, std::sync::atomic::Ordering::Relaxed);
+        let _ = stop.send(true);
     });
     Ok(())
 }
 
 /// A solved (or failed) point waiting to be delivered, kept across reconnections.
-struct Report {
-    lease: v1::Lease,
+pub struct Report {
+    pub lease: v1::Lease,
     /// The scene solved and the outcome, or why there is none (one line).
-    outcome: Result<(Scene, SolveOutcome), String>,
+    pub outcome: Result<(Scene, SolveOutcome), String>,
 }
 
 /// Why the conversation with the coordinator broke off.
@@ -196,7 +216,7 @@ enum Break {
 }
 
 /// A pool-service client that presents the pool token with every call.
-type Pool = PoolClient<InterceptedService<Channel, WithToken>>;
+pub type Pool = PoolClient<InterceptedService<Channel, WithToken>>;
 
 struct Session {
     client: Pool,
@@ -206,13 +226,26 @@ struct Session {
 
 async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: watch::Receiver<bool>) -> Result<()> {
     let mut pool_id = options.pool_id.clone();
-    let mut pending: Option<Report> = None;
+    let mut pending: Option<Delivery> = None;
     let mut backoff = options.backoff.0;
     let mut idle_since = Instant::now();
+    // When a stop was asked with a result still to deliver: from then on the grace runs.
+    let mut stopping_since: Option<Instant> = None;
     loop {
-        if *stop.borrow() && pending.is_none() {
-            return Ok(());
+        if *stop.borrow() {
+            if pending.is_none() {
+                return Ok(());
+            }
+            let since = *stopping_since.get_or_insert_with(Instant::now);
+            if since.elapsed() >= options.stop_grace || URGENT.load(std::sync::atomic::Ordering::Relaxed) {
+                return spool_and_stop(&options, pending.take().expect("checked above"));
+            }
         }
+        // Pauses end early on a stop, and never outlast the grace of a stopping pool.
+        let pause = |wanted: Duration| match stopping_since {
+            Some(since) => wanted.min(options.stop_grace.saturating_sub(since.elapsed())),
+            None => wanted,
+        };
         let session = match connect(&options, pool_id.as_deref()).await {
             Ok(s) => s,
             // A token the coordinator refuses will not get better by retrying.
@@ -220,8 +253,8 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
             Err(e) => {
                 tracing::warn!(coordinator = %options.coordinator, error = %format!("{e:#}"), retry_in = ?backoff, "cannot reach the coordinator");
                 tokio::select! {
-                    _ = tokio::time::sleep(backoff) => {}
-                    _ = stop.changed(), if pending.is_none() => return Ok(()),
+                    _ = tokio::time::sleep(pause(backoff)) => {}
+                    _ = stop.changed() => {}
                 }
                 backoff = (backoff * 2).min(options.backoff.1);
                 continue;
@@ -231,17 +264,19 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
             tracing::info!(pool = %session.pool_id, coordinator = %options.coordinator, "registered");
         }
         pool_id = Some(session.pool_id.clone());
+        let mut session = session;
+        deliver_spooled(&options, &mut session.client).await;
         let mut progressed = false;
         match serve(&options, session, &work, &mut stop, &mut pending, &mut idle_since, &mut progressed).await {
             Break::Stop => return Ok(()),
             Break::Reconnect(why) => {
                 // A coordinator that answers but cannot take the result (a full disk) must not
                 // be asked again every 200 ms: back off until something goes through.
-                let pause = if progressed { options.backoff.0 } else { backoff };
-                tracing::warn!(reason = %why, retry_in = ?pause, "lost the coordinator; reconnecting");
+                let wait = if progressed { options.backoff.0 } else { backoff };
+                tracing::warn!(reason = %why, retry_in = ?wait, "lost the coordinator; reconnecting");
                 tokio::select! {
-                    _ = tokio::time::sleep(pause) => {}
-                    _ = stop.changed(), if pending.is_none() => return Ok(()),
+                    _ = tokio::time::sleep(pause(wait)) => {}
+                    _ = stop.changed() => {}
                 }
                 backoff = if progressed { options.backoff.0 } else { (backoff * 2).min(options.backoff.1) };
             }
@@ -249,9 +284,43 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
     }
 }
 
+/// Set by a second SIGTERM or SIGINT: stop now, spooling what is not delivered.
+static URGENT: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// A stopping pool's last act when the coordinator cannot be reached: keep the result.
+fn spool_and_stop(options: &PoolOptions, delivery: Delivery) -> Result<()> {
+    let (study, point) = delivery.point();
+    let Some(spool) = &options.spool else {
+        bail!("stopping with the result of study {study} point {point} undelivered and no --spool directory: it is lost");
+    };
+    let path = spool.save(&delivery)?;
+    tracing::warn!(study, point, file = %path.display(), "coordinator unreachable: result spooled for the next start of a pool");
+    Ok(())
+}
+
+/// Sends what an earlier run of a pool spooled; a result the coordinator refuses for good (its
+/// lease was lost meanwhile and the point went elsewhere) is dropped, a transient error keeps
+/// it for the next connection.
+async fn deliver_spooled(options: &PoolOptions, client: &mut Pool) {
+    let Some(spool) = &options.spool else { return };
+    for (path, delivery) in spool.pending() {
+        let (study, point) = delivery.point();
+        match delivery.send(client).await {
+            Ok(state) => {
+                tracing::info!(study, point, state = ?state, "delivered a spooled result");
+                Spool::remove(&path);
+            }
+            Err(status) if is_transient(&status) => return,
+            Err(status) => {
+                tracing::warn!(study, point, code = ?status.code(), error = status.message(), "the coordinator refused a spooled result; dropping it");
+                Spool::remove(&path);
+            }
+        }
+    }
+}
+
 async fn connect(options: &PoolOptions, pool_id: Option<&str>) -> Result<Session> {
-    let endpoint = Endpoint::from_shared(options.coordinator.clone())
-        .map_err(|_| anyhow!("invalid coordinator URL `{}` (expected http://host:port)", options.coordinator))?
+    let endpoint = glissade_proto::auth::endpoint(&options.coordinator, options.ca_cert.as_deref())?
         .connect_timeout(Duration::from_secs(5))
         .tcp_keepalive(Some(Duration::from_secs(30)));
     let channel = endpoint.connect().await.context("connecting")?;
@@ -298,28 +367,28 @@ async fn serve(
     mut session: Session,
     work: &std_mpsc::Sender<Work>,
     stop: &mut watch::Receiver<bool>,
-    pending: &mut Option<Report>,
+    pending: &mut Option<Delivery>,
     idle_since: &mut Instant,
     progressed: &mut bool,
 ) -> Break {
     // When the last solve ended: the pool's time between solves is the service's cost.
     let mut last_solved: Option<Instant> = None;
     loop {
-        if let Some(report) = pending.take() {
-            match deliver(&mut session.client, &session.pool_id, &report).await {
-                Ok(()) => *progressed = true,
+        if let Some(delivery) = pending.take() {
+            let (study, point) = delivery.point();
+            let started = Instant::now();
+            match delivery.send(&mut session.client).await {
+                Ok(state) => {
+                    *progressed = true;
+                    let deliver_ms = started.elapsed().as_secs_f64() * 1e3;
+                    tracing::info!(study, point, state = ?state, deliver_ms, "delivered");
+                }
                 Err(status) if is_transient(&status) => {
-                    *pending = Some(report);
+                    *pending = Some(delivery);
                     return Break::Reconnect(status.message().to_owned());
                 }
                 Err(status) => {
-                    tracing::error!(
-                        study = report.lease.study_id,
-                        point = report.lease.point_id,
-                        code = ?status.code(),
-                        error = status.message(),
-                        "the coordinator refused the result"
-                    );
+                    tracing::error!(study, point, code = ?status.code(), error = status.message(), "the coordinator refused the result");
                 }
             }
             *idle_since = Instant::now();
@@ -376,7 +445,7 @@ async fn serve(
         let job = match prepare(&lease, init_bytes, options.memory_budget.or_else(available_memory)) {
             Ok(job) => job,
             Err(e) => {
-                *pending = Some(Report { lease, outcome: Err(one_line(&format!("{e:#}"))) });
+                *pending = Some(Delivery::new(&session.pool_id, Report { lease, outcome: Err(one_line(&format!("{e:#}"))) }));
                 continue;
             }
         };
@@ -412,7 +481,7 @@ async fn serve(
             "solved"
         );
         let outcome = outcome.map(|o| (scene, o)).map_err(|e| one_line(&e));
-        *pending = Some(Report { lease, outcome });
+        *pending = Some(Delivery::new(&session.pool_id, Report { lease, outcome }));
     }
 }
 
@@ -534,74 +603,6 @@ async fn release(session: &mut Session, lease: &v1::Lease) {
 }
 
 
-/// Sends a report: the solution (CompletePoint) or the error (FailPoint).
-async fn deliver(client: &mut Pool, pool_id: &str, report: &Report) -> Result<(), Status> {
-    let started = Instant::now();
-    let lease = &report.lease;
-    let fail = |error: String, eta: Option<f64>, iterations: u64| v1::FailPointRequest {
-        pool_id: pool_id.to_owned(),
-        lease_id: lease.lease_id,
-        study_id: lease.study_id,
-        point_id: lease.point_id,
-        error,
-        error_indicator: eta,
-        iterations,
-    };
-    let (scene, outcome) = match &report.outcome {
-        Ok((scene, o)) => (scene, o),
-        Err(e) => {
-            let request = fail(e.clone(), None, 0);
-            tracing::warn!(study = lease.study_id, point = lease.point_id, error = %request.error, "point failed");
-            client.fail_point(request).await?;
-            return Ok(());
-        }
-    };
-    let s = &outcome.summary;
-    let qoi: std::collections::BTreeMap<String, f64> = s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect();
-    if !s.error_indicator.is_finite() || qoi.values().any(|v| !v.is_finite()) {
-        let request = fail("the solve diverged: eta or a QoI is not finite".into(), None, s.iterations as u64);
-        client.fail_point(request).await?;
-        return Ok(());
-    }
-    let meta = solution_meta(scene, outcome);
-    let mut bytes = Vec::new();
-    if let Err(e) = solution_file::write_to(&mut bytes, &outcome.solution, &meta) {
-        let request = fail(format!("writing the solution: {e}"), Some(s.error_indicator), s.iterations as u64);
-        client.fail_point(request).await?;
-        return Ok(());
-    }
-    let header = v1::CompletePointHeader {
-        pool_id: pool_id.to_owned(),
-        lease_id: lease.lease_id,
-        study_id: lease.study_id,
-        point_id: lease.point_id,
-        converged: s.converged,
-        iterations: s.iterations as u64,
-        error_indicator: s.error_indicator,
-        qoi,
-        wall_seconds: s.wall_seconds,
-        solution_bytes: bytes.len() as u64,
-        eta_history: s.history.clone(),
-        work: s.work(),
-    };
-    let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
-    messages.extend(
-        chunks(&bytes).map(|c| v1::CompletePointMessage { body: Some(complete_point_message::Body::Chunk(c)) }),
-    );
-    let reply = client.complete_point(tokio_stream::iter(messages)).await?.into_inner();
-    let state = reply.point.map(|p| p.state()).unwrap_or_default();
-    tracing::info!(
-        study = lease.study_id,
-        point = lease.point_id,
-        iterations = s.iterations,
-        eta = s.error_indicator,
-        seconds = s.wall_seconds,
-        state = ?state,
-        deliver_ms = started.elapsed().as_secs_f64() * 1e3,
-        "delivered"
-    );
-    Ok(())
-}
 
 /// The solution file header of a solve's outcome (what `solve --save` writes too).
 pub fn solution_meta(scene: &Scene, outcome: &SolveOutcome) -> SolutionMeta {
