@@ -13,6 +13,7 @@ PACKAGES=(
                               # grpcio-tools, grpcio-reflection from PyPI into a venv under
                               # target/)
   python3-h5py python3-numpy  # an independent reader of `glissade fields` output in the tests
+  openssl                     # the TLS test makes a certificate authority with it
 )
 
 missing=()
