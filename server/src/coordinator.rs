@@ -46,7 +46,7 @@ pub struct Config {
     pub solver_version: String,
 }
 
-/// Errors of the domain layer; each names the object concerned. `service.rs` maps each variant
+/// Errors of the domain layer; each names the object concerned. `convert::status` maps each variant
 /// to one gRPC status code.
 #[derive(Debug, thiserror::Error)]
 pub enum CoordError {

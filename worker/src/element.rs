@@ -2,7 +2,7 @@
 //! 2-node bars (D = 1), 4-node quads (D = 2, plane strain), 8-node hexahedra (D = 3).
 //!
 //! Local nodes are in tensor order: bit `d` of the local index is the node's side along
-//! reference axis `d` (0 -> xi_d = -1, 1 -> xi_d = +1). Full 2-point Gauss integration (METHOD.md 2).
+//! reference axis `d` (0 -> xi_d = -1, 1 -> xi_d = +1). Full 2-point Gauss integration (docs/method.md 2).
 
 /// Isotropic linear elastic material.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -26,7 +26,7 @@ impl Material {
         (e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)), e / (2.0 * (1.0 + nu)))
     }
 
-    /// Bar impedance sqrt(rho E): the search direction k0 of METHOD.md 3.
+    /// Bar impedance sqrt(rho E): the search direction k0 of docs/method.md 3.
     pub fn impedance(&self) -> f64 {
         (self.density * self.young).sqrt()
     }

@@ -10,7 +10,7 @@ use crate::scene::{
 };
 use crate::sparse::CsrMatrix;
 
-/// Interface behaviour (METHOD.md 1).
+/// Interface behaviour (docs/method.md 1).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum InterfaceLaw {
     Perfect,

@@ -1,4 +1,4 @@
-//! Newmark average acceleration (beta = 1/4, gamma = 1/2) in velocity form (METHOD.md 3):
+//! Newmark average acceleration (beta = 1/4, gamma = 1/2) in velocity form (docs/method.md 3):
 //! [(2/dt) M + (dt/2) K] v_{n+1} = f_{n+1} + M ((2/dt) v_n + a_n) - K (u_n + (dt/2) v_n).
 //! Shared by the LATIN linear stage and the monolithic reference, so both integrate alike.
 

@@ -123,7 +123,7 @@ pub fn solve_scene_on(
 }
 
 /// Solves design point after design point, keeping the factorised operators of the last model
-/// while only interface-law parameters change (friction coefficients: METHOD.md 4), as a worker
+/// while only interface-law parameters change (friction coefficients: docs/method.md 4), as a worker
 /// pool or a study does. Any other change (scene, other parameters, scale) refactorises.
 #[derive(Default)]
 pub struct PointSolver {

@@ -1,6 +1,6 @@
 //! Scene files (TOML): what a user declares, parsed and validated. See `docs/scenes.md`.
 //!
-//! Any number may instead be the name of a declared parameter; [`Scene::resolve`] substitutes the
+//! Any number may instead be the name of a declared parameter; [`Model::build`](crate::model::Model::build) substitutes the
 //! design point's values and checks every physical constraint, naming the offending key.
 
 use crate::text::{MAX_NAME_CHARS, excerpt};
@@ -388,7 +388,7 @@ impl Scene {
     /// (serde_json, maps sorted) without what does not change the solution of a design point —
     /// the `[solver]` section, the title, and the parameters' defaults, ranges and units (their
     /// names stay). A stored interface solution may warm-start a solve only of a scene with the
-    /// same hash (METHOD.md 4).
+    /// same hash (docs/method.md 4).
     pub fn content_hash(&self) -> String {
         use sha2::{Digest, Sha256};
         let mut canonical = self.clone();

@@ -276,7 +276,7 @@ fn mean_velocity_x<const D: usize>(m: &Model<D>, r: &SolveReport, n: usize) -> f
     p / mass
 }
 
-/// Bar impact on a rigid wall against d'Alembert (METHOD.md 6): contact lasts 2L/c, the
+/// Bar impact on a rigid wall against d'Alembert (docs/method.md 6): contact lasts 2L/c, the
 /// contact force is rho c A v0, the bar leaves at -v0; the free end reverses at L/c.
 fn check_bar_impact<const D: usize>(text: &str, area: f64) {
     let m = build::<D>(text, &[]);
@@ -337,7 +337,7 @@ fn dot<const D: usize>(a: &[f64], b: &[f64; D]) -> f64 {
     (0..D).map(|c| a[c] * b[c]).sum()
 }
 
-/// Sliding block (METHOD.md 6): sticks while the push is below f N, slides beyond; Coulomb's
+/// Sliding block (docs/method.md 6): sticks while the push is below f N, slides beyond; Coulomb's
 /// inequality at every node and step, no penetration, non-negative frictional dissipation.
 #[test]
 fn sliding_block_obeys_coulomb() {
@@ -404,7 +404,7 @@ fn sliding_block_obeys_coulomb() {
     assert!(min_gap > -1e-9, "penetration {min_gap}");
 }
 
-/// Energy balance (METHOD.md 6): kinetic + strain energy change = external work + work of the
+/// Energy balance (docs/method.md 6): kinetic + strain energy change = external work + work of the
 /// interfaces on the substructures (the negative of the dissipated energy), every term computed
 /// independently: energies from the substructure fields, external work from the loads, interface
 /// work from the converged local-stage fields (trapezoidal in time, like Newmark).
@@ -545,7 +545,7 @@ fn plate_iterations(subs: &str, scale: Scale) -> (usize, usize) {
 }
 
 /// With the macro problem, twice as many substructures cost less than 20 % more iterations;
-/// single-scale visibly grows (METHOD.md 3, "Multiscale"). Both reach the same QoIs (checked
+/// single-scale visibly grows (docs/method.md 3, "Multiscale"). Both reach the same QoIs (checked
 /// against the monolithic reference above).
 #[test]
 fn macro_problem_makes_iterations_nearly_independent_of_substructures() {

@@ -1,5 +1,5 @@
 //! Files at the edge of the solver: stored interface solutions (`solution_file`, the warm starts
-//! of METHOD.md 4) and field output for visualisation (`fields`, HDF5 + XDMF for ParaView).
+//! of docs/method.md 4) and field output for visualisation (`fields`, HDF5 + XDMF for ParaView).
 //! The solver core (`latin`, `model`) does no I/O; these modules only read and write its types.
 
 pub mod fields;

@@ -1,4 +1,4 @@
-//! Interface unknowns over the whole time interval (METHOD.md 3).
+//! Interface unknowns over the whole time interval (docs/method.md 3).
 
 use serde::{Deserialize, Serialize};
 
@@ -17,7 +17,7 @@ impl SideField {
         Self { force: vec![0.0; len], velocity: vec![0.0; len] }
     }
 
-    /// self <- mu * new + (1 - mu) * self (relaxation of METHOD.md 3)
+    /// self <- mu * new + (1 - mu) * self (relaxation of docs/method.md 3)
     pub fn relax_towards(&mut self, new: &SideField, mu: f64) {
         for (a, b) in self.force.iter_mut().zip(&new.force) {
             *a = mu * b + (1.0 - mu) * *a;
@@ -57,7 +57,7 @@ pub struct StageSolution {
 }
 
 /// A whole interface solution: what is stored, warm-started from and exchanged (never
-/// substructure interiors, METHOD.md 4).
+/// substructure interiors, docs/method.md 4).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct InterfaceSolution {
     pub static_stage: Option<StageSolution>,

@@ -1,5 +1,5 @@
 //! Linear stage: each substructure's dynamics (Newmark average acceleration, velocity form) or
-//! statics, driven by the local-stage fields through the search direction E- (METHOD.md 3).
+//! statics, driven by the local-stage fields through the search direction E- (docs/method.md 3).
 //!
 //! A = (2/dt) M + (dt/2) K + N^T M_Gamma k N (or K + N^T M_Gamma k N in the static stage) is
 //! factorised once per substructure. Each step is split so that the macro problem can sit between
@@ -119,7 +119,7 @@ impl SubstructureOperators {
                 st.v[p.dof] = p.velocity * model.histories[p.history].at(0.0);
             }
         }
-        // the initial state is a static equilibrium (METHOD.md 3, prestress): a0 = 0
+        // the initial state is a static equilibrium (docs/method.md 3, prestress): a0 = 0
         st.a.fill(0.0);
     }
 

@@ -1,5 +1,5 @@
 //! Local stage: the interface laws in closed form, pointwise in space, stepwise in time
-//! (METHOD.md 3, "Local stage"). Pure functions of the linear-stage fields.
+//! (docs/method.md 3, "Local stage"). Pure functions of the linear-stage fields.
 
 use crate::model::InterfaceLaw;
 
@@ -27,7 +27,7 @@ pub struct NodeOutput<const D: usize> {
 
 /// How the normal gap follows from velocities: `g = base + weight * n.(W2 - W1)` where `base`
 /// holds the gap at the previous step plus the previous step's share (trapezoidal rule,
-/// weight dt/2, METHOD.md 2), or the initial gap in the static stage (weight 1, W = displacement).
+/// weight dt/2, docs/method.md 2), or the initial gap in the static stage (weight 1, W = displacement).
 #[derive(Debug, Clone, Copy)]
 pub struct GapRule {
     pub base: f64,

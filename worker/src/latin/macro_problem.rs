@@ -1,4 +1,4 @@
-//! The macro problem of the multiscale LATIN (METHOD.md 3, "Multiscale").
+//! The macro problem of the multiscale LATIN (docs/method.md 3, "Multiscale").
 //!
 //! Each two-sided interface carries a small macro basis (rigid motions and linear fields,
 //! orthonormal for M_Gamma). At every step, between the two micro problems, the macro

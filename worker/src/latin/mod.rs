@@ -1,4 +1,4 @@
-//! The LATIN mixed domain-decomposition solver (METHOD.md 3): linear stage (substructures),
+//! The LATIN mixed domain-decomposition solver (docs/method.md 3): linear stage (substructures),
 //! relaxation, local stage (interfaces), error indicator — iterated over the whole time interval.
 
 pub mod distribution;
@@ -860,16 +860,12 @@ fn slip_history<const D: usize>(m: &Model<D>, f: &InterfaceField, interface: usi
     out
 }
 
-/// The LATIN error indicator (METHOD.md 3):
+/// The LATIN error indicator (docs/method.md 3), in parts: computed per interface by its owner
+/// inside `iterate`, then [`error_indicator_from_parts`]:
 /// eta^2 = sum a [|F - F^|^2 / k + k |W - W^|^2] / sum a [|F + F^|^2 / k + k |W + W^|^2]
 /// over interface nodes, sides and steps.
-pub fn error_indicator<const D: usize>(m: &Model<D>, stage: Stage, fields: &[InterfaceField]) -> f64 {
-    let parts: Vec<f64> =
-        (0..m.interfaces.len()).flat_map(|i| <[f64; 2]>::from(interface_error(m, stage, i, &fields[i]))).collect();
-    error_indicator_from_parts(&parts)
-}
-
-/// Numerator and denominator of the error indicator on one interface.
+///
+/// This function: the numerator and denominator on one interface.
 fn interface_error<const D: usize>(m: &Model<D>, stage: Stage, i: usize, f: &InterfaceField) -> (f64, f64) {
     let itf = &m.interfaces[i];
     let n = itf.n_nodes();

@@ -1,4 +1,4 @@
-//! The multiparametric strategy (METHOD.md 4): a study solves many design points of one scene,
+//! The multiparametric strategy (docs/method.md 4): a study solves many design points of one scene,
 //! each started from converged interface fields of other points.
 //!
 //! - [`space`]: parameters, ranges, normalised distances, grids (`f1=0.10:0.20:11`, lists, Latin

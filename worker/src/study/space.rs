@@ -1,4 +1,4 @@
-//! The parameter space of a study (METHOD.md 4): the scene's named parameters with their ranges,
+//! The parameter space of a study (docs/method.md 4): the scene's named parameters with their ranges,
 //! the normalised distance between design points, and the grids a study sweeps
 //! (`f1=0.10:0.20:11`, lists `f1=0.1,0.15,0.2`, Latin hypercube samples `f1=lhs:20:7`).
 

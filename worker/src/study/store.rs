@@ -1,5 +1,5 @@
 //! Stored interface solutions of a study and nearest-neighbour queries in parameter space
-//! (METHOD.md 4: only interface fields are stored, never substructure interiors).
+//! (docs/method.md 4: only interface fields are stored, never substructure interiors).
 //!
 //! [`SolutionStore`] is the seam: [`MemoryStore`] here (one process, a kd-tree from `kiddo`), the
 //! coordinator's sled store in the service.

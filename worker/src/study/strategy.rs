@@ -1,4 +1,4 @@
-//! Initialisation strategies (METHOD.md 4): where the LATIN iterations of a design point start.
+//! Initialisation strategies (docs/method.md 4): where the LATIN iterations of a design point start.
 //!
 //! - `Cold`: zero interface fields (the paper's "direct" computation); the store is not read.
 //! - `Previous`: the last solution stored in this sweep (the paper's multiparametric strategy).
