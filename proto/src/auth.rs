@@ -9,6 +9,10 @@ use tonic::metadata::MetadataValue;
 use tonic::service::Interceptor;
 use tonic::{Request, Status};
 
+/// Metadata key of a status that asks a pool to register again (its registration was lost, e.g.
+/// the coordinator restarted): a typed signal, not a message to search.
+pub const REGISTER_AGAIN: &str = "glissade-register-again";
+
 /// Environment variable holding a token.
 pub const TOKEN_ENV: &str = "GLISSADE_TOKEN";
 /// Environment variable naming a file that holds a token.

@@ -51,8 +51,13 @@ pub fn status(e: CoordError) -> Status {
             Code::Internal
         }
     };
+    let unknown_pool = matches!(e, CoordError::UnknownPool(_));
     // bounded: a message that echoes a huge input must not outgrow the metadata limit
-    Status::new(code, one_line(&e.to_string()))
+    let mut status = Status::new(code, one_line(&e.to_string()));
+    if unknown_pool {
+        status.metadata_mut().insert(glissade_proto::auth::REGISTER_AGAIN, tonic::metadata::MetadataValue::from_static("1"));
+    }
+    status
 }
 
 impl From<CoordError> for Status {

@@ -354,7 +354,7 @@ fn is_transient(status: &Status) -> bool {
         status.code(),
         Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded | Code::ResourceExhausted
     )
-        || (status.code() == Code::NotFound && status.message().contains("is not registered"))
+        || status.metadata().contains_key(glissade_proto::auth::REGISTER_AGAIN)
 }
 
 /// One connection's worth of pool work: deliver what is pending, lease, solve, repeat.
