@@ -120,8 +120,11 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
     surface(server, surface_args(Some("slip_A"), None, None)).await?;
     surface(server, surface_args(None, Some(png("surface.csv")), None)).await?;
     surface(server, surface_args(Some("slip_A"), None, Some(png("slip_A.png")))).await?;
-    convergence(server, ConvergenceArgs { study: id, png: Some(png("convergence.png")), json: false, size: (900, 600) })
-        .await?;
+    convergence(
+        server,
+        ConvergenceArgs { study: id, png: Some(png("convergence.png")), json: false, size: (900, 600) },
+    )
+    .await?;
     eprintln!("wrote {} (every QoI of every point)", png("surface.csv").display());
     Ok(outcome)
 }

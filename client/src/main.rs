@@ -4,8 +4,9 @@
 mod demo;
 mod fields;
 
-use glissade_worker::text::one_line;
 use glissade_cli::{out, outln};
+use glissade_proto::now_unix_ms;
+use glissade_worker::text::one_line;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -17,11 +18,11 @@ use glissade_cli::names::{describe_parameters, order_name, point_state_name, str
 use glissade_cli::plot::{self, Axis, ConvergenceSeries, Surface};
 use glissade_cli::progress::WatchState;
 use glissade_cli::surface::{SurfaceTable, parse_fixed};
+use glissade_proto::auth::{Token, WithToken};
 use glissade_proto::v1::health_client::HealthClient;
 use glissade_proto::v1::user_client::UserClient;
 use glissade_proto::v1::{self, HealthRequest};
 use glissade_worker::scene::{QoiKind, Scene};
-use glissade_proto::auth::{Token, WithToken};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 use tonic::{Code, Status};
@@ -324,13 +325,7 @@ async fn user(server: &Server) -> Result<User> {
 }
 
 /// The study with its points and (when asked) its scene text; errors start with `command ID`.
-async fn get_study(
-    client: &mut User,
-    command: &str,
-    id: u64,
-    points: bool,
-    scene: bool,
-) -> Result<v1::Study> {
+async fn get_study(client: &mut User, command: &str, id: u64, points: bool, scene: bool) -> Result<v1::Study> {
     Ok(client
         .get_study(v1::GetStudyRequest { study_id: id, points, scene })
         .await
@@ -480,11 +475,7 @@ fn is_transient(s: &Status) -> bool {
 
 /// A new watch of study `id`, retried with back-off (0.2 s doubling to 5 s) for as long as the
 /// coordinator is unreachable; a refusal (the study is gone) ends it.
-async fn reconnect_watch(
-    client: &mut User,
-    id: u64,
-    say: &impl Fn(&str),
-) -> Result<tonic::Streaming<v1::StudyEvent>> {
+async fn reconnect_watch(client: &mut User, id: u64, say: &impl Fn(&str)) -> Result<tonic::Streaming<v1::StudyEvent>> {
     let mut pause = Duration::from_millis(200);
     let mut attempts = 0u32;
     loop {
@@ -497,7 +488,10 @@ async fn reconnect_watch(
             }
             Err(s) if is_transient(&s) => {
                 if attempts % 10 == 0 {
-                    say(&format!("watch {id}: still no coordinator after {attempts} attempts ({})", one_line(s.message())));
+                    say(&format!(
+                        "watch {id}: still no coordinator after {attempts} attempts ({})",
+                        one_line(s.message())
+                    ));
                 }
                 pause = (pause * 2).min(Duration::from_secs(5));
             }
@@ -509,10 +503,6 @@ async fn reconnect_watch(
 fn clock(d: Duration) -> String {
     let s = d.as_secs();
     if s >= 3600 { format!("{}h{:02}m", s / 3600, s % 3600 / 60) } else { format!("{}m{:02}s", s / 60, s % 60) }
-}
-
-fn now_unix_ms() -> i64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
 }
 
 async fn studies(server: &Server, json: bool) -> Result<()> {
@@ -533,7 +523,12 @@ async fn studies(server: &Server, json: bool) -> Result<()> {
     }
     outln!(
         "{:>5}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8}  label",
-        "id", "state", "done/total", "strategy", "parameters", "tol"
+        "id",
+        "state",
+        "done/total",
+        "strategy",
+        "parameters",
+        "tol"
     );
     for s in &list {
         let p = s.progress.unwrap_or_default();
@@ -730,10 +725,7 @@ async fn convergence(server: &Server, args: ConvergenceArgs) -> Result<()> {
                 })
             })
             .collect();
-        outln!(
-            "{}",
-            serde_json::json!({ "study_id": study.study_id, "tolerance": study.tolerance, "points": points })
-        );
+        outln!("{}", serde_json::json!({ "study_id": study.study_id, "tolerance": study.tolerance, "points": points }));
     }
     Ok(())
 }
@@ -866,7 +858,8 @@ async fn health(server: &Server, json: bool) -> Result<()> {
 
 /// Connects to `server`, turning transport errors into one line that says what went wrong.
 async fn connect(server: &Server) -> Result<Channel> {
-    let endpoint = glissade_proto::auth::endpoint(&server.url, server.ca_cert.as_deref())?.connect_timeout(CONNECT_TIMEOUT);
+    let endpoint =
+        glissade_proto::auth::endpoint(&server.url, server.ca_cert.as_deref())?.connect_timeout(CONNECT_TIMEOUT);
     tracing::debug!(server = %server, "connecting");
     endpoint.connect().await.map_err(|e| {
         tracing::debug!(error = ?e, "connect failed");

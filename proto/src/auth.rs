@@ -36,7 +36,9 @@ impl std::fmt::Debug for Token {
 pub enum TokenError {
     #[error("cannot read the token file {path}: {source}")]
     Read { path: String, source: std::io::Error },
-    #[error("{origin}: a token is {MIN_TOKEN_CHARS} to {MAX_TOKEN_CHARS} printable ASCII characters without spaces, got {len} characters")]
+    #[error(
+        "{origin}: a token is {MIN_TOKEN_CHARS} to {MAX_TOKEN_CHARS} printable ASCII characters without spaces, got {len} characters"
+    )]
     Malformed { origin: String, len: usize },
 }
 

@@ -248,3 +248,9 @@ mod tests {
         assert!("-1".parse::<StudyId>().is_err());
     }
 }
+
+/// Milliseconds since the Unix epoch (0 if the clock is before it): the time stamps of events
+/// and leases on both ends.
+pub fn now_unix_ms() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
+}

@@ -5,7 +5,7 @@ pub mod chunks;
 pub mod domain;
 
 pub use chunks::{Assembler, CHUNK_BYTES, ChunkError, chunks};
-pub use domain::{IdParseError, ParameterError, ParameterVector, PointId, StudyId};
+pub use domain::{IdParseError, ParameterError, ParameterVector, PointId, StudyId, now_unix_ms};
 
 /// Generated code of package `glissade.v1`.
 pub mod v1 {

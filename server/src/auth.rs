@@ -23,19 +23,11 @@ pub struct RequireToken {
 
 impl RequireToken {
     pub fn users(tokens: Option<&Tokens>) -> Self {
-        Self {
-            role: "user",
-            accept: tokens.map(|t| t.user.clone()),
-            other: tokens.map(|t| ("pool", t.pool.clone())),
-        }
+        Self { role: "user", accept: tokens.map(|t| t.user.clone()), other: tokens.map(|t| ("pool", t.pool.clone())) }
     }
 
     pub fn pools(tokens: Option<&Tokens>) -> Self {
-        Self {
-            role: "pool",
-            accept: tokens.map(|t| t.pool.clone()),
-            other: tokens.map(|t| ("user", t.user.clone())),
-        }
+        Self { role: "pool", accept: tokens.map(|t| t.pool.clone()), other: tokens.map(|t| ("user", t.user.clone())) }
     }
 }
 

@@ -55,7 +55,9 @@ pub fn status(e: CoordError) -> Status {
     // bounded: a message that echoes a huge input must not outgrow the metadata limit
     let mut status = Status::new(code, one_line(&e.to_string()));
     if unknown_pool {
-        status.metadata_mut().insert(glissade_proto::auth::REGISTER_AGAIN, tonic::metadata::MetadataValue::from_static("1"));
+        status
+            .metadata_mut()
+            .insert(glissade_proto::auth::REGISTER_AGAIN, tonic::metadata::MetadataValue::from_static("1"));
     }
     status
 }

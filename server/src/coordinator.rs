@@ -8,10 +8,11 @@
 //! Heartbeats only move deadlines forward in memory; after a restart every lease gets a fresh
 //! deadline, so pools have one lease period to come back.
 
+pub use glissade_proto::now_unix_ms;
 use glissade_worker::text::one_line;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::time::Duration;
 
 use glissade_proto::{ParameterVector, PointId, StudyId};
 use glissade_worker::io::solution_file::{self, SolutionFileError, SolutionMeta};
@@ -23,8 +24,8 @@ use glissade_worker::study::space::ParameterSpace;
 use glissade_worker::study::strategy::InitStrategy;
 
 use crate::records::{
-    self, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin,
-    SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
+    self, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin, SolutionRecord,
+    StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, StoreError, Tree};
 use crate::study::{SceneSolutions, StudyPlan, WarmStart};
@@ -315,10 +316,6 @@ pub struct Coordinator {
     stopping: tokio::sync::watch::Sender<bool>,
 }
 
-pub fn now_unix_ms() -> i64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
-}
-
 impl Coordinator {
     /// Loads every study, point and solution record from `store`, rebuilds the nearest-neighbour
     /// indexes, and gives every lease found a fresh deadline (its pool may be reconnecting).
@@ -478,7 +475,8 @@ impl Coordinator {
             None => u32::try_from(scene.solver.max_iterations).unwrap_or(u32::MAX),
         };
         let (names, points) =
-            crate::study::expand(&scene, &submission.grid, &submission.points, self.config.max_points).map_err(CoordError::Invalid)?;
+            crate::study::expand(&scene, &submission.grid, &submission.points, self.config.max_points)
+                .map_err(CoordError::Invalid)?;
         if submission.strategy != InitStrategy::Cold {
             // The index refuses scenes of too many parameters: say so now, not at the first lease.
             SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
@@ -1272,7 +1270,6 @@ fn new_lease_id(leases: &HashMap<u64, (StudyId, PointId)>) -> u64 {
 fn same_number(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-12 * a.abs().max(b.abs())
 }
-
 
 pub fn state_word(s: StudyState) -> &'static str {
     match s {

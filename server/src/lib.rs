@@ -21,10 +21,10 @@ use anyhow::{Context, Result};
 use coordinator::{Config, Coordinator};
 use glissade_proto::v1::health_server::HealthServer;
 use glissade_proto::v1::pool_server::PoolServer;
-use tonic::service::interceptor::InterceptedService;
 use glissade_proto::v1::user_server::UserServer;
-use store::SledStore;
 pub use glissade_worker::study::space::DEFAULT_MAX_POINTS;
+use store::SledStore;
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Server;
 use tonic::transport::server::TcpIncoming;
 

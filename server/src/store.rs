@@ -207,7 +207,9 @@ impl SledStore {
 
     fn engine_error(&self, source: sled::Error) -> StoreError {
         match source {
-            sled::Error::Io(ref io) if io.raw_os_error() == Some(28) || io.kind() == std::io::ErrorKind::StorageFull => {
+            sled::Error::Io(ref io)
+                if io.raw_os_error() == Some(28) || io.kind() == std::io::ErrorKind::StorageFull =>
+            {
                 StoreError::Full { path: self.path.clone() }
             }
             source => StoreError::Engine { path: self.path.clone(), source },

@@ -19,7 +19,10 @@ const LIMIT: Duration = Duration::from_secs(60);
 /// A command with the ambient settings that would change the binaries' output removed.
 fn command(program: &Path) -> Command {
     let mut cmd = Command::new(program);
-    cmd.env_remove("RUST_LOG").env_remove("GLISSADE_SERVER").env_remove("GLISSADE_TOKEN").env_remove("GLISSADE_TOKEN_FILE");
+    cmd.env_remove("RUST_LOG")
+        .env_remove("GLISSADE_SERVER")
+        .env_remove("GLISSADE_TOKEN")
+        .env_remove("GLISSADE_TOKEN_FILE");
     // a pool that has to spool uses this run's directory, not the user's ~/.glissade/spool
     cmd.env("GLISSADE_SPOOL", std::env::temp_dir().join(format!("glissade-e2e-spool-{}", std::process::id())));
     cmd
@@ -877,7 +880,8 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
     );
     expect(rt.block_on(client.submit_study(grid_request(&["f1=0.1"], -1.0))), Code::InvalidArgument, "tolerance");
     // Hostile sizes: counted and refused before anything is built; the coordinator stays up.
-    for grid in [&["f1=0.1:0.2:1000000000000"][..], &["f1=lhs:1000000000000:1"], &["f1=0.1:0.2:100000", "f2=0.1:0.2:100000"]]
+    for grid in
+        [&["f1=0.1:0.2:1000000000000"][..], &["f1=lhs:1000000000000:1"], &["f1=0.1:0.2:100000", "f2=0.1:0.2:100000"]]
     {
         expect(rt.block_on(client.submit_study(grid_request(grid, STUDY_TOL))), Code::InvalidArgument, "design points");
     }
@@ -886,7 +890,11 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
     expect(rt.block_on(client.submit_study(poison)), Code::InvalidArgument, "--max-scene-mib");
     // A 10 kB name is echoed as a bounded excerpt: INVALID_ARGUMENT, not RESOURCE_EXHAUSTED.
     let long = format!("{}=0.1", "n".repeat(10_000));
-    expect(rt.block_on(client.submit_study(grid_request(&[&long], STUDY_TOL))), Code::InvalidArgument, "more characters");
+    expect(
+        rt.block_on(client.submit_study(grid_request(&[&long], STUDY_TOL))),
+        Code::InvalidArgument,
+        "more characters",
+    );
     // Unknown study ids.
     for status in [
         rt.block_on(client.get_study(v1::GetStudyRequest { study_id: 42, points: false, scene: false }))
@@ -902,7 +910,8 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
     assert_eq!(out.status.code(), Some(1));
     assert_eq!(text(&out.stderr), "error: show 42: no study 42 (NotFound)\n");
     // A reader that goes away before the output comes (`| head`): a quiet exit, no panic.
-    let piped = format!("set -o pipefail; '{}' --server {url} studies --json | true", workspace_bin("glissade").display());
+    let piped =
+        format!("set -o pipefail; '{}' --server {url} studies --json | true", workspace_bin("glissade").display());
     let out = run_with_timeout(Command::new("bash").args(["-c", &piped]), LIMIT);
     assert!(out.status.success() && out.stderr.is_empty(), "{:?}: {}", out.status, text(&out.stderr));
 
@@ -1362,7 +1371,8 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     assert!(text(&out.stderr).contains("without tokens"), "{}", text(&out.stderr));
 
     let files = ["--user-token-file", user_file.to_str().unwrap(), "--pool-token-file", pool_file.to_str().unwrap()];
-    let (_server, addr) = start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &files);
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &files);
     let url = format!("http://{addr}");
     let rt = runtime();
     let with = |token: &str| {
@@ -1493,7 +1503,8 @@ fn a_full_disk_is_named_and_the_coordinator_recovers_after_a_restart() -> anyhow
     assert!(out.status.success(), "{}", text(&out.stderr));
     let solution = std::fs::read(&file)?;
     disk.fill();
-    let status = rt.block_on(complete(&mut pool, &lease, "tester", &solution, &solution, solution.len())).expect_err("full");
+    let status =
+        rt.block_on(complete(&mut pool, &lease, "tester", &solution, &solution, solution.len())).expect_err("full");
     assert_eq!(status.code(), Code::ResourceExhausted, "{status:?}");
     assert!(status.message().contains("disk is full"), "{}", status.message());
     let health = glissade(Some(&url), &["health", "--json"]);
@@ -1513,7 +1524,9 @@ fn a_full_disk_is_named_and_the_coordinator_recovers_after_a_restart() -> anyhow
     for _ in 0..50 {
         reply = rt.block_on(complete(&mut pool, &lease, "tester", &solution, &solution, solution.len()));
         match &reply {
-            Err(s) if matches!(s.code(), Code::Unknown | Code::Unavailable) => std::thread::sleep(Duration::from_millis(100)),
+            Err(s) if matches!(s.code(), Code::Unknown | Code::Unavailable) => {
+                std::thread::sleep(Duration::from_millis(100))
+            }
             _ => break,
         }
     }
@@ -1606,7 +1619,8 @@ fn tls_serves_https_clients_that_trust_its_authority_and_no_one_else() -> anyhow
     assert!(out.status.success(), "openssl: {}", text(&out.stderr));
     let path = |f: &str| dir.path().join(f).display().to_string();
     let tls = ["--tls-cert", &path("server.pem"), "--tls-key", &path("server.key")];
-    let (_server, addr) = start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &tls);
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &tls);
     let https = format!("https://localhost:{}", addr.port());
 
     // The CLI and a pool that trust the CA: a study goes through.
@@ -1654,7 +1668,8 @@ fn chaos_random_kills_of_coordinator_and_pool_lose_nothing_and_change_nothing() 
     let rt = runtime();
     let mut request = grid_request(&["f1=0.1:0.2:3", "f2=0.1:0.2:3"], TOL);
     request.strategy = v1::InitStrategy::Cold as i32;
-    let id = rt.block_on(async { user(&url).await?.submit_study(request).await.map_err(anyhow::Error::from) })?
+    let id = rt
+        .block_on(async { user(&url).await?.submit_study(request).await.map_err(anyhow::Error::from) })?
         .into_inner()
         .study_id;
     let mut seed: u64 = 0x5eed_0f_c4a05;
@@ -1685,7 +1700,11 @@ fn chaos_random_kills_of_coordinator_and_pool_lose_nothing_and_change_nothing() 
         study(&mut client, id).await
     })?;
     let logs = || {
-        (0..servers).map(|i| log_of(&server_log(i))).chain((0..pools).map(|i| log_of(&pool_log(i)))).collect::<Vec<_>>().join("\n---\n")
+        (0..servers)
+            .map(|i| log_of(&server_log(i)))
+            .chain((0..pools).map(|i| log_of(&pool_log(i))))
+            .collect::<Vec<_>>()
+            .join("\n---\n")
     };
     assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}\n{}", logs());
     for p in &s.points {

@@ -34,13 +34,17 @@ fn run<const D: usize>(scene: &Scene, p: &[(String, f64)], q: Option<&[(String, 
         }
         m
     };
-    let solve = |m: &Model<D>, init: Option<&glissade_worker::latin::field::InterfaceSolution>, trace: bool| -> SolveReport {
-        let mut solver = LatinSolver::serial(m).expect("factorisation");
-        solver.solve(init, &SolveOptions { trace_qois: trace, ..SolveOptions::default() }).expect("solve")
-    };
+    let solve =
+        |m: &Model<D>, init: Option<&glissade_worker::latin::field::InterfaceSolution>, trace: bool| -> SolveReport {
+            let mut solver = LatinSolver::serial(m).expect("factorisation");
+            solver.solve(init, &SolveOptions { trace_qois: trace, ..SolveOptions::default() }).expect("solve")
+        };
     let mp = build(p, 1e-10, 20000);
     let reference = solve(&mp, None, false);
-    eprintln!("reference: {} dynamic iterations, eta {:.2e}", reference.dynamic.iterations, reference.dynamic.error_indicator);
+    eprintln!(
+        "reference: {} dynamic iterations, eta {:.2e}",
+        reference.dynamic.iterations, reference.dynamic.error_indicator
+    );
     let names: Vec<&str> = reference.qoi.iter().map(|q| q.name.as_str()).collect();
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     let mut runs = vec![("cold", build(p, 1e-7, 3000), None)];
@@ -54,10 +58,7 @@ fn run<const D: usize>(scene: &Scene, p: &[(String, f64)], q: Option<&[(String, 
     dump.insert("reference".into(), reference.qoi.iter().map(|q| q.values.clone()).collect::<Vec<_>>().into());
     for (label, m, init) in &runs {
         let r = solve(m, init.as_ref(), true);
-        dump.insert(
-            label.to_string(),
-            serde_json::json!({"eta": r.dynamic.history, "qoi": r.dynamic.qoi_trace}),
-        );
+        dump.insert(label.to_string(), serde_json::json!({"eta": r.dynamic.history, "qoi": r.dynamic.qoi_trace}));
         for (k, (eta, qois)) in r.dynamic.history.iter().zip(&r.dynamic.qoi_trace).enumerate() {
             let errors: Vec<String> = qois
                 .iter()

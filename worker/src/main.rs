@@ -384,7 +384,6 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
     Ok(s.converged)
 }
 
-
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(

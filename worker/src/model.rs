@@ -723,7 +723,8 @@ pub const SEARCH_DIRECTION_BOUNDS: (f64, f64) = (1.0, 4.0);
 /// elements).
 pub fn dynamic_search_direction<const D: usize>(sub: &Substructure<D>, normal: &[f64; D], dt: f64) -> f64 {
     let along = |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
-    let (lo, hi) = sub.coords.iter().map(along).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    let (lo, hi) =
+        sub.coords.iter().map(along).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
     let depth = hi - lo;
     let impedance = sub.material.impedance();
     // a flat (or degenerate, NaN) substructure has no depth to compare c dt with

@@ -195,11 +195,8 @@ fn all_converged(result: &StudyResult) -> bool {
     result.summary.not_converged == 0 && result.summary.failed == 0
 }
 
-/// Temporary file in the target directory, then rename: a reader never sees half a table.
+/// A whole file or none (temporary file synced, then renamed: `io::write_atomically`).
 fn write_atomically(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
-    let dir = path.parent().unwrap_or(std::path::Path::new("."));
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).with_context(|| format!("cannot write {}", path.display()))?;
-    tmp.write_all(bytes).with_context(|| format!("cannot write {}", path.display()))?;
-    tmp.persist(path).with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    glissade_worker::io::write_atomically(path, |w| w.write_all(bytes))
+        .with_context(|| format!("cannot write {}", path.display()))
 }

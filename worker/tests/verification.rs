@@ -498,7 +498,9 @@ fn warm_start_from_own_solution_converges_within_two_windows() {
     // The stopping test measures the contraction over two windows before it trusts a small
     // change (latin::stopping): a restart costs those iterations, under a fifth of a cold solve.
     let windows = 2 * glissade_worker::latin::stopping::WINDOW + 2;
-    assert!(warm.converged() && warm.dynamic.iterations <= windows && warm.static_stage.as_ref().unwrap().iterations <= 2);
+    assert!(
+        warm.converged() && warm.dynamic.iterations <= windows && warm.static_stage.as_ref().unwrap().iterations <= 2
+    );
     assert!(5 * warm.dynamic.iterations <= cold.dynamic.iterations);
     for (a, b) in cold.qoi.iter().zip(&warm.qoi) {
         let (x, y) = (a.values[m.steps], b.values[m.steps]);

@@ -12,7 +12,7 @@ use std::path::Path;
 /// Writes a file atomically: `write` fills a temporary file in the same directory, which is then
 /// synced and renamed over `path`, so a reader never sees a half-written file and a failed write
 /// leaves any previous file in place (the temporary file is removed).
-pub(crate) fn write_atomically<E: From<std::io::Error>>(
+pub fn write_atomically<E: From<std::io::Error>>(
     path: &Path,
     write: impl FnOnce(&mut BufWriter<&File>) -> Result<(), E>,
 ) -> Result<(), E> {

@@ -135,7 +135,9 @@ impl ErrorEstimator {
                 } else {
                     RHO_MAX
                 };
-                let now = (0..WINDOW.min(k)).map(|age| self.changes[k - 1 - age][q] * rho.powi(age as i32)).fold(0.0, f64::max);
+                let now = (0..WINDOW.min(k))
+                    .map(|age| self.changes[k - 1 - age][q] * rho.powi(age as i32))
+                    .fold(0.0, f64::max);
                 now * rho / (1.0 - rho)
             })
             .fold(0.0, f64::max)
@@ -158,7 +160,10 @@ mod tests {
                 let est = e.update(std::slice::from_ref(&x), &UnitScales::default(), 1.0);
                 let truth = 0.3 * rho_pow(rho, k) * 3f64.sqrt() / x.iter().map(|v| v * v).sum::<f64>().sqrt();
                 if k >= 2 * WINDOW && truth > 1e-12 {
-                    assert!(est >= 0.9 * truth && est <= 2.0 * truth, "rho {rho}, k {k}: estimate {est}, error {truth}");
+                    assert!(
+                        est >= 0.9 * truth && est <= 2.0 * truth,
+                        "rho {rho}, k {k}: estimate {est}, error {truth}"
+                    );
                 }
             }
         }

@@ -201,7 +201,8 @@ mod tests {
         let spool = Spool { dir: dir.path().join("spool") };
         let header = v1::CompletePointHeader { study_id: 3, point_id: 7, lease_id: u64::MAX, ..Default::default() };
         let complete = Delivery::Complete { header, bytes: vec![1, 2, 3, 255] };
-        let fail = Delivery::Fail(v1::FailPointRequest { study_id: 3, point_id: 8, error: "x".into(), ..Default::default() });
+        let fail =
+            Delivery::Fail(v1::FailPointRequest { study_id: 3, point_id: 8, error: "x".into(), ..Default::default() });
         spool.save(&complete).unwrap();
         spool.save(&fail).unwrap();
         std::fs::write(spool.dir.join("junk.spool"), b"not ours").unwrap();

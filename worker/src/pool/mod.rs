@@ -13,16 +13,16 @@
 //! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
 //! started is released).
 
-use glissade_proto::auth::{Token, WithToken};
-use tonic::service::interceptor::InterceptedService;
 use crate::text::one_line;
+use glissade_proto::auth::{Token, WithToken};
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
+use tonic::service::interceptor::InterceptedService;
 
 use anyhow::{Context, Result, anyhow, bail};
+use glissade_proto::Assembler;
 use glissade_proto::v1::pool_client::PoolClient;
 use glissade_proto::v1::{self, lease_message};
-use glissade_proto::Assembler;
 use tokio::sync::{oneshot, watch};
 use tonic::transport::Channel;
 use tonic::{Code, Status};
@@ -291,7 +291,9 @@ static URGENT: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::ne
 fn spool_and_stop(options: &PoolOptions, delivery: Delivery) -> Result<()> {
     let (study, point) = delivery.point();
     let Some(spool) = &options.spool else {
-        bail!("stopping with the result of study {study} point {point} undelivered and no --spool directory: it is lost");
+        bail!(
+            "stopping with the result of study {study} point {point} undelivered and no --spool directory: it is lost"
+        );
     };
     let path = spool.save(&delivery)?;
     tracing::warn!(study, point, file = %path.display(), "coordinator unreachable: result spooled for the next start of a pool");
@@ -343,7 +345,9 @@ async fn connect(options: &PoolOptions, pool_id: Option<&str>) -> Result<Session
 
 /// The coordinator refused this pool's credentials.
 #[derive(Debug, thiserror::Error)]
-#[error("the coordinator refused this pool: {0} (give the pool token: --token-file, GLISSADE_TOKEN or GLISSADE_TOKEN_FILE)")]
+#[error(
+    "the coordinator refused this pool: {0} (give the pool token: --token-file, GLISSADE_TOKEN or GLISSADE_TOKEN_FILE)"
+)]
 struct Refused(String);
 
 /// Transport failures and a restarting coordinator are worth a reconnect; anything else is an
@@ -353,8 +357,7 @@ fn is_transient(status: &Status) -> bool {
     matches!(
         status.code(),
         Code::Unavailable | Code::Unknown | Code::Cancelled | Code::DeadlineExceeded | Code::ResourceExhausted
-    )
-        || status.metadata().contains_key(glissade_proto::auth::REGISTER_AGAIN)
+    ) || status.metadata().contains_key(glissade_proto::auth::REGISTER_AGAIN)
 }
 
 /// One connection's worth of pool work: deliver what is pending, lease, solve, repeat.
@@ -445,7 +448,8 @@ async fn serve(
         let job = match prepare(&lease, init_bytes, options.memory_budget.or_else(available_memory)) {
             Ok(job) => job,
             Err(e) => {
-                *pending = Some(Delivery::new(&session.pool_id, Report { lease, outcome: Err(one_line(&format!("{e:#}"))) }));
+                *pending =
+                    Some(Delivery::new(&session.pool_id, Report { lease, outcome: Err(one_line(&format!("{e:#}"))) }));
                 continue;
             }
         };
@@ -601,8 +605,6 @@ async fn release(session: &mut Session, lease: &v1::Lease) {
         Err(status) => tracing::warn!(error = status.message(), "release failed; the lease will expire"),
     }
 }
-
-
 
 /// The solution file header of a solve's outcome (what `solve --save` writes too).
 pub fn solution_meta(scene: &Scene, outcome: &SolveOutcome) -> SolutionMeta {

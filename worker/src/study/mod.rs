@@ -179,9 +179,15 @@ impl StudySummary {
 /// "warm starts cost 2.1x less work than cold ones" or, when they did not pay, "... 1.3x more".
 pub fn warm_against_cold(cold: f64, warm: f64) -> String {
     if warm <= cold {
-        format!("warm starts cost {:.1}x less work than cold ones ({warm:.1} against {cold:.1} per point)", cold / warm.max(1e-12))
+        format!(
+            "warm starts cost {:.1}x less work than cold ones ({warm:.1} against {cold:.1} per point)",
+            cold / warm.max(1e-12)
+        )
     } else {
-        format!("warm starts cost {:.1}x MORE work than cold ones ({warm:.1} against {cold:.1} per point)", warm / cold.max(1e-12))
+        format!(
+            "warm starts cost {:.1}x MORE work than cold ones ({warm:.1} against {cold:.1} per point)",
+            warm / cold.max(1e-12)
+        )
     }
 }
 

@@ -120,7 +120,9 @@ pub enum SpaceError {
     Duplicate { spec: String, name: String },
     #[error("the study has no design points (give at least one --grid NAME=SPEC)")]
     EmptyGrid,
-    #[error("the grid gives {count} design points, more than the {max} accepted (give fewer values or split the study)")]
+    #[error(
+        "the grid gives {count} design points, more than the {max} accepted (give fewer values or split the study)"
+    )]
     TooManyPoints { count: String, max: usize },
     #[error("point {point}: parameter '{name}' is not in the scene")]
     PointUnknownParameter { point: String, name: String },
@@ -352,9 +354,13 @@ impl AxisValues {
         match *self {
             AxisValues::Values(ref v) => v.clone(),
             AxisValues::Range { start, count: 1, .. } => vec![start],
-            AxisValues::Range { start, stop, count } => (0..count)
-                .map(|i| if i + 1 == count { stop } else { tidy(start + (stop - start) * i as f64 / (count - 1) as f64) })
-                .collect(),
+            AxisValues::Range { start, stop, count } => {
+                (0..count)
+                    .map(|i| {
+                        if i + 1 == count { stop } else { tidy(start + (stop - start) * i as f64 / (count - 1) as f64) }
+                    })
+                    .collect()
+            }
             AxisValues::Lhs { .. } => unreachable!("hypercubes are drawn per group"),
         }
     }
@@ -376,9 +382,9 @@ fn factors(axes: &[GridAxis]) -> Result<Vec<Vec<&GridAxis>>, SpaceError> {
             return Err(SpaceError::Duplicate { spec: a.spec.clone(), name: a.name.clone() });
         }
         let group = match a.values {
-            AxisValues::Lhs { samples, seed, .. } => out.iter_mut().find(|f| {
-                matches!(f[0].values, AxisValues::Lhs { samples: n, seed: s, .. } if n == samples && s == seed)
-            }),
+            AxisValues::Lhs { samples, seed, .. } => out.iter_mut().find(
+                |f| matches!(f[0].values, AxisValues::Lhs { samples: n, seed: s, .. } if n == samples && s == seed),
+            ),
             _ => None,
         };
         match group {
