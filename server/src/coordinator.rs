@@ -1233,6 +1233,19 @@ fn check_meta(meta: &SolutionMeta, c: &Completion, scene_hash: &str, full: &Para
     if !same_point {
         return Err(CoordError::Invalid(format!("solution is for parameters {parameters}, {point} is at {full}")));
     }
+    // The QoIs a study reports are the header's: they must be the solve's own, bit for bit.
+    let same_qoi = meta.qoi.len() == c.qoi.len()
+        && meta.qoi.iter().all(|(name, v)| c.qoi.get(name).is_some_and(|w| w.to_bits() == v.to_bits()));
+    if !same_qoi {
+        return Err(CoordError::Invalid(format!(
+            "the QoIs of the header for {point} are not those of its solution file ({})",
+            if meta.qoi.is_empty() {
+                "which has none: written by a solver before 0.2.0?".to_string()
+            } else {
+                format!("{:?}", meta.qoi)
+            }
+        )));
+    }
     if meta.converged != c.converged || meta.iterations as u64 != c.iterations {
         return Err(CoordError::Invalid(format!(
             "solution for {point} says converged = {} after {} iterations, the header {} after {}",
@@ -1344,6 +1357,25 @@ mod tests {
     }
 
     #[test]
+    fn a_header_whose_qois_are_not_its_files_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let c = open(dir.path(), 60_000, 3);
+        submit(&c, &["f1=0.1"], 1e-3, InitStrategy::Cold);
+        pool(&c, "p", VERSION);
+        let grant = c.lease("p").unwrap().unwrap();
+        let (mut forged, bytes) = solution_file(&grant, 5e-4, true);
+        forged.qoi.insert("slip_A".into(), 999.0);
+        let message = match c.complete(forged, bytes.clone()) {
+            Err(CoordError::Invalid(m)) => m,
+            other => panic!("must be refused: {:?}", other.map(|p| p.state)),
+        };
+        assert!(message.contains("not those of its solution file"), "{message}");
+        // the point is still held, and the true header completes it
+        let (honest, bytes) = solution_file(&grant, 5e-4, true);
+        assert_eq!(c.complete(honest, bytes).unwrap().state, PointState::Done);
+    }
+
+    #[test]
     fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
         let dir = tempfile::tempdir().unwrap();
         let c = open(dir.path(), 60_000, 3);
@@ -1393,6 +1425,7 @@ mod tests {
             error_indicator: eta,
             iterations: 10,
             tolerance: grant.tolerance,
+            qoi: [("slip_A".to_string(), 1e-6)].into(),
         };
         let mut bytes = Vec::new();
         solution_file::write_to(&mut bytes, &solution, &meta).unwrap();

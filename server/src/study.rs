@@ -296,6 +296,8 @@ impl SceneSolutions {
             error_indicator: record.error_indicator,
             iterations: 0,
             tolerance: record.tolerance,
+            // a blend is a starting point, not a solve: it reports no QoIs
+            qoi: Default::default(),
         };
         // Dimension and steps: those of the stored file the blend was made from.
         let loaded = self.load(first.id).ok()?;

@@ -828,7 +828,7 @@ async fn complete(
         converged: meta.converged,
         iterations: meta.iterations as u64,
         error_indicator: meta.error_indicator,
-        qoi: [("slip_A".to_string(), 1.0)].into(),
+        qoi: meta.qoi.clone(),
         wall_seconds: 0.1,
         solution_bytes: announced as u64,
         eta_history: Vec::new(),

@@ -83,6 +83,7 @@ fn fake_solution(scene: &Scene, hash: &str, lease: &v1::Lease) -> Result<Vec<u8>
         error_indicator: lease.tolerance / 2.0,
         iterations: 1,
         tolerance: lease.tolerance,
+        qoi: [("q".to_string(), 1.0)].into(),
     };
     let mut bytes = Vec::new();
     solution_file::write_to(&mut bytes, &solution, &meta)?;

@@ -70,6 +70,10 @@ pub struct SolutionMeta {
     /// total LATIN iterations (static + dynamic)
     pub iterations: usize,
     pub tolerance: f64,
+    /// every QoI's final value, as the solve reported it (what a completion's header must
+    /// repeat; empty in files written before 0.2.0)
+    #[serde(default)]
+    pub qoi: std::collections::BTreeMap<String, f64>,
 }
 
 /// Why a stored solution cannot warm-start a solve of a scene.
@@ -388,6 +392,7 @@ mod tests {
             error_indicator: 3.3e-3,
             iterations: 17,
             tolerance: 2e-4,
+            qoi: Default::default(),
         };
         (meta, solution)
     }

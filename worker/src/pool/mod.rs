@@ -619,5 +619,6 @@ pub fn solution_meta(scene: &Scene, outcome: &SolveOutcome) -> SolutionMeta {
         error_indicator: s.error_indicator,
         iterations: s.iterations,
         tolerance: s.tolerance,
+        qoi: s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect(),
     }
 }
