@@ -487,7 +487,7 @@ async fn reconnect_watch(client: &mut User, id: u64, say: &impl Fn(&str)) -> Res
                 return Ok(r.into_inner());
             }
             Err(s) if is_transient(&s) => {
-                if attempts % 10 == 0 {
+                if attempts.is_multiple_of(10) {
                     say(&format!(
                         "watch {id}: still no coordinator after {attempts} attempts ({})",
                         one_line(s.message())

@@ -184,6 +184,12 @@ id_newtype!(
     "point"
 );
 
+/// Milliseconds since the Unix epoch (0 if the clock is before it): the time stamps of events
+/// and leases on both ends.
+pub fn now_unix_ms() -> i64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -247,10 +253,4 @@ mod tests {
         assert_eq!(err.to_string(), "invalid point id `x1`: expected a non-negative integer");
         assert!("-1".parse::<StudyId>().is_err());
     }
-}
-
-/// Milliseconds since the Unix epoch (0 if the clock is before it): the time stamps of events
-/// and leases on both ends.
-pub fn now_unix_ms() -> i64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as i64)
 }

@@ -1672,7 +1672,7 @@ fn chaos_random_kills_of_coordinator_and_pool_lose_nothing_and_change_nothing() 
         .block_on(async { user(&url).await?.submit_study(request).await.map_err(anyhow::Error::from) })?
         .into_inner()
         .study_id;
-    let mut seed: u64 = 0x5eed_0f_c4a05;
+    let mut seed: u64 = 0x05ee_d0fc_4a05;
     let mut next = || {
         seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         seed >> 33
