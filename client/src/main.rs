@@ -299,8 +299,7 @@ async fn run(cli: Cli) -> Result<Outcome> {
 
 /// One line for a refused call: what was asked, the server's reason, the status code.
 fn refused(what: &str, status: tonic::Status) -> anyhow::Error {
-    let message = status.message().lines().map(str::trim).collect::<Vec<_>>().join(" ");
-    anyhow!("{what}: {message} ({:?})", status.code())
+    anyhow!("{what}: {} ({:?})", one_line(status.message()), status.code())
 }
 
 /// The coordinator a command talks to: its URL and the user token (if it needs one).

@@ -1553,12 +1553,13 @@ fn a_pool_stopped_while_the_coordinator_is_down_spools_its_result_and_delivers_i
     let data = dir.path().join("db");
     let spool = dir.path().join("spool");
     let log = dir.path().join("server.log");
-    let (mut server, addr) = start_server_with(&data, &log, "127.0.0.1:0", &["--lease-seconds", "60"]);
+    let (mut server, addr) = start_server_with(&data, &log, "127.0.0.1:0", &["--lease-seconds", "6"]);
     let url = format!("http://{addr}");
     let rt = runtime();
     let mut client = rt.block_on(user(&url))?;
-    // long enough (seconds: 4 x the steps, a tight tolerance) for the coordinator to die during it
-    let mut request = grid_request(&["f1=0.15"], 1e-6);
+    // long enough (seconds: 4 x the steps, a tight tolerance) for the coordinator to die during
+    // it, after the pool's first heartbeat (every 1.5 s with 6 s leases)
+    let mut request = grid_request(&["f1=0.15"], 1e-7);
     request.scene = request.scene.replace("steps = 50", "steps = 200");
     let id = rt.block_on(client.submit_study(request))?.into_inner().study_id;
     let pool_log = dir.path().join("pool.log");
@@ -1572,7 +1573,8 @@ fn a_pool_stopped_while_the_coordinator_is_down_spools_its_result_and_delivers_i
         .stderr(File::create(&pool_log)?)
         .spawn()?;
     let mut pool = ServerGuard(pool, token);
-    rt.block_on(watch(&mut client, id, |e| kind(e) != v1::EventKind::PointStarted))?;
+    // killed once the pool reports progress: it holds the lease and is solving
+    rt.block_on(watch(&mut client, id, |e| kind(e) != v1::EventKind::PointProgress))?;
     server.0.kill()?;
     let _ = server.0.wait();
     drop(server);

@@ -46,5 +46,7 @@ pub(crate) fn replace_atomically<E: From<std::io::Error>>(
     write(tmp.path(), tmp.as_file())?;
     File::open(tmp.path())?.sync_all()?;
     tmp.persist(path).map_err(|e| e.error)?;
+    // the rename itself is durable only once the directory is synced
+    File::open(dir)?.sync_all()?;
     Ok(())
 }

@@ -141,21 +141,13 @@ pub struct Spool {
 }
 
 impl Spool {
-    /// Writes `delivery` (to a temporary name, synced, then renamed: never half a file).
+    /// Writes `delivery` as a whole file or not at all (`io::write_atomically`).
     pub fn save(&self, delivery: &Delivery) -> Result<PathBuf> {
         std::fs::create_dir_all(&self.dir).with_context(|| format!("creating spool {}", self.dir.display()))?;
         let (study, point) = delivery.point();
-        let name = format!("study{study}-point{point}-{}.spool", std::process::id());
-        let path = self.dir.join(&name);
-        let tmp = self.dir.join(format!(".{name}.tmp"));
-        let write = || -> std::io::Result<()> {
-            let mut f = std::fs::File::create(&tmp)?;
-            std::io::Write::write_all(&mut f, &delivery.encode())?;
-            f.sync_all()?;
-            std::fs::rename(&tmp, &path)?;
-            std::fs::File::open(&self.dir)?.sync_all()
-        };
-        write().with_context(|| format!("writing {}", path.display()))?;
+        let path = self.dir.join(format!("study{study}-point{point}-{}.spool", std::process::id()));
+        crate::io::write_atomically(&path, |w| std::io::Write::write_all(w, &delivery.encode()))
+            .with_context(|| format!("writing {}", path.display()))?;
         Ok(path)
     }
 

@@ -246,7 +246,7 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
             Some(since) => wanted.min(options.stop_grace.saturating_sub(since.elapsed())),
             None => wanted,
         };
-        let session = match connect(&options, pool_id.as_deref()).await {
+        let mut session = match connect(&options, pool_id.as_deref()).await {
             Ok(s) => s,
             // A token the coordinator refuses will not get better by retrying.
             Err(e) if e.downcast_ref::<Refused>().is_some() => return Err(e),
@@ -264,7 +264,6 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
             tracing::info!(pool = %session.pool_id, coordinator = %options.coordinator, "registered");
         }
         pool_id = Some(session.pool_id.clone());
-        let mut session = session;
         deliver_spooled(&options, &mut session.client).await;
         let mut progressed = false;
         match serve(&options, session, &work, &mut stop, &mut pending, &mut idle_since, &mut progressed).await {

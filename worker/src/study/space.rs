@@ -398,7 +398,11 @@ fn factors(axes: &[GridAxis]) -> Result<Vec<Vec<&GridAxis>>, SpaceError> {
 /// The number of design points the axes give, computed from the specs alone (nothing is
 /// allocated), or None when it does not fit in a usize.
 pub fn point_count(axes: &[GridAxis]) -> Result<Option<usize>, SpaceError> {
-    Ok(factors(axes)?.iter().try_fold(1usize, |n, f| n.checked_mul(f[0].values.count())))
+    Ok(count_of(&factors(axes)?))
+}
+
+fn count_of(factors: &[Vec<&GridAxis>]) -> Option<usize> {
+    factors.iter().try_fold(1usize, |n, f| n.checked_mul(f[0].values.count()))
 }
 
 /// The design points of a study: the cartesian product of the axes, in lexicographic order of
@@ -407,7 +411,8 @@ pub fn point_count(axes: &[GridAxis]) -> Result<Option<usize>, SpaceError> {
 /// hold the swept parameters only ([`ParameterSpace::complete`] adds the defaults). A grid of
 /// more than `max_points` points is refused before any is built.
 pub fn design_points(axes: &[GridAxis], max_points: usize) -> Result<Vec<DesignPoint>, SpaceError> {
-    match point_count(axes)? {
+    let factors = factors(axes)?;
+    match count_of(&factors) {
         Some(n) if n <= max_points => {}
         n => {
             let count = n.map_or_else(|| "more than 2^64".to_string(), |n| n.to_string());
@@ -415,7 +420,7 @@ pub fn design_points(axes: &[GridAxis], max_points: usize) -> Result<Vec<DesignP
         }
     }
     let mut points = vec![DesignPoint::new()];
-    for factor in factors(axes)? {
+    for factor in factors {
         let partial: Vec<DesignPoint> = match factor[0].values {
             AxisValues::Lhs { samples, seed, .. } => latin_hypercube(&factor, samples, seed),
             ref values => {
