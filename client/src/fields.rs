@@ -7,12 +7,13 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, anyhow, bail};
+use glissade_core::io::solution_file;
+use glissade_core::scene::Scene;
+use glissade_core::study::space::{DesignPoint, ParameterSpace};
 use glissade_proto::Assembler;
 use glissade_proto::v1;
-use glissade_worker::io::{fields, solution_file};
+use glissade_worker::io::fields;
 use glissade_worker::run::{SolveRequest, solve_scene};
-use glissade_worker::scene::Scene;
-use glissade_worker::study::space::{DesignPoint, ParameterSpace};
 
 use crate::{get_study, refused};
 

@@ -5,8 +5,8 @@ mod demo;
 mod fields;
 
 use glissade_cli::{out, outln};
+use glissade_core::text::one_line;
 use glissade_proto::now_unix_ms;
-use glissade_worker::text::one_line;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -18,11 +18,11 @@ use glissade_cli::names::{describe_parameters, order_name, point_state_name, str
 use glissade_cli::plot::{self, Axis, ConvergenceSeries, Surface};
 use glissade_cli::progress::WatchState;
 use glissade_cli::surface::{SurfaceTable, parse_fixed};
+use glissade_core::scene::{QoiKind, Scene};
 use glissade_proto::auth::{Token, WithToken};
 use glissade_proto::v1::health_client::HealthClient;
 use glissade_proto::v1::user_client::UserClient;
 use glissade_proto::v1::{self, HealthRequest};
-use glissade_worker::scene::{QoiKind, Scene};
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Channel;
 use tonic::{Code, Status};
@@ -336,7 +336,7 @@ async fn get_study(client: &mut User, command: &str, id: u64, points: bool, scen
 fn read_submission(path: &Path, grid: &[String]) -> Result<(String, usize)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
     let scene = Scene::parse(&text).with_context(|| format!("scene {}", path.display()))?;
-    let (_, points) = glissade_server::check_grid(&scene, grid).map_err(|e| anyhow!("--grid: {e}"))?;
+    let (_, points) = glissade_core::study::space::check_grid(&scene, grid).map_err(|e| anyhow!("--grid: {e}"))?;
     Ok((text, points))
 }
 
@@ -800,7 +800,7 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
     if let (Some(cold), Some(warm)) = (mean(false), mean(true)) {
         outln!(
             "  work      {} (work: dynamic iterations + static iterations / time steps)",
-            glissade_worker::study::warm_against_cold(cold, warm)
+            glissade_core::study::warm_against_cold(cold, warm)
         );
     }
     for point in &s.points {

@@ -2,8 +2,8 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::study::space::DesignPoint;
 use glissade_proto::v1;
-use glissade_worker::study::space::DesignPoint;
 
 pub fn study_state_name(state: i32) -> &'static str {
     match v1::StudyState::try_from(state) {

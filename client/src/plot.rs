@@ -266,8 +266,7 @@ fn check_target(path: &Path, size: (u32, u32)) -> Result<(), PlotError> {
 fn register_bundled_font() -> Result<(), PlotError> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| {
-        plotters::style::register_font(FONT, FontStyle::Normal, include_bytes!("../../worker/assets/DejaVuSans.ttf"))
-            .is_ok()
+        plotters::style::register_font(FONT, FontStyle::Normal, include_bytes!("../../assets/DejaVuSans.ttf")).is_ok()
     });
     if ok { Ok(()) } else { Err(PlotError::Draw("the bundled font DejaVuSans.ttf was rejected".into())) }
 }

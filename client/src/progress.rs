@@ -222,7 +222,7 @@ impl WatchState {
         if let (Some(c), Some(w)) = (self.cold.mean(), self.warm.mean()) {
             s += &format!(
                 "\n{} (work: dynamic iterations + static iterations / time steps)",
-                glissade_worker::study::warm_against_cold(c, w)
+                glissade_core::study::warm_against_cold(c, w)
             );
         }
         let mut failures: Vec<_> = self.failures.iter().collect();

@@ -4,17 +4,17 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::text::{MAX_NAME_CHARS, excerpt, one_line};
 use glissade_proto::v1;
 use glissade_proto::{ParameterVector, PointId, StudyId};
-use glissade_worker::text::{MAX_NAME_CHARS, excerpt, one_line};
 use tonic::{Code, Status};
 
 use crate::coordinator::{
     Completion, CoordError, Event, EventKind, Failure, PoolInfo, Progress, SolutionSelector, StudyState, StudyView,
     Submission, Surface, SurfaceSource,
 };
-use glissade_worker::study::order::OrderKind;
-use glissade_worker::study::strategy::InitStrategy;
+use glissade_core::study::order::OrderKind;
+use glissade_core::study::strategy::InitStrategy;
 
 use crate::records::{PointRecord, PointState, SolutionOrigin};
 use crate::store::StoreError;

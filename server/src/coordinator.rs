@@ -8,27 +8,28 @@
 //! Heartbeats only move deadlines forward in memory; after a restart every lease gets a fresh
 //! deadline, so pools have one lease period to come back.
 
+use glissade_core::text::one_line;
 pub use glissade_proto::now_unix_ms;
-use glissade_worker::text::one_line;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
+use glissade_core::io::solution_file::{self, SolutionFileError, SolutionMeta};
+use glissade_core::scene::Scene;
 use glissade_proto::{ParameterVector, PointId, StudyId};
-use glissade_worker::io::solution_file::{self, SolutionFileError, SolutionMeta};
-use glissade_worker::scene::Scene;
 use tokio::sync::{Notify, broadcast};
 
-use glissade_worker::study::order::OrderKind;
-use glissade_worker::study::space::ParameterSpace;
-use glissade_worker::study::strategy::InitStrategy;
+use glissade_core::study::engine::StudyEngine;
+use glissade_core::study::order::OrderKind;
+use glissade_core::study::space::ParameterSpace;
+use glissade_core::study::strategy::InitStrategy;
 
 use crate::records::{
     self, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin, SolutionRecord,
     StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, StoreError, Tree};
-use crate::study::{SceneSolutions, StudyPlan, WarmStart};
+use crate::study::{PointStart, SceneSolutions, StudyPlan, WarmStart};
 
 /// Settings of the coordinator's rules.
 #[derive(Debug, Clone)]
@@ -73,7 +74,7 @@ pub enum CoordError {
     #[error("damaged database: {0}")]
     Decode(#[from] records::DecodeError),
     #[error("solution index: {0}")]
-    Index(#[from] glissade_worker::study::store::StoreError),
+    Index(#[from] glissade_core::study::store::StoreError),
 }
 
 /// Counts of a study's points by state.
@@ -355,9 +356,13 @@ impl Coordinator {
                 }
                 points.push(point);
             }
-            let plan = StudyPlan::new(&scene, &record, &points);
+            let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| records::DecodeError {
+                tree: "studies",
+                key: record.id.to_string(),
+                message: format!("stored study: {e}"),
+            })?;
             if !state.by_scene.contains_key(&record.scene_hash) {
-                match SceneSolutions::new(record.scene_hash.clone(), plan.space.clone(), store.clone()) {
+                match SceneSolutions::new(record.scene_hash.clone(), plan.space().clone(), store.clone()) {
                     Ok(index) => drop(state.by_scene.insert(record.scene_hash.clone(), index)),
                     Err(e) => tracing::warn!(study = %record.id, error = %e, "no warm starts for this scene"),
                 }
@@ -465,10 +470,10 @@ impl Coordinator {
             )));
         }
         let scene_hash = scene.content_hash();
-        let tolerance = submission.tolerance.unwrap_or(scene.solver.tolerance);
-        if !(tolerance > 0.0 && tolerance.is_finite()) {
-            return Err(CoordError::Invalid(format!("tolerance must be a positive number, got {tolerance}")));
-        }
+        // the tolerance's one check
+        let tolerance = StudyEngine::new(&scene, submission.strategy, submission.tolerance)
+            .map_err(|e| CoordError::Invalid(e.to_string()))?
+            .tolerance();
         let max_iterations = match submission.max_iterations {
             Some(0) => return Err(CoordError::Invalid("max_iterations must be at least 1".into())),
             Some(n) => n,
@@ -525,10 +530,10 @@ impl Coordinator {
         self.store.commit(batch)?;
         state.next_study = id.0 + 1;
         let n = points.len() as u32;
-        let plan = StudyPlan::new(&scene, &record, &points);
+        let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
         if !state.by_scene.contains_key(&scene_hash) {
             // None for a scene of too many parameters: its studies are cold (checked above).
-            if let Ok(index) = SceneSolutions::new(scene_hash.clone(), plan.space.clone(), self.store.clone()) {
+            if let Ok(index) = SceneSolutions::new(scene_hash.clone(), plan.space().clone(), self.store.clone()) {
                 state.by_scene.insert(scene_hash.clone(), index);
             }
         }
@@ -800,24 +805,21 @@ impl Coordinator {
                     break;
                 }
                 let Some(i) = entry.plan.next(&entry.points) else { break };
-                let key = SolutionKey::new(&entry.record.scene_hash, &entry.full_parameters(i));
-                // tolerance-aware reuse: a good enough stored solution is the answer
-                let answer = solutions.get(&key).filter(|s| {
-                    entry.record.strategy != InitStrategy::Cold
-                        && s.converged
-                        && s.solver_version == version
-                        && s.tolerance <= entry.record.tolerance
-                });
-                if let Some(answer) = answer {
-                    let answer = answer.clone();
-                    self.answer(&mut state, id, i, &answer)?;
-                    continue;
-                }
-                let init = match by_scene.get(&entry.record.scene_hash) {
-                    Some(index) if entry.record.strategy != InitStrategy::Cold => {
-                        entry.plan.warm_start(&entry.record, i, index, entry.previous().as_ref())
+                let start = entry.plan.start(
+                    &entry.record,
+                    i,
+                    by_scene.get(&entry.record.scene_hash),
+                    entry.previous().as_ref(),
+                    &version,
+                );
+                let init = match start {
+                    // a good enough stored solution is the answer
+                    PointStart::Answer(key) => {
+                        let answer = solutions.get(&key).expect("indexed solutions have records").clone();
+                        self.answer(&mut state, id, i, &answer)?;
+                        continue;
                     }
-                    _ => None,
+                    PointStart::Solve(init) => init,
                 };
                 let lease_id = new_lease_id(&state.leases);
                 let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
@@ -1307,7 +1309,7 @@ pub fn point_state_word(s: &PointState) -> &'static str {
 mod tests {
     use super::*;
     use crate::store::SledStore;
-    use glissade_worker::latin::field::{InterfaceField, InterfaceSolution, StageSolution};
+    use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
 
     const TINY: &str = include_str!("../../scenes/three-blocks-tiny.toml");
     const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -1318,7 +1320,7 @@ mod tests {
             lease: Duration::from_millis(lease_ms),
             max_attempts,
             max_solution_bytes: 1 << 30,
-            max_points: glissade_worker::study::space::DEFAULT_MAX_POINTS,
+            max_points: glissade_core::study::space::DEFAULT_MAX_POINTS,
             max_scene_bytes: crate::DEFAULT_MAX_SCENE_MIB << 20,
             solver_version: VERSION.into(),
         };

@@ -19,10 +19,10 @@ use std::time::Duration;
 
 use anyhow::{Context, Result};
 use coordinator::{Config, Coordinator};
+pub use glissade_core::study::space::DEFAULT_MAX_POINTS;
 use glissade_proto::v1::health_server::HealthServer;
 use glissade_proto::v1::pool_server::PoolServer;
 use glissade_proto::v1::user_server::UserServer;
-pub use glissade_worker::study::space::DEFAULT_MAX_POINTS;
 use store::SledStore;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Server;
@@ -209,25 +209,5 @@ async fn store_failed(coordinator: Arc<Coordinator>) {
             return;
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
-    }
-}
-
-/// Checks a grid submission against its scene as SubmitStudy does, and returns the swept
-/// parameters and the number of design points (the CLI refuses a bad grid before it connects).
-/// The points are counted from the specs; a grid above [`DEFAULT_MAX_POINTS`] is not expanded
-/// here (the coordinator's own `--max-points` decides).
-pub fn check_grid(scene: &glissade_worker::scene::Scene, grid: &[String]) -> Result<(Vec<String>, usize), String> {
-    use glissade_worker::study::space::{GridAxis, ParameterSpace, point_count};
-    let space = ParameterSpace::from_scene(scene);
-    let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
-    let axes = axes.map_err(|e| e.to_string())?;
-    match point_count(&axes).map_err(|e| e.to_string())? {
-        Some(n) if n > DEFAULT_MAX_POINTS => {
-            let mut names: Vec<String> = axes.into_iter().map(|a| a.name).collect();
-            names.sort();
-            Ok((names, n))
-        }
-        None => Err("the grid gives more than 2^64 design points".into()),
-        Some(_) => study::expand(scene, grid, &[], DEFAULT_MAX_POINTS).map(|(names, points)| (names, points.len())),
     }
 }

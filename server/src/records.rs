@@ -14,9 +14,9 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::study::order::OrderKind;
+use glissade_core::study::strategy::InitStrategy;
 use glissade_proto::{ParameterVector, PointId, StudyId};
-use glissade_worker::study::order::OrderKind;
-use glissade_worker::study::strategy::InitStrategy;
 use serde::{Deserialize, Serialize};
 
 /// `meta` key of the next study id to hand out.

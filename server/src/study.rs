@@ -1,4 +1,4 @@
-//! The coordinator's side of the study library (`glissade_worker::study`): grids expanded by its
+//! The coordinator's side of the study library (`glissade_core::study`): grids expanded by its
 //! parser, points ordered by its policies, warm starts chosen by its strategies — over the
 //! solutions of the sled database, which [`SceneSolutions`] presents as a
 //! [`SolutionStore`].
@@ -6,63 +6,38 @@
 //! The index is the library's kd-tree ([`MemoryStore`]) over design points only; the fields stay
 //! in sled and are read (zstd, then the solution file format) when a strategy asks for them.
 
-use std::collections::{BTreeMap, BTreeSet, HashMap};
+use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, PoisonError};
 
+use glissade_core::field::{InterfaceSolution, StageSolution};
+use glissade_core::io::solution_file::{self, SolutionMeta};
+use glissade_core::scene::Scene;
+use glissade_core::study::engine::{Start, StudyEngine};
+use glissade_core::study::order::OrderingPolicy;
+use glissade_core::study::space::{DesignPoint, ParameterSpace, submission_points};
+use glissade_core::study::store::{MemoryStore, SolutionId, SolutionInfo, SolutionStore, StoreError, StoredSolution};
+use glissade_core::study::strategy::Initialisation;
+use glissade_core::study::{StartKind, StudyError};
 use glissade_proto::ParameterVector;
-use glissade_worker::io::solution_file::{self, SolutionMeta};
-use glissade_worker::latin::field::{InterfaceSolution, StageSolution};
-use glissade_worker::scene::Scene;
-use glissade_worker::study::order::OrderingPolicy;
-use glissade_worker::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
-use glissade_worker::study::store::{MemoryStore, SolutionId, SolutionStore, StoreError, StoredSolution};
-use glissade_worker::study::strategy::{Initialisation, initialise, interface_law_parameters};
 
 use crate::records::{PointRecord, PointState, SolutionKey, SolutionOrigin, SolutionRecord, StudyRecord};
 use crate::store::{Store, Tree};
 
-/// The design points of a submission: a grid (the library's `NAME=SPEC` parser and Cartesian
-/// product) or an explicit list, each checked against the scene's parameters and their declared
-/// ranges, at most `max_points` of them (counted before any is built). Returns the swept names (sorted) and the points (swept parameters only).
+/// The design points of a submission (the library's [`submission_points`], checked against the
+/// scene) as wire vectors. Returns the swept names (sorted) and the points (swept parameters only).
 pub fn expand(
     scene: &Scene,
     grid: &[String],
     points: &[ParameterVector],
     max_points: usize,
 ) -> Result<(Vec<String>, Vec<ParameterVector>), String> {
-    let space = ParameterSpace::from_scene(scene);
-    let design: Vec<DesignPoint> = if grid.is_empty() {
-        if points.len() > max_points {
-            return Err(format!("{} points, more than the {max_points} accepted", points.len()));
-        }
-        points.iter().map(|p| DesignPoint::from(BTreeMap::from(p.clone()))).collect()
-    } else {
-        let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
-        design_points(&axes.map_err(|e| e.to_string())?, max_points).map_err(|e| e.to_string())?
-    };
-    if design.is_empty() {
-        return Err("empty study: the grid or point list gives no design point".into());
-    }
-    let mut names: Vec<String> = design.iter().flat_map(|p| p.iter().map(|(k, _)| k.to_owned())).collect();
-    names.sort();
-    names.dedup();
-    let mut out = Vec::with_capacity(design.len());
-    for (i, p) in design.iter().enumerate() {
-        space.complete(p).map_err(|e| e.to_string())?;
-        if p.len() != names.len() {
-            return Err(format!("point {i} ({p}) does not give every swept parameter ({})", names.join(", ")));
-        }
-        for (name, value) in p.iter() {
-            let range = space.range(name).expect("complete() checked the name");
-            if range.declared && !(range.min..=range.max).contains(&value) {
-                return Err(format!(
-                    "point {i}: {name} = {value} is outside the scene's range [{}, {}]",
-                    range.min, range.max
-                ));
-            }
-        }
-        out.push(ParameterVector::try_from(BTreeMap::from(p.clone())).map_err(|e| format!("point {i}: {e}"))?);
-    }
+    let listed: Vec<DesignPoint> = points.iter().map(|p| DesignPoint::from(BTreeMap::from(p.clone()))).collect();
+    let (names, design) = submission_points(scene, grid, &listed, max_points)?;
+    let out = design
+        .iter()
+        .enumerate()
+        .map(|(i, p)| ParameterVector::try_from(BTreeMap::from(p.clone())).map_err(|e| format!("point {i}: {e}")))
+        .collect::<Result<_, _>>()?;
     Ok((names, out))
 }
 
@@ -79,20 +54,34 @@ pub fn parameter_vector(point: &DesignPoint) -> ParameterVector {
     ParameterVector::try_from(BTreeMap::from(point.clone())).expect("design points hold finite named values")
 }
 
-/// The ordering and initialisation of one study.
+/// The ordering of one study and its engine (the rules of reuse, warm starts and failures that
+/// the local study follows too).
 pub struct StudyPlan {
-    pub space: ParameterSpace,
-    law_parameters: BTreeSet<String>,
+    pub engine: StudyEngine,
     policy: Box<dyn OrderingPolicy>,
     /// Every parameter at each point, by point id.
     pub full: Vec<DesignPoint>,
 }
 
+/// How a leased point begins.
+pub enum PointStart {
+    /// A stored solution answers it: its key.
+    Answer(SolutionKey),
+    /// Solve it, from this warm start (None: cold).
+    Solve(Option<WarmStart>),
+}
+
 impl StudyPlan {
-    pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Self {
-        let space = ParameterSpace::from_scene(scene);
-        let full = points.iter().map(|p| design_point(&space, &p.parameters)).collect();
-        Self { policy: record.order.policy(&space), law_parameters: interface_law_parameters(scene), space, full }
+    /// Fails only on a tolerance the engine refuses (submissions are checked before they are
+    /// stored).
+    pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Result<Self, StudyError> {
+        let engine = StudyEngine::new(scene, record.strategy, Some(record.tolerance))?;
+        let full = points.iter().map(|p| design_point(engine.space(), &p.parameters)).collect();
+        Ok(Self { policy: record.order.policy(engine.space()), engine, full })
+    }
+
+    pub fn space(&self) -> &ParameterSpace {
+        self.engine.space()
     }
 
     /// The point to lease next among the pending ones, by the study's ordering policy (which sees
@@ -115,26 +104,32 @@ impl StudyPlan {
         pending.0.get(choice).copied()
     }
 
-    /// The warm start of point `i` by the study's strategy, from `solutions` (this scene's);
-    /// `previous` is the solution of the study's point finished last. A store failure (a damaged
-    /// stored solution) gives a cold start rather than no start.
-    pub fn warm_start(
+    /// How point `i` begins on a pool of `solver_version`, by the study engine, from `solutions`
+    /// (this scene's; None: the scene has no index, so its studies are cold); `previous` is the
+    /// solution of the study's point finished last. A store failure (a damaged stored solution)
+    /// gives a cold start rather than no start.
+    pub fn start(
         &self,
-        record: &StudyRecord,
+        study: &StudyRecord,
         i: usize,
-        solutions: &SceneSolutions,
+        solutions: Option<&SceneSolutions>,
         previous: Option<&SolutionKey>,
-    ) -> Option<WarmStart> {
+        solver_version: &str,
+    ) -> PointStart {
+        let Some(solutions) = solutions else { return PointStart::Solve(None) };
         let point = &self.full[i];
         let previous = previous.and_then(|k| solutions.id_of(k));
-        let init = match initialise(solutions, &self.space, &self.law_parameters, point, previous, record.strategy) {
-            Ok(init) => init,
+        match self.engine.start(solutions, point, previous, solver_version) {
+            Ok(Start::Answer(info)) => match solutions.keys.get(info.id as usize) {
+                Some(key) => PointStart::Answer(key.clone()),
+                None => PointStart::Solve(None),
+            },
+            Ok(Start::Solve { init, kind }) => PointStart::Solve(solutions.warm_start(init, kind)),
             Err(e) => {
-                tracing::error!(study = %record.id, point = i, error = %e, "warm start failed; starting cold");
-                return None;
+                tracing::error!(study = %study.id, point = i, error = %e, "warm start failed; starting cold");
+                PointStart::Solve(None)
             }
-        };
-        solutions.warm_start(init, point)
+        }
     }
 }
 
@@ -229,6 +224,7 @@ impl SceneSolutions {
                 dynamic: StageSolution { interfaces: Vec::new() },
             }),
             parent: None,
+            solver_version: record.solver_version.clone(),
         })?;
         self.keys.push(key.clone());
         self.ids.insert(key, id);
@@ -275,8 +271,8 @@ impl SceneSolutions {
         Ok(loaded)
     }
 
-    /// The streamable form of an initialisation of `point`.
-    fn warm_start(&self, init: Initialisation, point: &DesignPoint) -> Option<WarmStart> {
+    /// The streamable form of an initialisation.
+    fn warm_start(&self, init: Initialisation, kind: StartKind) -> Option<WarmStart> {
         let solution = init.solution?;
         let first = init.sources.first()?;
         let record = self.records.get(first.id as usize)?;
@@ -286,12 +282,16 @@ impl SceneSolutions {
             let loaded = self.load(first.id).ok()?;
             return Some(WarmStart { origin, file: WarmFile::Stored(loaded.bytes.clone()) });
         }
+        debug_assert!(matches!(kind, StartKind::Blend | StartKind::Linear), "several sources make a blend");
         let meta = SolutionMeta {
             solver_version: record.solver_version.clone(),
             scene_hash: self.scene_hash.clone(),
             dimension: 0,
             time_steps: 0,
-            parameters: BTreeMap::from(point.clone()),
+            // The nearest source's point, as for any start from another point: the pool then
+            // stops at `warm_tolerance_ratio` times the tolerance, as the engine asks of every
+            // start that is not a continuation of this very point.
+            parameters: BTreeMap::from(first.point.clone()),
             converged: false,
             error_indicator: record.error_indicator,
             iterations: 0,
@@ -342,7 +342,12 @@ impl SolutionStore for SceneSolutions {
             qoi: r.qoi.clone(),
             solution: loaded.solution.clone(),
             parent: None,
+            solver_version: r.solver_version.clone(),
         })
+    }
+
+    fn info(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {
+        self.index.info(id)
     }
 
     fn len(&self) -> usize {

@@ -671,7 +671,7 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
 
         // The stored solution of a point: a whole solution file of this scene and point.
         let bytes = fetch(&mut client, Solution::Point(v1::PointKey { study_id: first, point_id: 4 })).await?;
-        let (meta, _) = glissade_worker::io::solution_file::read_from(&bytes[..])?;
+        let (meta, _) = glissade_core::io::solution_file::read_from(&bytes[..])?;
         assert_eq!(meta.scene_hash, scene_hash);
         assert_eq!((meta.parameters["f1"], meta.parameters["f2"]), (0.15, 0.15));
         assert!(meta.converged);
@@ -819,7 +819,7 @@ async fn complete(
     bytes: &[u8],
     announced: usize,
 ) -> Result<v1::CompletePointReply, tonic::Status> {
-    let (meta, _) = glissade_worker::io::solution_file::read_from(valid).expect("a valid solution file");
+    let (meta, _) = glissade_core::io::solution_file::read_from(valid).expect("a valid solution file");
     let header = v1::CompletePointHeader {
         pool_id: pool_id.into(),
         lease_id: lease.lease_id,

@@ -21,12 +21,13 @@ use clap::Parser;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use glissade_worker::scene::Scene;
-use glissade_worker::study::order::LexicographicAscending;
-use glissade_worker::study::space::{DesignPoint, ParameterSpace};
-use glissade_worker::study::store::MemoryStore;
-use glissade_worker::study::strategy::InitStrategy;
-use glissade_worker::study::{StudyOptions, run_study};
+use glissade_core::scene::Scene;
+use glissade_core::study::order::LexicographicAscending;
+use glissade_core::study::space::{DesignPoint, ParameterSpace};
+use glissade_core::study::store::MemoryStore;
+use glissade_core::study::strategy::InitStrategy;
+use glissade_core::study::{StudyOptions, run_study};
+use glissade_worker::run::PointSolver;
 
 #[derive(Parser)]
 struct Args {
@@ -101,8 +102,16 @@ fn solve(args: &Args, scene_path: &Path, tol: f64, warm: bool) -> Sample {
         if warm { (vec![q, p.clone()], InitStrategy::Nearest) } else { (vec![p.clone()], InitStrategy::Cold) };
     let options = StudyOptions { strategy, tolerance: Some(tol), max_iterations: Some(5000), scale: None };
     // P sorts after Q (checked below), so the ascending order solves Q first
-    let result = run_study(&scene, &points, &options, &mut LexicographicAscending, &mut store, &mut |_, _, _| {})
-        .expect("study");
+    let result = run_study(
+        &scene,
+        &points,
+        &options,
+        &mut LexicographicAscending,
+        &mut store,
+        &mut PointSolver::default(),
+        &mut |_, _, _| {},
+    )
+    .expect("study");
     let r = result.records.last().expect("a record");
     assert!(r.point.get("f1") == p.get("f1") && r.point.get("f2") == p.get("f2"), "P must be solved last");
     let body = &scene.bodies[0].elements;
@@ -151,7 +160,7 @@ const COLOURS: [RGBColor; 4] =
     [RGBColor(31, 119, 180), RGBColor(214, 39, 40), RGBColor(44, 160, 44), RGBColor(148, 103, 189)];
 
 fn plot(args: &Args, samples: &[Sample], error: &dyn Fn(&Sample) -> f64) {
-    plotters::style::register_font("sans-serif", FontStyle::Normal, include_bytes!("../assets/DejaVuSans.ttf"))
+    plotters::style::register_font("sans-serif", FontStyle::Normal, include_bytes!("../../assets/DejaVuSans.ttf"))
         .map_err(|_| ())
         .expect("bundled font");
     let path = args.out.join("accuracy.png");

@@ -8,16 +8,16 @@
 
 use std::time::Instant;
 
+use glissade_core::scene::{Scale, Scene};
 use glissade_worker::latin::{LatinSolver, SolveOptions};
 use glissade_worker::model::Model;
 use glissade_worker::monolithic;
-use glissade_worker::scene::{Scale, Scene};
 
 fn run<const D: usize>(scene: &Scene, iterations: usize) {
     let values = scene.parameter_values(&[]).expect("parameters");
     let mut glued_scene = scene.clone();
     for itf in &mut glued_scene.interfaces {
-        itf.law = glissade_worker::scene::LawSpec::Perfect;
+        itf.law = glissade_core::scene::LawSpec::Perfect;
     }
     let glued = Model::<D>::build(&glued_scene, &values).expect("model");
     let t = Instant::now();

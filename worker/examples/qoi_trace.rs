@@ -7,9 +7,9 @@
 //!
 //!   cargo run --release -p glissade-worker --example qoi_trace -- SCENE "f1=0.15,f2=0.1" "f1=0.125,f2=0.1" [K0_FACTOR]
 
+use glissade_core::scene::Scene;
 use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
 use glissade_worker::model::Model;
-use glissade_worker::scene::Scene;
 
 fn parse_point(s: &str) -> Vec<(String, f64)> {
     s.split(',')
@@ -34,11 +34,10 @@ fn run<const D: usize>(scene: &Scene, p: &[(String, f64)], q: Option<&[(String, 
         }
         m
     };
-    let solve =
-        |m: &Model<D>, init: Option<&glissade_worker::latin::field::InterfaceSolution>, trace: bool| -> SolveReport {
-            let mut solver = LatinSolver::serial(m).expect("factorisation");
-            solver.solve(init, &SolveOptions { trace_qois: trace, ..SolveOptions::default() }).expect("solve")
-        };
+    let solve = |m: &Model<D>, init: Option<&glissade_core::field::InterfaceSolution>, trace: bool| -> SolveReport {
+        let mut solver = LatinSolver::serial(m).expect("factorisation");
+        solver.solve(init, &SolveOptions { trace_qois: trace, ..SolveOptions::default() }).expect("solve")
+    };
     let mp = build(p, 1e-10, 20000);
     let reference = solve(&mp, None, false);
     eprintln!(

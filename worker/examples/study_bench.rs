@@ -21,12 +21,13 @@ use std::path::{Path, PathBuf};
 
 use clap::Parser;
 
-use glissade_worker::scene::Scene;
-use glissade_worker::study::order::OrderKind;
-use glissade_worker::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
-use glissade_worker::study::store::MemoryStore;
-use glissade_worker::study::strategy::InitStrategy;
-use glissade_worker::study::{StudyOptions, StudyResult, run_study};
+use glissade_core::scene::Scene;
+use glissade_core::study::order::OrderKind;
+use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
+use glissade_core::study::store::MemoryStore;
+use glissade_core::study::strategy::InitStrategy;
+use glissade_core::study::{StudyOptions, StudyResult, run_study};
+use glissade_worker::run::PointSolver;
 
 #[derive(Parser)]
 struct Args {
@@ -75,12 +76,14 @@ fn run(
     let mut policy = order.policy(&space);
     let options = StudyOptions { strategy, tolerance: Some(tol), max_iterations: Some(max_iter), scale: None };
     let label = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let mut progress = |r: &glissade_worker::study::PointRecord, done: usize, total: usize| {
+    let mut progress = |r: &glissade_core::study::PointRecord, done: usize, total: usize| {
         if done == 1 || done.is_multiple_of(10) || done == total {
             eprintln!("{label}: [{done}/{total}] {} {} it., {:.2} s", r.point, r.iterations, r.wall_seconds);
         }
     };
-    let result = run_study(scene, pts, &options, policy.as_mut(), &mut store, &mut progress).expect("study");
+    let result =
+        run_study(scene, pts, &options, policy.as_mut(), &mut store, &mut PointSolver::default(), &mut progress)
+            .expect("study");
     std::fs::write(path, serde_json::to_string(&result).expect("json")).expect("write run");
     result
 }
@@ -223,9 +226,8 @@ fn main() {
     for (name, r) in &runs {
         let first: Vec<String> =
             r.records.iter().take(11).map(|p| (p.iterations - p.static_iterations).to_string()).collect();
-        let sticks = |p: &glissade_worker::study::PointRecord| {
-            p.qoi.iter().any(|(k, v)| k.starts_with("slip") && v.abs() < 1e-15)
-        };
+        let sticks =
+            |p: &glissade_core::study::PointRecord| p.qoi.iter().any(|(k, v)| k.starts_with("slip") && v.abs() < 1e-15);
         let mean = |stick: bool| {
             let v: Vec<usize> = r
                 .records
@@ -248,7 +250,7 @@ fn main() {
 
 /// Work of a study: dynamic iterations + static iterations / steps ([`PointRecord::work`]).
 ///
-/// [`PointRecord::work`]: glissade_worker::study::PointRecord::work
+/// [`PointRecord::work`]: glissade_core::study::PointRecord::work
 fn work(r: &StudyResult, steps: usize) -> f64 {
     r.records.iter().map(|p| p.work(steps)).sum()
 }

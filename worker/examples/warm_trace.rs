@@ -6,8 +6,8 @@
 //!   cargo run --release -p glissade-worker --example warm_trace -- SCENE Q_F1 Q_F2 P_F1 P_F2 QOI [MAX]
 //!   cargo run --release -p glissade-worker --example warm_trace -- scenes/three-blocks-tiny.toml 0.125 0.1 0.15 0.1 slip_A
 
+use glissade_core::scene::Scene;
 use glissade_worker::run::{SolveRequest, solve_scene};
-use glissade_worker::scene::Scene;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

@@ -19,7 +19,4 @@ pub mod monolithic;
 pub mod newmark;
 pub mod pool;
 pub mod run;
-pub mod scene;
 pub mod sparse;
-pub mod study;
-pub mod text;

@@ -1,6 +1,6 @@
 //! `glissade-worker`: runs LATIN solves of scenes (and, later, MPI worker pools).
 
-use glissade_worker::text::one_line;
+use glissade_core::text::one_line;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -8,10 +8,11 @@ use anyhow::{Context, Result, anyhow, bail};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use serde::Serialize;
 
+use glissade_core::io::solution_file;
+use glissade_core::scene::{Scale, Scene, SceneError};
 use glissade_worker::comm::{Communicator, Mpi};
-use glissade_worker::io::{fields, solution_file};
+use glissade_worker::io::fields;
 use glissade_worker::run::{SolveRequest, SolveSummary, solve_scene_on};
-use glissade_worker::scene::{Scale, Scene, SceneError};
 
 mod study_cli;
 

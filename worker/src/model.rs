@@ -5,10 +5,10 @@ use std::collections::{BTreeMap, HashMap};
 
 use crate::element::{Material, element_matrices, face_area_and_normal, nodes_per_element};
 use crate::mesh::{Face, Mesh};
-use crate::scene::{
+use crate::sparse::CsrMatrix;
+use glissade_core::scene::{
     History, LawSpec, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError, component_index, invalid,
 };
-use crate::sparse::CsrMatrix;
 
 /// Interface behaviour (docs/method.md 1).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -608,11 +608,11 @@ impl<const D: usize> Model<D> {
             if scene.qoi[..i].iter().any(|o| o.name == q.name) {
                 return Err(invalid(format!("{key}.name"), format!("duplicate QoI name '{}'", q.name)));
             }
-            let point = |q: &crate::scene::QoiSpec| -> Result<[f64; D], SceneError> {
+            let point = |q: &glissade_core::scene::QoiSpec| -> Result<[f64; D], SceneError> {
                 let p = q.point.as_ref().ok_or_else(|| invalid(format!("{key}.point"), "this QoI needs a point"))?;
                 r.vector::<D>(&format!("{key}.point"), p)
             };
-            let component = |q: &crate::scene::QoiSpec| -> Result<usize, SceneError> {
+            let component = |q: &glissade_core::scene::QoiSpec| -> Result<usize, SceneError> {
                 let c = q
                     .component
                     .as_deref()
@@ -736,7 +736,11 @@ pub fn dynamic_search_direction<const D: usize>(sub: &Substructure<D>, normal: &
 }
 
 /// The law of a declared interface at a design point.
-fn resolve_law(r: &Resolver, key: &str, spec: &crate::scene::InterfaceSpec) -> Result<InterfaceLaw, SceneError> {
+fn resolve_law(
+    r: &Resolver,
+    key: &str,
+    spec: &glissade_core::scene::InterfaceSpec,
+) -> Result<InterfaceLaw, SceneError> {
     Ok(match spec.law {
         LawSpec::Perfect => InterfaceLaw::Perfect,
         LawSpec::Contact => InterfaceLaw::Contact,

@@ -7,10 +7,11 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::comm::Communicator;
-use crate::latin::field::InterfaceSolution;
 use crate::latin::{FieldHistory, LatinSolver, Operators, SolveOptions, SolverError, StageReport, Timings};
 use crate::model::Model;
-use crate::scene::{ParameterValues, Scale, Scene, SceneError};
+use glissade_core::field::InterfaceSolution;
+use glissade_core::scene::{ParameterValues, Scale, Scene, SceneError};
+use glissade_core::study::{PointRequest, PointSolved, SolvePoint};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
@@ -153,6 +154,36 @@ impl PointSolver {
     }
 }
 
+/// A study's points solved on this process (`glissade-worker study`), operators kept between them.
+impl SolvePoint for PointSolver {
+    fn solve(
+        &mut self,
+        scene: &Scene,
+        request: &PointRequest,
+        init: Option<&InterfaceSolution>,
+    ) -> Result<PointSolved, String> {
+        let request = SolveRequest {
+            set: request.point.to_set(),
+            tolerance: Some(request.tolerance),
+            max_iterations: request.max_iterations,
+            scale: request.scale,
+            record_fields: false,
+            progress: None,
+            init_parameters: request.init_point.and_then(|p| scene.parameter_values(&p.to_set()).ok()),
+        };
+        let o = PointSolver::solve(self, &crate::comm::Serial, scene, &request, init).map_err(|e| e.to_string())?;
+        let s = o.summary;
+        Ok(PointSolved {
+            converged: s.converged,
+            iterations: s.iterations,
+            static_iterations: s.static_stage.as_ref().map_or(0, |st| st.iterations),
+            eta: s.error_indicator,
+            qoi: s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect(),
+            solution: o.solution,
+        })
+    }
+}
+
 /// What the operators and the cached model depend on: the scene (its hash leaves out the
 /// `[solver]` section, whose k0_factor is in the operators and whose other settings are in the
 /// model: so the section too), the parameters other than interface laws, the scale.
@@ -168,7 +199,7 @@ fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &
     model.settings.max_iterations = scene.solver.max_iterations;
     if let Some(t) = request.tolerance {
         if !(t > 0.0 && t.is_finite()) {
-            return Err(crate::scene::invalid("--tol", format!("must be a positive number, got {t}")).into());
+            return Err(glissade_core::scene::invalid("--tol", format!("must be a positive number, got {t}")).into());
         }
         model.settings.tolerance = t;
     }

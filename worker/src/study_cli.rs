@@ -1,5 +1,5 @@
 //! `glissade-worker study`: a whole parametric study in one process (the CLI edge of
-//! `glissade_worker::study`).
+//! `glissade_core::study`).
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -7,12 +7,13 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
-use glissade_worker::scene::Scale;
-use glissade_worker::study::order::OrderKind;
-use glissade_worker::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, design_points};
-use glissade_worker::study::store::MemoryStore;
-use glissade_worker::study::strategy::InitStrategy;
-use glissade_worker::study::{PointRecord, StudyOptions, StudyResult, run_study};
+use glissade_core::scene::Scale;
+use glissade_core::study::order::OrderKind;
+use glissade_core::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, design_points};
+use glissade_core::study::store::MemoryStore;
+use glissade_core::study::strategy::InitStrategy;
+use glissade_core::study::{PointRecord, StudyOptions, StudyResult, run_study};
+use glissade_worker::run::PointSolver;
 
 pub const STUDY_EXAMPLES: &str = "\
 Examples:
@@ -153,7 +154,8 @@ pub fn study(args: StudyArgs) -> Result<bool> {
             r.started_from()
         );
     };
-    let result = run_study(&scene, &points, &options, policy.as_mut(), &mut store, &mut progress)?;
+    let result =
+        run_study(&scene, &points, &options, policy.as_mut(), &mut store, &mut PointSolver::default(), &mut progress)?;
 
     if let Some(dir) = &args.out {
         write_atomically(&dir.join("results.csv"), result.to_csv().as_bytes())?;
@@ -197,6 +199,6 @@ fn all_converged(result: &StudyResult) -> bool {
 
 /// A whole file or none (temporary file synced, then renamed: `io::write_atomically`).
 fn write_atomically(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
-    glissade_worker::io::write_atomically(path, |w| w.write_all(bytes))
+    glissade_core::io::write_atomically(path, |w| w.write_all(bytes))
         .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -7,13 +7,14 @@
 use std::collections::BTreeMap;
 use std::process::Command;
 
-use glissade_worker::latin::field::{InterfaceField, InterfaceSolution, StageSolution};
-use glissade_worker::scene::Scene;
-use glissade_worker::study::order::{Greedy, LexicographicAscending, LexicographicDescending, OrderingPolicy};
-use glissade_worker::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
-use glissade_worker::study::store::{MemoryStore, SolutionStore, StoredSolution};
-use glissade_worker::study::strategy::{InitStrategy, initialise, interface_law_parameters};
-use glissade_worker::study::{PointRecord, PointStatus, StartKind, StudyOptions, StudyResult, run_study};
+use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
+use glissade_core::scene::Scene;
+use glissade_core::study::order::{Greedy, LexicographicAscending, LexicographicDescending, OrderingPolicy};
+use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
+use glissade_core::study::store::{MemoryStore, SolutionStore, StoredSolution};
+use glissade_core::study::strategy::{InitStrategy, initialise, interface_law_parameters};
+use glissade_core::study::{PointRecord, PointStatus, StartKind, StudyOptions, StudyResult, run_study};
+use glissade_worker::run::PointSolver;
 
 const TINY: &str = include_str!("../../scenes/three-blocks-tiny.toml");
 const SLIDING_2D: &str = include_str!("../../scenes/sliding-block-2d.toml");
@@ -35,7 +36,8 @@ fn study(
     order: &mut dyn OrderingPolicy,
     store: &mut MemoryStore,
 ) -> StudyResult {
-    run_study(scene, points, &options, order, store, &mut |_, _, _| {}).expect("study runs")
+    run_study(scene, points, &options, order, store, &mut PointSolver::default(), &mut |_, _, _| {})
+        .expect("study runs")
 }
 
 fn fresh_store(scene: &Scene) -> MemoryStore {
@@ -158,6 +160,7 @@ fn fake(point: DesignPoint) -> StoredSolution {
             dynamic: StageSolution { interfaces: vec![InterfaceField::zeros(2, 3)] },
         }),
         parent: None,
+        solver_version: glissade_core::study::engine::SOLVER_VERSION.into(),
     }
 }
 
@@ -200,10 +203,18 @@ fn point(scene: &Scene, set: &[(&str, f64)], tol: f64) -> PointRecord {
     let p = vec![DesignPoint::from_pairs(set.iter().copied())];
     let opts =
         StudyOptions { strategy: InitStrategy::Cold, tolerance: Some(tol), max_iterations: Some(CAP), scale: None };
-    let r = run_study(scene, &p, &opts, &mut LexicographicAscending, &mut fresh_store(scene), &mut |_, _, _| {})
-        .expect("study runs")
-        .records
-        .remove(0);
+    let r = run_study(
+        scene,
+        &p,
+        &opts,
+        &mut LexicographicAscending,
+        &mut fresh_store(scene),
+        &mut PointSolver::default(),
+        &mut |_, _, _| {},
+    )
+    .expect("study runs")
+    .records
+    .remove(0);
     assert!(r.iterations <= 2 * CAP);
     match r.status {
         PointStatus::Converged => {
@@ -290,7 +301,7 @@ fn extremes_of_poisson_ratio() {
     for nu in [0.0, 0.49] {
         let mut s = scene(TINY);
         for m in s.materials.values_mut() {
-            m.nu = glissade_worker::scene::Scalar::Number(nu);
+            m.nu = glissade_core::scene::Scalar::Number(nu);
         }
         let r = point(&s, &[], tol);
         // converges (measured: nu = 0 does; nu = 0.49 stops at CAP with eta about 2.8e-4, a
@@ -311,7 +322,7 @@ fn extremes_of_time_step() {
     let base = point(&scene(TINY), &[], tol);
     for factor in [0.01, 100.0] {
         let mut s = scene(TINY);
-        s.time.duration = glissade_worker::scene::Scalar::Number(2e-4 * factor);
+        s.time.duration = glissade_core::scene::Scalar::Number(2e-4 * factor);
         let r = point(&s, &[], tol);
         // 0.01: T = 2 us, the load reaches 20 % of its peak: less slip than the full pulse.
         // 100: dt = 400 us, longer than the 20 us pulse, which no step samples: no slip.
@@ -331,7 +342,7 @@ fn extremes_of_search_direction() {
     let base = point(&scene(TINY), &[], tol);
     for factor in [0.01, 100.0] {
         let mut s = scene(TINY);
-        s.solver.k0_factor = glissade_worker::scene::Scalar::Number(factor);
+        s.solver.k0_factor = glissade_core::scene::Scalar::Number(factor);
         let r = point(&s, &[], tol);
         // measured: neither converges within CAP iterations (eta 2.0e-4 and 1.0e-3): a clear
         // report; converged, it must be the solution of k0 x 1 (the bound of assert_same_qois)

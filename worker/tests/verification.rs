@@ -1,10 +1,10 @@
 //! Verification of the solver against independent references (docs/verification.md):
 //! the monolithic Newmark solve, d'Alembert wave solutions, Coulomb's law, energy balance.
 
+use glissade_core::scene::{Scale, Scene};
 use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
 use glissade_worker::model::{Model, QoiTarget};
 use glissade_worker::monolithic;
-use glissade_worker::scene::{Scale, Scene};
 
 fn build<const D: usize>(text: &str, set: &[(&str, f64)]) -> Model<D> {
     let scene = Scene::parse(text).expect("test scene parses");

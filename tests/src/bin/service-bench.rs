@@ -16,12 +16,12 @@ use std::collections::BTreeMap;
 use std::process::ExitCode;
 use std::time::Instant;
 
+use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
+use glissade_core::io::solution_file::{self, SolutionMeta};
+use glissade_core::scene::Scene;
 use glissade_proto::v1::pool_client::PoolClient;
 use glissade_proto::v1::user_client::UserClient;
 use glissade_proto::v1::{self, complete_point_message, lease_message};
-use glissade_worker::io::solution_file::{self, SolutionMeta};
-use glissade_worker::latin::field::{InterfaceField, InterfaceSolution, StageSolution};
-use glissade_worker::scene::Scene;
 
 type Error = Box<dyn std::error::Error + Send + Sync>;
 

@@ -159,9 +159,9 @@ pub fn write(h5: &Path, fields: &FieldOutput, scene_hash: &str) -> Result<PathBu
         .to_string_lossy()
         .into_owned();
     let m = merge(fields)?;
-    super::replace_atomically(h5, |tmp, _| write_h5(tmp, &m, fields, scene_hash))?;
+    glissade_core::io::replace_atomically(h5, |tmp, _| write_h5(tmp, &m, fields, scene_hash))?;
     let text = xdmf_text(&m, &fields.times, &h5_name);
-    super::write_atomically(&xdmf, |w| {
+    glissade_core::io::write_atomically(&xdmf, |w| {
         w.write_all(text.as_bytes())?;
         Ok::<_, FieldsError>(())
     })?;

@@ -8,7 +8,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use crate::comm::{Communicator, exchange};
 use crate::model::Model;
 
-use super::field::InterfaceField;
+use glissade_core::field::InterfaceField;
 
 #[derive(Debug, Clone)]
 pub struct Distribution {

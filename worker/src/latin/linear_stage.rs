@@ -8,10 +8,10 @@
 
 use crate::model::{Interface, InterfaceSide, Model, PrescribedDof, Substructure};
 use crate::newmark::{NewmarkState, step_operator};
-use crate::scene::History;
 use crate::sparse::{FactorisedOperator, SparseError};
+use glissade_core::scene::History;
 
-use super::field::InterfaceField;
+use glissade_core::field::InterfaceField;
 
 /// Which problem the linear stage solves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -12,8 +12,8 @@ use faer::{Mat, MatMut, Side};
 use crate::comm::Communicator;
 use crate::model::{Interface, Model};
 
-use super::field::InterfaceField;
 use super::linear_stage::{Stage, SubstructureOperators};
+use glissade_core::field::InterfaceField;
 
 /// Relative M_Gamma-norm below which a candidate macro field is dependent on the previous ones.
 const DEPENDENCE_TOLERANCE: f64 = 1e-8;

@@ -2,7 +2,6 @@
 //! relaxation, local stage (interfaces), error indicator — iterated over the whole time interval.
 
 pub mod distribution;
-pub mod field;
 pub mod linear_stage;
 pub mod local_stage;
 pub mod macro_problem;
@@ -14,11 +13,11 @@ use serde::Serialize;
 
 use crate::comm::Communicator;
 use crate::model::{Model, QoiTarget};
-use crate::scene::Scale;
 use crate::sparse::SparseError;
+use glissade_core::scene::Scale;
 
 use distribution::Distribution;
-use field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
+use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};

@@ -12,7 +12,7 @@ use prost::Message;
 use tonic::Status;
 
 use super::{Pool, Report, solution_meta};
-use crate::io::solution_file;
+use glissade_core::io::solution_file;
 
 /// A result ready to send.
 #[derive(Debug, Clone, PartialEq)]
@@ -146,7 +146,7 @@ impl Spool {
         std::fs::create_dir_all(&self.dir).with_context(|| format!("creating spool {}", self.dir.display()))?;
         let (study, point) = delivery.point();
         let path = self.dir.join(format!("study{study}-point{point}-{}.spool", std::process::id()));
-        crate::io::write_atomically(&path, |w| std::io::Write::write_all(w, &delivery.encode()))
+        glissade_core::io::write_atomically(&path, |w| std::io::Write::write_all(w, &delivery.encode()))
             .with_context(|| format!("writing {}", path.display()))?;
         Ok(path)
     }

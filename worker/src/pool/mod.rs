@@ -13,7 +13,7 @@
 //! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
 //! started is released).
 
-use crate::text::one_line;
+use glissade_core::text::one_line;
 use glissade_proto::auth::{Token, WithToken};
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
@@ -28,10 +28,10 @@ use tonic::transport::Channel;
 use tonic::{Code, Status};
 
 use crate::comm::Serial;
-use crate::io::solution_file::{self, SolutionMeta};
-use crate::latin::field::InterfaceSolution;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
-use crate::scene::Scene;
+use glissade_core::field::InterfaceSolution;
+use glissade_core::io::solution_file::{self, SolutionMeta};
+use glissade_core::scene::Scene;
 
 pub mod delivery;
 pub mod ranks;

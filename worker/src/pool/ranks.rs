@@ -14,9 +14,9 @@ use mpi::topology::Communicator as _;
 
 use super::{PointJob, PoolSolver};
 use crate::comm::{Communicator, Mpi};
-use crate::io::solution_file;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
-use crate::scene::Scene;
+use glissade_core::io::solution_file;
+use glissade_core::scene::Scene;
 
 /// MPI tag of the job messages, apart from the solver's own messages.
 const JOB_TAG: i32 = 7001;
@@ -35,7 +35,7 @@ pub enum RanksError {
     #[error("job message from rank 0 is malformed: {0}")]
     Malformed(&'static str),
     #[error("job message from rank 0: {0}")]
-    Scene(#[from] crate::scene::SceneError),
+    Scene(#[from] glissade_core::scene::SceneError),
     #[error("job message from rank 0: warm start: {0}")]
     WarmStart(#[from] solution_file::SolutionFileError),
 }

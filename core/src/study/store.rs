@@ -11,7 +11,7 @@ use std::sync::Arc;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 
-use crate::latin::field::InterfaceSolution;
+use crate::field::InterfaceSolution;
 
 use super::space::{DesignPoint, ParameterSpace};
 
@@ -40,6 +40,25 @@ pub struct StoredSolution {
     pub solution: Arc<InterfaceSolution>,
     /// the stored solution its solve started from (the first of a blend), or none (cold)
     pub parent: Option<SolutionId>,
+    /// the version of the solver that computed it
+    pub solver_version: String,
+}
+
+impl StoredSolution {
+    /// Its description, without the fields.
+    pub fn info(&self, id: SolutionId) -> SolutionInfo {
+        SolutionInfo {
+            id,
+            point: self.point.clone(),
+            eta: self.eta,
+            tolerance: self.tolerance,
+            converged: self.converged,
+            iterations: self.iterations,
+            parent: self.parent,
+            qoi: self.qoi.clone(),
+            solver_version: self.solver_version.clone(),
+        }
+    }
 }
 
 /// A stored solution's description without its fields (what listings and reports carry).
@@ -52,6 +71,10 @@ pub struct SolutionInfo {
     pub converged: bool,
     pub iterations: usize,
     pub parent: Option<SolutionId>,
+    #[serde(default)]
+    pub qoi: BTreeMap<String, f64>,
+    #[serde(default)]
+    pub solver_version: String,
 }
 
 /// Errors of a solution store.
@@ -82,6 +105,8 @@ pub trait SolutionStore {
     fn nearest(&self, point: &DesignPoint, k: usize) -> Result<Vec<(f64, SolutionId)>, StoreError>;
     /// A stored solution (its fields are shared, not copied).
     fn get(&self, id: SolutionId) -> Result<StoredSolution, StoreError>;
+    /// A stored solution's description, without reading its fields.
+    fn info(&self, id: SolutionId) -> Result<SolutionInfo, StoreError>;
     /// Number of stored solutions.
     fn len(&self) -> usize;
     fn is_empty(&self) -> bool {
@@ -119,19 +144,7 @@ impl MemoryStore {
 
     /// Every stored solution's description, in id order.
     pub fn infos(&self) -> Vec<SolutionInfo> {
-        self.solutions
-            .iter()
-            .enumerate()
-            .map(|(id, s)| SolutionInfo {
-                id: id as SolutionId,
-                point: s.point.clone(),
-                eta: s.eta,
-                tolerance: s.tolerance,
-                converged: s.converged,
-                iterations: s.iterations,
-                parent: s.parent,
-            })
-            .collect()
+        self.solutions.iter().enumerate().map(|(id, s)| s.info(id as SolutionId)).collect()
     }
 
     fn coordinates_of(&self, point: &DesignPoint) -> Result<[f64; MAX_DIMENSION], StoreError> {
@@ -185,6 +198,10 @@ impl SolutionStore for MemoryStore {
         self.solutions.get(id as usize).cloned().ok_or(StoreError::UnknownId(id))
     }
 
+    fn info(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {
+        self.solutions.get(id as usize).map(|s| s.info(id)).ok_or(StoreError::UnknownId(id))
+    }
+
     fn len(&self) -> usize {
         self.solutions.len()
     }
@@ -193,7 +210,7 @@ impl SolutionStore for MemoryStore {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::latin::field::StageSolution;
+    use crate::field::StageSolution;
     use crate::study::space::ParameterRange;
 
     fn space(n: usize) -> ParameterSpace {
@@ -220,6 +237,7 @@ mod tests {
             qoi: BTreeMap::new(),
             solution: Arc::new(InterfaceSolution { static_stage: None, dynamic: StageSolution { interfaces: vec![] } }),
             parent: None,
+            solver_version: "test".into(),
         }
     }
 

@@ -463,6 +463,69 @@ fn latin_hypercube(members: &[&GridAxis], samples: usize, seed: u64) -> Vec<Desi
     points
 }
 
+/// The design points of a study submission: a grid (`NAME=SPEC` axes, Cartesian product) or an
+/// explicit list, each checked against the scene's parameters and their declared ranges, at most
+/// `max_points` of them (counted before any is built). Returns the swept names (sorted) and the
+/// points (swept parameters only). The coordinator's SubmitStudy and the CLI's checks use it.
+pub fn submission_points(
+    scene: &Scene,
+    grid: &[String],
+    points: &[DesignPoint],
+    max_points: usize,
+) -> Result<(Vec<String>, Vec<DesignPoint>), String> {
+    let space = ParameterSpace::from_scene(scene);
+    let design: Vec<DesignPoint> = if grid.is_empty() {
+        if points.len() > max_points {
+            return Err(format!("{} points, more than the {max_points} accepted", points.len()));
+        }
+        points.to_vec()
+    } else {
+        let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
+        design_points(&axes.map_err(|e| e.to_string())?, max_points).map_err(|e| e.to_string())?
+    };
+    if design.is_empty() {
+        return Err("empty study: the grid or point list gives no design point".into());
+    }
+    let mut names: Vec<String> = design.iter().flat_map(|p| p.iter().map(|(k, _)| k.to_owned())).collect();
+    names.sort();
+    names.dedup();
+    for (i, p) in design.iter().enumerate() {
+        space.complete(p).map_err(|e| e.to_string())?;
+        if p.len() != names.len() {
+            return Err(format!("point {i} ({p}) does not give every swept parameter ({})", names.join(", ")));
+        }
+        for (name, value) in p.iter() {
+            let range = space.range(name).expect("complete() checked the name");
+            if range.declared && !(range.min..=range.max).contains(&value) {
+                return Err(format!(
+                    "point {i}: {name} = {value} is outside the scene's range [{}, {}]",
+                    range.min, range.max
+                ));
+            }
+        }
+    }
+    Ok((names, design))
+}
+
+/// Checks a grid against its scene as a submission is checked, and returns the swept parameters
+/// and the number of design points (the CLI refuses a bad grid before it connects). The points
+/// are counted from the specs; a grid above [`DEFAULT_MAX_POINTS`] is not expanded here (the
+/// coordinator's own `--max-points` decides).
+pub fn check_grid(scene: &Scene, grid: &[String]) -> Result<(Vec<String>, usize), String> {
+    let space = ParameterSpace::from_scene(scene);
+    let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
+    let axes = axes.map_err(|e| e.to_string())?;
+    match point_count(&axes).map_err(|e| e.to_string())? {
+        Some(n) if n > DEFAULT_MAX_POINTS => {
+            let mut names: Vec<String> = axes.into_iter().map(|a| a.name).collect();
+            names.sort();
+            Ok((names, n))
+        }
+        None => Err("the grid gives more than 2^64 design points".into()),
+        Some(_) => submission_points(scene, grid, &[], DEFAULT_MAX_POINTS).map(|(names, points)| (names, points.len())),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

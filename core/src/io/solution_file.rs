@@ -19,7 +19,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::latin::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
+use crate::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use crate::scene::{ParameterValues, Scene};
 
 /// The first 8 bytes of every solution file.

@@ -6,28 +6,31 @@
 //! - [`store`]: the [`SolutionStore`](store::SolutionStore) seam and its in-memory kd-tree store;
 //! - [`strategy`]: where a point's iterations start (cold, previous, nearest, blend);
 //! - [`order`]: which point next, given what is done and in flight;
-//! - [`run_study`]: a whole study, serially (the `glissade-worker study` command), with
-//!   tolerance-aware reuse of stored solutions.
+//! - [`engine`]: the rules of every study (what the store answers, where a point starts, what a
+//!   failed solve becomes), applied here and by the coordinator;
+//! - [`run_study`]: a whole study, serially (the `glissade-worker study` command), over the
+//!   [`SolvePoint`] seam.
 
+pub mod engine;
 pub mod order;
 pub mod space;
 pub mod store;
 pub mod strategy;
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 
-use crate::comm::Serial;
-use crate::run::{PointSolver, SolveRequest};
+use crate::field::InterfaceSolution;
 use crate::scene::{Scale, Scene};
 
+use engine::{SOLVER_VERSION, Start, StudyEngine, solve_or_retry_cold};
 use order::OrderingPolicy;
-use space::{DesignPoint, ParameterSpace, SpaceError};
+use space::{DesignPoint, SpaceError};
 use store::{SolutionId, SolutionStore, StoreError, StoredSolution};
-use strategy::{InitSource, InitStrategy, Initialisation, initialise, interface_law_parameters};
+use strategy::{InitSource, InitStrategy};
 
 /// Two points closer than this (normalised distance) are the same point.
 pub const SAME_POINT: f64 = 1e-12;
@@ -305,33 +308,65 @@ fn csv_field(s: &str) -> String {
     if s.contains([',', '"', '\n']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
 }
 
-/// Runs a study of `points` of `scene` serially: asks `order` for the next point, starts it
-/// according to `options.strategy` from the solutions in `store` (which must hold solutions of
-/// this scene only, i.e. of the same [`Scene::content_hash`]), solves it, stores it if it
-/// converged, and reports each record to `progress` (with the number of points done and the
-/// total).
-///
-/// Tolerance-aware reuse (every strategy but `Cold`, which never reads the store): a stored
-/// solution of this very point converged at this tolerance or a tighter one answers at once with
-/// 0 iterations (the stopping test vouches for its QoIs at its tolerance); one converged at a
-/// looser tolerance is continued from instead of restarting.
+/// What a study asks of the solver for one point.
+#[derive(Debug, Clone)]
+pub struct PointRequest<'a> {
+    /// every parameter of the scene
+    pub point: &'a DesignPoint,
+    pub tolerance: f64,
+    /// LATIN iterations per stage (None: the scene's)
+    pub max_iterations: Option<usize>,
+    pub scale: Option<Scale>,
+    /// The design point the warm start converged at. A continued solve of this very point stops
+    /// at the tolerance, one started from another point at `warm_tolerance_ratio` times it
+    /// (docs/scenes.md); None for a blend, which comes from no single point.
+    pub init_point: Option<&'a DesignPoint>,
+}
+
+/// What the solver returns to a study for one point.
+#[derive(Debug, Clone)]
+pub struct PointSolved {
+    pub converged: bool,
+    /// static + dynamic
+    pub iterations: usize,
+    pub static_iterations: usize,
+    /// final error indicator of the dynamic stage
+    pub eta: f64,
+    /// final value of every QoI
+    pub qoi: BTreeMap<String, f64>,
+    pub solution: InterfaceSolution,
+}
+
+/// The seam between a study and the solver (the worker's solver, which keeps factorised operators
+/// from one point to the next).
+pub trait SolvePoint {
+    fn solve(
+        &mut self,
+        scene: &Scene,
+        request: &PointRequest,
+        init: Option<&InterfaceSolution>,
+    ) -> Result<PointSolved, String>;
+}
+
+/// Runs a study of `points` of `scene` serially: asks `order` for the next point, lets the
+/// [`StudyEngine`] say how it begins from the solutions in `store` (which must hold solutions of
+/// this scene only, i.e. of the same [`Scene::content_hash`]), solves it with `solver`, stores it
+/// if it converged, and reports each record to `progress` (with the number of points done and
+/// the total).
 pub fn run_study(
     scene: &Scene,
     points: &[DesignPoint],
     options: &StudyOptions,
     order: &mut dyn OrderingPolicy,
     store: &mut dyn SolutionStore,
+    solver: &mut dyn SolvePoint,
     progress: &mut dyn FnMut(&PointRecord, usize, usize),
 ) -> Result<StudyResult, StudyError> {
-    let tolerance = options.tolerance.unwrap_or(scene.solver.tolerance);
-    if !(tolerance > 0.0 && tolerance.is_finite()) {
-        return Err(StudyError::Tolerance(tolerance));
-    }
+    let engine = StudyEngine::new(scene, options.strategy, options.tolerance)?;
     if points.is_empty() {
         return Err(SpaceError::EmptyGrid.into());
     }
-    let space = ParameterSpace::from_scene(scene);
-    let law_parameters = interface_law_parameters(scene);
+    let space = engine.space();
     // the pending points and their positions in `points`, removed from both together
     let mut pending: Vec<DesignPoint> = points.iter().map(|p| space.complete(p)).collect::<Result<_, SpaceError>>()?;
     let mut pending_index: Vec<usize> = (0..pending.len()).collect();
@@ -339,27 +374,13 @@ pub fn run_study(
     let mut done: Vec<DesignPoint> = Vec::new();
     let mut records: Vec<PointRecord> = Vec::new();
     let mut previous: Option<SolutionId> = None;
-    // keeps the factorised operators while only interface-law parameters change
-    let mut solver = PointSolver::default();
     while !pending.is_empty() {
         let Some(choice) = order.next(&pending, &done, &[]) else { break };
         if choice >= pending.len() {
             return Err(StudyError::Policy { index: choice, pending: pending.len() });
         }
         let (index, point) = (pending_index.remove(choice), pending.remove(choice));
-        let record = solve_point(
-            &mut solver,
-            scene,
-            &space,
-            &law_parameters,
-            &point,
-            index,
-            records.len(),
-            options,
-            tolerance,
-            store,
-            &mut previous,
-        )?;
+        let record = solve_point(solver, scene, &engine, &point, index, records.len(), options, store, &mut previous)?;
         done.push(point);
         progress(&record, records.len() + 1, total);
         records.push(record);
@@ -367,30 +388,29 @@ pub fn run_study(
     Ok(StudyResult {
         scene_hash: scene.content_hash(),
         strategy: options.strategy,
-        tolerance,
+        tolerance: engine.tolerance(),
         parameters: space.names().map(String::from).collect(),
         summary: StudyResult::summarise(&records, scene.time.steps),
         records,
     })
 }
 
-/// One point of a study: reuse, or initialise and solve (retrying from cold if a warm start
-/// fails), then store it if it converged.
+/// One point of a study: answered from the store, or started and solved (cold again if a warm
+/// start fails), then stored if it converged.
 #[allow(clippy::too_many_arguments)]
 fn solve_point(
-    solver: &mut PointSolver,
+    solver: &mut dyn SolvePoint,
     scene: &Scene,
-    space: &ParameterSpace,
-    law_parameters: &BTreeSet<String>,
+    engine: &StudyEngine,
     point: &DesignPoint,
     index: usize,
     sequence: usize,
     options: &StudyOptions,
-    tolerance: f64,
     store: &mut dyn SolutionStore,
     previous: &mut Option<SolutionId>,
 ) -> Result<PointRecord, StudyError> {
     let start = Instant::now();
+    let tolerance = engine.tolerance();
     let mut record = PointRecord {
         index,
         sequence,
@@ -409,94 +429,54 @@ fn solve_point(
         stored_as: None,
         error: None,
     };
-
-    // Tolerance-aware reuse: a stored solution of this very point (the most accurate one).
-    let mut init = Initialisation::cold();
-    let mut start_kind = StartKind::Cold;
-    if options.strategy != InitStrategy::Cold {
-        let mut same: Option<(SolutionId, StoredSolution)> = None;
-        for (d, id) in store.nearest(point, 8)? {
-            if d > SAME_POINT {
-                break;
-            }
-            let s = store.get(id)?;
-            if same.as_ref().is_none_or(|(_, b)| s.tolerance < b.tolerance) {
-                same = Some((id, s));
-            }
+    let (init, start_kind) = match engine.start(store, point, *previous, SOLVER_VERSION)? {
+        Start::Answer(s) => {
+            record.status = PointStatus::Reused;
+            record.converged = true;
+            record.eta = Some(s.eta);
+            record.qoi = s.qoi.clone();
+            record.start = StartKind::Reused;
+            record.sources = vec![InitSource { id: s.id, point: s.point.clone(), distance: 0.0, weight: 1.0 }];
+            record.stored_as = Some(s.id);
+            record.wall_seconds = start.elapsed().as_secs_f64();
+            *previous = Some(s.id);
+            return Ok(record);
         }
-        if let Some((id, s)) = same {
-            let source = InitSource { id, point: s.point.clone(), distance: 0.0, weight: 1.0 };
-            if s.converged && s.tolerance <= tolerance {
-                record.status = PointStatus::Reused;
-                record.converged = true;
-                record.eta = Some(s.eta);
-                record.qoi = s.qoi.clone();
-                record.start = StartKind::Reused;
-                record.sources = vec![source];
-                record.stored_as = Some(id);
-                record.wall_seconds = start.elapsed().as_secs_f64();
-                *previous = Some(id);
-                return Ok(record);
-            }
-            init = Initialisation { solution: Some(s.solution), sources: vec![source], used: options.strategy };
-            start_kind = StartKind::Continued;
-        } else {
-            init = initialise(store, space, law_parameters, point, *previous, options.strategy)?;
-            start_kind = match init.used {
-                InitStrategy::Cold => StartKind::Cold,
-                InitStrategy::Previous => StartKind::Previous,
-                InitStrategy::Nearest => StartKind::Nearest,
-                InitStrategy::Blend { .. } => StartKind::Blend,
-                InitStrategy::Linear { .. } => StartKind::Linear,
-            };
-        }
-    }
-
-    let request = SolveRequest {
-        set: point.to_set(),
-        tolerance: Some(tolerance),
-        max_iterations: options.max_iterations,
-        scale: options.scale,
-        record_fields: false,
-        progress: None,
-        // a continued solve of this very point needs only the tolerance (see SolveRequest)
-        init_parameters: if start_kind == StartKind::Continued {
-            scene.parameter_values(&point.to_set()).ok()
-        } else {
-            None
-        },
+        Start::Solve { init, kind } => (init, kind),
     };
-    let mut outcome = solver.solve(&Serial, scene, &request, init.solution.as_deref());
-    if outcome.is_err() && init.solution.is_some() {
-        tracing::warn!(point = %point, error = %outcome.as_ref().err().map(|e| e.to_string()).unwrap_or_default(),
-            "warm-started solve failed; solving from cold");
-        record.retried_cold = true;
-        outcome = solver.solve(&Serial, scene, &request, None);
-    }
-    record.start = if record.retried_cold { StartKind::Cold } else { start_kind };
+    let init_point = match start_kind {
+        StartKind::Blend | StartKind::Linear => None,
+        _ => init.sources.first().map(|s| &s.point),
+    };
+    let request =
+        PointRequest { point, tolerance, max_iterations: options.max_iterations, scale: options.scale, init_point };
+    let (outcome, retried_cold) =
+        solve_or_retry_cold(init.solution.as_deref(), |init| solver.solve(scene, &request, init));
+    record.retried_cold = retried_cold;
+    record.start = if retried_cold { StartKind::Cold } else { start_kind };
     record.sources = init.sources;
     match outcome {
         Err(e) => {
-            record.error = Some(e.to_string());
+            record.error = Some(e);
         }
         Ok(o) => {
-            let s = &o.summary;
-            record.converged = s.converged;
-            record.status = if s.converged { PointStatus::Converged } else { PointStatus::NotConverged };
-            record.iterations = s.iterations;
-            record.static_iterations = s.static_stage.as_ref().map_or(0, |st| st.iterations);
-            record.eta = Some(s.error_indicator);
-            record.qoi = s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect();
-            if s.converged {
+            record.converged = o.converged;
+            record.status = if o.converged { PointStatus::Converged } else { PointStatus::NotConverged };
+            record.iterations = o.iterations;
+            record.static_iterations = o.static_iterations;
+            record.eta = Some(o.eta);
+            record.qoi = o.qoi;
+            if o.converged {
                 let id = store.insert(StoredSolution {
                     point: point.clone(),
-                    eta: s.error_indicator,
+                    eta: o.eta,
                     tolerance,
                     converged: true,
-                    iterations: s.iterations,
+                    iterations: o.iterations,
                     qoi: record.qoi.clone(),
                     solution: Arc::new(o.solution),
-                    parent: if record.retried_cold { None } else { record.sources.first().map(|s| s.id) },
+                    parent: if retried_cold { None } else { record.sources.first().map(|s| s.id) },
+                    solver_version: SOLVER_VERSION.into(),
                 })?;
                 record.stored_as = Some(id);
                 *previous = Some(id);

@@ -23,7 +23,7 @@ pub enum SceneError {
     BadParameterValue { name: String, value: f64, message: String },
 }
 
-pub(crate) fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError {
+pub fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError {
     SceneError::Invalid { key: key.into(), message: message.into() }
 }
 

@@ -22,7 +22,7 @@ use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
-use crate::latin::field::{InterfaceSolution, SideField, StageSolution};
+use crate::field::{InterfaceSolution, SideField, StageSolution};
 use crate::scene::Scene;
 
 use super::space::{DesignPoint, ParameterSpace};
@@ -298,7 +298,7 @@ pub fn combine(parts: &[(&InterfaceSolution, f64)]) -> Option<InterfaceSolution>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::latin::field::InterfaceField;
+    use crate::field::InterfaceField;
 
     const SCENE: &str = r#"
 dimension = 1

@@ -1,0 +1,15 @@
+//! glissade-core: what the solver, the workers, the coordinator and the CLI share, without any of
+//! their machinery (no MPI, HDF5, faer, tokio or tonic).
+//!
+//! - [`scene`]: what is solved (bodies, interfaces, loads, QoIs, declared parameters);
+//! - [`field`]: interface force and velocity fields, the solutions a study stores;
+//! - [`io`]: the solution file format and atomic, durable file writes;
+//! - [`study`]: the multiparametric strategy (design points, parameter space, solution store,
+//!   warm starts, ordering) and the study engine that both the local study and the coordinator run;
+//! - [`text`]: bounded, single-line text for messages that quote user input.
+
+pub mod field;
+pub mod io;
+pub mod scene;
+pub mod study;
+pub mod text;
