@@ -255,6 +255,7 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
             wall_seconds: m.wall_seconds,
             eta_history: m.eta_history,
             work: m.work,
+            started_cold: m.started_cold,
         })
     }
 }

@@ -177,6 +177,8 @@ pub struct Completion {
     pub wall_seconds: f64,
     pub eta_history: Vec<f64>,
     pub work: f64,
+    /// solved from cold in spite of the lease's warm start
+    pub started_cold: bool,
 }
 
 /// A pool's failure report.
@@ -963,7 +965,7 @@ impl Coordinator {
         let old = state.solutions.get(&key).cloned();
         let (entry, i) = Self::held(&mut state, &c.pool, c.lease_id, c.study, c.point)?;
         let was = entry.state();
-        let started_from = leased_from(&entry.points[i]);
+        let started_from = if c.started_cold { None } else { leased_from(&entry.points[i]) };
         let record = SolutionRecord {
             scene_hash: study_hash.clone(),
             parameters: full.clone(),
@@ -1443,6 +1445,7 @@ mod tests {
             wall_seconds: 0.5,
             eta_history: vec![1.0, eta],
             work: 8.0,
+            started_cold: false,
         };
         (completion, bytes)
     }

@@ -129,6 +129,7 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
             solution_bytes: bytes.len() as u64,
             eta_history: Vec::new(),
             work: 1.0,
+            started_cold: false,
         };
         let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
         messages.extend(

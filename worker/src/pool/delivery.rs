@@ -36,8 +36,8 @@ impl Delivery {
                 iterations,
             })
         };
-        let (scene, outcome) = match &report.outcome {
-            Ok((scene, o)) => (scene, o),
+        let (scene, outcome, started_cold) = match &report.outcome {
+            Ok((scene, o, started_cold)) => (scene, o, *started_cold),
             Err(e) => return fail(e.clone(), None, 0),
         };
         let s = &outcome.summary;
@@ -64,6 +64,7 @@ impl Delivery {
             solution_bytes: bytes.len() as u64,
             eta_history: s.history.clone(),
             work: s.work(),
+            started_cold,
         };
         Delivery::Complete { header, bytes }
     }

@@ -32,6 +32,7 @@ use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
 use glissade_core::scene::Scene;
+use glissade_core::study::engine::solve_or_retry_cold;
 
 pub mod delivery;
 pub mod ranks;
@@ -117,6 +118,24 @@ pub struct PointJob {
     /// The warm start as a solution file (empty: cold start).
     pub init_bytes: Vec<u8>,
     pub init: Option<InterfaceSolution>,
+    /// The lease's warm start did not fit the scene and was dropped.
+    pub warm_start_dropped: bool,
+}
+
+impl PointJob {
+    /// The same point from cold.
+    fn cold(&self) -> PointJob {
+        let mut request = self.request.clone();
+        request.init_parameters = None;
+        PointJob {
+            scene_text: self.scene_text.clone(),
+            scene: self.scene.clone(),
+            request,
+            init_bytes: Vec::new(),
+            init: None,
+            warm_start_dropped: self.warm_start_dropped,
+        }
+    }
 }
 
 /// The solve of one design point. Called on the thread that called [`run_pool`].
@@ -137,8 +156,9 @@ impl PoolSolver for SerialPoolSolver {
     }
 }
 
-/// A job for the solving thread, and where its outcome (or why there is none) goes.
-type Work = (PointJob, oneshot::Sender<Result<SolveOutcome, String>>);
+/// A job for the solving thread, and where its outcome (or why there is none) goes, with whether
+/// it was solved from cold in spite of a warm start.
+type Work = (PointJob, oneshot::Sender<Result<(SolveOutcome, bool), String>>);
 
 /// Runs the pool until SIGTERM/SIGINT (or `idle_exit`): the coordinator conversation on a
 /// background runtime, every solve on this thread through `solver`.
@@ -162,18 +182,22 @@ pub fn run_pool(options: PoolOptions, solver: &mut dyn PoolSolver) -> Result<()>
     // Ends when the conversation drops its sender.
     for (job, reply) in work_rx {
         // A panicking solve fails its point (FailPoint) instead of taking the pool down with it.
-        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| solver.solve(&job)));
-        let outcome = match outcome {
-            Ok(result) => result.map_err(|e| e.to_string()),
-            Err(panic) => {
-                let what = panic
-                    .downcast_ref::<&str>()
-                    .map(|s| s.to_string())
-                    .or_else(|| panic.downcast_ref::<String>().cloned());
-                Err(format!("the solver panicked: {}", what.unwrap_or_else(|| "(no message)".into())))
-            }
-        };
-        let _ = reply.send(outcome);
+        let mut attempt =
+            |job: &PointJob| match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| solver.solve(job))) {
+                Ok(result) => result.map_err(|e| e.to_string()),
+                Err(panic) => {
+                    let what = panic
+                        .downcast_ref::<&str>()
+                        .map(|s| s.to_string())
+                        .or_else(|| panic.downcast_ref::<String>().cloned());
+                    Err(format!("the solver panicked: {}", what.unwrap_or_else(|| "(no message)".into())))
+                }
+            };
+        // the study engine's rule: a failed warm start is solved again from cold
+        let cold = job.cold();
+        let (outcome, retried) =
+            solve_or_retry_cold(job.init.as_ref(), |init| attempt(if init.is_some() { &job } else { &cold }));
+        let _ = reply.send(outcome.map(|o| (o, retried || job.warm_start_dropped)));
     }
     runtime.block_on(talker).context("pool task panicked")?
 }
@@ -203,8 +227,9 @@ async fn install_signal_handlers(stop: watch::Sender<bool>) -> Result<()> {
 /// A solved (or failed) point waiting to be delivered, kept across reconnections.
 pub struct Report {
     pub lease: v1::Lease,
-    /// The scene solved and the outcome, or why there is none (one line).
-    pub outcome: Result<(Scene, SolveOutcome), String>,
+    /// The scene solved, the outcome and whether it was solved from cold in spite of a warm
+    /// start; or why there is no outcome (one line).
+    pub outcome: Result<(Scene, SolveOutcome, bool), String>,
 }
 
 /// Why the conversation with the coordinator broke off.
@@ -483,7 +508,7 @@ async fn serve(
             gap_ms = gap.as_secs_f64() * 1e3,
             "solved"
         );
-        let outcome = outcome.map(|o| (scene, o)).map_err(|e| one_line(&e));
+        let outcome = outcome.map(|(o, started_cold)| (scene, o, started_cold)).map_err(|e| one_line(&e));
         *pending = Some(Delivery::new(&session.pool_id, Report { lease, outcome }));
     }
 }
@@ -540,6 +565,7 @@ fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>, memory: Option<u64>) -> Resul
         );
     }
     let mut init_parameters = None;
+    let mut warm_start_dropped = false;
     let init = if init_bytes.is_empty() {
         None
     } else {
@@ -554,6 +580,7 @@ fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>, memory: Option<u64>) -> Resul
             }
             Err(e) => {
                 tracing::warn!(error = %e, "warm start unusable; starting cold");
+                warm_start_dropped = true;
                 None
             }
         }
@@ -568,7 +595,7 @@ fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>, memory: Option<u64>) -> Resul
         init_parameters,
     };
     let init_bytes = if init.is_some() { init_bytes } else { Vec::new() };
-    Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init })
+    Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init, warm_start_dropped })
 }
 
 /// Extends the lease, reporting how far its solve got: (iterations, eta).
