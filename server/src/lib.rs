@@ -116,6 +116,13 @@ pub async fn bind(
     let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("binding {listen}"))?;
     let addr = listener.local_addr().context("reading the bound address")?;
 
+    // The standard grpc.health.v1 service beside glissade.v1.Health (which also says why and
+    // which version): the whole server ("") and each of our services, NOT_SERVING once the
+    // database cannot write.
+    let (health_reporter, standard_health) = tonic_health::server::health_reporter();
+    for service in STANDARD_HEALTH_NAMES {
+        health_reporter.set_service_status(service, tonic_health::ServingStatus::Serving).await;
+    }
     let tokens = options.tokens.clone();
     let mut builder = Server::builder();
     if let Some((cert, key)) = &options.tls {
@@ -144,6 +151,7 @@ pub async fn bind(
         let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
         let serve = builder
             .add_service(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
+            .add_service(standard_health)
             .add_service(UserServer::with_interceptor(
                 user::UserService { coordinator: coordinator.clone() },
                 auth::RequireToken::users(tokens.as_ref()),
@@ -163,7 +171,7 @@ pub async fn bind(
                 async move {
                     tokio::select! {
                         () = shutdown => {}
-                        () = store_failed(c.clone()) => {}
+                        () = store_failed(c.clone(), health_reporter) => {}
                     }
                     // End long polls and event streams, or the graceful shutdown would wait for them.
                     c.stop();
@@ -200,11 +208,18 @@ pub async fn bind(
 /// RESOURCE_EXHAUSTED) before it stops to be restarted.
 const STORE_FAILURE_GRACE: Duration = Duration::from_secs(3);
 
-/// Resolves once the database has failed to write, after [`STORE_FAILURE_GRACE`].
-async fn store_failed(coordinator: Arc<Coordinator>) {
+/// The names the standard health service answers for: the whole server, then each service.
+const STANDARD_HEALTH_NAMES: [&str; 3] = ["", "glissade.v1.User", "glissade.v1.Pool"];
+
+/// Resolves once the database has failed to write, after [`STORE_FAILURE_GRACE`] (during which
+/// the standard health service says NOT_SERVING).
+async fn store_failed(coordinator: Arc<Coordinator>, health: tonic_health::server::HealthReporter) {
     loop {
         if let Some(cause) = coordinator.store_failure() {
             tracing::error!(cause, grace = ?STORE_FAILURE_GRACE, "the database cannot write: stopping");
+            for service in STANDARD_HEALTH_NAMES {
+                health.set_service_status(service, tonic_health::ServingStatus::NotServing).await;
+            }
             tokio::time::sleep(STORE_FAILURE_GRACE).await;
             return;
         }

@@ -152,6 +152,12 @@ fn server_and_client_talk_and_fail_cleanly() -> anyhow::Result<()> {
     let reply: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     assert_eq!(reply["status"], "SERVING", "{reply}");
     assert_eq!(reply["version"], env!("CARGO_PKG_VERSION"), "{reply}");
+    // the standard health service too, for the whole server and each service, unknown names refused
+    let rt = runtime();
+    for (service, status) in [("", Ok(1)), ("glissade.v1.User", Ok(1)), ("glissade.v1.Pool", Ok(1)), ("x.Y", Err(()))] {
+        assert_eq!(rt.block_on(standard_health(&url, service)), status, "{service:?}");
+    }
+    drop(rt);
 
     // Nothing listens on port 1: one readable line and exit code 1, no panic, no Debug dump.
     let out = run_with_timeout(command(&glissade).args(["--server", "http://127.0.0.1:1", "health"]), LIMIT);
@@ -428,6 +434,17 @@ fn terminate(child: &mut Child) -> std::process::ExitStatus {
     let kill = run_with_timeout(Command::new("kill").args(["-TERM", &child.id().to_string()]), LIMIT);
     assert!(kill.status.success(), "kill: {}", text(&kill.stderr));
     wait_with_timeout(child, LIMIT).expect("did not stop within the limit after SIGTERM")
+}
+
+/// grpc.health.v1 Check of `service`: the status number (1 SERVING, 2 NOT_SERVING), or Err when
+/// the call fails.
+async fn standard_health(url: &str, service: &str) -> Result<i32, ()> {
+    use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
+    let channel =
+        tonic::transport::Endpoint::from_shared(url.to_owned()).map_err(drop)?.connect().await.map_err(drop)?;
+    let mut client = HealthClient::new(channel);
+    let reply = client.check(HealthCheckRequest { service: service.into() }).await.map_err(drop)?;
+    Ok(reply.into_inner().status)
 }
 
 fn runtime() -> tokio::runtime::Runtime {
@@ -1401,9 +1418,10 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     let mut wrong = PoolClient::with_interceptor(channel.clone(), with(&"w".repeat(40)));
     let s = rt.block_on(wrong.lease_point(v1::LeasePointRequest::default())).map(drop).expect_err("wrong");
     assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
-    // Health stays open for monitoring.
+    // Health stays open for monitoring, ours and the standard one.
     let out = glissade(Some(&url), &["health"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(rt.block_on(standard_health(&url, "")), Ok(1));
 
     // The CLI with the user token submits; a pool with the user token is refused and says so.
     let scene = dir.path().join("tiny.toml");
@@ -1511,6 +1529,12 @@ fn a_full_disk_is_named_and_the_coordinator_recovers_after_a_restart() -> anyhow
     let health = glissade(Some(&url), &["health", "--json"]);
     assert_eq!(health.status.code(), Some(1));
     assert!(text(&health.stdout).contains("NOT_SERVING"), "{}", text(&health.stdout));
+    // the standard health service follows within its 200 ms watch (the grace is 3 s)
+    let not_serving = (0..20).any(|_| {
+        std::thread::sleep(Duration::from_millis(50));
+        rt.block_on(standard_health(&url, "")) == Ok(2)
+    });
+    assert!(not_serving, "grpc.health.v1 did not say NOT_SERVING");
     // It stops by itself, saying why, for its service manager to restart it.
     let status = wait_with_timeout(&mut server.0, LIMIT)
         .unwrap_or_else(|| panic!("the coordinator did not stop:\n{}", log_of(&log)));

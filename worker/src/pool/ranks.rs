@@ -16,7 +16,7 @@ use super::{PointJob, PoolSolver};
 use crate::comm::{Communicator, Mpi};
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use glissade_core::io::solution_file;
-use glissade_core::scene::Scene;
+use glissade_core::scene::{Scale, Scene};
 
 /// MPI tag of the job messages, apart from the solver's own messages.
 const JOB_TAG: i32 = 7001;
@@ -114,20 +114,31 @@ fn ignore_termination_signals() {
 
 // Byte layout: a tag byte (0 stop, 1 job); a job then holds the scene text, the `--set` pairs,
 // the tolerance and iteration limit (floats as their bits: every rank must solve the same
-// numbers), and the warm-start file bytes up to the end.
+// numbers), the scale, whether fields are recorded, the warm start's parameters, and the
+// warm-start file bytes up to the end. `encode` takes the request apart field by field, so a new
+// field of `SolveRequest` does not compile until it travels too.
 
 fn encode(message: &Message) -> Vec<u8> {
     let mut out = Vec::new();
     match message {
         Message::Stop => out.push(0),
         Message::Job { scene_text, request, init_bytes } => {
+            // progress is counted on each rank for itself
+            let SolveRequest { set, tolerance, max_iterations, scale, record_fields, progress: _, init_parameters } =
+                request;
             out.push(1);
             put_bytes(&mut out, scene_text.as_bytes());
-            put_pairs(&mut out, request.set.iter().map(|(k, v)| (k.as_str(), *v)));
-            put_option(&mut out, request.tolerance.map(f64::to_bits));
-            put_option(&mut out, request.max_iterations.map(|n| n as u64));
+            put_pairs(&mut out, set.iter().map(|(k, v)| (k.as_str(), *v)));
+            put_option(&mut out, tolerance.map(f64::to_bits));
+            put_option(&mut out, max_iterations.map(|n| n as u64));
+            out.push(match scale {
+                None => 0,
+                Some(Scale::Single) => 1,
+                Some(Scale::Multi) => 2,
+            });
+            out.push(u8::from(*record_fields));
             // every rank must stop at the same tolerance, which depends on where the init is from
-            match &request.init_parameters {
+            match init_parameters {
                 None => out.push(0),
                 Some(values) => {
                     out.push(1);
@@ -149,12 +160,24 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
             let set = reader.pairs()?;
             let tolerance = reader.option()?.map(f64::from_bits);
             let max_iterations = reader.option()?.map(|n| n as usize);
+            let scale = match reader.take(1)?[0] {
+                0 => None,
+                1 => Some(Scale::Single),
+                2 => Some(Scale::Multi),
+                _ => return Err(RanksError::Malformed("bad scale")),
+            };
+            let record_fields = match reader.take(1)?[0] {
+                0 => false,
+                1 => true,
+                _ => return Err(RanksError::Malformed("bad flag")),
+            };
             let init_parameters = match reader.take(1)?[0] {
                 0 => None,
                 1 => Some(reader.pairs()?.into_iter().collect()),
                 _ => return Err(RanksError::Malformed("bad option flag")),
             };
-            let request = SolveRequest { set, tolerance, max_iterations, init_parameters, ..SolveRequest::default() };
+            let request =
+                SolveRequest { set, tolerance, max_iterations, scale, record_fields, progress: None, init_parameters };
             Ok(Message::Job { scene_text, request, init_bytes: reader.0.to_vec() })
         }
         _ => Err(RanksError::Malformed("unknown message kind")),
@@ -227,12 +250,15 @@ mod tests {
 
     #[test]
     fn a_job_survives_encoding_bit_for_bit() {
+        // every field of the request set to something other than its default
         let request = SolveRequest {
             set: vec![("f1".into(), 0.1 + 0.2), ("prestress".into(), -1e-300)],
             tolerance: Some(2e-4),
             max_iterations: Some(77),
+            scale: Some(Scale::Multi),
+            record_fields: true,
+            progress: Some(Default::default()),
             init_parameters: Some([("f1".to_owned(), 0.1), ("f2".to_owned(), 1.0 / 3.0)].into()),
-            ..SolveRequest::default()
         };
         let message = Message::Job { scene_text: "dimension = 2\n".into(), request, init_bytes: vec![9, 8, 7] };
         let Message::Job { scene_text, request, init_bytes } = decode(&encode(&message)).unwrap() else {
@@ -242,7 +268,19 @@ mod tests {
         assert_eq!(request.set[0].1.to_bits(), (0.1f64 + 0.2).to_bits());
         assert_eq!(request.set[1], ("prestress".into(), -1e-300));
         assert_eq!((request.tolerance, request.max_iterations), (Some(2e-4), Some(77)));
+        assert_eq!((request.scale, request.record_fields), (Some(Scale::Multi), true));
+        // a progress counter is each rank's own
+        assert!(request.progress.is_none());
         assert_eq!(request.init_parameters.unwrap()["f2"].to_bits(), (1.0f64 / 3.0).to_bits());
+        for scale in [None, Some(Scale::Single)] {
+            let message = Message::Job {
+                scene_text: String::new(),
+                request: SolveRequest { scale, ..SolveRequest::default() },
+                init_bytes: Vec::new(),
+            };
+            let Message::Job { request, .. } = decode(&encode(&message)).unwrap() else { panic!("not a job") };
+            assert_eq!((request.scale, request.record_fields, request.init_parameters), (scale, false, None));
+        }
         assert_eq!(init_bytes, vec![9, 8, 7]);
         assert!(matches!(decode(&encode(&Message::Stop)).unwrap(), Message::Stop));
     }
