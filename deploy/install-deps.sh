@@ -37,6 +37,16 @@ else
   apt-get install -y -q --no-install-recommends "${missing[@]}"
 fi
 
+# The test command checks formatting and lints: rustfmt and clippy, added to the toolchain when
+# they are missing (no download when present).
+for component in rustfmt clippy; do
+  cmd=${component/rustfmt/fmt}
+  if ! cargo "$cmd" --version >/dev/null 2>&1; then
+    command -v rustup >/dev/null || { echo "install-deps: cargo $cmd missing and no rustup to add it" >&2; exit 1; }
+    rustup component add "$component"
+  fi
+done
+
 # Check the tools the build actually calls, so a broken install fails here and not mid-build.
 for tool in mpiexec mpicc protoc pkg-config; do
   command -v "$tool" >/dev/null || { echo "install-deps: '$tool' not found after install" >&2; exit 1; }

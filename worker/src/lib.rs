@@ -5,10 +5,6 @@
 //! field output) and `run` (one solve, for the CLI and the workers) at the edge; `study` (the
 //! multiparametric strategy: parameter space, solution store, warm starts, ordering) above `run`.
 
-// The numerics index several arrays of one node or component together (`x[d]`, `n[d]`, `c[d]`);
-// an index loop says that more plainly than zipped iterators.
-#![allow(clippy::needless_range_loop)]
-
 pub mod comm;
 pub mod element;
 pub mod io;
