@@ -4,6 +4,7 @@
 //! response surface and draw its pictures.
 
 use glissade_cli::outln;
+use glissade_core::scene::check_tolerance;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -31,8 +32,8 @@ pub struct DemoArgs {
 }
 
 pub async fn demo(args: DemoArgs) -> Result<Outcome> {
-    if let Some(t) = args.tol.filter(|t| !(t.is_finite() && *t > 0.0)) {
-        bail!("--tol {t}: give a positive number");
+    if let Some(t) = args.tol {
+        check_tolerance("--tol", t)?;
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let data = tempfile::tempdir().context("creating a temporary database directory")?;

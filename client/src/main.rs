@@ -13,12 +13,15 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Parser, Subcommand};
 use glissade_cli::names::{describe_parameters, order_name, point_state_name, strategy_name, study_state_name};
 use glissade_cli::plot::{self, Axis, ConvergenceSeries, Surface};
 use glissade_cli::progress::WatchState;
 use glissade_cli::surface::{SurfaceTable, parse_fixed};
+use glissade_core::scene::check_tolerance;
 use glissade_core::scene::{QoiKind, Scene};
+use glissade_core::study::order::OrderKind;
+use glissade_core::study::strategy::StrategyKind;
 use glissade_proto::auth::{Token, WithToken};
 use glissade_proto::v1::health_client::HealthClient;
 use glissade_proto::v1::user_client::UserClient;
@@ -156,13 +159,13 @@ struct SubmitArgs {
     max_iter: Option<u32>,
     /// Where each point's iterations start.
     #[arg(long, value_enum, default_value = "nearest")]
-    strategy: StrategyArg,
+    strategy: StrategyKind,
     /// Neighbours a blend (or a linear extrapolation) combines.
     #[arg(long, value_name = "K", default_value_t = 3)]
     k: u32,
     /// Which pending point goes to the next free pool.
     #[arg(long, value_enum, default_value = "greedy")]
-    order: OrderArg,
+    order: OrderKind,
     /// Free text shown with the study.
     #[arg(long, default_value = "")]
     label: String,
@@ -172,22 +175,6 @@ struct SubmitArgs {
     /// Print one JSON object instead of the study id (not with --watch: its lines are for people).
     #[arg(long, conflicts_with = "watch")]
     json: bool,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum StrategyArg {
-    Cold,
-    Previous,
-    Nearest,
-    Blend,
-    Linear,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum OrderArg {
-    Asc,
-    Desc,
-    Greedy,
 }
 
 #[derive(Debug, clap::Args)]
@@ -341,10 +328,8 @@ fn read_submission(path: &Path, grid: &[String]) -> Result<(String, usize)> {
 }
 
 async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
-    if let Some(t) = args.tol
-        && !(t.is_finite() && t > 0.0)
-    {
-        bail!("--tol {t}: give a positive number");
+    if let Some(t) = args.tol {
+        check_tolerance("--tol", t)?;
     }
     let (scene, _) = read_submission(&args.scene, &args.grid)?;
     let request = v1::SubmitStudyRequest {
@@ -353,17 +338,17 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
         points: Vec::new(),
         tolerance: args.tol,
         strategy: match args.strategy {
-            StrategyArg::Cold => v1::InitStrategy::Cold,
-            StrategyArg::Previous => v1::InitStrategy::Previous,
-            StrategyArg::Nearest => v1::InitStrategy::Nearest,
-            StrategyArg::Blend => v1::InitStrategy::Blend,
-            StrategyArg::Linear => v1::InitStrategy::Linear,
+            StrategyKind::Cold => v1::InitStrategy::Cold,
+            StrategyKind::Previous => v1::InitStrategy::Previous,
+            StrategyKind::Nearest => v1::InitStrategy::Nearest,
+            StrategyKind::Blend => v1::InitStrategy::Blend,
+            StrategyKind::Linear => v1::InitStrategy::Linear,
         }
         .into(),
         order: match args.order {
-            OrderArg::Asc => v1::PointOrder::Ascending,
-            OrderArg::Desc => v1::PointOrder::Descending,
-            OrderArg::Greedy => v1::PointOrder::Greedy,
+            OrderKind::Asc => v1::PointOrder::Ascending,
+            OrderKind::Desc => v1::PointOrder::Descending,
+            OrderKind::Greedy => v1::PointOrder::Greedy,
         }
         .into(),
         max_iterations: args.max_iter,

@@ -27,6 +27,16 @@ pub fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError
     SceneError::Invalid { key: key.into(), message: message.into() }
 }
 
+/// The one rule for an error-indicator tolerance, wherever it comes from (a scene's
+/// `solver.tolerance`, `--tol`, a submission): a positive, finite number. `key` names the source.
+pub fn check_tolerance(key: &str, tolerance: f64) -> Result<f64, SceneError> {
+    if tolerance > 0.0 && tolerance.is_finite() {
+        Ok(tolerance)
+    } else {
+        Err(invalid(key, format!("must be a positive number, got {tolerance}")))
+    }
+}
+
 /// A number, or the name of a parameter standing for one.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
@@ -154,6 +164,7 @@ pub struct QoiSpec {
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Scale {
     #[default]

@@ -129,8 +129,8 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             .enumerate()
             .map(|(i, p)| parameters(&format!("points[{i}]"), p.values))
             .collect::<Result<Vec<_>, _>>()?;
-        if let Some(t) = m.tolerance.filter(|t| !(*t > 0.0 && t.is_finite())) {
-            return Err(Invalid(format!("tolerance must be a positive finite number, got {t}")));
+        if let Some(t) = m.tolerance {
+            glissade_core::scene::check_tolerance("tolerance", t).map_err(|e| Invalid(e.to_string()))?;
         }
         if m.max_iterations == Some(0) {
             return Err(Invalid("max_iterations must be at least 1".into()));

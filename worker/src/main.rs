@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::{Context, Result, anyhow, bail};
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand};
 use serde::Serialize;
 
 use glissade_core::io::solution_file;
@@ -26,12 +26,6 @@ mod study_cli;
 struct Cli {
     #[command(subcommand)]
     command: Command,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-enum ScaleArg {
-    Single,
-    Multi,
 }
 
 const SOLVE_EXAMPLES: &str = "\
@@ -189,7 +183,7 @@ struct SolveArgs {
     max_iter: Option<usize>,
     /// Single-scale or multiscale (macro problem) iterations
     #[arg(long, value_enum)]
-    scale: Option<ScaleArg>,
+    scale: Option<Scale>,
     /// Start the iterations from a stored interface solution of the same scene (any design point)
     #[arg(long, value_name = "SOLUTION")]
     init: Option<PathBuf>,
@@ -280,10 +274,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         set: args.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
         tolerance: args.tol,
         max_iterations: args.max_iter,
-        scale: args.scale.map(|s| match s {
-            ScaleArg::Single => Scale::Single,
-            ScaleArg::Multi => Scale::Multi,
-        }),
+        scale: args.scale,
         record_fields: args.fields.is_some(),
         ..SolveRequest::default()
     };

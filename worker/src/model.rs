@@ -241,9 +241,7 @@ impl<const D: usize> Model<D> {
             return Err(invalid("solver.k0_factor", "must be > 0"));
         }
         let st = &scene.solver;
-        if !(st.tolerance > 0.0 && st.tolerance.is_finite()) {
-            return Err(invalid("solver.tolerance", "must be a positive number"));
-        }
+        glissade_core::scene::check_tolerance("solver.tolerance", st.tolerance)?;
         if !(st.relaxation > 0.0 && st.relaxation <= 1.0) {
             return Err(invalid("solver.relaxation", "must be in (0, 1]"));
         }

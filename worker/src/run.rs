@@ -198,10 +198,7 @@ fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &
     model.settings.tolerance = scene.solver.tolerance;
     model.settings.max_iterations = scene.solver.max_iterations;
     if let Some(t) = request.tolerance {
-        if !(t > 0.0 && t.is_finite()) {
-            return Err(glissade_core::scene::invalid("--tol", format!("must be a positive number, got {t}")).into());
-        }
-        model.settings.tolerance = t;
+        model.settings.tolerance = glissade_core::scene::check_tolerance("--tol", t)?;
     }
     if let Some(n) = request.max_iterations {
         model.settings.max_iterations = n;

@@ -5,13 +5,13 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use clap::{Args, ValueEnum};
+use clap::Args;
 
 use glissade_core::scene::Scale;
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::MemoryStore;
-use glissade_core::study::strategy::InitStrategy;
+use glissade_core::study::strategy::StrategyKind;
 use glissade_core::study::{PointRecord, StudyOptions, StudyResult, run_study};
 use glissade_worker::run::PointSolver;
 
@@ -34,28 +34,6 @@ to those done). A point already solved to the tolerance is answered with 0 itera
 Progress: one line per point on stderr. Exit status: 0 all converged, 1 error, 2 some point not
 converged or failed.";
 
-#[derive(Clone, Copy, ValueEnum)]
-pub enum StrategyArg {
-    Cold,
-    Previous,
-    Nearest,
-    Blend,
-    Linear,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum OrderArg {
-    Asc,
-    Desc,
-    Greedy,
-}
-
-#[derive(Clone, Copy, ValueEnum)]
-pub enum StudyScaleArg {
-    Single,
-    Multi,
-}
-
 #[derive(Args)]
 pub struct StudyArgs {
     /// Scene file (TOML, see docs/scenes.md)
@@ -65,13 +43,13 @@ pub struct StudyArgs {
     grid: Vec<String>,
     /// Where each point's iterations start
     #[arg(long, value_enum, default_value = "nearest")]
-    strategy: StrategyArg,
+    strategy: StrategyKind,
     /// Neighbours combined by --strategy blend or linear
     #[arg(long, value_name = "K", default_value_t = 3)]
     k: usize,
     /// Order of the points
     #[arg(long, value_enum, default_value = "greedy")]
-    order: OrderArg,
+    order: OrderKind,
     /// Error-indicator tolerance (default: the scene's, else 2e-4)
     #[arg(long, value_name = "T")]
     tol: Option<f64>,
@@ -80,7 +58,7 @@ pub struct StudyArgs {
     max_iter: Option<usize>,
     /// Single-scale or multiscale (macro problem) iterations
     #[arg(long, value_enum)]
-    scale: Option<StudyScaleArg>,
+    scale: Option<Scale>,
     /// Write DIR/results.csv and DIR/results.json (the directory is created)
     #[arg(long, value_name = "DIR")]
     out: Option<PathBuf>,
@@ -100,10 +78,8 @@ pub fn study(args: StudyArgs) -> Result<bool> {
     let space = ParameterSpace::from_scene(&scene);
     let axes = args.grid.iter().map(|g| GridAxis::parse(g, &space)).collect::<Result<Vec<_>, _>>()?;
     let points = design_points(&axes, args.max_points)?;
-    if let Some(t) = args.tol
-        && !(t > 0.0 && t.is_finite())
-    {
-        bail!("--tol {t}: must be a positive number");
+    if let Some(t) = args.tol {
+        glissade_core::scene::check_tolerance("--tol", t)?;
     }
     if args.k == 0 {
         bail!("--k 0: blend needs at least 1 neighbour");
@@ -112,27 +88,9 @@ pub fn study(args: StudyArgs) -> Result<bool> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--out {}: cannot create the directory", dir.display()))?;
     }
-    let strategy = match args.strategy {
-        StrategyArg::Cold => InitStrategy::Cold,
-        StrategyArg::Previous => InitStrategy::Previous,
-        StrategyArg::Nearest => InitStrategy::Nearest,
-        StrategyArg::Blend => InitStrategy::Blend { k: args.k },
-        StrategyArg::Linear => InitStrategy::Linear { k: args.k },
-    };
-    let order = match args.order {
-        OrderArg::Asc => OrderKind::Asc,
-        OrderArg::Desc => OrderKind::Desc,
-        OrderArg::Greedy => OrderKind::Greedy,
-    };
-    let options = StudyOptions {
-        strategy,
-        tolerance: args.tol,
-        max_iterations: args.max_iter,
-        scale: args.scale.map(|s| match s {
-            StudyScaleArg::Single => Scale::Single,
-            StudyScaleArg::Multi => Scale::Multi,
-        }),
-    };
+    let strategy = args.strategy.with_neighbours(args.k);
+    let order = args.order;
+    let options = StudyOptions { strategy, tolerance: args.tol, max_iterations: args.max_iter, scale: args.scale };
     let mut store = MemoryStore::new(space.clone())?;
     let mut policy = order.policy(&space);
     let swept: Vec<String> = axes.iter().map(|a| a.name.clone()).collect();

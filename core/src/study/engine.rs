@@ -13,7 +13,7 @@
 use std::collections::BTreeSet;
 
 use crate::field::InterfaceSolution;
-use crate::scene::Scene;
+use crate::scene::{Scene, check_tolerance};
 
 use super::space::{DesignPoint, ParameterSpace};
 use super::store::{SolutionId, SolutionInfo, SolutionStore, StoreError};
@@ -46,9 +46,7 @@ impl StudyEngine {
     /// The engine of a study of `scene` by `strategy` at `tolerance` (None: the scene's).
     pub fn new(scene: &Scene, strategy: InitStrategy, tolerance: Option<f64>) -> Result<Self, StudyError> {
         let tolerance = tolerance.unwrap_or(scene.solver.tolerance);
-        if !(tolerance > 0.0 && tolerance.is_finite()) {
-            return Err(StudyError::Tolerance(tolerance));
-        }
+        check_tolerance("tolerance", tolerance).map_err(|_| StudyError::Tolerance(tolerance))?;
         Ok(Self {
             space: ParameterSpace::from_scene(scene),
             law_parameters: interface_law_parameters(scene),

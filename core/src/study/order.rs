@@ -17,6 +17,7 @@ pub trait OrderingPolicy: Send {
 
 /// The ordering policies a study can be asked for by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum OrderKind {
     /// lexicographic ascending (the paper's ascending sweep)

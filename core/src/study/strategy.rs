@@ -49,6 +49,41 @@ impl InitStrategy {
             Self::Linear { .. } => "linear",
         }
     }
+
+    pub fn kind(&self) -> StrategyKind {
+        match self {
+            Self::Cold => StrategyKind::Cold,
+            Self::Previous => StrategyKind::Previous,
+            Self::Nearest => StrategyKind::Nearest,
+            Self::Blend { .. } => StrategyKind::Blend,
+            Self::Linear { .. } => StrategyKind::Linear,
+        }
+    }
+}
+
+/// A strategy by name, before the number of neighbours a blend combines is known (what a
+/// command line or a request names).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum StrategyKind {
+    Cold,
+    Previous,
+    Nearest,
+    Blend,
+    Linear,
+}
+
+impl StrategyKind {
+    /// The strategy, `Blend` and `Linear` combining `k` neighbours.
+    pub fn with_neighbours(self, k: usize) -> InitStrategy {
+        match self {
+            Self::Cold => InitStrategy::Cold,
+            Self::Previous => InitStrategy::Previous,
+            Self::Nearest => InitStrategy::Nearest,
+            Self::Blend => InitStrategy::Blend { k },
+            Self::Linear => InitStrategy::Linear { k },
+        }
+    }
 }
 
 /// Inverse-distance weights use this power of the distance (Shepard's usual choice).
