@@ -12,7 +12,6 @@ use glissade_core::text::one_line;
 pub use glissade_proto::now_unix_ms;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::Duration;
 
 use glissade_core::io::solution_file::{self, SolutionFileError, SolutionMeta};
 use glissade_core::scene::Scene;
@@ -20,7 +19,6 @@ use glissade_proto::{ParameterVector, PointId, StudyId};
 use tokio::sync::{Notify, broadcast};
 
 use glissade_core::study::engine::StudyEngine;
-use glissade_core::study::order::OrderKind;
 use glissade_core::study::space::ParameterSpace;
 use glissade_core::study::strategy::InitStrategy;
 
@@ -28,213 +26,14 @@ use crate::records::{
     self, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin, SolutionRecord,
     StudyRecord, decode, encode, point_key, study_key,
 };
-use crate::store::{Batch, Store, StoreError, Tree};
+use crate::store::{Batch, Store, Tree};
+
+mod surface;
+mod transitions;
+mod types;
 use crate::study::{PointStart, SceneSolutions, StudyPlan, WarmStart};
-
-/// Settings of the coordinator's rules.
-#[derive(Debug, Clone)]
-pub struct Config {
-    /// How long a lease lasts without a heartbeat.
-    pub lease: Duration,
-    /// Leases granted to a point before an expiry marks it failed (retryable).
-    pub max_attempts: u32,
-    /// Largest solution file accepted from a pool.
-    pub max_solution_bytes: u64,
-    /// Most design points in one study (counted from the grid before any is built).
-    pub max_points: usize,
-    /// Largest estimated memory of one solve of a submitted scene ([`Scene::size`]).
-    pub max_scene_bytes: u64,
-    /// The solver version the coordinator was built with (the pools' normally).
-    pub solver_version: String,
-}
-
-/// Errors of the domain layer; each names the object concerned. `convert::status` maps each variant
-/// to one gRPC status code.
-#[derive(Debug, thiserror::Error)]
-pub enum CoordError {
-    /// A request that can never succeed as sent (INVALID_ARGUMENT).
-    #[error("{0}")]
-    Invalid(String),
-    #[error("no study {0}")]
-    UnknownStudy(StudyId),
-    #[error("study {study} has no point {point}")]
-    UnknownPoint { study: StudyId, point: PointId },
-    #[error("pool `{0}` is not registered (register again)")]
-    UnknownPool(String),
-    #[error("no stored solution {0}")]
-    UnknownSolution(String),
-    /// A valid request the current state forbids (FAILED_PRECONDITION).
-    #[error("{0}")]
-    Precondition(String),
-    /// Bytes that do not match their checksum (DATA_LOSS).
-    #[error("{0}")]
-    Corrupt(String),
-    #[error(transparent)]
-    Store(#[from] StoreError),
-    #[error("damaged database: {0}")]
-    Decode(#[from] records::DecodeError),
-    #[error("solution index: {0}")]
-    Index(#[from] glissade_core::study::store::StoreError),
-}
-
-/// Counts of a study's points by state.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Progress {
-    pub total: u32,
-    pub pending: u32,
-    pub leased: u32,
-    pub done: u32,
-    pub failed: u32,
-    pub cancelled: u32,
-    pub iterations: u64,
-}
-
-/// A study's overall state, derived from its points.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum StudyState {
-    Active,
-    Done,
-    Failed,
-    Cancelled,
-}
-
-/// What a progress event reports.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum EventKind {
-    Started,
-    Finished,
-    Failed,
-    Requeued,
-    StudyEnded,
-    Snapshot,
-    /// A pool's report of a point it is solving (iterations, eta so far); never stored.
-    Progress,
-}
-
-/// A change of a study, as broadcast to watchers.
-#[derive(Debug, Clone)]
-pub struct Event {
-    pub kind: EventKind,
-    pub study: StudyId,
-    pub point: Option<PointRecord>,
-    pub progress: Progress,
-    pub state: StudyState,
-    pub replay: bool,
-    pub unix_ms: i64,
-    /// Iterations and eta so far of the point being solved (Progress events).
-    pub solving: Option<(u64, f64)>,
-}
-
-/// A study as GetStudy shows it.
-#[derive(Debug, Clone)]
-pub struct StudyView {
-    pub record: StudyRecord,
-    pub state: StudyState,
-    pub progress: Progress,
-    pub points: Vec<PointRecord>,
-}
-
-/// A submission, validated by the service layer's conversions.
-#[derive(Debug, Clone)]
-pub struct Submission {
-    pub scene_text: String,
-    pub grid: Vec<String>,
-    pub points: Vec<ParameterVector>,
-    pub tolerance: Option<f64>,
-    pub max_iterations: Option<u32>,
-    pub strategy: InitStrategy,
-    pub order: OrderKind,
-    pub label: String,
-}
-
-/// A point handed to a pool.
-#[derive(Debug, Clone)]
-pub struct LeaseGrant {
-    pub lease_id: u64,
-    pub study: StudyId,
-    pub point: PointId,
-    pub parameters: ParameterVector,
-    pub scene_text: String,
-    pub scene_hash: String,
-    pub tolerance: f64,
-    pub max_iterations: u32,
-    pub deadline_unix_ms: i64,
-    /// The warm start, if any.
-    pub init: Option<WarmStart>,
-}
-
-/// What a pool reports with a solved point (the solution file's bytes come apart).
-#[derive(Debug, Clone)]
-pub struct Completion {
-    pub pool: String,
-    pub lease_id: u64,
-    pub study: StudyId,
-    pub point: PointId,
-    pub converged: bool,
-    pub iterations: u64,
-    pub error_indicator: f64,
-    pub qoi: BTreeMap<String, f64>,
-    pub wall_seconds: f64,
-    pub eta_history: Vec<f64>,
-    pub work: f64,
-    /// solved from cold in spite of the lease's warm start
-    pub started_cold: bool,
-}
-
-/// A pool's failure report.
-#[derive(Debug, Clone)]
-pub struct Failure {
-    pub pool: String,
-    pub lease_id: u64,
-    pub study: StudyId,
-    pub point: PointId,
-    pub error: String,
-    pub error_indicator: Option<f64>,
-    pub iterations: u64,
-}
-
-/// A registered pool.
-#[derive(Debug, Clone)]
-pub struct PoolInfo {
-    pub ranks: u32,
-    pub host: String,
-    pub solver_version: String,
-}
-
-/// One row of a response surface.
-#[derive(Debug, Clone)]
-pub struct SurfaceRow {
-    pub parameters: ParameterVector,
-    pub qoi: BTreeMap<String, f64>,
-    pub iterations: u64,
-    pub error_indicator: f64,
-    pub converged: bool,
-    /// Point state for a study source; Done/Failed for a stored solution.
-    pub state: PointState,
-}
-
-/// A response surface.
-#[derive(Debug, Clone)]
-pub struct Surface {
-    pub scene_hash: String,
-    pub parameters: Vec<String>,
-    pub qoi: Vec<String>,
-    pub rows: Vec<SurfaceRow>,
-}
-
-/// Which points or solutions a surface covers.
-#[derive(Debug, Clone)]
-pub enum SurfaceSource {
-    Study(StudyId),
-    Scene(String),
-}
-
-/// Which stored solution to fetch.
-#[derive(Debug, Clone)]
-pub enum SolutionSelector {
-    Point(StudyId, PointId),
-    Key(String, ParameterVector),
-}
+use transitions::{Transition, apply};
+pub use types::*;
 
 struct StudyEntry {
     record: StudyRecord,
@@ -455,6 +254,39 @@ impl Coordinator {
         }
     }
 
+    /// The one path by which points change: the points after their transitions (each with the
+    /// event it announces, if any), the study record if it changed, and `batch`'s other writes
+    /// are committed together; then the study in memory takes them; then they are announced
+    /// (and the study's end, if this ended it).
+    fn commit(
+        &self,
+        entry: &mut StudyEntry,
+        changes: Vec<(PointRecord, Option<EventKind>)>,
+        record: Option<StudyRecord>,
+        mut batch: Batch,
+    ) -> Result<(), CoordError> {
+        let was = entry.state();
+        if let Some(record) = &record {
+            batch.put(Tree::Studies, study_key(record.id), encode(record));
+        }
+        for (p, _) in &changes {
+            batch.put(Tree::Points, point_key(p.study, p.id), encode(p));
+        }
+        self.store.commit(batch)?;
+        if let Some(record) = record {
+            entry.record = record;
+        }
+        for (p, kind) in changes {
+            let i = p.id.0 as usize;
+            entry.points[i] = p;
+            if let Some(kind) = kind {
+                self.emit(kind, entry, Some(&entry.points[i]));
+            }
+        }
+        self.emit_if_ended(entry, was);
+        Ok(())
+    }
+
     // ---- users ----
 
     /// Stores a study and queues its points.
@@ -612,18 +444,15 @@ impl Coordinator {
         }
         let mut record = entry.record.clone();
         record.cancelled = true;
-        let mut batch = Batch::new();
-        batch.put(Tree::Studies, study_key(id), encode(&record));
-        let mut points = entry.points.clone();
-        for p in points.iter_mut().filter(|p| p.state == PointState::Pending) {
-            p.state = PointState::Cancelled;
-            batch.put(Tree::Points, point_key(id, p.id), encode(p));
-        }
-        self.store.commit(batch)?;
-        entry.record = record;
-        entry.points = points;
+        // leased points are cancelled when their pools give them back or their leases expire
+        let changes = entry
+            .points
+            .iter()
+            .filter(|p| p.state == PointState::Pending)
+            .map(|p| Ok((apply(p, Transition::Cancel)?, None)))
+            .collect::<Result<_, CoordError>>()?;
+        self.commit(entry, changes, Some(record), Batch::new())?;
         tracing::info!(study = %id, "study cancelled");
-        self.emit_if_ended(entry, was);
         Ok(Self::view(entry, false))
     }
 
@@ -633,17 +462,14 @@ impl Coordinator {
         if entry.record.cancelled {
             return Err(CoordError::Precondition(format!("study {id} is cancelled: its points are not retried")));
         }
-        let mut points = entry.points.clone();
-        let mut batch = Batch::new();
-        let mut requeued = 0;
-        for p in points.iter_mut().filter(|p| p.state == PointState::Failed) {
-            p.state = PointState::Pending;
-            p.attempts = 0;
-            batch.put(Tree::Points, point_key(id, p.id), encode(p));
-            requeued += 1;
-        }
-        self.store.commit(batch)?;
-        entry.points = points;
+        let changes: Vec<_> = entry
+            .points
+            .iter()
+            .filter(|p| p.state == PointState::Failed)
+            .map(|p| Ok((apply(p, Transition::Retry)?, None)))
+            .collect::<Result<_, CoordError>>()?;
+        let requeued = changes.len() as u32;
+        self.commit(entry, changes, None, Batch::new())?;
         if requeued > 0 {
             tracing::info!(study = %id, requeued, "failed points requeued");
             self.emit(EventKind::Snapshot, entry, None);
@@ -652,134 +478,6 @@ impl Coordinator {
         drop(state);
         self.work.notify_waiters();
         Ok((requeued, view))
-    }
-
-    pub fn surface(
-        &self,
-        source: SurfaceSource,
-        fixed: &ParameterVector,
-        qoi: &[String],
-    ) -> Result<Surface, CoordError> {
-        let state = self.lock();
-        let (scene_hash, mut rows) = match &source {
-            SurfaceSource::Study(id) => {
-                let entry = state.studies.get(id).ok_or(CoordError::UnknownStudy(*id))?;
-                let rows = entry
-                    .points
-                    .iter()
-                    .map(|p| {
-                        let r = p.result.as_ref();
-                        SurfaceRow {
-                            parameters: p.parameters.clone(),
-                            qoi: r.map(|r| r.qoi.clone()).unwrap_or_default(),
-                            iterations: r.map_or(0, |r| r.iterations),
-                            error_indicator: r.map_or(0.0, |r| r.error_indicator),
-                            converged: r.is_some_and(|r| r.converged),
-                            state: p.state.clone(),
-                        }
-                    })
-                    .collect::<Vec<_>>();
-                (entry.record.scene_hash.clone(), rows)
-            }
-            SurfaceSource::Scene(hash) => {
-                let rows = state
-                    .solutions
-                    .values()
-                    .filter(|s| &s.scene_hash == hash)
-                    .map(|s| SurfaceRow {
-                        parameters: s.parameters.clone(),
-                        qoi: s.qoi.clone(),
-                        iterations: s.iterations,
-                        error_indicator: s.error_indicator,
-                        converged: s.converged,
-                        state: if s.converged { PointState::Done } else { PointState::Failed },
-                    })
-                    .collect::<Vec<_>>();
-                if rows.is_empty() && self.store.get(Tree::Scenes, hash.as_bytes())?.is_none() {
-                    return Err(CoordError::Invalid(format!("no scene with hash `{hash}` was ever submitted")));
-                }
-                (hash.clone(), rows)
-            }
-        };
-        drop(state);
-        let names: Vec<String> = {
-            let mut n: Vec<String> = rows.iter().flat_map(|r| r.parameters.iter().map(|(k, _)| k.to_owned())).collect();
-            n.sort();
-            n.dedup();
-            n
-        };
-        for (name, _) in fixed.iter() {
-            if !names.iter().any(|n| n == name) && !rows.is_empty() {
-                return Err(CoordError::Invalid(format!(
-                    "fixed parameter `{name}` is not a parameter of these points (they have: {})",
-                    names.join(", ")
-                )));
-            }
-        }
-        rows.retain(|r| {
-            fixed
-                .iter()
-                .all(|(name, v)| r.parameters.get(name).is_some_and(|x| (x - v).abs() <= 1e-9 * v.abs().max(1e-300)))
-        });
-        let mut qoi_names: Vec<String> = rows.iter().flat_map(|r| r.qoi.keys().cloned()).collect();
-        qoi_names.sort();
-        qoi_names.dedup();
-        if !qoi.is_empty() {
-            for q in qoi {
-                if !qoi_names.contains(q) && !rows.iter().all(|r| r.qoi.is_empty()) {
-                    return Err(CoordError::Invalid(format!(
-                        "no QoI `{q}` in these results (they have: {})",
-                        qoi_names.join(", ")
-                    )));
-                }
-            }
-            for r in &mut rows {
-                r.qoi.retain(|k, _| qoi.contains(k));
-            }
-            qoi_names.retain(|k| qoi.contains(k));
-        }
-        rows.sort_by(|a, b| {
-            let key = |r: &SurfaceRow| r.parameters.iter().map(|(_, v)| v).collect::<Vec<_>>();
-            key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal)
-        });
-        Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows })
-    }
-
-    /// The bytes of a stored solution file.
-    pub fn solution_bytes(&self, selector: &SolutionSelector) -> Result<Vec<u8>, CoordError> {
-        let key = match selector {
-            SolutionSelector::Point(study, point) => {
-                let state = self.lock();
-                let entry = state.studies.get(study).ok_or(CoordError::UnknownStudy(*study))?;
-                let i = entry
-                    .points
-                    .iter()
-                    .position(|p| p.id == *point)
-                    .ok_or(CoordError::UnknownPoint { study: *study, point: *point })?;
-                if entry.points[i].result.is_none() {
-                    return Err(CoordError::Precondition(format!(
-                        "point {point} of study {study} has no solution yet ({})",
-                        point_state_word(&entry.points[i].state)
-                    )));
-                }
-                SolutionKey::new(&entry.record.scene_hash, &entry.full_parameters(i))
-            }
-            SolutionSelector::Key(hash, parameters) => SolutionKey::new(hash, parameters),
-        };
-        self.fields(&key, selector)
-    }
-
-    fn fields(&self, key: &SolutionKey, what: &SolutionSelector) -> Result<Vec<u8>, CoordError> {
-        let describe = || match what {
-            SolutionSelector::Point(s, p) => format!("for point {p} of study {s}"),
-            SolutionSelector::Key(h, p) => format!("of scene {h} at {p}"),
-        };
-        let compressed = self
-            .store
-            .get(Tree::SolutionFields, key.as_bytes())?
-            .ok_or_else(|| CoordError::UnknownSolution(describe()))?;
-        records::decode_fields(&compressed)
-            .map_err(|e| CoordError::Corrupt(format!("stored solution {} does not decompress: {e}", describe())))
     }
 
     // ---- pools ----
@@ -826,17 +524,13 @@ impl Coordinator {
                 let lease_id = new_lease_id(&state.leases);
                 let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
                 let entry = state.studies.get_mut(&id).expect("id listed above");
-                let mut point = entry.points[i].clone();
-                point.state = PointState::Leased {
+                let lease = Transition::Lease {
                     pool: pool.to_owned(),
                     lease_id,
                     deadline_unix_ms: deadline,
                     init: init.as_ref().map(|w| w.origin.clone()),
                 };
-                point.attempts += 1;
-                let mut batch = Batch::new();
-                batch.put(Tree::Points, point_key(id, point.id), encode(&point));
-                self.store.commit(batch)?;
+                let point = apply(&entry.points[i], lease)?;
                 let grant = LeaseGrant {
                     lease_id,
                     study: id,
@@ -849,9 +543,8 @@ impl Coordinator {
                     deadline_unix_ms: deadline,
                     init,
                 };
-                entry.points[i] = point;
+                self.commit(entry, vec![(point, Some(EventKind::Started))], None, Batch::new())?;
                 tracing::info!(study = %id, point = i, pool, lease_id, "leased");
-                self.emit(EventKind::Started, entry, Some(&entry.points[i]));
                 state.leases.insert(lease_id, (id, PointId(i as u64)));
                 return Ok(Some(grant));
             }
@@ -863,12 +556,7 @@ impl Coordinator {
     fn answer(&self, state: &mut State, id: StudyId, i: usize, answer: &SolutionRecord) -> Result<(), CoordError> {
         let seq = state.next_finish_seq;
         let entry = state.studies.get_mut(&id).expect("caller checked");
-        let was = entry.state();
-        let mut point = entry.points[i].clone();
-        point.state = PointState::Done;
-        point.error = None;
-        point.finished_seq = Some(seq);
-        point.result = Some(PointResult {
+        let result = PointResult {
             pool: String::new(),
             converged: true,
             iterations: 0,
@@ -879,14 +567,10 @@ impl Coordinator {
             answered: true,
             eta_history: Vec::new(),
             work: 0.0,
-        });
-        let mut batch = Batch::new();
-        batch.put(Tree::Points, point_key(id, point.id), encode(&point));
-        self.store.commit(batch)?;
-        entry.points[i] = point;
+        };
+        let point = apply(&entry.points[i], Transition::Answer { result, finished_seq: seq })?;
+        self.commit(entry, vec![(point, Some(EventKind::Finished))], None, Batch::new())?;
         tracing::info!(study = %id, point = i, "answered from a stored solution");
-        self.emit(EventKind::Finished, entry, Some(&entry.points[i]));
-        self.emit_if_ended(entry, was);
         state.next_finish_seq = seq + 1;
         Ok(())
     }
@@ -964,7 +648,6 @@ impl Coordinator {
         let key = SolutionKey::new(&study_hash, &full);
         let old = state.solutions.get(&key).cloned();
         let (entry, i) = Self::held(&mut state, &c.pool, c.lease_id, c.study, c.point)?;
-        let was = entry.state();
         let started_from = if c.started_cold { None } else { leased_from(&entry.points[i]) };
         let record = SolutionRecord {
             scene_hash: study_hash.clone(),
@@ -984,9 +667,8 @@ impl Coordinator {
             file_bytes: file.len() as u64,
             stored_bytes: compressed.len() as u64,
         };
-        let mut point = entry.points[i].clone();
         let converged = meta.converged && c.error_indicator <= entry.record.tolerance;
-        point.result = Some(PointResult {
+        let result = PointResult {
             pool: c.pool.clone(),
             converged,
             iterations: c.iterations,
@@ -997,35 +679,23 @@ impl Coordinator {
             answered: false,
             eta_history: c.eta_history.clone(),
             work: c.work,
-        });
-        if converged {
-            point.state = PointState::Done;
-            point.error = None;
-            point.finished_seq = Some(seq);
-        } else {
-            point.state = PointState::Failed;
-            point.error = Some(format!(
-                "not converged: eta = {:.3e} > tolerance {:.1e} after {} iterations",
-                c.error_indicator, entry.record.tolerance, c.iterations
-            ));
-        }
+        };
+        let tolerance = entry.record.tolerance;
+        let point = apply(&entry.points[i], Transition::Complete { result, finished_seq: seq, tolerance })?;
         let mut batch = Batch::new();
-        batch.put(Tree::Points, point_key(c.study, c.point), encode(&point));
         let keep = old.as_ref().is_none_or(|old| record.replaces(old, &current_version));
         if keep {
             batch.put(Tree::Solutions, key.as_bytes(), encode(&record));
             batch.put(Tree::SolutionFields, key.as_bytes(), compressed);
         }
-        self.store.commit(batch)?;
+        let kind = if converged { EventKind::Finished } else { EventKind::Failed };
+        self.commit(entry, vec![(point.clone(), Some(kind))], None, batch)?;
         tracing::debug!(
             check_ms = checked.as_secs_f64() * 1e3,
             compress_ms = (compressed_at - checked).as_secs_f64() * 1e3,
             commit_ms = (started.elapsed() - compressed_at).as_secs_f64() * 1e3,
             "completion costs"
         );
-        let (entry, i) = Self::held(&mut state, &c.pool, c.lease_id, c.study, c.point)?;
-        entry.points[i] = point.clone();
-        let kind = if converged { EventKind::Finished } else { EventKind::Failed };
         tracing::info!(
             study = %c.study,
             point = i,
@@ -1036,8 +706,6 @@ impl Coordinator {
             stored_bytes = if keep { record.stored_bytes } else { 0 },
             "completed"
         );
-        self.emit(kind, entry, Some(&point));
-        self.emit_if_ended(entry, was);
         if converged {
             state.next_finish_seq = seq + 1;
         }
@@ -1059,11 +727,7 @@ impl Coordinator {
     pub fn fail(&self, f: Failure) -> Result<PointRecord, CoordError> {
         let mut state = self.lock();
         let (entry, i) = Self::held(&mut state, &f.pool, f.lease_id, f.study, f.point)?;
-        let was = entry.state();
-        let mut point = entry.points[i].clone();
-        point.state = PointState::Failed;
-        point.error = Some(f.error.clone());
-        point.result = Some(PointResult {
+        let result = PointResult {
             pool: f.pool.clone(),
             converged: false,
             iterations: f.iterations,
@@ -1074,14 +738,10 @@ impl Coordinator {
             answered: false,
             eta_history: Vec::new(),
             work: 0.0,
-        });
-        let mut batch = Batch::new();
-        batch.put(Tree::Points, point_key(f.study, f.point), encode(&point));
-        self.store.commit(batch)?;
-        entry.points[i] = point.clone();
+        };
+        let point = apply(&entry.points[i], Transition::Fail { result, error: f.error.clone() })?;
+        self.commit(entry, vec![(point.clone(), Some(EventKind::Failed))], None, Batch::new())?;
         tracing::warn!(study = %f.study, point = i, pool = %f.pool, error = %f.error, "point failed");
-        self.emit(EventKind::Failed, entry, Some(&point));
-        self.emit_if_ended(entry, was);
         state.leases.remove(&f.lease_id);
         state.lease_progress.remove(&f.lease_id);
         Ok(point)
@@ -1097,17 +757,9 @@ impl Coordinator {
     ) -> Result<PointRecord, CoordError> {
         let mut state = self.lock();
         let (entry, i) = Self::held(&mut state, pool, lease_id, study, point)?;
-        let mut p = entry.points[i].clone();
-        p.state = if entry.record.cancelled { PointState::Cancelled } else { PointState::Pending };
-        p.attempts = p.attempts.saturating_sub(1);
-        let was = entry.state();
-        let mut batch = Batch::new();
-        batch.put(Tree::Points, point_key(study, point), encode(&p));
-        self.store.commit(batch)?;
-        entry.points[i] = p.clone();
+        let p = apply(&entry.points[i], Transition::Release { study_cancelled: entry.record.cancelled })?;
+        self.commit(entry, vec![(p.clone(), Some(EventKind::Requeued))], None, Batch::new())?;
         tracing::info!(study = %study, point = i, pool, "released");
-        self.emit(EventKind::Requeued, entry, Some(&p));
-        self.emit_if_ended(entry, was);
         state.leases.remove(&lease_id);
         state.lease_progress.remove(&lease_id);
         drop(state);
@@ -1157,48 +809,37 @@ impl Coordinator {
         let State { studies, leases, lease_progress, .. } = &mut *state;
         let mut expired = 0;
         for entry in studies.values_mut() {
-            let was = entry.state();
-            let mut batch = Batch::new();
-            let mut changed = Vec::new();
+            let mut changes = Vec::new();
+            let mut lost = Vec::new();
             for (i, p) in entry.points.iter().enumerate() {
                 let PointState::Leased { pool, lease_id, deadline_unix_ms, .. } = &p.state else { continue };
                 if *deadline_unix_ms > now {
                     continue;
                 }
-                let mut q = p.clone();
                 let last = match lease_progress.get(lease_id) {
                     Some((iterations, eta)) => format!("last heard solving at iteration {iterations}, eta {eta:.2e}"),
                     None => "it never reported progress: the pool may have died building the model (memory?)".into(),
                 };
-                if entry.record.cancelled {
-                    q.state = PointState::Cancelled;
-                } else if p.attempts >= self.config.max_attempts {
-                    q.state = PointState::Failed;
-                    q.error = Some(format!(
-                        "lease expired {} times (last held by pool `{pool}`): the pools solving it stopped answering; {last}",
-                        p.attempts
-                    ));
-                } else {
-                    q.state = PointState::Pending;
-                    q.error = Some(format!("a lease of pool `{pool}` expired; {last}"));
-                }
+                let expire = Transition::Expire {
+                    study_cancelled: entry.record.cancelled,
+                    max_attempts: self.config.max_attempts,
+                    last,
+                };
+                let q = apply(p, expire)?;
                 tracing::warn!(study = %p.study, point = i, pool = %pool, lease_id, "lease expired");
-                batch.put(Tree::Points, point_key(p.study, p.id), encode(&q));
-                changed.push((i, q, *lease_id));
+                let kind = if q.state == PointState::Failed { EventKind::Failed } else { EventKind::Requeued };
+                changes.push((q, Some(kind)));
+                lost.push(*lease_id);
             }
-            if changed.is_empty() {
+            if changes.is_empty() {
                 continue;
             }
-            self.store.commit(batch)?;
-            for (i, q, lease_id) in changed {
+            expired += changes.len();
+            self.commit(entry, changes, None, Batch::new())?;
+            for lease_id in lost {
                 leases.remove(&lease_id);
                 lease_progress.remove(&lease_id);
-                let kind = if q.state == PointState::Failed { EventKind::Failed } else { EventKind::Requeued };
-                entry.points[i] = q;
-                self.emit(kind, entry, Some(&entry.points[i]));
-                expired += 1;
             }
-            self.emit_if_ended(entry, was);
         }
         drop(state);
         if expired > 0 {
@@ -1308,273 +949,4 @@ pub fn point_state_word(s: &PointState) -> &'static str {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::store::SledStore;
-    use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
-
-    const TINY: &str = include_str!("../../scenes/three-blocks-tiny.toml");
-    const VERSION: &str = env!("CARGO_PKG_VERSION");
-
-    fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator {
-        let store = Arc::new(SledStore::open(dir).unwrap());
-        let config = Config {
-            lease: Duration::from_millis(lease_ms),
-            max_attempts,
-            max_solution_bytes: 1 << 30,
-            max_points: glissade_core::study::space::DEFAULT_MAX_POINTS,
-            max_scene_bytes: crate::DEFAULT_MAX_SCENE_MIB << 20,
-            solver_version: VERSION.into(),
-        };
-        Coordinator::open(store, config).unwrap()
-    }
-
-    fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy) -> StudyId {
-        let submission = Submission {
-            scene_text: TINY.into(),
-            grid: grid.iter().map(|s| s.to_string()).collect(),
-            points: vec![],
-            tolerance: Some(tolerance),
-            max_iterations: None,
-            strategy,
-            order: OrderKind::Asc,
-            label: String::new(),
-        };
-        c.submit(submission).unwrap().0
-    }
-
-    fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
-        let submission = Submission {
-            scene_text: scene.into(),
-            grid: grid.iter().map(|s| s.to_string()).collect(),
-            points: vec![],
-            tolerance: None,
-            max_iterations: None,
-            strategy: InitStrategy::Nearest,
-            order: OrderKind::Asc,
-            label: String::new(),
-        };
-        match c.submit(submission) {
-            Err(CoordError::Invalid(message)) => message,
-            other => panic!("{grid:?} must be refused as invalid, got {:?}", other.map(|r| r.1)),
-        }
-    }
-
-    #[test]
-    fn a_header_whose_qois_are_not_its_files_is_refused() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = open(dir.path(), 60_000, 3);
-        submit(&c, &["f1=0.1"], 1e-3, InitStrategy::Cold);
-        pool(&c, "p", VERSION);
-        let grant = c.lease("p").unwrap().unwrap();
-        let (mut forged, bytes) = solution_file(&grant, 5e-4, true);
-        forged.qoi.insert("slip_A".into(), 999.0);
-        let message = match c.complete(forged, bytes.clone()) {
-            Err(CoordError::Invalid(m)) => m,
-            other => panic!("must be refused: {:?}", other.map(|p| p.state)),
-        };
-        assert!(message.contains("not those of its solution file"), "{message}");
-        // the point is still held, and the true header completes it
-        let (honest, bytes) = solution_file(&grant, 5e-4, true);
-        assert_eq!(c.complete(honest, bytes).unwrap().state, PointState::Done);
-    }
-
-    #[test]
-    fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = open(dir.path(), 60_000, 3);
-        let started = std::time::Instant::now();
-        for grid in [
-            &["f1=0.1:0.2:1000000000000"][..],
-            &["f1=lhs:1000000000000:1"],
-            &["f1=0.1:0.2:100000", "f2=0.1:0.2:100000"],
-            &["f1=0.1:0.2:1000", "f2=0.1:0.2:1000"],
-            &["f1=0.1:0.2:18446744073709551615", "f2=0.1:0.2:3"],
-        ] {
-            let message = refused(&c, TINY, grid);
-            assert!(message.contains("design points, more than the 100000 accepted"), "{message}");
-        }
-        // 10^7 elements in a kilobyte of text
-        let poison = TINY.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
-        let message = refused(&c, &poison, &["f1=0.1"]);
-        assert!(message.contains("MiB") && message.contains("--max-scene-mib"), "{message}");
-        assert!(started.elapsed() < Duration::from_secs(2), "refusals must not build anything");
-        // nothing was stored, and a proper study still goes through
-        assert!(c.studies().is_empty());
-        submit(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Nearest);
-        // a 10 kB name comes back as a bounded excerpt
-        let name = "n".repeat(10_000);
-        let message = refused(&c, TINY, &[&format!("{name}=0.1")]);
-        assert!(message.len() < 1000, "{} bytes", message.len());
-    }
-
-    /// A solution file of the tiny scene at `grant`'s point, with the outcome given.
-    fn solution_file(grant: &LeaseGrant, eta: f64, converged: bool) -> (Completion, Vec<u8>) {
-        let scene = Scene::parse(&grant.scene_text).unwrap();
-        let mut full = BTreeMap::new();
-        for (name, p) in &scene.parameters {
-            full.insert(name.clone(), grant.parameters.get(name).unwrap_or(p.default));
-        }
-        let len = scene.time.steps * 3 * 4;
-        let mut field = InterfaceField::zeros(2, len);
-        field.s[0].force[0] = grant.point.0 as f64 + 1.0;
-        let solution = InterfaceSolution { static_stage: None, dynamic: StageSolution { interfaces: vec![field] } };
-        let meta = SolutionMeta {
-            solver_version: VERSION.into(),
-            scene_hash: grant.scene_hash.clone(),
-            dimension: 3,
-            time_steps: scene.time.steps,
-            parameters: full,
-            converged,
-            error_indicator: eta,
-            iterations: 10,
-            tolerance: grant.tolerance,
-            qoi: [("slip_A".to_string(), 1e-6)].into(),
-        };
-        let mut bytes = Vec::new();
-        solution_file::write_to(&mut bytes, &solution, &meta).unwrap();
-        let completion = Completion {
-            pool: "p".into(),
-            lease_id: grant.lease_id,
-            study: grant.study,
-            point: grant.point,
-            converged,
-            iterations: 10,
-            error_indicator: eta,
-            qoi: [("slip_A".to_string(), 1e-6)].into(),
-            wall_seconds: 0.5,
-            eta_history: vec![1.0, eta],
-            work: 8.0,
-            started_cold: false,
-        };
-        (completion, bytes)
-    }
-
-    fn pool(c: &Coordinator, id: &str, version: &str) {
-        c.register_pool(id.into(), PoolInfo { ranks: 1, host: "h".into(), solver_version: version.into() });
-    }
-
-    fn state_of(c: &Coordinator, study: StudyId, point: u64) -> PointRecord {
-        c.study(study, true).unwrap().points[point as usize].clone()
-    }
-
-    #[test]
-    fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = open(dir.path(), 60_000, 3);
-        pool(&c, "p", VERSION);
-        let a = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
-        let grant = c.lease("p").unwrap().unwrap();
-        assert!(grant.init.is_none(), "nothing stored yet: cold");
-        let (done, bytes) = solution_file(&grant, 5e-4, true);
-        assert_eq!(c.complete(done, bytes.clone()).unwrap().state, PointState::Done);
-        assert_eq!(c.solution_bytes(&SolutionSelector::Point(a, PointId(0))).unwrap(), bytes);
-
-        // same point, same version, looser tolerance: answered at once
-        let b = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
-        assert!(c.lease("p").unwrap().is_none(), "the answer leaves nothing to lease");
-        let answered = state_of(&c, b, 0);
-        assert_eq!(answered.state, PointState::Done);
-        let r = answered.result.unwrap();
-        assert!(r.answered && r.iterations == 0 && r.error_indicator == 5e-4, "{r:?}");
-        assert_eq!(r.started_from.unwrap().study, Some(a));
-        // a tighter tolerance continues from it
-        let tight = submit(&c, &["f1=0.15"], 1e-4, InitStrategy::Nearest);
-        let grant = c.lease("p").unwrap().unwrap();
-        assert_eq!((grant.study, grant.init.as_ref().map(|w| w.origin.study)), (tight, Some(Some(a))));
-        // the cold strategy never reads the store
-        c.release("p", grant.lease_id, grant.study, grant.point).unwrap();
-        c.cancel(tight).unwrap();
-        let cold = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Cold);
-        let grant = c.lease("p").unwrap().unwrap();
-        assert_eq!((grant.study, grant.init.is_none()), (cold, true));
-        c.release("p", grant.lease_id, grant.study, grant.point).unwrap();
-        c.cancel(cold).unwrap();
-        // another solver version gets it as a warm start only
-        pool(&c, "old", "0.0.1");
-        let other = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
-        let grant = c.lease("old").unwrap().unwrap();
-        assert_eq!(grant.study, other);
-        let Some(WarmStart { file: crate::study::WarmFile::Stored(sent), .. }) = &grant.init else {
-            panic!("a stored warm start expected: {:?}", grant.init)
-        };
-        assert_eq!(sent.as_slice(), bytes.as_slice(), "the stored file's bytes as they came");
-    }
-
-    #[test]
-    fn lost_leases_requeue_then_fail_and_retry_requeues() {
-        let dir = tempfile::tempdir().unwrap();
-        let c = open(dir.path(), 50, 2);
-        pool(&c, "p", VERSION);
-        let id = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
-        let first = c.lease("p").unwrap().unwrap();
-        std::thread::sleep(Duration::from_millis(80));
-        assert_eq!(c.expire_leases().unwrap(), 1);
-        let p = state_of(&c, id, 0);
-        assert_eq!((&p.state, p.attempts), (&PointState::Pending, 1));
-        assert!(p.error.as_deref().unwrap().contains("expired"), "{p:?}");
-        // the old lease is no longer the pool's: heartbeats say so, completion is refused
-        assert_eq!(c.heartbeat("p", &[first.lease_id], &[]), vec![None]);
-        let (late, bytes) = solution_file(&first, 5e-4, true);
-        assert!(matches!(c.complete(late, bytes), Err(CoordError::Precondition(_))));
-
-        let second = c.lease("p").unwrap().unwrap();
-        assert!(c.heartbeat("p", &[second.lease_id], &[])[0].is_some());
-        std::thread::sleep(Duration::from_millis(80));
-        c.expire_leases().unwrap();
-        let p = state_of(&c, id, 0);
-        assert_eq!((&p.state, p.attempts), (&PointState::Failed, 2));
-        assert!(p.error.as_deref().unwrap().contains("lease expired 2 times"), "{p:?}");
-        assert_eq!(c.study(id, false).unwrap().state, StudyState::Failed);
-        assert!(c.lease("p").unwrap().is_none());
-
-        let (requeued, view) = c.retry_failed(id).unwrap();
-        assert_eq!((requeued, view.state), (1, StudyState::Active));
-        let p = state_of(&c, id, 0);
-        assert_eq!((p.state, p.attempts), (PointState::Pending, 0));
-        // a released point is pending again without an attempt counted
-        let g = c.lease("p").unwrap().unwrap();
-        c.release("p", g.lease_id, g.study, g.point).unwrap();
-        assert_eq!(state_of(&c, id, 0).attempts, 0);
-    }
-
-    #[test]
-    fn everything_committed_survives_a_reopen_and_leases_get_a_fresh_deadline() {
-        let dir = tempfile::tempdir().unwrap();
-        let (id, held) = {
-            let c = open(dir.path(), 60_000, 3);
-            pool(&c, "p", VERSION);
-            let id = submit(&c, &["f1=0.1,0.15,0.2"], 1e-3, InitStrategy::Nearest);
-            let g = c.lease("p").unwrap().unwrap();
-            let (done, bytes) = solution_file(&g, 5e-4, true);
-            c.complete(done, bytes).unwrap();
-            let g = c.lease("p").unwrap().unwrap();
-            let (not_converged, bytes) = solution_file(&g, 3e-3, false);
-            let p = c.complete(not_converged, bytes).unwrap();
-            assert_eq!(p.state, PointState::Failed);
-            assert!(p.error.as_deref().unwrap().starts_with("not converged: eta = 3.000e-3"), "{p:?}");
-            (id, c.lease("p").unwrap().unwrap())
-        };
-        let c = open(dir.path(), 60_000, 3);
-        let v = c.study(id, true).unwrap();
-        let states: Vec<_> = v.points.iter().map(|p| point_state_word(&p.state)).collect();
-        assert_eq!(states, ["done", "failed", "leased"]);
-        let PointState::Leased { deadline_unix_ms, lease_id, .. } = &v.points[2].state else { unreachable!() };
-        assert_eq!(*lease_id, held.lease_id);
-        assert!(*deadline_unix_ms >= now_unix_ms() + 59_000, "a fresh deadline after the restart");
-        // the non-converged point kept its last eta; the pool holding point 2 may still complete it
-        assert_eq!(v.points[1].result.as_ref().unwrap().error_indicator, 3e-3);
-        let (done, bytes) = solution_file(&held, 5e-4, true);
-        assert_eq!(c.complete(done, bytes).unwrap().state, PointState::Done);
-        // the index was rebuilt: a retried point warm-starts from the nearest converged solution
-        pool(&c, "p", VERSION);
-        c.retry_failed(id).unwrap();
-        let g = c.lease("p").unwrap().unwrap();
-        assert_eq!(g.point, PointId(1));
-        let from = g.init.expect("a warm start").origin;
-        assert!(from.point == Some(PointId(0)) || from.point == Some(PointId(2)), "{from:?}");
-        // study ids continue where they were; lease ids are random, never reused
-        assert_ne!(g.lease_id, held.lease_id);
-        assert_eq!(submit(&c, &["f1=0.1"], 1e-3, InitStrategy::Cold), StudyId(id.0 + 1));
-    }
-}
+mod tests;

@@ -1,0 +1,134 @@
+//! Reading what the coordinator stores: response surfaces over a study or a scene, and stored
+//! solutions' files and fields.
+
+use super::*;
+
+impl Coordinator {
+    pub fn surface(
+        &self,
+        source: SurfaceSource,
+        fixed: &ParameterVector,
+        qoi: &[String],
+    ) -> Result<Surface, CoordError> {
+        let state = self.lock();
+        let (scene_hash, mut rows) = match &source {
+            SurfaceSource::Study(id) => {
+                let entry = state.studies.get(id).ok_or(CoordError::UnknownStudy(*id))?;
+                let rows = entry
+                    .points
+                    .iter()
+                    .map(|p| {
+                        let r = p.result.as_ref();
+                        SurfaceRow {
+                            parameters: p.parameters.clone(),
+                            qoi: r.map(|r| r.qoi.clone()).unwrap_or_default(),
+                            iterations: r.map_or(0, |r| r.iterations),
+                            error_indicator: r.map_or(0.0, |r| r.error_indicator),
+                            converged: r.is_some_and(|r| r.converged),
+                            state: p.state.clone(),
+                        }
+                    })
+                    .collect::<Vec<_>>();
+                (entry.record.scene_hash.clone(), rows)
+            }
+            SurfaceSource::Scene(hash) => {
+                let rows = state
+                    .solutions
+                    .values()
+                    .filter(|s| &s.scene_hash == hash)
+                    .map(|s| SurfaceRow {
+                        parameters: s.parameters.clone(),
+                        qoi: s.qoi.clone(),
+                        iterations: s.iterations,
+                        error_indicator: s.error_indicator,
+                        converged: s.converged,
+                        state: if s.converged { PointState::Done } else { PointState::Failed },
+                    })
+                    .collect::<Vec<_>>();
+                if rows.is_empty() && self.store.get(Tree::Scenes, hash.as_bytes())?.is_none() {
+                    return Err(CoordError::Invalid(format!("no scene with hash `{hash}` was ever submitted")));
+                }
+                (hash.clone(), rows)
+            }
+        };
+        drop(state);
+        let names: Vec<String> = {
+            let mut n: Vec<String> = rows.iter().flat_map(|r| r.parameters.iter().map(|(k, _)| k.to_owned())).collect();
+            n.sort();
+            n.dedup();
+            n
+        };
+        for (name, _) in fixed.iter() {
+            if !names.iter().any(|n| n == name) && !rows.is_empty() {
+                return Err(CoordError::Invalid(format!(
+                    "fixed parameter `{name}` is not a parameter of these points (they have: {})",
+                    names.join(", ")
+                )));
+            }
+        }
+        rows.retain(|r| {
+            fixed
+                .iter()
+                .all(|(name, v)| r.parameters.get(name).is_some_and(|x| (x - v).abs() <= 1e-9 * v.abs().max(1e-300)))
+        });
+        let mut qoi_names: Vec<String> = rows.iter().flat_map(|r| r.qoi.keys().cloned()).collect();
+        qoi_names.sort();
+        qoi_names.dedup();
+        if !qoi.is_empty() {
+            for q in qoi {
+                if !qoi_names.contains(q) && !rows.iter().all(|r| r.qoi.is_empty()) {
+                    return Err(CoordError::Invalid(format!(
+                        "no QoI `{q}` in these results (they have: {})",
+                        qoi_names.join(", ")
+                    )));
+                }
+            }
+            for r in &mut rows {
+                r.qoi.retain(|k, _| qoi.contains(k));
+            }
+            qoi_names.retain(|k| qoi.contains(k));
+        }
+        rows.sort_by(|a, b| {
+            let key = |r: &SurfaceRow| r.parameters.iter().map(|(_, v)| v).collect::<Vec<_>>();
+            key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal)
+        });
+        Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows })
+    }
+
+    /// The bytes of a stored solution file.
+    pub fn solution_bytes(&self, selector: &SolutionSelector) -> Result<Vec<u8>, CoordError> {
+        let key = match selector {
+            SolutionSelector::Point(study, point) => {
+                let state = self.lock();
+                let entry = state.studies.get(study).ok_or(CoordError::UnknownStudy(*study))?;
+                let i = entry
+                    .points
+                    .iter()
+                    .position(|p| p.id == *point)
+                    .ok_or(CoordError::UnknownPoint { study: *study, point: *point })?;
+                if entry.points[i].result.is_none() {
+                    return Err(CoordError::Precondition(format!(
+                        "point {point} of study {study} has no solution yet ({})",
+                        point_state_word(&entry.points[i].state)
+                    )));
+                }
+                SolutionKey::new(&entry.record.scene_hash, &entry.full_parameters(i))
+            }
+            SolutionSelector::Key(hash, parameters) => SolutionKey::new(hash, parameters),
+        };
+        self.fields(&key, selector)
+    }
+
+    fn fields(&self, key: &SolutionKey, what: &SolutionSelector) -> Result<Vec<u8>, CoordError> {
+        let describe = || match what {
+            SolutionSelector::Point(s, p) => format!("for point {p} of study {s}"),
+            SolutionSelector::Key(h, p) => format!("of scene {h} at {p}"),
+        };
+        let compressed = self
+            .store
+            .get(Tree::SolutionFields, key.as_bytes())?
+            .ok_or_else(|| CoordError::UnknownSolution(describe()))?;
+        records::decode_fields(&compressed)
+            .map_err(|e| CoordError::Corrupt(format!("stored solution {} does not decompress: {e}", describe())))
+    }
+}

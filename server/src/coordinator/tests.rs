@@ -1,0 +1,274 @@
+//! The coordinator over a real sled database in a temporary directory.
+
+use std::time::Duration;
+
+use glissade_core::study::order::OrderKind;
+
+use super::*;
+use crate::store::SledStore;
+use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
+
+const TINY: &str = include_str!("../../../scenes/three-blocks-tiny.toml");
+const VERSION: &str = env!("CARGO_PKG_VERSION");
+
+fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator {
+    let store = Arc::new(SledStore::open(dir).unwrap());
+    let config = Config {
+        lease: Duration::from_millis(lease_ms),
+        max_attempts,
+        max_solution_bytes: 1 << 30,
+        max_points: glissade_core::study::space::DEFAULT_MAX_POINTS,
+        max_scene_bytes: crate::DEFAULT_MAX_SCENE_MIB << 20,
+        solver_version: VERSION.into(),
+    };
+    Coordinator::open(store, config).unwrap()
+}
+
+fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy) -> StudyId {
+    let submission = Submission {
+        scene_text: TINY.into(),
+        grid: grid.iter().map(|s| s.to_string()).collect(),
+        points: vec![],
+        tolerance: Some(tolerance),
+        max_iterations: None,
+        strategy,
+        order: OrderKind::Asc,
+        label: String::new(),
+    };
+    c.submit(submission).unwrap().0
+}
+
+fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
+    let submission = Submission {
+        scene_text: scene.into(),
+        grid: grid.iter().map(|s| s.to_string()).collect(),
+        points: vec![],
+        tolerance: None,
+        max_iterations: None,
+        strategy: InitStrategy::Nearest,
+        order: OrderKind::Asc,
+        label: String::new(),
+    };
+    match c.submit(submission) {
+        Err(CoordError::Invalid(message)) => message,
+        other => panic!("{grid:?} must be refused as invalid, got {:?}", other.map(|r| r.1)),
+    }
+}
+
+#[test]
+fn a_header_whose_qois_are_not_its_files_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    submit(&c, &["f1=0.1"], 1e-3, InitStrategy::Cold);
+    pool(&c, "p", VERSION);
+    let grant = c.lease("p").unwrap().unwrap();
+    let (mut forged, bytes) = solution_file(&grant, 5e-4, true);
+    forged.qoi.insert("slip_A".into(), 999.0);
+    let message = match c.complete(forged, bytes.clone()) {
+        Err(CoordError::Invalid(m)) => m,
+        other => panic!("must be refused: {:?}", other.map(|p| p.state)),
+    };
+    assert!(message.contains("not those of its solution file"), "{message}");
+    // the point is still held, and the true header completes it
+    let (honest, bytes) = solution_file(&grant, 5e-4, true);
+    assert_eq!(c.complete(honest, bytes).unwrap().state, PointState::Done);
+}
+
+#[test]
+fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    let started = std::time::Instant::now();
+    for grid in [
+        &["f1=0.1:0.2:1000000000000"][..],
+        &["f1=lhs:1000000000000:1"],
+        &["f1=0.1:0.2:100000", "f2=0.1:0.2:100000"],
+        &["f1=0.1:0.2:1000", "f2=0.1:0.2:1000"],
+        &["f1=0.1:0.2:18446744073709551615", "f2=0.1:0.2:3"],
+    ] {
+        let message = refused(&c, TINY, grid);
+        assert!(message.contains("design points, more than the 100000 accepted"), "{message}");
+    }
+    // 10^7 elements in a kilobyte of text
+    let poison = TINY.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
+    let message = refused(&c, &poison, &["f1=0.1"]);
+    assert!(message.contains("MiB") && message.contains("--max-scene-mib"), "{message}");
+    assert!(started.elapsed() < Duration::from_secs(2), "refusals must not build anything");
+    // nothing was stored, and a proper study still goes through
+    assert!(c.studies().is_empty());
+    submit(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Nearest);
+    // a 10 kB name comes back as a bounded excerpt
+    let name = "n".repeat(10_000);
+    let message = refused(&c, TINY, &[&format!("{name}=0.1")]);
+    assert!(message.len() < 1000, "{} bytes", message.len());
+}
+
+/// A solution file of the tiny scene at `grant`'s point, with the outcome given.
+fn solution_file(grant: &LeaseGrant, eta: f64, converged: bool) -> (Completion, Vec<u8>) {
+    let scene = Scene::parse(&grant.scene_text).unwrap();
+    let mut full = BTreeMap::new();
+    for (name, p) in &scene.parameters {
+        full.insert(name.clone(), grant.parameters.get(name).unwrap_or(p.default));
+    }
+    let len = scene.time.steps * 3 * 4;
+    let mut field = InterfaceField::zeros(2, len);
+    field.s[0].force[0] = grant.point.0 as f64 + 1.0;
+    let solution = InterfaceSolution { static_stage: None, dynamic: StageSolution { interfaces: vec![field] } };
+    let meta = SolutionMeta {
+        solver_version: VERSION.into(),
+        scene_hash: grant.scene_hash.clone(),
+        dimension: 3,
+        time_steps: scene.time.steps,
+        parameters: full,
+        converged,
+        error_indicator: eta,
+        iterations: 10,
+        tolerance: grant.tolerance,
+        qoi: [("slip_A".to_string(), 1e-6)].into(),
+    };
+    let mut bytes = Vec::new();
+    solution_file::write_to(&mut bytes, &solution, &meta).unwrap();
+    let completion = Completion {
+        pool: "p".into(),
+        lease_id: grant.lease_id,
+        study: grant.study,
+        point: grant.point,
+        converged,
+        iterations: 10,
+        error_indicator: eta,
+        qoi: [("slip_A".to_string(), 1e-6)].into(),
+        wall_seconds: 0.5,
+        eta_history: vec![1.0, eta],
+        work: 8.0,
+        started_cold: false,
+    };
+    (completion, bytes)
+}
+
+fn pool(c: &Coordinator, id: &str, version: &str) {
+    c.register_pool(id.into(), PoolInfo { ranks: 1, host: "h".into(), solver_version: version.into() });
+}
+
+fn state_of(c: &Coordinator, study: StudyId, point: u64) -> PointRecord {
+    c.study(study, true).unwrap().points[point as usize].clone()
+}
+
+#[test]
+fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let a = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
+    let grant = c.lease("p").unwrap().unwrap();
+    assert!(grant.init.is_none(), "nothing stored yet: cold");
+    let (done, bytes) = solution_file(&grant, 5e-4, true);
+    assert_eq!(c.complete(done, bytes.clone()).unwrap().state, PointState::Done);
+    assert_eq!(c.solution_bytes(&SolutionSelector::Point(a, PointId(0))).unwrap(), bytes);
+
+    // same point, same version, looser tolerance: answered at once
+    let b = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
+    assert!(c.lease("p").unwrap().is_none(), "the answer leaves nothing to lease");
+    let answered = state_of(&c, b, 0);
+    assert_eq!(answered.state, PointState::Done);
+    let r = answered.result.unwrap();
+    assert!(r.answered && r.iterations == 0 && r.error_indicator == 5e-4, "{r:?}");
+    assert_eq!(r.started_from.unwrap().study, Some(a));
+    // a tighter tolerance continues from it
+    let tight = submit(&c, &["f1=0.15"], 1e-4, InitStrategy::Nearest);
+    let grant = c.lease("p").unwrap().unwrap();
+    assert_eq!((grant.study, grant.init.as_ref().map(|w| w.origin.study)), (tight, Some(Some(a))));
+    // the cold strategy never reads the store
+    c.release("p", grant.lease_id, grant.study, grant.point).unwrap();
+    c.cancel(tight).unwrap();
+    let cold = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Cold);
+    let grant = c.lease("p").unwrap().unwrap();
+    assert_eq!((grant.study, grant.init.is_none()), (cold, true));
+    c.release("p", grant.lease_id, grant.study, grant.point).unwrap();
+    c.cancel(cold).unwrap();
+    // another solver version gets it as a warm start only
+    pool(&c, "old", "0.0.1");
+    let other = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
+    let grant = c.lease("old").unwrap().unwrap();
+    assert_eq!(grant.study, other);
+    let Some(WarmStart { file: crate::study::WarmFile::Stored(sent), .. }) = &grant.init else {
+        panic!("a stored warm start expected: {:?}", grant.init)
+    };
+    assert_eq!(sent.as_slice(), bytes.as_slice(), "the stored file's bytes as they came");
+}
+
+#[test]
+fn lost_leases_requeue_then_fail_and_retry_requeues() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 50, 2);
+    pool(&c, "p", VERSION);
+    let id = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
+    let first = c.lease("p").unwrap().unwrap();
+    std::thread::sleep(Duration::from_millis(80));
+    assert_eq!(c.expire_leases().unwrap(), 1);
+    let p = state_of(&c, id, 0);
+    assert_eq!((&p.state, p.attempts), (&PointState::Pending, 1));
+    assert!(p.error.as_deref().unwrap().contains("expired"), "{p:?}");
+    // the old lease is no longer the pool's: heartbeats say so, completion is refused
+    assert_eq!(c.heartbeat("p", &[first.lease_id], &[]), vec![None]);
+    let (late, bytes) = solution_file(&first, 5e-4, true);
+    assert!(matches!(c.complete(late, bytes), Err(CoordError::Precondition(_))));
+
+    let second = c.lease("p").unwrap().unwrap();
+    assert!(c.heartbeat("p", &[second.lease_id], &[])[0].is_some());
+    std::thread::sleep(Duration::from_millis(80));
+    c.expire_leases().unwrap();
+    let p = state_of(&c, id, 0);
+    assert_eq!((&p.state, p.attempts), (&PointState::Failed, 2));
+    assert!(p.error.as_deref().unwrap().contains("lease expired 2 times"), "{p:?}");
+    assert_eq!(c.study(id, false).unwrap().state, StudyState::Failed);
+    assert!(c.lease("p").unwrap().is_none());
+
+    let (requeued, view) = c.retry_failed(id).unwrap();
+    assert_eq!((requeued, view.state), (1, StudyState::Active));
+    let p = state_of(&c, id, 0);
+    assert_eq!((p.state, p.attempts), (PointState::Pending, 0));
+    // a released point is pending again without an attempt counted
+    let g = c.lease("p").unwrap().unwrap();
+    c.release("p", g.lease_id, g.study, g.point).unwrap();
+    assert_eq!(state_of(&c, id, 0).attempts, 0);
+}
+
+#[test]
+fn everything_committed_survives_a_reopen_and_leases_get_a_fresh_deadline() {
+    let dir = tempfile::tempdir().unwrap();
+    let (id, held) = {
+        let c = open(dir.path(), 60_000, 3);
+        pool(&c, "p", VERSION);
+        let id = submit(&c, &["f1=0.1,0.15,0.2"], 1e-3, InitStrategy::Nearest);
+        let g = c.lease("p").unwrap().unwrap();
+        let (done, bytes) = solution_file(&g, 5e-4, true);
+        c.complete(done, bytes).unwrap();
+        let g = c.lease("p").unwrap().unwrap();
+        let (not_converged, bytes) = solution_file(&g, 3e-3, false);
+        let p = c.complete(not_converged, bytes).unwrap();
+        assert_eq!(p.state, PointState::Failed);
+        assert!(p.error.as_deref().unwrap().starts_with("not converged: eta = 3.000e-3"), "{p:?}");
+        (id, c.lease("p").unwrap().unwrap())
+    };
+    let c = open(dir.path(), 60_000, 3);
+    let v = c.study(id, true).unwrap();
+    let states: Vec<_> = v.points.iter().map(|p| point_state_word(&p.state)).collect();
+    assert_eq!(states, ["done", "failed", "leased"]);
+    let PointState::Leased { deadline_unix_ms, lease_id, .. } = &v.points[2].state else { unreachable!() };
+    assert_eq!(*lease_id, held.lease_id);
+    assert!(*deadline_unix_ms >= now_unix_ms() + 59_000, "a fresh deadline after the restart");
+    // the non-converged point kept its last eta; the pool holding point 2 may still complete it
+    assert_eq!(v.points[1].result.as_ref().unwrap().error_indicator, 3e-3);
+    let (done, bytes) = solution_file(&held, 5e-4, true);
+    assert_eq!(c.complete(done, bytes).unwrap().state, PointState::Done);
+    // the index was rebuilt: a retried point warm-starts from the nearest converged solution
+    pool(&c, "p", VERSION);
+    c.retry_failed(id).unwrap();
+    let g = c.lease("p").unwrap().unwrap();
+    assert_eq!(g.point, PointId(1));
+    let from = g.init.expect("a warm start").origin;
+    assert!(from.point == Some(PointId(0)) || from.point == Some(PointId(2)), "{from:?}");
+    // study ids continue where they were; lease ids are random, never reused
+    assert_ne!(g.lease_id, held.lease_id);
+    assert_eq!(submit(&c, &["f1=0.1"], 1e-3, InitStrategy::Cold), StudyId(id.0 + 1));
+}

@@ -1,0 +1,226 @@
+//! What the coordinator's callers give and get: its settings, errors, events, views of studies,
+//! and the requests and grants of the lease protocol.
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use glissade_core::study::order::OrderKind;
+use glissade_core::study::strategy::InitStrategy;
+use glissade_proto::{ParameterVector, PointId, StudyId};
+
+use crate::records::{self, PointRecord, PointState, StudyRecord};
+use crate::store::StoreError;
+
+use super::WarmStart;
+use super::transitions;
+
+/// Settings of the coordinator's rules.
+#[derive(Debug, Clone)]
+pub struct Config {
+    /// How long a lease lasts without a heartbeat.
+    pub lease: Duration,
+    /// Leases granted to a point before an expiry marks it failed (retryable).
+    pub max_attempts: u32,
+    /// Largest solution file accepted from a pool.
+    pub max_solution_bytes: u64,
+    /// Most design points in one study (counted from the grid before any is built).
+    pub max_points: usize,
+    /// Largest estimated memory of one solve of a submitted scene ([`Scene::size`]).
+    pub max_scene_bytes: u64,
+    /// The solver version the coordinator was built with (the pools' normally).
+    pub solver_version: String,
+}
+
+/// Errors of the domain layer; each names the object concerned. `convert::status` maps each variant
+/// to one gRPC status code.
+#[derive(Debug, thiserror::Error)]
+pub enum CoordError {
+    /// A request that can never succeed as sent (INVALID_ARGUMENT).
+    #[error("{0}")]
+    Invalid(String),
+    #[error("no study {0}")]
+    UnknownStudy(StudyId),
+    #[error("study {study} has no point {point}")]
+    UnknownPoint { study: StudyId, point: PointId },
+    #[error("pool `{0}` is not registered (register again)")]
+    UnknownPool(String),
+    #[error("no stored solution {0}")]
+    UnknownSolution(String),
+    /// A valid request the current state forbids (FAILED_PRECONDITION).
+    #[error("{0}")]
+    Precondition(String),
+    /// Bytes that do not match their checksum (DATA_LOSS).
+    #[error("{0}")]
+    Corrupt(String),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    #[error("damaged database: {0}")]
+    Decode(#[from] records::DecodeError),
+    #[error("solution index: {0}")]
+    Index(#[from] glissade_core::study::store::StoreError),
+}
+
+impl From<transitions::IllegalTransition> for CoordError {
+    fn from(e: transitions::IllegalTransition) -> Self {
+        CoordError::Precondition(e.to_string())
+    }
+}
+
+/// Counts of a study's points by state.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Progress {
+    pub total: u32,
+    pub pending: u32,
+    pub leased: u32,
+    pub done: u32,
+    pub failed: u32,
+    pub cancelled: u32,
+    pub iterations: u64,
+}
+
+/// A study's overall state, derived from its points.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StudyState {
+    Active,
+    Done,
+    Failed,
+    Cancelled,
+}
+
+/// What a progress event reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EventKind {
+    Started,
+    Finished,
+    Failed,
+    Requeued,
+    StudyEnded,
+    Snapshot,
+    /// A pool's report of a point it is solving (iterations, eta so far); never stored.
+    Progress,
+}
+
+/// A change of a study, as broadcast to watchers.
+#[derive(Debug, Clone)]
+pub struct Event {
+    pub kind: EventKind,
+    pub study: StudyId,
+    pub point: Option<PointRecord>,
+    pub progress: Progress,
+    pub state: StudyState,
+    pub replay: bool,
+    pub unix_ms: i64,
+    /// Iterations and eta so far of the point being solved (Progress events).
+    pub solving: Option<(u64, f64)>,
+}
+
+/// A study as GetStudy shows it.
+#[derive(Debug, Clone)]
+pub struct StudyView {
+    pub record: StudyRecord,
+    pub state: StudyState,
+    pub progress: Progress,
+    pub points: Vec<PointRecord>,
+}
+
+/// A submission, validated by the service layer's conversions.
+#[derive(Debug, Clone)]
+pub struct Submission {
+    pub scene_text: String,
+    pub grid: Vec<String>,
+    pub points: Vec<ParameterVector>,
+    pub tolerance: Option<f64>,
+    pub max_iterations: Option<u32>,
+    pub strategy: InitStrategy,
+    pub order: OrderKind,
+    pub label: String,
+}
+
+/// A point handed to a pool.
+#[derive(Debug, Clone)]
+pub struct LeaseGrant {
+    pub lease_id: u64,
+    pub study: StudyId,
+    pub point: PointId,
+    pub parameters: ParameterVector,
+    pub scene_text: String,
+    pub scene_hash: String,
+    pub tolerance: f64,
+    pub max_iterations: u32,
+    pub deadline_unix_ms: i64,
+    /// The warm start, if any.
+    pub init: Option<WarmStart>,
+}
+
+/// What a pool reports with a solved point (the solution file's bytes come apart).
+#[derive(Debug, Clone)]
+pub struct Completion {
+    pub pool: String,
+    pub lease_id: u64,
+    pub study: StudyId,
+    pub point: PointId,
+    pub converged: bool,
+    pub iterations: u64,
+    pub error_indicator: f64,
+    pub qoi: BTreeMap<String, f64>,
+    pub wall_seconds: f64,
+    pub eta_history: Vec<f64>,
+    pub work: f64,
+    /// solved from cold in spite of the lease's warm start
+    pub started_cold: bool,
+}
+
+/// A pool's failure report.
+#[derive(Debug, Clone)]
+pub struct Failure {
+    pub pool: String,
+    pub lease_id: u64,
+    pub study: StudyId,
+    pub point: PointId,
+    pub error: String,
+    pub error_indicator: Option<f64>,
+    pub iterations: u64,
+}
+
+/// A registered pool.
+#[derive(Debug, Clone)]
+pub struct PoolInfo {
+    pub ranks: u32,
+    pub host: String,
+    pub solver_version: String,
+}
+
+/// One row of a response surface.
+#[derive(Debug, Clone)]
+pub struct SurfaceRow {
+    pub parameters: ParameterVector,
+    pub qoi: BTreeMap<String, f64>,
+    pub iterations: u64,
+    pub error_indicator: f64,
+    pub converged: bool,
+    /// Point state for a study source; Done/Failed for a stored solution.
+    pub state: PointState,
+}
+
+/// A response surface.
+#[derive(Debug, Clone)]
+pub struct Surface {
+    pub scene_hash: String,
+    pub parameters: Vec<String>,
+    pub qoi: Vec<String>,
+    pub rows: Vec<SurfaceRow>,
+}
+
+/// Which points or solutions a surface covers.
+#[derive(Debug, Clone)]
+pub enum SurfaceSource {
+    Study(StudyId),
+    Scene(String),
+}
+
+/// Which stored solution to fetch.
+#[derive(Debug, Clone)]
+pub enum SolutionSelector {
+    Point(StudyId, PointId),
+    Key(String, ParameterVector),
+}
