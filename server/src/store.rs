@@ -284,9 +284,85 @@ impl Store for SledStore {
     }
 }
 
+/// [`Store`] in memory, for tests: a second engine behind the seam, so that the contract
+/// suite below checks what the coordinator relies on rather than what sled happens to do.
+#[cfg(test)]
+#[derive(Default)]
+pub struct InMemoryStore {
+    trees: std::sync::Mutex<std::collections::HashMap<Tree, std::collections::BTreeMap<Vec<u8>, Vec<u8>>>>,
+}
+
+#[cfg(test)]
+impl Store for InMemoryStore {
+    fn get(&self, tree: Tree, key: &[u8]) -> Result<Option<Vec<u8>>, StoreError> {
+        Ok(self.trees.lock().unwrap().get(&tree).and_then(|t| t.get(key).cloned()))
+    }
+
+    fn scan_prefix(&self, tree: Tree, prefix: &[u8]) -> Result<Vec<Entry>, StoreError> {
+        let trees = self.trees.lock().unwrap();
+        let Some(t) = trees.get(&tree) else { return Ok(Vec::new()) };
+        Ok(t.range(prefix.to_vec()..)
+            .take_while(|(k, _)| k.starts_with(prefix))
+            .map(|(k, v)| (k.clone(), v.clone()))
+            .collect())
+    }
+
+    fn commit(&self, batch: Batch) -> Result<(), StoreError> {
+        let mut trees = self.trees.lock().unwrap();
+        for (tree, key, value) in batch.ops {
+            trees.entry(tree).or_default().insert(key, value);
+        }
+        Ok(())
+    }
+
+    fn flush(&self) -> Result<(), StoreError> {
+        Ok(())
+    }
+
+    fn size_on_disk(&self) -> Result<u64, StoreError> {
+        Ok(0)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// What the coordinator relies on from any engine.
+    fn contract(store: &dyn Store) {
+        assert_eq!(store.get(Tree::Studies, b"a").unwrap(), None);
+        assert!(store.scan_prefix(Tree::Points, b"").unwrap().is_empty());
+        store.commit(Batch::new()).unwrap();
+        // one batch over several trees, visible at once; trees do not share keys
+        let mut batch = Batch::new();
+        batch
+            .put(Tree::Points, b"s1/p2".to_vec(), b"two".to_vec())
+            .put(Tree::Points, b"s1/p1".to_vec(), b"one".to_vec())
+            .put(Tree::Points, b"s2/p1".to_vec(), b"other".to_vec())
+            .put(Tree::Studies, b"s1".to_vec(), b"study".to_vec());
+        store.commit(batch).unwrap();
+        assert_eq!(store.get(Tree::Studies, b"s1").unwrap().as_deref(), Some(&b"study"[..]));
+        assert_eq!(store.get(Tree::Scenes, b"s1").unwrap(), None);
+        // a prefix scan: only that prefix, in key order
+        let scan = store.scan_prefix(Tree::Points, b"s1/").unwrap();
+        assert_eq!(scan, vec![(b"s1/p1".to_vec(), b"one".to_vec()), (b"s1/p2".to_vec(), b"two".to_vec())]);
+        assert_eq!(store.scan_prefix(Tree::Points, b"").unwrap().len(), 3);
+        // the last write of a key wins, also within one batch
+        let mut batch = Batch::new();
+        batch.put(Tree::Points, b"s1/p1".to_vec(), b"x".to_vec()).put(Tree::Points, b"s1/p1".to_vec(), b"uno".to_vec());
+        store.commit(batch).unwrap();
+        assert_eq!(store.get(Tree::Points, b"s1/p1").unwrap().as_deref(), Some(&b"uno"[..]));
+        store.flush().unwrap();
+        store.size_on_disk().unwrap();
+        assert_eq!(store.write_failure(), None);
+    }
+
+    #[test]
+    fn every_engine_keeps_the_store_contract() {
+        let dir = tempfile::tempdir().unwrap();
+        contract(&SledStore::open(dir.path()).unwrap());
+        contract(&InMemoryStore::default());
+    }
 
     #[test]
     fn new_database_gets_schema_version_and_reopens() {
