@@ -68,10 +68,8 @@ fn nearest_done<'a>(
     target: &BTreeMap<String, f64>,
 ) -> Option<&'a v1::PointStatus> {
     let space = ParameterSpace::from_scene(scene);
-    let coordinates = |p: &BTreeMap<String, f64>| space.normalised_coordinates(&DesignPoint::from(p.clone()));
-    let goal = coordinates(target);
-    let distance =
-        |p: &v1::PointStatus| coordinates(&p.parameters).iter().zip(&goal).map(|(a, b)| (a - b).powi(2)).sum::<f64>();
+    let goal = DesignPoint::from(target.clone());
+    let distance = |p: &v1::PointStatus| space.normalised_distance(&DesignPoint::from(p.parameters.clone()), &goal);
     let done = study.points.iter().filter(|p| p.state == v1::PointState::Done as i32);
     done.min_by(|a, b| distance(a).total_cmp(&distance(b)))
 }
