@@ -3,19 +3,20 @@
 //! solutions of the sled database, which [`SceneSolutions`] presents as a
 //! [`SolutionStore`].
 //!
-//! The index is the library's kd-tree ([`MemoryStore`]) over design points only; the fields stay
-//! in sled and are read (zstd, then the solution file format) when a strategy asks for them.
+//! The index is the library's kd-tree ([`PointIndex`]) over the solutions' descriptions; the
+//! fields stay in sled and are read (zstd, then the solution file format) when a strategy asks
+//! for them.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use glissade_core::field::{InterfaceSolution, StageSolution};
+use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
 use glissade_core::scene::Scene;
 use glissade_core::study::engine::{Start, StudyEngine};
 use glissade_core::study::order::OrderingPolicy;
 use glissade_core::study::space::{DesignPoint, ParameterSpace, submission_points};
-use glissade_core::study::store::{MemoryStore, SolutionId, SolutionInfo, SolutionStore, StoreError, StoredSolution};
+use glissade_core::study::store::{PointIndex, SolutionId, SolutionInfo, SolutionStore, StoreError, StoredSolution};
 use glissade_core::study::strategy::Initialisation;
 use glissade_core::study::{StartKind, StudyError};
 use glissade_proto::ParameterVector;
@@ -177,7 +178,8 @@ struct Loaded {
 /// The converged solutions of one scene: the library's kd-tree over their design points, their
 /// records, and the database their fields are read from.
 pub struct SceneSolutions {
-    index: MemoryStore,
+    /// Descriptions and neighbours; the fields stay in the database.
+    index: PointIndex,
     scene_hash: String,
     keys: Vec<SolutionKey>,
     ids: HashMap<SolutionKey, SolutionId>,
@@ -192,7 +194,7 @@ impl SceneSolutions {
     /// An empty index over `space` (the scene's parameters and ranges).
     pub fn new(scene_hash: String, space: ParameterSpace, store: Arc<dyn Store>) -> Result<Self, StoreError> {
         Ok(Self {
-            index: MemoryStore::new(space)?,
+            index: PointIndex::new(space)?,
             scene_hash,
             keys: Vec::new(),
             ids: HashMap::new(),
@@ -205,27 +207,25 @@ impl SceneSolutions {
     /// Makes a stored solution (already committed to the database) findable; a better solution
     /// at a key already indexed only replaces the record.
     pub fn index(&mut self, key: SolutionKey, record: &SolutionRecord) -> Result<(), StoreError> {
-        if let Some(&id) = self.ids.get(&key) {
-            self.records[id as usize] = record.clone();
-            self.recent.lock().unwrap_or_else(PoisonError::into_inner).retain(|l| l.id != id);
-            return Ok(());
-        }
-        let point = DesignPoint::from(BTreeMap::from(record.parameters.clone()));
-        let id = self.index.insert(StoredSolution {
-            point,
+        let info = SolutionInfo {
+            id: 0,
+            point: DesignPoint::from(BTreeMap::from(record.parameters.clone())),
             eta: record.error_indicator,
             tolerance: record.tolerance,
             converged: record.converged,
             iterations: record.iterations as usize,
-            qoi: record.qoi.clone(),
-            // The index holds design points only; `get` reads the fields from the database.
-            solution: Arc::new(InterfaceSolution {
-                static_stage: None,
-                dynamic: StageSolution { interfaces: Vec::new() },
-            }),
             parent: None,
+            qoi: record.qoi.clone(),
             solver_version: record.solver_version.clone(),
-        })?;
+        };
+        if let Some(&id) = self.ids.get(&key) {
+            // what the engine reads to decide on reuse must be the better solution's
+            self.index.update(id, info)?;
+            self.records[id as usize] = record.clone();
+            self.recent.lock().unwrap_or_else(PoisonError::into_inner).retain(|l| l.id != id);
+            return Ok(());
+        }
+        let id = self.index.insert(info)?;
         self.keys.push(key.clone());
         self.ids.insert(key, id);
         self.records.push(record.clone());
@@ -331,19 +331,8 @@ impl SolutionStore for SceneSolutions {
     }
 
     fn get(&self, id: SolutionId) -> Result<StoredSolution, StoreError> {
-        let r = self.records.get(id as usize).ok_or(StoreError::UnknownId(id))?;
-        let loaded = self.load(id)?;
-        Ok(StoredSolution {
-            point: DesignPoint::from(BTreeMap::from(r.parameters.clone())),
-            eta: r.error_indicator,
-            tolerance: r.tolerance,
-            converged: r.converged,
-            iterations: r.iterations as usize,
-            qoi: r.qoi.clone(),
-            solution: loaded.solution.clone(),
-            parent: None,
-            solver_version: r.solver_version.clone(),
-        })
+        let info = self.index.info(id)?;
+        Ok(StoredSolution::from_info(info, self.load(id)?.solution.clone()))
     }
 
     fn info(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {

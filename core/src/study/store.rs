@@ -1,8 +1,9 @@
 //! Stored interface solutions of a study and nearest-neighbour queries in parameter space
 //! (docs/method.md 4: only interface fields are stored, never substructure interiors).
 //!
-//! [`SolutionStore`] is the seam: [`MemoryStore`] here (one process, a kd-tree from `kiddo`), the
-//! coordinator's sled store in the service.
+//! [`SolutionStore`] is the seam: [`MemoryStore`] here (one process), the coordinator's sled
+//! database in the service; both find neighbours with the same [`PointIndex`] (a kd-tree from
+//! `kiddo`).
 
 use std::collections::BTreeMap;
 use std::num::NonZeroUsize;
@@ -45,6 +46,21 @@ pub struct StoredSolution {
 }
 
 impl StoredSolution {
+    /// A description and its fields.
+    pub fn from_info(info: SolutionInfo, solution: Arc<InterfaceSolution>) -> Self {
+        StoredSolution {
+            point: info.point,
+            eta: info.eta,
+            tolerance: info.tolerance,
+            converged: info.converged,
+            iterations: info.iterations,
+            qoi: info.qoi,
+            solution,
+            parent: info.parent,
+            solver_version: info.solver_version,
+        }
+    }
+
     /// Its description, without the fields.
     pub fn info(&self, id: SolutionId) -> SolutionInfo {
         SolutionInfo {
@@ -114,37 +130,92 @@ pub trait SolutionStore {
     }
 }
 
-/// Solutions in memory, indexed by a kd-tree over the normalised coordinates.
+/// Stored solutions' descriptions indexed by a kd-tree over their normalised coordinates: the
+/// nearest-neighbour half of a store, without the fields (the coordinator keeps those in its
+/// database, [`MemoryStore`] beside the index).
 ///
 /// The tree is kiddo's immutable one, rebuilt by the first query after inserts (O(n log n),
 /// negligible next to a solve; n inserts in a row, as a coordinator loading its database does,
 /// build it once): its soft buckets accept any number of points sharing a coordinate, which the
 /// grids of a study and the zero padding produce (kiddo's mutable tree refuses to split such
 /// buckets).
-pub struct MemoryStore {
+pub struct PointIndex {
     space: ParameterSpace,
-    solutions: Vec<StoredSolution>,
+    infos: Vec<SolutionInfo>,
     coordinates: Vec<[f64; MAX_DIMENSION]>,
     /// None until a query needs it after an insert.
     tree: std::sync::Mutex<Option<ImmutableKdTree<f64, MAX_DIMENSION>>>,
 }
 
-impl MemoryStore {
-    /// An empty store over `space`; refuses a space of more than [`MAX_DIMENSION`] parameters.
+impl PointIndex {
+    /// An empty index over `space`; refuses a space of more than [`MAX_DIMENSION`] parameters.
     pub fn new(space: ParameterSpace) -> Result<Self, StoreError> {
         if space.dimension() > MAX_DIMENSION {
             return Err(StoreError::TooManyParameters { count: space.dimension(), max: MAX_DIMENSION });
         }
-        Ok(Self { space, solutions: Vec::new(), coordinates: Vec::new(), tree: Default::default() })
+        Ok(Self { space, infos: Vec::new(), coordinates: Vec::new(), tree: Default::default() })
     }
 
     pub fn space(&self) -> &ParameterSpace {
         &self.space
     }
 
-    /// Every stored solution's description, in id order.
-    pub fn infos(&self) -> Vec<SolutionInfo> {
-        self.solutions.iter().enumerate().map(|(id, s)| s.info(id as SolutionId)).collect()
+    /// Indexes a solution's description; its id (the next one) replaces `info.id`.
+    pub fn insert(&mut self, mut info: SolutionInfo) -> Result<SolutionId, StoreError> {
+        let c = self.coordinates_of(&info.point)?;
+        info.id = self.infos.len() as SolutionId;
+        self.coordinates.push(c);
+        self.infos.push(info);
+        *self.tree.get_mut().unwrap_or_else(std::sync::PoisonError::into_inner) = None;
+        Ok((self.infos.len() - 1) as SolutionId)
+    }
+
+    /// Replaces the description of an indexed solution at the same point.
+    pub fn update(&mut self, id: SolutionId, mut info: SolutionInfo) -> Result<(), StoreError> {
+        let slot = self.infos.get_mut(id as usize).ok_or(StoreError::UnknownId(id))?;
+        info.id = id;
+        *slot = info;
+        Ok(())
+    }
+
+    /// Up to `k` indexed solutions nearest `point`, as (normalised distance, id), nearest first
+    /// (ties in id order).
+    pub fn nearest(&self, point: &DesignPoint, k: usize) -> Result<Vec<(f64, SolutionId)>, StoreError> {
+        let query = self.coordinates_of(point)?;
+        let Some(k) = NonZeroUsize::new(k.min(self.infos.len())) else { return Ok(Vec::new()) };
+        let mut tree = self.tree.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if tree.is_none() {
+            let built =
+                ImmutableKdTree::new_from_slice(&self.coordinates).map_err(|e| StoreError::Index(e.to_string()))?;
+            *tree = Some(built);
+        }
+        let tree = tree.as_ref().expect("built above");
+        let mut found: Vec<(f64, SolutionId)> = tree
+            .query(&query)
+            .nearest_n::<SquaredEuclidean<f64>>(k)
+            .execute()
+            .into_iter()
+            .map(|r| (r.distance.max(0.0).sqrt(), r.item as SolutionId))
+            .collect();
+        found.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        Ok(found)
+    }
+
+    pub fn info(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {
+        self.infos.get(id as usize).cloned().ok_or(StoreError::UnknownId(id))
+    }
+
+    /// Every indexed solution's description, in id order.
+    pub fn infos(&self) -> &[SolutionInfo] {
+        &self.infos
+    }
+
+    pub fn len(&self) -> usize {
+        self.infos.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.infos.is_empty()
     }
 
     fn coordinates_of(&self, point: &DesignPoint) -> Result<[f64; MAX_DIMENSION], StoreError> {
@@ -164,46 +235,51 @@ impl MemoryStore {
     }
 }
 
+/// Solutions in memory: a [`PointIndex`] and the fields beside it (one process: the
+/// `glissade-worker study` command).
+pub struct MemoryStore {
+    index: PointIndex,
+    fields: Vec<Arc<InterfaceSolution>>,
+}
+
+impl MemoryStore {
+    /// An empty store over `space`; refuses a space of more than [`MAX_DIMENSION`] parameters.
+    pub fn new(space: ParameterSpace) -> Result<Self, StoreError> {
+        Ok(Self { index: PointIndex::new(space)?, fields: Vec::new() })
+    }
+
+    pub fn space(&self) -> &ParameterSpace {
+        self.index.space()
+    }
+
+    /// Every stored solution's description, in id order.
+    pub fn infos(&self) -> Vec<SolutionInfo> {
+        self.index.infos().to_vec()
+    }
+}
+
 impl SolutionStore for MemoryStore {
     fn insert(&mut self, solution: StoredSolution) -> Result<SolutionId, StoreError> {
-        let c = self.coordinates_of(&solution.point)?;
-        self.coordinates.push(c);
-        self.solutions.push(solution);
-        *self.tree.get_mut().unwrap_or_else(std::sync::PoisonError::into_inner) = None;
-        Ok((self.solutions.len() - 1) as SolutionId)
+        let id = self.index.insert(solution.info(0))?;
+        self.fields.push(solution.solution);
+        Ok(id)
     }
 
     fn nearest(&self, point: &DesignPoint, k: usize) -> Result<Vec<(f64, SolutionId)>, StoreError> {
-        let query = self.coordinates_of(point)?;
-        let Some(k) = NonZeroUsize::new(k.min(self.solutions.len())) else { return Ok(Vec::new()) };
-        let mut tree = self.tree.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        if tree.is_none() {
-            let built =
-                ImmutableKdTree::new_from_slice(&self.coordinates).map_err(|e| StoreError::Index(e.to_string()))?;
-            *tree = Some(built);
-        }
-        let tree = tree.as_ref().expect("built above");
-        let mut found: Vec<(f64, SolutionId)> = tree
-            .query(&query)
-            .nearest_n::<SquaredEuclidean<f64>>(k)
-            .execute()
-            .into_iter()
-            .map(|r| (r.distance.max(0.0).sqrt(), r.item as SolutionId))
-            .collect();
-        found.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        Ok(found)
+        self.index.nearest(point, k)
     }
 
     fn get(&self, id: SolutionId) -> Result<StoredSolution, StoreError> {
-        self.solutions.get(id as usize).cloned().ok_or(StoreError::UnknownId(id))
+        let info = self.index.info(id)?;
+        Ok(StoredSolution::from_info(info, self.fields[id as usize].clone()))
     }
 
     fn info(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {
-        self.solutions.get(id as usize).map(|s| s.info(id)).ok_or(StoreError::UnknownId(id))
+        self.index.info(id)
     }
 
     fn len(&self) -> usize {
-        self.solutions.len()
+        self.index.len()
     }
 }
 

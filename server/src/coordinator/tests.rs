@@ -194,6 +194,19 @@ fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
         panic!("a stored warm start expected: {:?}", grant.init)
     };
     assert_eq!(sent.as_slice(), bytes.as_slice(), "the stored file's bytes as they came");
+    c.release("old", grant.lease_id, grant.study, grant.point).unwrap();
+    c.cancel(other).unwrap();
+
+    // a tighter solution replaces the stored one, and then answers tight studies itself
+    let tight = submit(&c, &["f1=0.15"], 1e-4, InitStrategy::Nearest);
+    let grant = c.lease("p").unwrap().unwrap();
+    assert_eq!(grant.study, tight);
+    let (done, file) = solution_file(&grant, 5e-5, true);
+    assert_eq!(c.complete(done, file).unwrap().state, PointState::Done);
+    let again = submit(&c, &["f1=0.15"], 1e-4, InitStrategy::Nearest);
+    assert!(c.lease("p").unwrap().is_none(), "the tighter solution answers");
+    let r = state_of(&c, again, 0).result.unwrap();
+    assert!(r.answered && r.error_indicator == 5e-5, "{r:?}");
 }
 
 #[test]
