@@ -289,8 +289,11 @@ impl Store for SledStore {
 #[cfg(test)]
 #[derive(Default)]
 pub struct InMemoryStore {
-    trees: std::sync::Mutex<std::collections::HashMap<Tree, std::collections::BTreeMap<Vec<u8>, Vec<u8>>>>,
+    trees: std::sync::Mutex<std::collections::HashMap<Tree, MemoryTree>>,
 }
+
+#[cfg(test)]
+type MemoryTree = std::collections::BTreeMap<Vec<u8>, Vec<u8>>;
 
 #[cfg(test)]
 impl Store for InMemoryStore {
