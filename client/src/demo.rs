@@ -117,8 +117,14 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         json: false,
         png,
         size: (900, 700),
+        at: Vec::new(),
     };
     surface(server, surface_args(Some("slip_A"), None, None)).await?;
+    if n >= 2 {
+        outln!("\nslip at A between the grid points, from the response surface (Gaussian process):");
+        let at = vec!["f1=0.137,f2=0.151".to_owned(), "f1=0.2,f2=0.2".to_owned()];
+        surface(server, SurfaceArgs { at, ..surface_args(Some("slip_A"), None, None) }).await?;
+    }
     surface(server, surface_args(None, Some(png("surface.csv")), None)).await?;
     surface(server, surface_args(Some("slip_A"), None, Some(png("slip_A.png")))).await?;
     convergence(

@@ -36,26 +36,25 @@ pub struct FieldsArgs {
     json: bool,
 }
 
-/// `f1=0.12,f2=0.15` with exactly the swept parameters, finite values.
-fn parse_point(spec: &str, swept: &[String]) -> Result<BTreeMap<String, f64>> {
+/// `f1=0.12,f2=0.15` with exactly the swept parameters, finite values (`flag` names the option).
+pub fn parse_point(flag: &str, spec: &str, swept: &[String]) -> Result<BTreeMap<String, f64>> {
     let mut point = BTreeMap::new();
     for pair in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
-        let (name, value) =
-            pair.split_once('=').ok_or_else(|| anyhow!("--point {spec}: `{pair}` is not NAME=VALUE"))?;
+        let (name, value) = pair.split_once('=').ok_or_else(|| anyhow!("{flag} {spec}: `{pair}` is not NAME=VALUE"))?;
         let value: f64 =
-            value.trim().parse().map_err(|_| anyhow!("--point {spec}: `{}` is not a number", value.trim()))?;
+            value.trim().parse().map_err(|_| anyhow!("{flag} {spec}: `{}` is not a number", value.trim()))?;
         if !value.is_finite() {
-            bail!("--point {spec}: {name} must be finite");
+            bail!("{flag} {spec}: {name} must be finite");
         }
         if !swept.iter().any(|s| s == name.trim()) {
-            bail!("--point {spec}: `{}` is not a swept parameter of the study ({})", name.trim(), swept.join(", "));
+            bail!("{flag} {spec}: `{}` is not a swept parameter of the study ({})", name.trim(), swept.join(", "));
         }
         if point.insert(name.trim().to_owned(), value).is_some() {
-            bail!("--point {spec}: {name} given twice");
+            bail!("{flag} {spec}: {name} given twice");
         }
     }
     if point.len() != swept.len() {
-        bail!("--point {spec}: give every swept parameter ({})", swept.join(", "));
+        bail!("{flag} {spec}: give every swept parameter ({})", swept.join(", "));
     }
     Ok(point)
 }
@@ -79,7 +78,7 @@ pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
         bail!("--out {}: give the HDF5 file (e.g. point.h5); the .xdmf file is written beside it", args.out.display());
     }
     let study = get_study(client, "fields", args.study, true, true).await?;
-    let target = parse_point(&args.point, &study.parameters)?;
+    let target = parse_point("--point", &args.point, &study.parameters)?;
     let scene = Scene::parse(&study.scene).context("the study's scene")?;
     let from = nearest_done(&scene, &study, &target)
         .ok_or_else(|| anyhow!("study {}: no point is done yet, nothing to start from", args.study))?;
@@ -160,10 +159,10 @@ mod tests {
     #[test]
     fn a_point_gives_every_swept_parameter_once() {
         let swept = ["f1".to_owned(), "f2".to_owned()];
-        let p = parse_point("f1=0.12, f2=0.15", &swept).unwrap();
+        let p = parse_point("--point", "f1=0.12, f2=0.15", &swept).unwrap();
         assert_eq!(p, [("f1".to_owned(), 0.12), ("f2".to_owned(), 0.15)].into());
         for bad in ["f1=0.12", "f1=0.1,f2=x", "f1=0.1,f3=0.1", "f1=0.1,f1=0.2", "f1=0.1,f2=inf", "f1"] {
-            assert!(parse_point(bad, &swept).is_err(), "{bad}");
+            assert!(parse_point("--at", bad, &swept).is_err(), "{bad}");
         }
     }
 }

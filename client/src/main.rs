@@ -17,7 +17,7 @@ use clap::{Parser, Subcommand};
 use glissade_cli::names::{describe_parameters, order_name, point_state_name, strategy_name, study_state_name};
 use glissade_cli::plot::{self, Axis, ConvergenceSeries, Surface};
 use glissade_cli::progress::WatchState;
-use glissade_cli::surface::{SurfaceTable, parse_fixed};
+use glissade_cli::surface::{Predictions, SurfaceTable, parse_fixed};
 use glissade_core::scene::check_tolerance;
 use glissade_core::scene::{QoiKind, Scene};
 use glissade_core::study::order::OrderKind;
@@ -202,6 +202,10 @@ struct SurfaceArgs {
     /// Picture size, WIDTHxHEIGHT in pixels.
     #[arg(long, value_name = "WxH", default_value = "900x700", value_parser = parse_size)]
     size: (u32, u32),
+    /// Predict the QoIs at this point, with a standard deviation (repeatable): a Gaussian process
+    /// fitted to the surface's points, e.g. --at f1=0.137,f2=0.151
+    #[arg(long, value_name = "NAME=VALUE,...")]
+    at: Vec<String>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -620,11 +624,20 @@ async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
     } else {
         v1::query_surface_request::Source::StudyId(study.study_id)
     };
+    let swept = &study.parameters;
+    let predict_at = args
+        .at
+        .iter()
+        .map(|spec| {
+            Ok(v1::ParameterPoint { parameters: fields::parse_point("--at", spec, swept)?.into_iter().collect() })
+        })
+        .collect::<Result<Vec<_>>>()?;
     let reply = client
         .query_surface(v1::QuerySurfaceRequest {
             source: Some(source),
             fixed: fixed.iter().cloned().collect(),
             qoi: vec![],
+            predict_at,
         })
         .await
         .map_err(|s| refused(&format!("surface {}", args.study), s))?
@@ -659,6 +672,15 @@ async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
         };
         plot::surface_png(path, &surface, args.size).with_context(|| format!("--png {}", path.display()))?;
         eprintln!("wrote {} ({}x{})", path.display(), args.size.0, args.size.1);
+    }
+    if !args.at.is_empty() {
+        let predictions = Predictions::new(&reply, &table);
+        if args.json {
+            outln!("{}", predictions.to_json());
+        } else {
+            out!("{}", predictions.to_text());
+        }
+        return Ok(());
     }
     if args.json {
         outln!("{}", table.to_json());

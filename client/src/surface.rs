@@ -2,6 +2,8 @@
 //! coordinator's QuerySurface reply. CSV values are printed in Rust's shortest round-trip form
 //! (`{:e}` for QoIs and eta), so a CSV or JSON reader gets back exactly the stored numbers.
 
+use std::collections::BTreeMap;
+
 use glissade_proto::v1;
 
 use crate::names::point_state_name;
@@ -157,6 +159,71 @@ impl SurfaceTable {
     }
 }
 
+/// Predictions of a surface's QoIs at given points (`glissade surface --at`), as the coordinator
+/// computed them.
+#[derive(Debug, Clone)]
+pub struct Predictions {
+    pub parameters: Vec<String>,
+    pub qoi: Vec<String>,
+    pub points: Vec<v1::SurfacePrediction>,
+}
+
+impl Predictions {
+    /// The predictions of `reply` for the QoIs of `table`.
+    pub fn new(reply: &v1::QuerySurfaceReply, table: &SurfaceTable) -> Self {
+        Self { parameters: table.parameters.clone(), qoi: table.qoi.clone(), points: reply.predictions.clone() }
+    }
+
+    fn get(&self, point: &v1::SurfacePrediction, qoi: &str) -> (f64, f64, u32) {
+        point.qoi.get(qoi).map_or((f64::NAN, f64::NAN, 0), |p| (p.mean, p.std, p.fitted_points))
+    }
+
+    /// One line per point and QoI: `f1=0.137 f2=0.151  slip_A = 1.23400e-5 +- 2.10e-7`.
+    pub fn to_text(&self) -> String {
+        let mut out = String::new();
+        let mut fitted = BTreeMap::new();
+        for point in &self.points {
+            let at: Vec<String> = self
+                .parameters
+                .iter()
+                .map(|n| format!("{n}={}", point.parameters.get(n).unwrap_or(&f64::NAN)))
+                .collect();
+            for q in &self.qoi {
+                let (mean, std, n) = self.get(point, q);
+                fitted.insert(q.clone(), n);
+                out += &format!("{}  {q} = {mean:.5e} +- {std:.2e}\n", at.join(" "));
+            }
+        }
+        let fitted: Vec<String> = fitted.iter().map(|(q, n)| format!("{q} {n}")).collect();
+        out += &format!(
+            "(mean +- 1 standard deviation of a Gaussian process fitted to the points with a value: {})\n",
+            fitted.join(", ")
+        );
+        out
+    }
+
+    /// `{"parameters": [...], "points": [{"at": {...}, "qoi": {"slip_A": {"mean": m, "std": s,
+    /// "fitted_points": n}}}]}`.
+    pub fn to_json(&self) -> serde_json::Value {
+        let points: Vec<serde_json::Value> = self
+            .points
+            .iter()
+            .map(|point| {
+                let qoi: serde_json::Map<String, serde_json::Value> = self
+                    .qoi
+                    .iter()
+                    .map(|q| {
+                        let (mean, std, n) = self.get(point, q);
+                        (q.clone(), serde_json::json!({ "mean": mean, "std": std, "fitted_points": n }))
+                    })
+                    .collect();
+                serde_json::json!({ "at": point.parameters, "qoi": qoi })
+            })
+            .collect();
+        serde_json::json!({ "parameters": self.parameters, "points": points })
+    }
+}
+
 /// Parses `--fix NAME=VALUE` and checks the name against the swept parameters.
 pub fn parse_fixed(spec: &str, swept: &[String]) -> Result<(String, f64), String> {
     let (name, value) =
@@ -190,7 +257,21 @@ mod tests {
             parameters: vec!["f1".into()],
             qoi: vec!["slip_A".into(), "x".into()],
             points: vec![point(0.1, Some(0.1 + 0.2), v1::PointState::Done), point(0.2, None, v1::PointState::Failed)],
+            predictions: vec![v1::SurfacePrediction {
+                parameters: [("f1".to_owned(), 0.15)].into(),
+                qoi: [("slip_A".to_owned(), v1::QoiPrediction { mean: 0.25, std: 0.125, fitted_points: 1 })].into(),
+            }],
         }
+    }
+
+    #[test]
+    fn predictions_print_the_mean_and_the_standard_deviation() {
+        let t = SurfaceTable::new(&reply(), Some("slip_A")).unwrap();
+        let p = Predictions::new(&reply(), &t);
+        assert_eq!(p.to_text().lines().next(), Some("f1=0.15  slip_A = 2.50000e-1 +- 1.25e-1"), "{}", p.to_text());
+        let json = p.to_json();
+        assert_eq!(json["points"][0]["at"]["f1"], 0.15);
+        assert_eq!(json["points"][0]["qoi"]["slip_A"]["std"], 0.125);
     }
 
     #[test]

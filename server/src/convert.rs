@@ -156,7 +156,11 @@ pub struct SurfaceQuery {
     pub source: SurfaceSource,
     pub fixed: ParameterVector,
     pub qoi: Vec<String>,
+    pub predict_at: Vec<BTreeMap<String, f64>>,
 }
+
+/// The most points one QuerySurface predicts at.
+pub const MAX_PREDICTIONS: usize = 10_000;
 
 impl TryFrom<v1::QuerySurfaceRequest> for SurfaceQuery {
     type Error = Invalid;
@@ -167,7 +171,19 @@ impl TryFrom<v1::QuerySurfaceRequest> for SurfaceQuery {
             Some(v1::query_surface_request::Source::SceneHash(h)) => SurfaceSource::Scene(scene_hash(&h)?),
             None => return Err(Invalid("give a study_id or a scene_hash".into())),
         };
-        Ok(Self { source, fixed: parameters("fixed", m.fixed)?, qoi: m.qoi })
+        if m.predict_at.len() > MAX_PREDICTIONS {
+            return Err(Invalid(format!(
+                "predict_at: {} points, more than the {MAX_PREDICTIONS} accepted",
+                m.predict_at.len()
+            )));
+        }
+        let predict_at = m
+            .predict_at
+            .into_iter()
+            .enumerate()
+            .map(|(i, p)| parameters(&format!("predict_at[{i}]"), p.parameters).map(BTreeMap::from))
+            .collect::<Result<_, _>>()?;
+        Ok(Self { source, fixed: parameters("fixed", m.fixed)?, qoi: m.qoi, predict_at })
     }
 }
 
@@ -428,7 +444,7 @@ pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
     v1::QuerySurfaceReply {
         scene_hash: s.scene_hash,
         parameters: s.parameters,
-        qoi: s.qoi,
+        qoi: s.qoi.clone(),
         points: s
             .rows
             .into_iter()
@@ -439,6 +455,22 @@ pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
                 error_indicator: r.error_indicator,
                 converged: r.converged,
                 state: point_state(&r.state).into(),
+            })
+            .collect(),
+        predictions: s
+            .predictions
+            .into_iter()
+            .map(|p| v1::SurfacePrediction {
+                parameters: p.at,
+                qoi: s
+                    .qoi
+                    .iter()
+                    .zip(p.qoi)
+                    .map(|(q, (p, fitted))| {
+                        let prediction = v1::QoiPrediction { mean: p.mean, std: p.std, fitted_points: fitted as u32 };
+                        (q.clone(), prediction)
+                    })
+                    .collect(),
             })
             .collect(),
     }

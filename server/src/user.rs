@@ -101,7 +101,7 @@ impl User for UserService {
     ) -> Result<Response<v1::QuerySurfaceReply>, Status> {
         let q = SurfaceQuery::try_from(request.into_inner())?;
         let c = self.coordinator.clone();
-        let surface = blocking(move || c.surface(q.source, &q.fixed, &q.qoi)).await?;
+        let surface = blocking(move || c.surface(q.source, &q.fixed, &q.qoi, &q.predict_at)).await?;
         Ok(Response::new(convert::surface(surface)))
     }
 

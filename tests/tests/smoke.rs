@@ -672,10 +672,27 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
         let q = |source, fixed: &[(&str, f64)]| v1::QuerySurfaceRequest {
             source: Some(source),
             fixed: fixed.iter().map(|&(k, v)| (k.to_owned(), v)).collect(),
-            qoi: vec![],
+            ..Default::default()
         };
         let s = client.query_surface(q(Source::StudyId(first), &[])).await?.into_inner();
         assert_eq!(s.points.len(), 9);
+        // Predictions with error bars (docs/surrogate.md): at a stored point the surface gives
+        // its value back, between points it is less sure.
+        let at = |f1: f64, f2: f64| v1::ParameterPoint { parameters: [("f1".into(), f1), ("f2".into(), f2)].into() };
+        let mut ask = q(Source::StudyId(first), &[]);
+        ask.predict_at = vec![at(0.15, 0.15), at(0.125, 0.175)];
+        let p = client.query_surface(ask).await?.into_inner();
+        assert_eq!(p.predictions.len(), 2);
+        let slips: Vec<f64> = s.points.iter().map(|x| x.qoi["slip_A"]).collect();
+        let spread = slips.iter().cloned().fold(f64::MIN, f64::max) - slips.iter().cloned().fold(f64::MAX, f64::min);
+        let stored = s.points.iter().find(|x| x.parameters["f1"] == 0.15 && x.parameters["f2"] == 0.15).unwrap();
+        let (on, between) = (&p.predictions[0].qoi["slip_A"], &p.predictions[1].qoi["slip_A"]);
+        assert!((on.mean - stored.qoi["slip_A"]).abs() <= 1e-3 * spread, "{on:?} against {stored:?}");
+        assert!(on.std < between.std && on.fitted_points == 9, "{on:?} {between:?}");
+        let mut wrong = q(Source::StudyId(first), &[]);
+        wrong.predict_at = vec![v1::ParameterPoint { parameters: [("f9".into(), 0.1)].into() }];
+        let refused = client.query_surface(wrong).await.expect_err("f9 is not a parameter");
+        assert_eq!(refused.code(), Code::InvalidArgument, "{refused:?}");
         assert_eq!(s.parameters, ["f1", "f2"]);
         assert_eq!(s.qoi, ["middle_ux", "slip_A", "slip_B"]);
         let slice = client.query_surface(q(Source::StudyId(first), &[("f1", 0.1)])).await?.into_inner();
@@ -1243,6 +1260,20 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     // the table for people
     let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A"]);
     assert_eq!(text(&out.stdout).lines().count(), 10, "{}", text(&out.stdout));
+    // predictions with error bars: a stored point gives its value back, less surely between
+    let out = glissade(
+        Some(&url),
+        &["surface", "1", "--qoi", "slip_A", "--at", "f1=0.15,f2=0.15", "--at", "f1=0.125,f2=0.125", "--json"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    let (on, between) = (&json["points"][0]["qoi"]["slip_A"], &json["points"][1]["qoi"]["slip_A"]);
+    let mean = on["mean"].as_f64().expect("mean");
+    assert!((mean - stored_slip(0.15, 0.15)).abs() <= 1e-3 * stored_slip(0.15, 0.15).abs().max(1e-12), "{json}");
+    assert!(on["std"].as_f64() < between["std"].as_f64(), "{json}");
+    let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A", "--at", "f1=0.15,f2=0.15"]);
+    assert!(text(&out.stdout).starts_with("f1=0.15 f2=0.15  slip_A = "), "{}", text(&out.stdout));
+    assert_one_line_error(&glissade(Some(&url), &["surface", "1", "--at", "f1=0.15"]), "give every swept parameter");
 
     // pictures of the stated size: a colour map, a curve (one free parameter), the convergence
     for (args, size) in [

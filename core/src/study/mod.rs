@@ -16,6 +16,7 @@ pub mod order;
 pub mod space;
 pub mod store;
 pub mod strategy;
+pub mod surrogate;
 
 use std::collections::BTreeMap;
 use std::sync::Arc;

@@ -1,7 +1,52 @@
 //! Reading what the coordinator stores: response surfaces over a study or a scene, and stored
 //! solutions' files and fields.
 
+use glissade_core::study::space::DesignPoint;
+use glissade_core::study::surrogate::ResponseSurface;
+
 use super::*;
+
+/// The predictions of a surface's QoIs at `at`: a Gaussian process per QoI over the rows that
+/// have it (docs/surrogate.md).
+fn predict(
+    space: &ParameterSpace,
+    names: &[String],
+    qoi: &[String],
+    rows: &[SurfaceRow],
+    at: &[BTreeMap<String, f64>],
+) -> Result<Vec<PointPrediction>, CoordError> {
+    let mut surfaces = Vec::with_capacity(qoi.len());
+    for q in qoi {
+        let samples: Vec<(Vec<f64>, f64)> = rows
+            .iter()
+            .filter_map(|r| {
+                let x: Option<Vec<f64>> = names.iter().map(|n| r.parameters.get(n)).collect();
+                Some((x?, *r.qoi.get(q)?))
+            })
+            .collect();
+        let surface = ResponseSurface::fit(space, names, &samples)
+            .map_err(|e| CoordError::Precondition(format!("the surface of {q} cannot predict: {e}")))?;
+        surfaces.push(surface);
+    }
+    at.iter()
+        .enumerate()
+        .map(|(i, point)| {
+            if let Some(name) = point.keys().find(|k| !names.contains(k)) {
+                return Err(CoordError::Invalid(format!(
+                    "predict_at[{i}]: `{name}` is not a parameter of these points ({})",
+                    names.join(", ")
+                )));
+            }
+            let p = DesignPoint::from(point.clone());
+            let predicted = surfaces
+                .iter()
+                .map(|s| s.predict(&p).map(|v| (v, s.len())))
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
+            Ok(PointPrediction { at: point.clone(), qoi: predicted })
+        })
+        .collect()
+}
 
 impl Coordinator {
     pub fn surface(
@@ -9,8 +54,14 @@ impl Coordinator {
         source: SurfaceSource,
         fixed: &ParameterVector,
         qoi: &[String],
+        predict_at: &[BTreeMap<String, f64>],
     ) -> Result<Surface, CoordError> {
         let state = self.lock();
+        // the scene's ranges scale the parameters of a prediction
+        let scene_text = match &source {
+            SurfaceSource::Study(id) if !predict_at.is_empty() => state.studies.get(id).map(|e| e.record.scene.clone()),
+            _ => None,
+        };
         let (scene_hash, mut rows) = match &source {
             SurfaceSource::Study(id) => {
                 let entry = state.studies.get(id).ok_or(CoordError::UnknownStudy(*id))?;
@@ -92,7 +143,22 @@ impl Coordinator {
             let key = |r: &SurfaceRow| r.parameters.iter().map(|(_, v)| v).collect::<Vec<_>>();
             key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal)
         });
-        Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows })
+        let predictions = if predict_at.is_empty() {
+            Vec::new()
+        } else {
+            let text = match scene_text {
+                Some(text) => text,
+                None => {
+                    let bytes = self.store.get(Tree::Scenes, scene_hash.as_bytes())?.ok_or_else(|| {
+                        CoordError::Corrupt(format!("scene {scene_hash} is missing from the database"))
+                    })?;
+                    String::from_utf8_lossy(&bytes).into_owned()
+                }
+            };
+            let scene = Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?;
+            predict(&ParameterSpace::from_scene(&scene), &names, &qoi_names, &rows, predict_at)?
+        };
+        Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows, predictions })
     }
 
     /// The bytes of a stored solution file.

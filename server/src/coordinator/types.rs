@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
+use glissade_core::study::surrogate::Prediction;
 use glissade_proto::{ParameterVector, PointId, StudyId};
 
 use crate::records::{self, PointRecord, PointState, StudyRecord};
@@ -209,6 +210,17 @@ pub struct Surface {
     pub parameters: Vec<String>,
     pub qoi: Vec<String>,
     pub rows: Vec<SurfaceRow>,
+    /// One per point asked for.
+    pub predictions: Vec<PointPrediction>,
+}
+
+/// The response surface's prediction at a point asked for.
+#[derive(Debug, Clone)]
+pub struct PointPrediction {
+    pub at: BTreeMap<String, f64>,
+    /// Per QoI (in the surface's `qoi` order): the prediction and the number of points its
+    /// surface was fitted to.
+    pub qoi: Vec<(Prediction, usize)>,
 }
 
 /// Which points or solutions a surface covers.

@@ -1,0 +1,413 @@
+//! A response surface with error bars: a Gaussian process fitted to a QoI's stored values over
+//! the swept parameters, which predicts a value and its standard deviation anywhere in the range.
+//!
+//! Inputs are each parameter scaled to [0, 1] over its range (the same scaling as the distances
+//! of the warm starts), over a constant mean. The kernel is Matérn 3/2 with one length per
+//! parameter, `k(x, x') = s^2 (1 + sqrt(3) r) exp(-sqrt(3) r)`, `r^2 = sum_d (x_d - x'_d)^2 / l_d^2`:
+//! rougher than the squared exponential, which the stick / slip edges of friction QoIs make
+//! overconfident (measured, with the likelihood choosing among kernels too: docs/surrogate.md).
+//! The lengths and a nugget (noise variance relative to `s^2`, from 1e-10: the stored values carry
+//! the solver's own error) are chosen by maximum likelihood on a grid, the lengths then refined
+//! one by one; the signal variance and the mean are in closed form for each choice (profile
+//! likelihood).
+//!
+//! Cost: O(n^3) per likelihood evaluation; fits are refused above [`MAX_POINTS`] points before
+//! anything is allocated.
+
+use super::space::{DesignPoint, ParameterSpace};
+
+/// The most points a surface is fitted to (an n x n matrix: 32 MB at this size).
+pub const MAX_POINTS: usize = 2000;
+/// The most parameters a surface is fitted over.
+pub const MAX_DIMENSION: usize = 8;
+/// The shortest length scale (in units of a parameter's range): shorter ones let the likelihood
+/// explain a few points as unrelated spikes, a surface no study has the points to resolve.
+const MIN_LENGTH: f64 = 0.1;
+/// Nugget: the noise variance added to the diagonal, relative to the signal variance (lengths
+/// whose matrix does not factorise with it are skipped by the search).
+const NUGGETS: [f64; 5] = [1e-10, 1e-7, 1e-5, 1e-4, 1e-3];
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SurrogateError {
+    #[error("a surface needs at least 2 points, got {0}")]
+    TooFewPoints(usize),
+    #[error("{count} points: a surface is fitted to at most {max}")]
+    TooManyPoints { count: usize, max: usize },
+    #[error("{count} parameters: a surface is fitted over 1 to {max}")]
+    Dimension { count: usize, max: usize },
+    #[error("point {index} has {found} coordinates, the surface {expected}")]
+    Coordinates { index: usize, found: usize, expected: usize },
+    #[error("point {index}: a value or coordinate is not a finite number")]
+    NotFinite { index: usize },
+    #[error("two points at the same place (points {0} and {1}) with different values")]
+    Conflict(usize, usize),
+    #[error("`{0}` is not a parameter of the scene")]
+    UnknownParameter(String),
+    #[error("give a value of `{0}` (a parameter of the surface)")]
+    MissingParameter(String),
+}
+
+/// A fitted Gaussian process.
+#[derive(Debug, Clone)]
+pub struct Surrogate {
+    points: Vec<Vec<f64>>,
+    lengths: Vec<f64>,
+    /// noise variance relative to the signal variance
+    nugget: f64,
+    signal_variance: f64,
+    mean: f64,
+    /// Cholesky factor L of the kernel matrix (row-major, lower triangle).
+    factor: Vec<f64>,
+    /// K^-1 (y - mean).
+    alpha: Vec<f64>,
+}
+
+/// A prediction: the mean and its standard deviation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Prediction {
+    pub mean: f64,
+    pub std: f64,
+}
+
+impl Surrogate {
+    /// Fits `values` at `points` (each with the same number of coordinates, scaled to [0, 1]).
+    pub fn fit(points: &[Vec<f64>], values: &[f64]) -> Result<Self, SurrogateError> {
+        let n = points.len();
+        if n != values.len() || n < 2 {
+            return Err(SurrogateError::TooFewPoints(n.min(values.len())));
+        }
+        if n > MAX_POINTS {
+            return Err(SurrogateError::TooManyPoints { count: n, max: MAX_POINTS });
+        }
+        let dim = points[0].len();
+        if dim == 0 || dim > MAX_DIMENSION {
+            return Err(SurrogateError::Dimension { count: dim, max: MAX_DIMENSION });
+        }
+        for (index, (p, v)) in points.iter().zip(values).enumerate() {
+            if p.len() != dim {
+                return Err(SurrogateError::Coordinates { index, found: p.len(), expected: dim });
+            }
+            if !v.is_finite() || p.iter().any(|x| !x.is_finite()) {
+                return Err(SurrogateError::NotFinite { index });
+            }
+        }
+        for i in 0..n {
+            for j in 0..i {
+                if points[i] == points[j] && values[i] != values[j] {
+                    return Err(SurrogateError::Conflict(j, i));
+                }
+            }
+        }
+        // Length scales: a log grid common to all parameters, then each refined in turn.
+        let grid: Vec<f64> = (0..12).map(|i| MIN_LENGTH * 2f64.powf(i as f64 * 0.5)).collect();
+        let mut best: Option<(f64, Vec<f64>, f64)> = None;
+        for &nugget in &NUGGETS {
+            for &l in &grid {
+                let lengths = vec![l; dim];
+                if let Some(ll) = log_likelihood(points, values, &lengths, nugget)
+                    && best.as_ref().is_none_or(|(b, ..)| ll > *b)
+                {
+                    best = Some((ll, lengths, nugget));
+                }
+            }
+        }
+        let (mut best_ll, mut lengths, nugget) = best.unwrap_or((f64::NEG_INFINITY, vec![0.3; dim], NUGGETS[4]));
+        for _sweep in 0..2 {
+            for d in 0..dim {
+                for factor in [0.35, 0.5, 0.7, 1.4, 2.0, 2.8] {
+                    let mut trial = lengths.clone();
+                    trial[d] = (trial[d] * factor).clamp(MIN_LENGTH, 20.0);
+                    if let Some(ll) = log_likelihood(points, values, &trial, nugget)
+                        && ll > best_ll
+                    {
+                        best_ll = ll;
+                        lengths = trial;
+                    }
+                }
+            }
+        }
+        Ok(Self::with_lengths(points, values, lengths, nugget)
+            .expect("the chosen lengths factorised during the search"))
+    }
+
+    /// The process with given length scales (signal variance and mean in closed form); None if
+    /// the kernel matrix does not factorise.
+    fn with_lengths(points: &[Vec<f64>], values: &[f64], lengths: Vec<f64>, nugget: f64) -> Option<Self> {
+        let n = points.len();
+        let factor = cholesky(&correlation(points, &lengths, nugget), n)?;
+        // the mean: generalised least squares, 1' K^-1 y / 1' K^-1 1
+        let ones = solve(&factor, n, &vec![1.0; n]);
+        let kinv_y = solve(&factor, n, values);
+        let mean = kinv_y.iter().sum::<f64>() / ones.iter().sum::<f64>();
+        let centred: Vec<f64> = values.iter().map(|v| v - mean).collect();
+        let alpha = solve(&factor, n, &centred);
+        let signal_variance = (centred.iter().zip(&alpha).map(|(c, a)| c * a).sum::<f64>() / n as f64).max(0.0);
+        Some(Self { points: points.to_vec(), lengths, nugget, signal_variance, mean, factor, alpha })
+    }
+
+    /// The length scale of each parameter (in units of its range).
+    pub fn lengths(&self) -> &[f64] {
+        &self.lengths
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The mean and standard deviation at `x` (scaled coordinates, as the fitted points).
+    pub fn predict(&self, x: &[f64]) -> Prediction {
+        let n = self.points.len();
+        let k: Vec<f64> = self.points.iter().map(|p| kernel(p, x, &self.lengths)).collect();
+        let mean = self.mean + k.iter().zip(&self.alpha).map(|(a, b)| a * b).sum::<f64>();
+        // var = s^2 (1 + nugget - k' K^-1 k), with v = L^-1 k
+        let v = forward(&self.factor, n, &k);
+        let reduction = v.iter().map(|x| x * x).sum::<f64>();
+        let variance = self.signal_variance * (1.0 + self.nugget - reduction).max(0.0);
+        Prediction { mean, std: variance.sqrt() }
+    }
+}
+
+/// A QoI's surface over named parameters in their own units: each scaled to [0, 1] over its
+/// range in the scene ([`ParameterSpace`]) before the process sees it.
+#[derive(Debug, Clone)]
+pub struct ResponseSurface {
+    names: Vec<String>,
+    origins: Vec<f64>,
+    scales: Vec<f64>,
+    process: Surrogate,
+}
+
+impl ResponseSurface {
+    /// Fits `samples` (each: the values of `names`, in that order, and the QoI's value).
+    pub fn fit(space: &ParameterSpace, names: &[String], samples: &[(Vec<f64>, f64)]) -> Result<Self, SurrogateError> {
+        if samples.len() > MAX_POINTS {
+            return Err(SurrogateError::TooManyPoints { count: samples.len(), max: MAX_POINTS });
+        }
+        let mut origins = Vec::with_capacity(names.len());
+        let mut scales = Vec::with_capacity(names.len());
+        for name in names {
+            let range = space.range(name).ok_or_else(|| SurrogateError::UnknownParameter(name.clone()))?;
+            origins.push(range.min);
+            scales.push(range.scale());
+        }
+        let scaled =
+            |x: &[f64]| -> Vec<f64> { x.iter().zip(&origins).zip(&scales).map(|((v, o), s)| (v - o) / s).collect() };
+        let points: Vec<Vec<f64>> = samples.iter().map(|(x, _)| scaled(x)).collect();
+        let values: Vec<f64> = samples.iter().map(|(_, v)| *v).collect();
+        let process = Surrogate::fit(&points, &values)?;
+        Ok(Self { names: names.to_vec(), origins, scales, process })
+    }
+
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// Points it was fitted to.
+    pub fn len(&self) -> usize {
+        self.process.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.process.is_empty()
+    }
+
+    /// The prediction at `point`, which must give every parameter of the surface.
+    pub fn predict(&self, point: &DesignPoint) -> Result<Prediction, SurrogateError> {
+        let x = self
+            .names
+            .iter()
+            .zip(&self.origins)
+            .zip(&self.scales)
+            .map(|((name, o), s)| {
+                let v = point.get(name).ok_or_else(|| SurrogateError::MissingParameter(name.clone()))?;
+                if v.is_finite() { Ok((v - o) / s) } else { Err(SurrogateError::NotFinite { index: 0 }) }
+            })
+            .collect::<Result<Vec<f64>, _>>()?;
+        Ok(self.process.predict(&x))
+    }
+}
+
+/// Matérn 3/2 correlation of two scaled points: rougher than the squared exponential, whose
+/// error bars the stick / slip edges of friction QoIs make overconfident (docs/surrogate.md).
+fn kernel(a: &[f64], b: &[f64], lengths: &[f64]) -> f64 {
+    let r2: f64 = a.iter().zip(b).zip(lengths).map(|((x, y), l)| ((x - y) / l).powi(2)).sum();
+    let r = (3.0 * r2).sqrt();
+    (1.0 + r) * (-r).exp()
+}
+
+/// The correlation matrix (unit signal variance) with the nugget on its diagonal.
+fn correlation(points: &[Vec<f64>], lengths: &[f64], nugget: f64) -> Vec<f64> {
+    let n = points.len();
+    let mut k = vec![0.0; n * n];
+    for i in 0..n {
+        for j in 0..=i {
+            let v = kernel(&points[i], &points[j], lengths);
+            k[i * n + j] = v;
+            k[j * n + i] = v;
+        }
+        k[i * n + i] += nugget;
+    }
+    k
+}
+
+/// Profile log likelihood of the lengths (signal variance and mean at their optimum), up to a
+/// constant; None when the matrix does not factorise.
+fn log_likelihood(points: &[Vec<f64>], values: &[f64], lengths: &[f64], nugget: f64) -> Option<f64> {
+    let n = points.len();
+    let factor = cholesky(&correlation(points, lengths, nugget), n)?;
+    let ones = solve(&factor, n, &vec![1.0; n]);
+    let mean = solve(&factor, n, values).iter().sum::<f64>() / ones.iter().sum::<f64>();
+    let centred: Vec<f64> = values.iter().map(|v| v - mean).collect();
+    let quad = centred.iter().zip(solve(&factor, n, &centred)).map(|(c, a)| c * a).sum::<f64>();
+    let log_det: f64 = (0..n).map(|i| factor[i * n + i].ln()).sum::<f64>() * 2.0;
+    // all values equal: any lengths explain them; prefer long ones (a flat surface)
+    if quad <= 0.0 {
+        return Some(lengths.iter().map(|l| l.ln()).sum());
+    }
+    Some(-0.5 * n as f64 * (quad / n as f64).ln() - 0.5 * log_det)
+}
+
+/// Lower Cholesky factor of the symmetric n x n matrix `a`; None if it is not positive definite.
+fn cholesky(a: &[f64], n: usize) -> Option<Vec<f64>> {
+    let mut l = vec![0.0; n * n];
+    for i in 0..n {
+        for j in 0..=i {
+            let s: f64 = (0..j).map(|k| l[i * n + k] * l[j * n + k]).sum();
+            if i == j {
+                let d = a[i * n + i] - s;
+                if d.is_nan() || d <= 0.0 {
+                    return None;
+                }
+                l[i * n + i] = d.sqrt();
+            } else {
+                l[i * n + j] = (a[i * n + j] - s) / l[j * n + j];
+            }
+        }
+    }
+    Some(l)
+}
+
+/// L^-1 b.
+fn forward(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
+    let mut y = vec![0.0; n];
+    for i in 0..n {
+        let s: f64 = (0..i).map(|k| l[i * n + k] * y[k]).sum();
+        y[i] = (b[i] - s) / l[i * n + i];
+    }
+    y
+}
+
+/// (L L')^-1 b.
+fn solve(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
+    let mut x = forward(l, n, b);
+    for i in (0..n).rev() {
+        let s: f64 = (i + 1..n).map(|k| l[k * n + i] * x[k]).sum();
+        x[i] = (x[i] - s) / l[i * n + i];
+    }
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid(n: usize) -> Vec<Vec<f64>> {
+        let mut points = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                points.push(vec![i as f64 / (n - 1) as f64, j as f64 / (n - 1) as f64]);
+            }
+        }
+        points
+    }
+
+    fn analytic(x: &[f64]) -> f64 {
+        (3.0 * x[0]).sin() + 0.5 * (2.0 * x[1]).cos() + x[0] * x[1]
+    }
+
+    #[test]
+    fn it_passes_through_the_stored_points_and_is_unsure_away_from_them() {
+        // a surface that bends within a grid cell, so that the process is unsure between points
+        let points = grid(4);
+        let values: Vec<f64> = points.iter().map(|p| (4.0 * p[0]).sin() * (3.0 * p[1]).cos()).collect();
+        let s = Surrogate::fit(&points, &values).unwrap();
+        let spread = values.iter().cloned().fold(f64::NEG_INFINITY, f64::max)
+            - values.iter().cloned().fold(f64::INFINITY, f64::min);
+        // between points: unsure, more so farther from every point (and outside the range)
+        let between = s.predict(&[1.0 / 6.0, 1.0 / 6.0]).std;
+        let outside = s.predict(&[1.6, 1.6]).std;
+        let far = s.predict(&[3.0, 3.0]).std;
+        for (p, v) in points.iter().zip(&values) {
+            let at = s.predict(p);
+            assert!((at.mean - v).abs() < 1e-4 * spread, "{p:?}: {at:?} against {v}");
+            assert!(at.std < 0.05 * between, "{p:?}: {at:?}, {between} between points");
+        }
+        assert!(outside > between && far >= outside, "{between} {outside} {far}");
+    }
+
+    /// Calibration: on an analytic function, the true value lies within 2 standard deviations at
+    /// (at least) 90 % of an 11 x 11 grid, from 25 points of a Latin-hypercube-like design.
+    #[test]
+    fn its_error_bars_are_calibrated_on_an_analytic_function() {
+        // 25 points: a 5 x 5 grid jittered deterministically inside its cells
+        let mut points = Vec::new();
+        for i in 0..5 {
+            for j in 0..5 {
+                let jitter = |k: usize| ((k * 7919 + i * 31 + j * 17) % 100) as f64 / 100.0;
+                points.push(vec![(i as f64 + 0.2 + 0.6 * jitter(1)) / 5.0, (j as f64 + 0.2 + 0.6 * jitter(2)) / 5.0]);
+            }
+        }
+        let values: Vec<f64> = points.iter().map(|p| analytic(p)).collect();
+        let s = Surrogate::fit(&points, &values).unwrap();
+        let (mut within, mut squares) = (0, 0.0f64);
+        let test = grid(11);
+        let truth: Vec<f64> = test.iter().map(|p| analytic(p)).collect();
+        for (p, t) in test.iter().zip(&truth) {
+            let at = s.predict(p);
+            let error = (at.mean - t).abs();
+            squares += error * error;
+            within += usize::from(error <= 2.0 * at.std);
+        }
+        let share = within as f64 / test.len() as f64;
+        let rms = (squares / test.len() as f64).sqrt();
+        let mean = truth.iter().sum::<f64>() / truth.len() as f64;
+        let spread = (truth.iter().map(|t| (t - mean).powi(2)).sum::<f64>() / truth.len() as f64).sqrt();
+        assert!(share >= 0.9, "{within} of {} within 2 sd (rms error {rms:.2e})", test.len());
+        // the mean itself is informative: a tenth of the function's own spread (measured 8 %; a
+        // constant would be 100 %)
+        assert!(rms < 0.1 * spread, "rms error {rms:.2e} against a spread of {spread:.2e}");
+    }
+
+    #[test]
+    fn one_parameter_and_flat_data_work() {
+        let points: Vec<Vec<f64>> = (0..6).map(|i| vec![i as f64 / 5.0]).collect();
+        let flat = Surrogate::fit(&points, &[2.5; 6]).unwrap();
+        let at = flat.predict(&[0.33]);
+        assert!((at.mean - 2.5).abs() < 1e-9 && at.std < 1e-6, "{at:?}");
+        let line: Vec<f64> = points.iter().map(|p| 1.0 + 2.0 * p[0]).collect();
+        let s = Surrogate::fit(&points, &line).unwrap();
+        assert!((s.predict(&[0.5]).mean - 2.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn bad_input_is_refused_before_anything_is_built() {
+        assert_eq!(Surrogate::fit(&[vec![0.0]], &[1.0]).err(), Some(SurrogateError::TooFewPoints(1)));
+        let many = vec![vec![0.0]; MAX_POINTS + 1];
+        assert!(matches!(Surrogate::fit(&many, &vec![0.0; MAX_POINTS + 1]), Err(SurrogateError::TooManyPoints { .. })));
+        assert!(matches!(
+            Surrogate::fit(&[vec![0.0], vec![0.5, 1.0]], &[1.0, 2.0]),
+            Err(SurrogateError::Coordinates { index: 1, .. })
+        ));
+        assert!(matches!(
+            Surrogate::fit(&[vec![0.0], vec![0.5]], &[1.0, f64::NAN]),
+            Err(SurrogateError::NotFinite { index: 1 })
+        ));
+        assert_eq!(Surrogate::fit(&[vec![0.5], vec![0.5]], &[1.0, 2.0]).err(), Some(SurrogateError::Conflict(0, 1)));
+        // the same point twice with the same value is fine (a point stored by two studies)
+        assert!(Surrogate::fit(&[vec![0.5], vec![0.5], vec![0.0]], &[1.0, 1.0, 0.0]).is_ok());
+    }
+}
