@@ -169,6 +169,10 @@ struct SubmitArgs {
     /// Free text shown with the study.
     #[arg(long, default_value = "")]
     label: String,
+    /// Points re-solved cold at 1/100 of the tolerance when pools are idle, to measure the
+    /// accuracy the study got (`glissade show`); default: 10 % of the points, at least 2; 0: none
+    #[arg(long, value_name = "N")]
+    audit: Option<u32>,
     /// Follow the study until it ends (as `glissade watch`).
     #[arg(long)]
     watch: bool,
@@ -358,6 +362,7 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
         max_iterations: args.max_iter,
         label: args.label,
         blend_neighbours: args.k,
+        audit_points: args.audit,
     };
     let mut client = user(server).await?;
     let reply = client
@@ -551,6 +556,15 @@ fn study_json(s: &v1::Study) -> serde_json::Value {
             "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations,
         },
         "created_unix_ms": s.created_unix_ms,
+        "audit_of": (s.audit_of != 0).then_some(s.audit_of),
+        "accuracy": s.accuracy.as_ref().map(|a| serde_json::json!({
+            "audit_study_id": a.audit_study_id,
+            "tolerance": a.tolerance,
+            "audited": a.audited,
+            "planned": a.planned,
+            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({"largest": e.largest, "mean": e.mean})))
+                .collect::<serde_json::Map<_, _>>(),
+        })),
     })
 }
 
@@ -785,6 +799,22 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
         order_name(s.order)
     );
     outln!("  tolerance {:.1e}, at most {} iterations", s.tolerance, s.max_iterations);
+    if s.audit_of != 0 {
+        outln!("  audits    study {} (its points re-solved cold at this tighter tolerance)", s.audit_of);
+    }
+    if let Some(a) = &s.accuracy {
+        let errors: Vec<String> =
+            a.qoi.iter().map(|(q, e)| format!("{q} largest {:.1e} mean {:.1e}", e.largest, e.mean)).collect();
+        outln!(
+            "  accuracy  {} of {} points re-solved cold at {:.0e} (study {}){}{}",
+            a.audited,
+            a.planned,
+            a.tolerance,
+            a.audit_study_id,
+            if errors.is_empty() { "" } else { ": " },
+            errors.join(", ")
+        );
+    }
     outln!(
         "  progress  {} done, {} failed, {} running, {} pending{}; {} iterations in all",
         p.done,

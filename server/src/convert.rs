@@ -147,6 +147,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             strategy: strategy(m.strategy, m.blend_neighbours)?,
             order: order(m.order)?,
             label: m.label,
+            audit_points: m.audit_points,
         })
     }
 }
@@ -411,6 +412,14 @@ pub fn study(v: &StudyView) -> v1::Study {
         created_unix_ms: r.created_unix_ms,
         points: v.points.iter().map(point).collect(),
         scene: String::new(),
+        accuracy: v.accuracy.as_ref().map(|a| v1::StudyAccuracy {
+            audit_study_id: a.audit_study.0,
+            tolerance: a.tolerance,
+            audited: a.audited,
+            planned: a.planned,
+            qoi: a.qoi.iter().map(|(q, &(largest, mean))| (q.clone(), v1::QoiAccuracy { largest, mean })).collect(),
+        }),
+        audit_of: r.audit_of.map_or(0, |s| s.0),
     }
 }
 

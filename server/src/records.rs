@@ -86,6 +86,12 @@ pub struct StudyRecord {
     pub order: OrderKind,
     pub created_unix_ms: i64,
     pub cancelled: bool,
+    /// The study this one audits (re-solves some of its points cold at a tighter tolerance).
+    #[serde(default)]
+    pub audit_of: Option<StudyId>,
+    /// The study auditing this one.
+    #[serde(default)]
+    pub audit: Option<StudyId>,
 }
 
 /// Where a point is in its life.

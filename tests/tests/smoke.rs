@@ -632,9 +632,13 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
     })?;
     // work: dynamic iterations + static iterations / steps, as the pools report it
     let mean = |s: &v1::Study| s.points.iter().map(|p| p.work).sum::<f64>() / s.points.len() as f64;
+    // (from the first study's solutions or its audit's: the audit re-solved two of its points
+    // cold at 1/100 of the tolerance, and stored them)
+    let audit = first_study.accuracy.as_ref().expect("an audit by default").audit_study_id;
     for p in &second_study.points {
         assert_eq!(p.state, v1::PointState::Done as i32, "{p:?}");
-        assert_eq!(p.started_from.as_ref().map(|f| f.study_id), Some(first), "{p:?}");
+        let from = p.started_from.as_ref().map(|f| f.study_id);
+        assert!(from == Some(first) || from == Some(audit), "{p:?}");
     }
     // Warm starts from neighbours stop on the same QoI error estimate as cold ones and cost
     // less work.
@@ -645,6 +649,34 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
         mean(&second_study),
         mean(&first_study)
     );
+
+    // The first study's audit: 2 of its 9 points (10 %, at least 2) re-solved cold at 1/100 of
+    // its tolerance; the accuracy it reports is what a direct comparison gives.
+    let (audited, measured) = rt.block_on(async {
+        let mut client = user(&url).await?;
+        watch(&mut client, audit, |_| true).await?;
+        anyhow::Ok((study(&mut client, audit).await?, study(&mut client, first).await?))
+    })?;
+    assert_eq!((audited.audit_of, audited.points.len(), audited.tolerance), (first, 2, STUDY_TOL / 100.0));
+    let accuracy = measured.accuracy.expect("measured");
+    assert_eq!((accuracy.audited, accuracy.planned), (2, 2), "{accuracy:?}");
+    for (q, reported) in &accuracy.qoi {
+        let pairs: Vec<(f64, f64)> = audited
+            .points
+            .iter()
+            .map(|a| {
+                let p = measured.points.iter().find(|p| p.parameters == a.parameters).expect("an audited point");
+                (p.qoi[q], a.qoi[q])
+            })
+            .collect();
+        let scale = pairs.iter().map(|(_, a)| a.abs()).fold(0.0f64, f64::max);
+        let errors: Vec<f64> = pairs.iter().map(|(p, a)| (p - a).abs() / scale).collect();
+        let largest = errors.iter().cloned().fold(0.0f64, f64::max);
+        assert_eq!(reported.largest, largest, "{q}");
+        assert!((reported.mean - errors.iter().sum::<f64>() / 2.0).abs() <= 1e-15, "{q}");
+        // and the study kept its word: within 10 x its tolerance
+        assert!(largest <= 10.0 * STUDY_TOL, "{q}: {largest:e}");
+    }
 
     // A warm-started point solved directly from the same stored solution gives the same result:
     // the pool runs exactly the solve of `glissade-worker solve --init`.

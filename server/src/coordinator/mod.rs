@@ -19,6 +19,7 @@ use glissade_proto::{ParameterVector, PointId, StudyId};
 use tokio::sync::{Notify, broadcast};
 
 use glissade_core::study::engine::StudyEngine;
+use glissade_core::study::order::OrderKind;
 use glissade_core::study::space::ParameterSpace;
 use glissade_core::study::strategy::InitStrategy;
 
@@ -322,9 +323,14 @@ impl Coordinator {
                 .map_err(|e| CoordError::Invalid(format!("strategy {}: {e}", submission.strategy.name())))?;
         }
         let created = now_unix_ms();
+        let audit_points = match submission.audit_points {
+            None => default_audit_points(points.len()),
+            Some(n) => (n as usize).min(points.len()),
+        };
 
         let mut state = self.lock();
         let id = StudyId(state.next_study);
+        let audit_id = (audit_points > 0).then_some(StudyId(id.0 + 1));
         let record = StudyRecord {
             id,
             label: submission.label,
@@ -337,66 +343,100 @@ impl Coordinator {
             order: submission.order,
             created_unix_ms: created,
             cancelled: false,
+            audit_of: None,
+            audit: audit_id,
         };
-        let points: Vec<PointRecord> = points
-            .into_iter()
-            .enumerate()
-            .map(|(i, parameters)| PointRecord {
-                study: id,
-                id: PointId(i as u64),
-                parameters,
-                state: PointState::Pending,
-                attempts: 0,
-                result: None,
-                error: None,
-                finished_seq: None,
-            })
-            .collect();
+        let pending = |study: StudyId, points: Vec<ParameterVector>| -> Vec<PointRecord> {
+            points
+                .into_iter()
+                .enumerate()
+                .map(|(i, parameters)| PointRecord {
+                    study,
+                    id: PointId(i as u64),
+                    parameters,
+                    state: PointState::Pending,
+                    attempts: 0,
+                    result: None,
+                    error: None,
+                    finished_seq: None,
+                })
+                .collect()
+        };
+        // The audit: points spread over the list, re-solved cold at a tighter tolerance.
+        let audit = audit_id.map(|audit_id| {
+            let chosen: Vec<ParameterVector> = (0..audit_points)
+                .map(|k| {
+                    points[if audit_points == 1 { 0 } else { k * (points.len() - 1) / (audit_points - 1) }].clone()
+                })
+                .collect();
+            let audit = StudyRecord {
+                id: audit_id,
+                label: format!("audit of study {id}"),
+                tolerance: tolerance * AUDIT_TOLERANCE_RATIO,
+                max_iterations: max_iterations.saturating_mul(AUDIT_ITERATION_FACTOR),
+                strategy: InitStrategy::Cold,
+                order: OrderKind::Asc,
+                audit_of: Some(id),
+                audit: None,
+                ..record.clone()
+            };
+            (audit, pending(audit_id, chosen))
+        });
+        let points = pending(id, points);
         let mut batch = Batch::new();
         if self.store.get(Tree::Scenes, scene_hash.as_bytes())?.is_none() {
             batch.put(Tree::Scenes, scene_hash.as_bytes(), record.scene.as_bytes());
         }
-        batch.put(Tree::Studies, study_key(id), encode(&record));
-        for p in &points {
-            batch.put(Tree::Points, point_key(id, p.id), encode(p));
-        }
-        batch.put(Tree::Meta, NEXT_STUDY_KEY, (id.0 + 1).to_be_bytes());
-        self.store.commit(batch)?;
-        state.next_study = id.0 + 1;
-        let n = points.len() as u32;
-        let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
-        if !state.by_scene.contains_key(&scene_hash) {
-            // None for a scene of too many parameters: its studies are cold (checked above).
-            if let Ok(index) = SceneSolutions::new(scene_hash.clone(), plan.space().clone(), self.store.clone()) {
-                state.by_scene.insert(scene_hash.clone(), index);
+        let mut studies = vec![(record, points)];
+        studies.extend(audit);
+        for (r, ps) in &studies {
+            batch.put(Tree::Studies, study_key(r.id), encode(r));
+            for p in ps {
+                batch.put(Tree::Points, point_key(r.id, p.id), encode(p));
             }
         }
-        let entry = StudyEntry { record, points, plan };
-        tracing::info!(study = %id, points = n, scene = %scene_hash, "study submitted");
-        self.emit(EventKind::Snapshot, &entry, None);
-        state.studies.insert(id, entry);
+        let next = studies.last().expect("the study itself").0.id.0 + 1;
+        batch.put(Tree::Meta, NEXT_STUDY_KEY, next.to_be_bytes());
+        self.store.commit(batch)?;
+        state.next_study = next;
+        let n = studies[0].1.len() as u32;
+        for (record, points) in studies {
+            let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+            if !state.by_scene.contains_key(&scene_hash) {
+                // None for a scene of too many parameters: its studies are cold (checked above).
+                if let Ok(index) = SceneSolutions::new(scene_hash.clone(), plan.space().clone(), self.store.clone()) {
+                    state.by_scene.insert(scene_hash.clone(), index);
+                }
+            }
+            let entry = StudyEntry { record, points, plan };
+            tracing::info!(study = %entry.record.id, points = entry.points.len(), scene = %scene_hash, audit_of = ?entry.record.audit_of, "study submitted");
+            self.emit(EventKind::Snapshot, &entry, None);
+            state.studies.insert(entry.record.id, entry);
+        }
         drop(state);
         self.work.notify_waiters();
         Ok((id, n, scene_hash))
     }
 
-    fn view(entry: &StudyEntry, with_points: bool) -> StudyView {
+    fn view(studies: &BTreeMap<StudyId, StudyEntry>, entry: &StudyEntry, with_points: bool) -> StudyView {
         StudyView {
             record: entry.record.clone(),
             state: entry.state(),
             progress: entry.progress(),
             points: if with_points { entry.points.clone() } else { Vec::new() },
+            accuracy: entry.record.audit.and_then(|a| studies.get(&a)).map(|audit| accuracy(entry, audit)),
         }
     }
 
     pub fn study(&self, id: StudyId, with_points: bool) -> Result<StudyView, CoordError> {
         let state = self.lock();
         let entry = state.studies.get(&id).ok_or(CoordError::UnknownStudy(id))?;
-        Ok(Self::view(entry, with_points))
+        Ok(Self::view(&state.studies, entry, with_points))
     }
 
     pub fn studies(&self) -> Vec<StudyView> {
-        self.lock().studies.values().map(|e| Self::view(e, false)).collect()
+        let state = self.lock();
+        state.studies.values().map(|e| Self::view(&state.studies, e, false)).collect()
     }
 
     /// The events replaying a study's state, and a subscription for what follows (taken under
@@ -453,7 +493,17 @@ impl Coordinator {
             .collect::<Result<_, CoordError>>()?;
         self.commit(entry, changes, Some(record), Batch::new())?;
         tracing::info!(study = %id, "study cancelled");
-        Ok(Self::view(entry, false))
+        let audit = entry.record.audit;
+        // its audit has nothing left to measure
+        if let Some(audit) = audit
+            && state.studies.get(&audit).is_some_and(|a| a.state() == StudyState::Active)
+        {
+            drop(state);
+            self.cancel(audit)?;
+            state = self.lock();
+        }
+        let entry = state.studies.get(&id).expect("cancelled above");
+        Ok(Self::view(&state.studies, entry, false))
     }
 
     pub fn retry_failed(&self, id: StudyId) -> Result<(u32, StudyView), CoordError> {
@@ -474,7 +524,7 @@ impl Coordinator {
             tracing::info!(study = %id, requeued, "failed points requeued");
             self.emit(EventKind::Snapshot, entry, None);
         }
-        let view = Self::view(entry, false);
+        let view = Self::view(&state.studies, &state.studies[&id], false);
         drop(state);
         self.work.notify_waiters();
         Ok((requeued, view))
@@ -495,7 +545,9 @@ impl Coordinator {
         let mut state = self.lock();
         let version =
             state.pools.get(pool).ok_or_else(|| CoordError::UnknownPool(pool.to_owned()))?.solver_version.clone();
-        let ids: Vec<StudyId> = state.studies.keys().copied().collect();
+        // audits when nothing else is pending: they measure, they answer no one
+        let mut ids: Vec<StudyId> = state.studies.keys().copied().collect();
+        ids.sort_by_key(|id| (state.studies[id].record.audit_of.is_some(), *id));
         for id in ids {
             loop {
                 let State { studies, solutions, by_scene, .. } = &mut *state;
@@ -851,6 +903,40 @@ impl Coordinator {
     /// Makes everything durable (at shutdown).
     pub fn flush(&self) -> Result<(), CoordError> {
         Ok(self.store.flush()?)
+    }
+}
+
+/// What `audit` (re-solves of some of `study`'s points) measured of `study`: per QoI, |study -
+/// audit| over the points done in both, relative to the largest |audit value| of that QoI (the
+/// measure of docs/performance.md).
+fn accuracy(study: &StudyEntry, audit: &StudyEntry) -> Accuracy {
+    let done = |p: &PointRecord| p.state == PointState::Done;
+    // (the study's QoIs, the audit's) at each point done in both
+    let mut pairs = Vec::new();
+    for a in audit.points.iter().filter(|p| done(p)) {
+        let found = study.points.iter().find(|p| done(p) && p.parameters == a.parameters);
+        if let (Some(p), Some(ar)) = (found, a.result.as_ref())
+            && let Some(pr) = p.result.as_ref()
+        {
+            pairs.push((&pr.qoi, &ar.qoi));
+        }
+    }
+    let mut qoi = BTreeMap::new();
+    let names: std::collections::BTreeSet<&String> = pairs.iter().flat_map(|(_, a)| a.keys()).collect();
+    for name in names {
+        let both: Vec<(f64, f64)> = pairs.iter().filter_map(|(s, a)| Some((*s.get(name)?, *a.get(name)?))).collect();
+        let scale = both.iter().map(|(_, a)| a.abs()).fold(0.0f64, f64::max);
+        let scale = if scale > 0.0 { scale } else { 1.0 };
+        let errors: Vec<f64> = both.iter().map(|(s, a)| (s - a).abs() / scale).collect();
+        let largest = errors.iter().cloned().fold(0.0f64, f64::max);
+        qoi.insert(name.clone(), (largest, errors.iter().sum::<f64>() / errors.len().max(1) as f64));
+    }
+    Accuracy {
+        audit_study: audit.record.id,
+        tolerance: audit.record.tolerance,
+        audited: pairs.len() as u32,
+        planned: audit.points.len() as u32,
+        qoi,
     }
 }
 

@@ -24,7 +24,18 @@ fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator 
     Coordinator::open(store, config).unwrap()
 }
 
+/// A study without an audit (the tests lease its points one by one).
 fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy) -> StudyId {
+    submit_audited(c, grid, tolerance, strategy, Some(0))
+}
+
+fn submit_audited(
+    c: &Coordinator,
+    grid: &[&str],
+    tolerance: f64,
+    strategy: InitStrategy,
+    audit_points: Option<u32>,
+) -> StudyId {
     let submission = Submission {
         scene_text: TINY.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
@@ -34,6 +45,7 @@ fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy
         strategy,
         order: OrderKind::Asc,
         label: String::new(),
+        audit_points,
     };
     c.submit(submission).unwrap().0
 }
@@ -48,6 +60,7 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         strategy: InitStrategy::Nearest,
         order: OrderKind::Asc,
         label: String::new(),
+        audit_points: None,
     };
     match c.submit(submission) {
         Err(CoordError::Invalid(message)) => message,
@@ -105,6 +118,15 @@ fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
 
 /// A solution file of the tiny scene at `grant`'s point, with the outcome given.
 fn solution_file(grant: &LeaseGrant, eta: f64, converged: bool) -> (Completion, Vec<u8>) {
+    solution_file_with_qoi(grant, eta, converged, &[("slip_A".to_string(), 1e-6)].into())
+}
+
+fn solution_file_with_qoi(
+    grant: &LeaseGrant,
+    eta: f64,
+    converged: bool,
+    qoi: &BTreeMap<String, f64>,
+) -> (Completion, Vec<u8>) {
     let scene = Scene::parse(&grant.scene_text).unwrap();
     let mut full = BTreeMap::new();
     for (name, p) in &scene.parameters {
@@ -124,7 +146,7 @@ fn solution_file(grant: &LeaseGrant, eta: f64, converged: bool) -> (Completion, 
         error_indicator: eta,
         iterations: 10,
         tolerance: grant.tolerance,
-        qoi: [("slip_A".to_string(), 1e-6)].into(),
+        qoi: qoi.clone(),
     };
     let mut bytes = Vec::new();
     solution_file::write_to(&mut bytes, &solution, &meta).unwrap();
@@ -136,7 +158,7 @@ fn solution_file(grant: &LeaseGrant, eta: f64, converged: bool) -> (Completion, 
         converged,
         iterations: 10,
         error_indicator: eta,
-        qoi: [("slip_A".to_string(), 1e-6)].into(),
+        qoi: qoi.clone(),
         wall_seconds: 0.5,
         eta_history: vec![1.0, eta],
         work: 8.0,
@@ -284,4 +306,43 @@ fn everything_committed_survives_a_reopen_and_leases_get_a_fresh_deadline() {
     // study ids continue where they were; lease ids are random, never reused
     assert_ne!(g.lease_id, held.lease_id);
     assert_eq!(submit(&c, &["f1=0.1"], 1e-3, InitStrategy::Cold), StudyId(id.0 + 1));
+}
+
+/// A study's audit: its points spread over the list re-solved cold at 1/100 of the tolerance,
+/// leased only when nothing else is pending, and the accuracy it reports is |study - audit| /
+/// largest |audit| per QoI, computed here by hand.
+#[test]
+fn an_audit_measures_the_accuracy_a_study_got() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    // 5 points: the default audit re-solves 2 of them (10 %, at least 2): the first and the last
+    let id = submit_audited(&c, &["f1=0.1:0.2:5"], 1e-3, InitStrategy::Cold, None);
+    let view = c.study(id, false).unwrap();
+    let audit = view.record.audit.expect("an audit");
+    let a = c.study(audit, true).unwrap();
+    assert_eq!((a.record.audit_of, a.record.strategy, a.points.len()), (Some(id), InitStrategy::Cold, 2));
+    assert_eq!(a.record.tolerance, 1e-3 * AUDIT_TOLERANCE_RATIO);
+    let f1 = |p: &PointRecord| p.parameters.get("f1").unwrap();
+    assert_eq!((f1(&a.points[0]), f1(&a.points[1])), (0.1, 0.2));
+    // a later study's points come before the audit's
+    let later = submit(&c, &["f1=0.11"], 1e-3, InitStrategy::Cold);
+    let slip = |f1: f64, audit: bool| if audit { f1 * 1e-5 } else { f1 * 1e-5 + if f1 > 0.15 { 4e-8 } else { 1e-8 } };
+    let mut order = Vec::new();
+    while let Some(grant) = c.lease("p").unwrap() {
+        order.push(grant.study);
+        let f = grant.parameters.get("f1").unwrap();
+        let qoi = [("slip_A".to_string(), slip(f, grant.study == audit))].into();
+        let (done, file) = solution_file_with_qoi(&grant, grant.tolerance / 2.0, true, &qoi);
+        c.complete(done, file).unwrap();
+    }
+    assert_eq!(order, [vec![id; 5], vec![later], vec![audit; 2]].concat());
+    let accuracy = c.study(id, false).unwrap().accuracy.expect("measured");
+    assert_eq!((accuracy.audit_study, accuracy.audited, accuracy.planned), (audit, 2, 2));
+    // by hand: errors 1e-8 at f1 = 0.1 and 4e-8 at 0.2, over the largest audit value 2e-6
+    let (largest, mean) = accuracy.qoi["slip_A"];
+    assert!((largest - 4e-8 / 2e-6).abs() < 1e-12 && (mean - 2.5e-8 / 2e-6).abs() < 1e-12, "{accuracy:?}");
+    // no audit when asked for none
+    let plain = submit(&c, &["f1=0.12"], 1e-3, InitStrategy::Cold);
+    assert!(c.study(plain, false).unwrap().accuracy.is_none());
 }

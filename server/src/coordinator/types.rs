@@ -122,6 +122,7 @@ pub struct StudyView {
     pub state: StudyState,
     pub progress: Progress,
     pub points: Vec<PointRecord>,
+    pub accuracy: Option<Accuracy>,
 }
 
 /// A submission, validated by the service layer's conversions.
@@ -135,6 +136,30 @@ pub struct Submission {
     pub strategy: InitStrategy,
     pub order: OrderKind,
     pub label: String,
+    /// Points re-solved by the audit (None: [`default_audit_points`]; 0: no audit).
+    pub audit_points: Option<u32>,
+}
+
+/// The audit's tolerance, relative to the study's.
+pub const AUDIT_TOLERANCE_RATIO: f64 = 0.01;
+/// The audit's iteration limit, relative to the study's (a tighter tolerance takes longer).
+pub const AUDIT_ITERATION_FACTOR: u32 = 4;
+
+/// Points a study's audit re-solves unless told: 10 %, at least 2 (at most all).
+pub fn default_audit_points(points: usize) -> usize {
+    points.div_ceil(10).max(2).min(points)
+}
+
+/// What a study's audit measured.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Accuracy {
+    pub audit_study: StudyId,
+    pub tolerance: f64,
+    /// Points compared so far, of `planned`.
+    pub audited: u32,
+    pub planned: u32,
+    /// Per QoI: (largest, mean) of |study - audit| / largest |audit|.
+    pub qoi: BTreeMap<String, (f64, f64)>,
 }
 
 /// A point handed to a pool.
