@@ -149,8 +149,15 @@ struct SubmitArgs {
     scene: PathBuf,
     /// A swept parameter, NAME=START:STOP:COUNT, NAME=V1,V2,... or NAME=lhs:N:SEED (repeatable;
     /// the study is the product of the grids).
-    #[arg(long, value_name = "NAME=SPEC", required = true)]
+    #[arg(long, value_name = "NAME=SPEC", required_unless_present = "adaptive", conflicts_with = "adaptive")]
     grid: Vec<String>,
+    /// An adaptive study of N points instead of a grid: the first spread over the --range box,
+    /// then each where the response surface is least sure (docs/surrogate.md)
+    #[arg(long, value_name = "N", requires = "range")]
+    adaptive: Option<u32>,
+    /// The box of an adaptive study, NAME=LOW:HIGH (repeatable, one per swept parameter)
+    #[arg(long, value_name = "NAME=LOW:HIGH", requires = "adaptive")]
+    range: Vec<String>,
     /// Tolerance on the error indicator (default: the scene's).
     #[arg(long, value_name = "T")]
     tol: Option<f64>,
@@ -339,9 +346,27 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
     if let Some(t) = args.tol {
         check_tolerance("--tol", t)?;
     }
-    let (scene, _) = read_submission(&args.scene, &args.grid)?;
+    let scene = if let Some(budget) = args.adaptive {
+        // checked as the coordinator will, before connecting
+        let text = std::fs::read_to_string(&args.scene)
+            .with_context(|| format!("cannot read scene {}", args.scene.display()))?;
+        let parsed = Scene::parse(&text).with_context(|| format!("scene {}", args.scene.display()))?;
+        let space = glissade_core::study::space::ParameterSpace::from_scene(&parsed);
+        glissade_core::study::adaptive::AdaptiveDesign::parse(
+            &args.range,
+            budget as usize,
+            &space,
+            glissade_core::study::space::DEFAULT_MAX_POINTS,
+        )
+        .map_err(|e| anyhow!("--range / --adaptive: {e}"))?;
+        text
+    } else {
+        read_submission(&args.scene, &args.grid)?.0
+    };
     let request = v1::SubmitStudyRequest {
         scene,
+        ranges: args.range,
+        adaptive_points: args.adaptive.unwrap_or(0),
         grid: args.grid,
         points: Vec::new(),
         tolerance: args.tol,

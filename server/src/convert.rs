@@ -117,7 +117,23 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
         if m.scene.len() > MAX_SCENE_BYTES {
             return Err(Invalid(format!("scene: {} bytes, more than the {MAX_SCENE_BYTES} accepted", m.scene.len())));
         }
-        if m.grid.is_empty() && m.points.is_empty() {
+        let adaptive = match (m.ranges.is_empty(), m.adaptive_points) {
+            (true, 0) => None,
+            (false, 0) => {
+                return Err(Invalid("ranges: give adaptive_points too (the study's number of points)".into()));
+            }
+            (true, _) => return Err(Invalid("adaptive_points: give the ranges (NAME=LOW:HIGH) too".into())),
+            (false, n) => {
+                if m.ranges.len() > 64 || m.ranges.iter().any(|r| r.len() > 256) {
+                    return Err(Invalid("ranges: at most 64, of at most 256 bytes each".into()));
+                }
+                if !m.grid.is_empty() || !m.points.is_empty() {
+                    return Err(Invalid("an adaptive study takes ranges, not a grid or points".into()));
+                }
+                Some((m.ranges, n))
+            }
+        };
+        if m.grid.is_empty() && m.points.is_empty() && adaptive.is_none() {
             return Err(Invalid("empty study: give a grid (`NAME=SPEC`) or a list of points".into()));
         }
         if !m.grid.is_empty() && !m.points.is_empty() {
@@ -148,6 +164,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             order: order(m.order)?,
             label: m.label,
             audit_points: m.audit_points,
+            adaptive,
         })
     }
 }

@@ -92,6 +92,17 @@ pub struct StudyRecord {
     /// The study auditing this one.
     #[serde(default)]
     pub audit: Option<StudyId>,
+    /// An adaptive study: its box and budget (its points are chosen as pools ask for work).
+    #[serde(default)]
+    pub adaptive: Option<AdaptiveSpec>,
+}
+
+/// The box and budget of an adaptive study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdaptiveSpec {
+    /// (name, low, high) per swept parameter, sorted by name.
+    pub ranges: Vec<(String, f64, f64)>,
+    pub budget: u32,
 }
 
 /// Where a point is in its life.

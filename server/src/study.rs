@@ -85,6 +85,11 @@ impl StudyPlan {
         self.engine.space()
     }
 
+    /// A point added to the study (adaptive studies grow).
+    pub fn push(&mut self, swept: &ParameterVector) {
+        self.full.push(design_point(self.engine.space(), swept));
+    }
+
     /// The point to lease next among the pending ones, by the study's ordering policy (which sees
     /// the points done and those in flight on every pool).
     pub fn next(&mut self, points: &[PointRecord]) -> Option<usize> {

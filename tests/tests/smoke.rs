@@ -1371,6 +1371,44 @@ with h5py.File(sys.argv[1], "r") as f:
         &glissade(Some("http://127.0.0.1:9"), &["studies"]),
         "cannot reach glissade server at http://127.0.0.1:9",
     );
+    assert_one_line_error(
+        &glissade(Some(&url), &["submit", scene, "--range", "f1=0.2:0.1", "--adaptive", "5"]),
+        "LOW must be below HIGH",
+    );
+
+    // an adaptive study: 6 distinct points inside the box, chosen as the pool asks, then done
+    let out = glissade(
+        Some(&url),
+        &[
+            "submit",
+            scene,
+            "--range",
+            "f1=0.1:0.2",
+            "--range",
+            "f2=0.1:0.2",
+            "--adaptive",
+            "6",
+            "--tol",
+            "1e-3",
+            "--json",
+        ],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let id = serde_json::from_slice::<serde_json::Value>(&out.stdout)?["study_id"].to_string();
+    let out = glissade(Some(&url), &["watch", &id]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = glissade(Some(&url), &["show", &id, "--points", "--json"]);
+    let shown: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!((&shown["state"], &shown["progress"]["done"]), (&"done".into(), &6.into()), "{shown}");
+    let points = shown["points"].as_array().expect("points");
+    let at: Vec<(f64, f64)> = points
+        .iter()
+        .map(|p| (p["parameters"]["f1"].as_f64().unwrap(), p["parameters"]["f2"].as_f64().unwrap()))
+        .collect();
+    for (i, &(f1, f2)) in at.iter().enumerate() {
+        assert!((0.1..=0.2).contains(&f1) && (0.1..=0.2).contains(&f2), "{at:?}");
+        assert!(!at[..i].contains(&(f1, f2)), "{at:?}");
+    }
     Ok(())
 }
 

@@ -11,6 +11,7 @@
 //! - [`run_study`]: a whole study, serially (the `glissade-worker study` command), over the
 //!   [`SolvePoint`] seam.
 
+pub mod adaptive;
 pub mod engine;
 pub mod order;
 pub mod space;

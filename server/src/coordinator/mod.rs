@@ -24,10 +24,12 @@ use glissade_core::study::space::ParameterSpace;
 use glissade_core::study::strategy::InitStrategy;
 
 use crate::records::{
-    self, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin, SolutionRecord,
-    StudyRecord, decode, encode, point_key, study_key,
+    self, AdaptiveSpec, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin,
+    SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, Tree};
+use glissade_core::study::adaptive::AdaptiveDesign;
+use glissade_core::study::space::DesignPoint;
 
 mod surface;
 mod transitions;
@@ -45,6 +47,12 @@ struct StudyEntry {
 impl StudyEntry {
     fn progress(&self) -> Progress {
         let mut p = Progress { total: self.points.len() as u32, ..Progress::default() };
+        // an adaptive study's points not chosen yet are pending too
+        if let Some(a) = self.record.adaptive.as_ref().filter(|_| !self.record.cancelled) {
+            let unchosen = a.budget.saturating_sub(p.total);
+            p.total += unchosen;
+            p.pending += unchosen;
+        }
         for point in &self.points {
             match point.state {
                 PointState::Pending => p.pending += 1,
@@ -314,15 +322,31 @@ impl Coordinator {
             Some(n) => n,
             None => u32::try_from(scene.solver.max_iterations).unwrap_or(u32::MAX),
         };
-        let (names, points) =
-            crate::study::expand(&scene, &submission.grid, &submission.points, self.config.max_points)
-                .map_err(CoordError::Invalid)?;
+        let (names, points, adaptive) = match &submission.adaptive {
+            None => {
+                let (names, points) =
+                    crate::study::expand(&scene, &submission.grid, &submission.points, self.config.max_points)
+                        .map_err(CoordError::Invalid)?;
+                (names, points, None)
+            }
+            Some(_) if !submission.grid.is_empty() || !submission.points.is_empty() => {
+                return Err(CoordError::Invalid("an adaptive study takes ranges, not a grid or points".into()));
+            }
+            Some((ranges, budget)) => {
+                let space = ParameterSpace::from_scene(&scene);
+                let design = AdaptiveDesign::parse(ranges, *budget as usize, &space, self.config.max_points)
+                    .map_err(CoordError::Invalid)?;
+                let names = design.ranges.iter().map(|(n, ..)| n.clone()).collect();
+                (names, Vec::new(), Some(AdaptiveSpec { ranges: design.ranges, budget: *budget }))
+            }
+        };
         if submission.strategy != InitStrategy::Cold {
             // The index refuses scenes of too many parameters: say so now, not at the first lease.
             SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
                 .map_err(|e| CoordError::Invalid(format!("strategy {}: {e}", submission.strategy.name())))?;
         }
         let created = now_unix_ms();
+        // (an adaptive study's points are not known yet: it has no audit)
         let audit_points = match submission.audit_points {
             None => default_audit_points(points.len()),
             Some(n) => (n as usize).min(points.len()),
@@ -345,6 +369,7 @@ impl Coordinator {
             cancelled: false,
             audit_of: None,
             audit: audit_id,
+            adaptive,
         };
         let pending = |study: StudyId, points: Vec<ParameterVector>| -> Vec<PointRecord> {
             points
@@ -378,6 +403,7 @@ impl Coordinator {
                 order: OrderKind::Asc,
                 audit_of: Some(id),
                 audit: None,
+                adaptive: None,
                 ..record.clone()
             };
             (audit, pending(audit_id, chosen))
@@ -552,6 +578,12 @@ impl Coordinator {
             loop {
                 let State { studies, solutions, by_scene, .. } = &mut *state;
                 let entry = studies.get_mut(&id).expect("id listed above");
+                if entry.record.adaptive.is_some()
+                    && !entry.record.cancelled
+                    && !entry.points.iter().any(|p| p.state == PointState::Pending)
+                {
+                    self.choose_adaptive_point(entry)?;
+                }
                 // (the cheap test first: the policy copies every point)
                 if entry.record.cancelled || !entry.points.iter().any(|p| p.state == PointState::Pending) {
                     break;
@@ -602,6 +634,55 @@ impl Coordinator {
             }
         }
         Ok(None)
+    }
+
+    /// Adds the next point of an adaptive study that has none pending, if its budget allows:
+    /// where the response surface is least sure (core::study::adaptive). A box with no room left
+    /// ends the study at the points it has.
+    fn choose_adaptive_point(&self, entry: &mut StudyEntry) -> Result<(), CoordError> {
+        let Some(spec) = entry.record.adaptive.clone() else { return Ok(()) };
+        if entry.points.len() >= spec.budget as usize {
+            return Ok(());
+        }
+        let design = AdaptiveDesign { ranges: spec.ranges.clone(), budget: spec.budget as usize };
+        let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = entry
+            .points
+            .iter()
+            .map(|p| {
+                let done = (p.state == PointState::Done).then(|| p.result.as_ref().map(|r| &r.qoi)).flatten();
+                (DesignPoint::from(BTreeMap::from(p.parameters.clone())), done)
+            })
+            .collect();
+        let mut batch = Batch::new();
+        match design.next(entry.plan.space(), &chosen) {
+            Some(next) => {
+                let parameters = crate::study::parameter_vector(&next);
+                let point = PointRecord {
+                    study: entry.record.id,
+                    id: PointId(entry.points.len() as u64),
+                    parameters,
+                    state: PointState::Pending,
+                    attempts: 0,
+                    result: None,
+                    error: None,
+                    finished_seq: None,
+                };
+                batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
+                self.store.commit(batch)?;
+                tracing::info!(study = %entry.record.id, point = point.id.0, at = %point.parameters, "adaptive point chosen");
+                entry.plan.push(&point.parameters);
+                entry.points.push(point);
+            }
+            None => {
+                let mut record = entry.record.clone();
+                record.adaptive = Some(AdaptiveSpec { budget: entry.points.len() as u32, ..spec });
+                batch.put(Tree::Studies, study_key(record.id), encode(&record));
+                self.store.commit(batch)?;
+                tracing::warn!(study = %record.id, points = entry.points.len(), "adaptive study: no room left in the box");
+                entry.record = record;
+            }
+        }
+        Ok(())
     }
 
     /// Marks point `i` of study `id` done from the stored solution `answer` (0 iterations).

@@ -46,6 +46,7 @@ fn submit_audited(
         order: OrderKind::Asc,
         label: String::new(),
         audit_points,
+        adaptive: None,
     };
     c.submit(submission).unwrap().0
 }
@@ -61,6 +62,7 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         order: OrderKind::Asc,
         label: String::new(),
         audit_points: None,
+        adaptive: None,
     };
     match c.submit(submission) {
         Err(CoordError::Invalid(message)) => message,
@@ -345,4 +347,60 @@ fn an_audit_measures_the_accuracy_a_study_got() {
     // no audit when asked for none
     let plain = submit(&c, &["f1=0.12"], 1e-3, InitStrategy::Cold);
     assert!(c.study(plain, false).unwrap().accuracy.is_none());
+}
+
+/// An adaptive study: two pools asking at once get different points, the study grows point by
+/// point as they finish, and it ends at its budget.
+#[test]
+fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    pool(&c, "q", VERSION);
+    let submission = Submission {
+        scene_text: TINY.into(),
+        grid: vec![],
+        points: vec![],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Nearest,
+        order: OrderKind::Greedy,
+        label: String::new(),
+        audit_points: None,
+        adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
+    };
+    let id = c.submit(submission).unwrap().0;
+    let view = c.study(id, true).unwrap();
+    assert_eq!((view.points.len(), view.progress.total, view.progress.pending), (0, 8, 8));
+    assert!(view.accuracy.is_none(), "no audit for an adaptive study");
+    let mut seen: Vec<(f64, f64)> = Vec::new();
+    let mut finished = 0;
+    while finished < 8 {
+        // two pools ask before either answers
+        let grants: Vec<(&str, LeaseGrant)> =
+            ["p", "q"].into_iter().filter_map(|p| c.lease(p).unwrap().map(|g| (p, g))).collect();
+        assert!(!grants.is_empty(), "the study is not over: {:?}", c.study(id, false).unwrap().progress);
+        for (_, g) in &grants {
+            let (f1, f2) = (g.parameters.get("f1").unwrap(), g.parameters.get("f2").unwrap());
+            assert!((0.1..=0.2).contains(&f1) && (0.1..=0.2).contains(&f2));
+            assert!(!seen.contains(&(f1, f2)), "({f1}, {f2}) handed out twice");
+            seen.push((f1, f2));
+        }
+        for (pool, g) in grants {
+            let f1 = g.parameters.get("f1").unwrap();
+            let qoi = [("slip_A".to_string(), (f1 - 0.13).max(0.0))].into();
+            let (mut done, file) = solution_file_with_qoi(&g, 5e-4, true, &qoi);
+            done.pool = pool.into();
+            c.complete(done, file).unwrap();
+            finished += 1;
+        }
+    }
+    assert_eq!(finished, 8);
+    assert!(c.lease("p").unwrap().is_none(), "the budget is spent");
+    let view = c.study(id, false).unwrap();
+    assert_eq!((view.state, view.progress.done, view.progress.total), (StudyState::Done, 8, 8));
+    // it survives a restart as it is
+    drop(c);
+    let c = open(dir.path(), 60_000, 3);
+    assert_eq!(c.study(id, false).unwrap().state, StudyState::Done);
 }

@@ -138,6 +138,8 @@ pub struct Submission {
     pub label: String,
     /// Points re-solved by the audit (None: [`default_audit_points`]; 0: no audit).
     pub audit_points: Option<u32>,
+    /// An adaptive study instead of `grid` / `points`: `NAME=LOW:HIGH` ranges and the budget.
+    pub adaptive: Option<(Vec<String>, u32)>,
 }
 
 /// The audit's tolerance, relative to the study's.
