@@ -18,6 +18,9 @@ use glissade_core::study::surrogate::ResponseSurface;
 use glissade_core::study::{PointRequest, SolvePoint, StudyResult};
 use glissade_worker::run::PointSolver;
 
+/// A design point and its QoIs.
+type Solved = (DesignPoint, BTreeMap<String, f64>);
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (scene_path, reference_path) = (&args[0], &args[1]);
@@ -42,10 +45,10 @@ fn main() {
         SolvePoint::solve(&mut solver, &scene, &request, None).expect("a solve").qoi
     };
 
-    let mut designs: Vec<(String, Vec<(DesignPoint, BTreeMap<String, f64>)>)> = Vec::new();
+    let mut designs: Vec<(String, Vec<Solved>)> = Vec::new();
     // the 5 x 5 sub-grid of the reference (values 0, 3, 5, 7, 10 of 11 per parameter)
     let keep = [0usize, 3, 5, 7, 10];
-    let grid: Vec<(DesignPoint, BTreeMap<String, f64>)> = truth
+    let grid: Vec<Solved> = truth
         .iter()
         .filter(|r| {
             names.iter().all(|n| {
@@ -66,7 +69,7 @@ fn main() {
     designs.push(("Latin hypercube".into(), lhs.iter().map(|p| (p.clone(), solve(p))).collect()));
     // adaptive: each point where the surface is least sure
     let design = AdaptiveDesign { ranges: vec![("f1".into(), 0.1, 0.2), ("f2".into(), 0.1, 0.2)], budget };
-    let mut adaptive: Vec<(DesignPoint, BTreeMap<String, f64>)> = Vec::new();
+    let mut adaptive: Vec<Solved> = Vec::new();
     while adaptive.len() < budget {
         let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
             adaptive.iter().map(|(p, q)| (p.clone(), Some(q))).collect();
