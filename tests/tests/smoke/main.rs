@@ -1,0 +1,14 @@
+//! End-to-end smoke tests: real processes, real files, no mocks.
+//!
+//! The single integration-test binary of this crate (each binary links the whole stack, so more
+//! would multiply link time), in one module per topic. Binaries of other packages come from
+//! `cargo build --workspace`.
+
+mod cli;
+mod common;
+mod engine;
+mod resilience;
+mod security;
+mod service;
+mod toolchain;
+mod worker_cli;

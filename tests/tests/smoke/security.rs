@@ -1,0 +1,147 @@
+//! Tokens and TLS: who may do what, and strangers get nothing.
+
+use crate::common::*;
+
+#[test]
+fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (user_token, pool_token) = ("u".repeat(40), "p".repeat(40));
+    let (user_file, pool_file) = (dir.path().join("user.token"), dir.path().join("pool.token"));
+    std::fs::write(&user_file, format!("{user_token}\n"))?;
+    std::fs::write(&pool_file, &pool_token)?;
+
+    // Without tokens a coordinator refuses to listen beyond loopback.
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-server")).args(["--listen", "0.0.0.0:0", "--data"]).arg(dir.path().join("x")),
+        LIMIT,
+    );
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("without tokens"), "{}", text(&out.stderr));
+
+    let files = ["--user-token-file", user_file.to_str().unwrap(), "--pool-token-file", pool_file.to_str().unwrap()];
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &files);
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let with = |token: &str| {
+        let value: tonic::metadata::MetadataValue<_> = format!("Bearer {token}").parse().expect("ascii");
+        move |mut r: tonic::Request<()>| {
+            r.metadata_mut().insert("authorization", value.clone());
+            Ok(r)
+        }
+    };
+    let channel = rt.block_on(tonic::transport::Endpoint::from_shared(url.clone())?.connect())?;
+
+    // A stranger, and a pool posing as a user: refused before anything is read.
+    let mut stranger = UserClient::new(channel.clone());
+    let s = rt.block_on(stranger.submit_study(grid_request(&["f1=0.1"], STUDY_TOL))).expect_err("no token");
+    assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
+    let mut posing = UserClient::with_interceptor(channel.clone(), with(&pool_token));
+    let s = rt.block_on(posing.list_studies(v1::ListStudiesRequest {})).expect_err("pool token");
+    assert_eq!(s.code(), Code::PermissionDenied, "{s:?}");
+    // ...and a user posing as a pool cannot lease or complete.
+    let mut fake = PoolClient::with_interceptor(channel.clone(), with(&user_token));
+    let s = rt
+        .block_on(fake.register_pool(v1::RegisterPoolRequest { pool_id: "fake".into(), ..Default::default() }))
+        .expect_err("user token");
+    assert_eq!(s.code(), Code::PermissionDenied, "{s:?}");
+    let mut wrong = PoolClient::with_interceptor(channel.clone(), with(&"w".repeat(40)));
+    let s = rt.block_on(wrong.lease_point(v1::LeasePointRequest::default())).map(drop).expect_err("wrong");
+    assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
+    // Health stays open for monitoring, ours and the standard one.
+    let out = glissade(Some(&url), &["health"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(rt.block_on(standard_health(&url, "")), Ok(1));
+
+    // The CLI with the user token submits; a pool with the user token is refused and says so.
+    let scene = dir.path().join("tiny.toml");
+    std::fs::write(&scene, tiny_scene())?;
+    let token_arg = user_file.to_str().unwrap();
+    let out = glissade(
+        Some(&url),
+        &["--token-file", token_arg, "submit", scene.to_str().unwrap(), "--grid", "f1=0.1,0.2", "--tol", "1e-3"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = glissade(Some(&url), &["studies"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("needs a user token"), "{}", text(&out.stderr));
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker")).args(["pool", "--coordinator", &url, "--token-file", token_arg]),
+        LIMIT,
+    );
+    assert_eq!(out.status.code(), Some(1));
+    assert!(text(&out.stderr).contains("refused this pool"), "{}", text(&out.stderr));
+
+    // A pool with its token (from the environment) solves the study.
+    let pool_log = dir.path().join("pool.log");
+    let token = child_token();
+    let pool = command(&workspace_bin("glissade-worker"))
+        .args(["pool", "--coordinator", &url, "--idle-exit", "3"])
+        .env("GLISSADE_TOKEN", &pool_token)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(File::create(&pool_log)?)
+        .spawn()?;
+    let _pool = ServerGuard(pool, token);
+    let mut user = UserClient::with_interceptor(channel, with(&user_token));
+    rt.block_on(async {
+        let mut stream = user.watch_study(v1::WatchStudyRequest { study_id: 1 }).await?.into_inner();
+        while let Some(e) = tokio::time::timeout(LIMIT, stream.message()).await?? {
+            if kind(&e) == v1::EventKind::StudyEnded {
+                break;
+            }
+        }
+        anyhow::Ok(())
+    })?;
+    let s = rt.block_on(user.get_study(v1::GetStudyRequest { study_id: 1, points: true, scene: false }))?.into_inner();
+    assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}\n{}", log_of(&pool_log));
+    Ok(())
+}
+
+#[test]
+fn tls_serves_https_clients_that_trust_its_authority_and_no_one_else() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let d = dir.path().display();
+    // A test CA and a certificate for localhost / 127.0.0.1 signed by it.
+    let script = format!(
+        "set -e; cd {d}
+         openssl req -x509 -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -keyout ca.key -out ca.pem -days 1 -subj '/CN=glissade test CA' 2>/dev/null
+         openssl req -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes -keyout server.key -out server.csr -subj '/CN=localhost' 2>/dev/null
+         printf 'subjectAltName=DNS:localhost,IP:127.0.0.1\\n' > san.ext
+         openssl x509 -req -in server.csr -CA ca.pem -CAkey ca.key -CAcreateserial -out server.pem -days 1 -extfile san.ext 2>/dev/null"
+    );
+    let out = run_with_timeout(Command::new("bash").args(["-c", &script]), LIMIT);
+    assert!(out.status.success(), "openssl: {}", text(&out.stderr));
+    let path = |f: &str| dir.path().join(f).display().to_string();
+    let tls = ["--tls-cert", &path("server.pem"), "--tls-key", &path("server.key")];
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &tls);
+    let https = format!("https://localhost:{}", addr.port());
+
+    // The CLI and a pool that trust the CA: a study goes through.
+    let out = glissade(Some(&https), &["--ca-cert", &path("ca.pem"), "health"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let scene = dir.path().join("tiny.toml");
+    std::fs::write(&scene, tiny_scene())?;
+    let out = glissade(
+        Some(&https),
+        &["--ca-cert", &path("ca.pem"), "submit", scene.to_str().unwrap(), "--grid", "f1=0.1", "--tol", "1e-3"],
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker"))
+            .args(["pool", "--coordinator", &https, "--idle-exit", "2"])
+            .env("GLISSADE_CA_CERT", path("ca.pem")),
+        LIMIT,
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = glissade(Some(&https), &["--ca-cert", &path("ca.pem"), "show", "1", "--json"]);
+    assert!(text(&out.stdout).contains("\"done\""), "{}{}", text(&out.stdout), text(&out.stderr));
+
+    // Without the CA (the system's roots do not know it), and in clear text: nothing.
+    let out = glissade(Some(&https), &["health"]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));
+    let out = glissade(Some(&format!("http://127.0.0.1:{}", addr.port())), &["health"]);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));
+    Ok(())
+}
