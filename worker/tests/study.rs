@@ -4,6 +4,8 @@
 //!
 //! `cargo test -p glissade-worker --test study -- --nocapture` prints the measured values.
 
+mod fixtures;
+
 use std::collections::BTreeMap;
 use std::process::Command;
 
@@ -15,9 +17,6 @@ use glissade_core::study::store::{MemoryStore, SolutionStore, StoredSolution};
 use glissade_core::study::strategy::{InitStrategy, initialise, interface_law_parameters};
 use glissade_core::study::{PointRecord, PointStatus, StartKind, StudyOptions, StudyResult, run_study};
 use glissade_worker::run::PointSolver;
-
-const TINY: &str = include_str!("../../scenes/three-blocks-tiny.toml");
-const SLIDING_2D: &str = include_str!("../../scenes/sliding-block-2d.toml");
 
 fn scene(text: &str) -> Scene {
     Scene::parse(text).expect("scene parses")
@@ -83,7 +82,7 @@ fn assert_same_qois(label: &str, a: &StudyResult, b: &StudyResult, tol: f64) {
 
 #[test]
 fn warm_starts_reach_the_cold_solution_for_every_strategy() {
-    let s = scene(TINY);
+    let s = scene(fixtures::THREE_BLOCKS_TINY);
     let tol = 2e-6;
     let points = grid(&s, &["f1=0.1,0.15,0.2", "f2=0.1,0.2"]);
     let cold = study(&s, &points, options(InitStrategy::Cold, tol), &mut LexicographicAscending, &mut fresh_store(&s));
@@ -112,7 +111,7 @@ fn warm_starts_reach_the_cold_solution_for_every_strategy() {
 
 #[test]
 fn tolerance_aware_reuse_answers_at_once_and_continues_to_a_tighter_tolerance() {
-    let s = scene(TINY);
+    let s = scene(fixtures::THREE_BLOCKS_TINY);
     let point = vec![DesignPoint::from_pairs([("f1", 0.12), ("f2", 0.17)])];
     let mut store = fresh_store(&s);
     let loose = study(&s, &point, options(InitStrategy::Nearest, 1e-3), &mut LexicographicAscending, &mut store);
@@ -166,7 +165,7 @@ fn fake(point: DesignPoint) -> StoredSolution {
 
 #[test]
 fn blend_combines_only_across_interface_law_parameters() {
-    let s = scene(TINY);
+    let s = scene(fixtures::THREE_BLOCKS_TINY);
     let space = ParameterSpace::from_scene(&s);
     let law = interface_law_parameters(&s);
     assert_eq!(law.iter().map(String::as_str).collect::<Vec<_>>(), ["f1", "f2"]);
@@ -247,7 +246,7 @@ fn slip(r: &PointRecord, name: &str) -> f64 {
 
 #[test]
 fn extremes_of_friction() {
-    let s = scene(TINY);
+    let s = scene(fixtures::THREE_BLOCKS_TINY);
     let tol = 2e-4;
     let base = point(&s, &[("f1", 0.1), ("f2", 0.1)], tol);
     assert_eq!(base.status, PointStatus::Converged);
@@ -277,7 +276,7 @@ fn extremes_of_friction() {
 
 #[test]
 fn extremes_of_friction_2d_sliding_block() {
-    let s = scene(SLIDING_2D);
+    let s = scene(fixtures::SLIDING_BLOCK_2D);
     let tol = 2e-4;
     let base = point(&s, &[("f", 0.3)], tol);
     assert_eq!(base.status, PointStatus::Converged);
@@ -297,9 +296,9 @@ fn extremes_of_friction_2d_sliding_block() {
 #[test]
 fn extremes_of_poisson_ratio() {
     let tol = 2e-4;
-    let base = point(&scene(TINY), &[], tol);
+    let base = point(&scene(fixtures::THREE_BLOCKS_TINY), &[], tol);
     for nu in [0.0, 0.49] {
-        let mut s = scene(TINY);
+        let mut s = scene(fixtures::THREE_BLOCKS_TINY);
         for m in s.materials.values_mut() {
             m.nu = glissade_core::scene::Scalar::Number(nu);
         }
@@ -319,9 +318,9 @@ fn extremes_of_poisson_ratio() {
 #[test]
 fn extremes_of_time_step() {
     let tol = 2e-4;
-    let base = point(&scene(TINY), &[], tol);
+    let base = point(&scene(fixtures::THREE_BLOCKS_TINY), &[], tol);
     for factor in [0.01, 100.0] {
-        let mut s = scene(TINY);
+        let mut s = scene(fixtures::THREE_BLOCKS_TINY);
         s.time.duration = glissade_core::scene::Scalar::Number(2e-4 * factor);
         let r = point(&s, &[], tol);
         // 0.01: T = 2 us, the load reaches 20 % of its peak: less slip than the full pulse.
@@ -339,9 +338,9 @@ fn extremes_of_time_step() {
 #[test]
 fn extremes_of_search_direction() {
     let tol = 2e-4;
-    let base = point(&scene(TINY), &[], tol);
+    let base = point(&scene(fixtures::THREE_BLOCKS_TINY), &[], tol);
     for factor in [0.01, 100.0] {
-        let mut s = scene(TINY);
+        let mut s = scene(fixtures::THREE_BLOCKS_TINY);
         s.solver.k0_factor = glissade_core::scene::Scalar::Number(factor);
         let r = point(&s, &[], tol);
         // measured: neither converges within CAP iterations (eta 2.0e-4 and 1.0e-3): a clear
@@ -359,7 +358,7 @@ fn extremes_of_search_direction() {
 
 #[test]
 fn extremes_of_load_and_prestress() {
-    let s = scene(TINY);
+    let s = scene(fixtures::THREE_BLOCKS_TINY);
     let tol = 2e-4;
     let base = point(&s, &[], tol);
     // no lateral load: the prestressed assembly stays at rest: no slip
@@ -469,7 +468,7 @@ fn warm_starts_from_a_neighbour_are_as_accurate_as_cold_solves() {
         tolerance: Some(tolerance),
         ..SolveRequest::default()
     };
-    let tiny = scene(TINY);
+    let tiny = scene(fixtures::THREE_BLOCKS_TINY);
     let reference = solve_scene(&tiny, &at(0.15, 1e-9), None).unwrap();
     let neighbour = solve_scene(&tiny, &at(0.125, 2e-4), None).unwrap();
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();

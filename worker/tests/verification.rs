@@ -1,6 +1,8 @@
 //! Verification of the solver against independent references (docs/verification.md):
 //! the monolithic Newmark solve, d'Alembert wave solutions, Coulomb's law, energy balance.
 
+mod fixtures;
+
 use glissade_core::scene::{Scale, Scene};
 use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
 use glissade_worker::model::{Model, QoiTarget};
@@ -321,13 +323,13 @@ fn check_bar_impact<const D: usize>(text: &str, area: f64) {
 
 #[test]
 fn bar_impact_1d_matches_dalembert() {
-    check_bar_impact::<1>(include_str!("../../scenes/bar-impact-1d.toml"), 1.0);
+    check_bar_impact::<1>(fixtures::BAR_IMPACT_1D, 1.0);
 }
 
 #[test]
 fn bar_impact_3d_nu0_matches_dalembert() {
     // half the elements and steps of the shipped scene (same Courant number) to stay fast
-    let text = include_str!("../../scenes/bar-impact-3d.toml")
+    let text = fixtures::BAR_IMPACT_3D
         .replace("elements = [100, 1, 1]", "elements = [50, 1, 1]")
         .replace("steps = 400", "steps = 200");
     check_bar_impact::<3>(&text, 1e-4);
@@ -341,7 +343,7 @@ fn dot<const D: usize>(a: &[f64], b: &[f64; D]) -> f64 {
 /// inequality at every node and step, no penetration, non-negative frictional dissipation.
 #[test]
 fn sliding_block_obeys_coulomb() {
-    let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
+    let m = build::<2>(fixtures::SLIDING_BLOCK_2D, &[]);
     let r = solve(&m, false);
     let f = 0.3;
     let slip = &r.qoi.iter().find(|q| q.name == "slip_centre").unwrap().values;
@@ -478,10 +480,10 @@ fn check_energy<const D: usize>(name: &str, m: &Model<D>) -> (f64, f64) {
 fn energy_balance_closes_perfect_contact_friction() {
     let (itf, ext) = check_energy("perfect 3D", &build::<3>(BOX_3D, &[]));
     assert!(itf.abs() < 1e-6 * ext.abs(), "perfect interfaces do no work: {itf}");
-    let text = include_str!("../../scenes/bar-impact-1d.toml");
+    let text = fixtures::BAR_IMPACT_1D;
     let (itf, _) = check_energy("contact 1D", &build::<1>(text, &[]));
     assert!(itf <= 0.0, "a rigid wall can only take energy (inelastic impact node): {itf}");
-    let (itf, _) = check_energy("friction 2D", &build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]));
+    let (itf, _) = check_energy("friction 2D", &build::<2>(fixtures::SLIDING_BLOCK_2D, &[]));
     assert!(itf < 0.0, "sliding dissipates: interface work {itf}");
 }
 
@@ -489,7 +491,7 @@ fn energy_balance_closes_perfect_contact_friction() {
 /// iterations), to the same QoIs.
 #[test]
 fn warm_start_from_own_solution_converges_within_two_windows() {
-    let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
+    let m = build::<2>(fixtures::SLIDING_BLOCK_2D, &[]);
     let mut solver = LatinSolver::serial(&m).unwrap();
     let cold = solver.solve(None, &SolveOptions::default()).unwrap();
     let options = SolveOptions { init_at_this_point: true, ..SolveOptions::default() };
@@ -568,7 +570,7 @@ fn macro_problem_makes_iterations_nearly_independent_of_substructures() {
 /// Bad scenes give an error naming the offending key, never a panic or a result.
 #[test]
 fn bad_scenes_give_named_errors() {
-    let base = include_str!("../../scenes/sliding-block-2d.toml");
+    let base = fixtures::SLIDING_BLOCK_2D;
     let cases: &[(&str, &str, &str)] = &[
         ("nu = 0.3", "nu = 0.5", "materials.steel.nu"),
         ("E = 200e9", "E = 0", "materials.steel.E"),
@@ -619,7 +621,7 @@ fn non_matching_interfaces_are_refused() {
 /// A non-finite error indicator stops the solve with an error, never a result.
 #[test]
 fn non_finite_iterates_stop_with_an_error() {
-    let m = build::<2>(include_str!("../../scenes/sliding-block-2d.toml"), &[]);
+    let m = build::<2>(fixtures::SLIDING_BLOCK_2D, &[]);
     let mut solver = LatinSolver::serial(&m).unwrap();
     let mut init = solver.solve(None, &SolveOptions::default()).unwrap().solution;
     init.dynamic.interfaces[0].hat[0].force[3] = f64::NAN;
@@ -726,7 +728,7 @@ fn mpi_failing_rank_stops_the_job() {
 fn point_solver_reuses_factorisations_across_friction_changes() {
     use glissade_worker::comm::Serial;
     use glissade_worker::run::{PointSolver, SolveRequest, solve_scene};
-    let scene = Scene::parse(include_str!("../../scenes/three-blocks-tiny.toml")).unwrap();
+    let scene = Scene::parse(fixtures::THREE_BLOCKS_TINY).unwrap();
     let at = |set: &[(&str, f64)]| SolveRequest {
         set: set.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
         tolerance: Some(1e-3),
@@ -746,8 +748,7 @@ fn point_solver_reuses_factorisations_across_friction_changes() {
     assert!(third.summary.timings.factorisation > 0.0, "a prestress change rebuilds the operators");
     // The same scene (same hash: the [solver] section is not hashed) with another search
     // direction: the operators hold k0, so they are rebuilt, and the result is a fresh solve's.
-    let text =
-        include_str!("../../scenes/three-blocks-tiny.toml").replace("[time]", "[solver]\nk0_factor = 2\n\n[time]");
+    let text = fixtures::THREE_BLOCKS_TINY.replace("[time]", "[solver]\nk0_factor = 2\n\n[time]");
     let other_k0 = Scene::parse(&text).unwrap();
     assert_eq!(other_k0.content_hash(), scene.content_hash());
     let fourth = pool.solve(&Serial, &other_k0, &at(&[("f1", 0.15), ("prestress", 2e-4)]), None).unwrap();
@@ -787,7 +788,7 @@ fn mpi_fields_are_gathered_on_rank_zero() {
 /// about 630). The refined block still obeys Coulomb's law at every step and slides.
 #[test]
 fn refined_sliding_block_and_fine_time_steps_converge_within_the_default_limit() {
-    let block = include_str!("../../scenes/sliding-block-2d.toml")
+    let block = fixtures::SLIDING_BLOCK_2D
         .replace("elements = [8, 4]", "elements = [16, 8]")
         .replace("substructures = [2, 1]", "substructures = [4, 2]");
     let m = build::<2>(&block, &[]);
@@ -801,7 +802,7 @@ fn refined_sliding_block_and_fine_time_steps_converge_within_the_default_limit()
     }
     assert!(*q("slip_centre").last().unwrap() > 0.0, "pushed past f N, the block slides");
 
-    let bar = include_str!("../../scenes/bar-impact-1d.toml").replace("steps = 400", "steps = 800");
+    let bar = fixtures::BAR_IMPACT_1D.replace("steps = 400", "steps = 800");
     let m = build::<1>(&bar, &[]);
     let r = solve(&m, false);
     eprintln!("bar, dt = transit / 2: {} iterations", r.iterations());
