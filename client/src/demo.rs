@@ -13,7 +13,9 @@ use glissade_proto::v1;
 use glissade_server::ServerOptions;
 use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
 
-use crate::{ConvergenceArgs, Outcome, Server, SurfaceArgs, convergence, refused, surface, user, watch};
+use crate::{
+    ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, get_study, refused, surface, user, watch,
+};
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
 const SCENE: &str = include_str!("../../scenes/three-blocks-tiny.toml");
@@ -133,5 +135,14 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
     )
     .await?;
     eprintln!("wrote {} (every QoI of every point)", png("surface.csv").display());
+    // the accuracy the study got: its audit re-solves two of its points cold, far tighter
+    let audit = get_study(&mut client, "demo", id, false, false).await?.accuracy.map(|a| a.audit_study_id);
+    if let Some(audit) = audit {
+        outln!("\nthe study's audit (study {audit}): points re-solved cold at 1/100 of the tolerance");
+        watch(&mut client, audit).await?;
+        if let Some(a) = get_study(&mut client, "demo", id, false, false).await?.accuracy {
+            outln!("measured accuracy: {}", accuracy_line(&a));
+        }
+    }
     Ok(outcome)
 }

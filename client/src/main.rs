@@ -564,6 +564,21 @@ async fn studies(server: &Server, json: bool) -> Result<()> {
     Ok(())
 }
 
+/// `2 of 2 points re-solved cold at 1e-5 (study 2): slip_A largest 3.1e-4 mean 1.2e-4, ...`
+fn accuracy_line(a: &v1::StudyAccuracy) -> String {
+    let errors: Vec<String> =
+        a.qoi.iter().map(|(q, e)| format!("{q} largest {:.1e} mean {:.1e}", e.largest, e.mean)).collect();
+    format!(
+        "{} of {} points re-solved cold at {:.0e} (study {}){}{}",
+        a.audited,
+        a.planned,
+        a.tolerance,
+        a.audit_study_id,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    )
+}
+
 fn study_json(s: &v1::Study) -> serde_json::Value {
     let p = s.progress.unwrap_or_default();
     serde_json::json!({
@@ -828,17 +843,7 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
         outln!("  audits    study {} (its points re-solved cold at this tighter tolerance)", s.audit_of);
     }
     if let Some(a) = &s.accuracy {
-        let errors: Vec<String> =
-            a.qoi.iter().map(|(q, e)| format!("{q} largest {:.1e} mean {:.1e}", e.largest, e.mean)).collect();
-        outln!(
-            "  accuracy  {} of {} points re-solved cold at {:.0e} (study {}){}{}",
-            a.audited,
-            a.planned,
-            a.tolerance,
-            a.audit_study_id,
-            if errors.is_empty() { "" } else { ": " },
-            errors.join(", ")
-        );
+        outln!("  accuracy  {}", accuracy_line(a));
     }
     outln!(
         "  progress  {} done, {} failed, {} running, {} pending{}; {} iterations in all",
