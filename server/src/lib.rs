@@ -11,6 +11,7 @@ mod records;
 mod store;
 mod study;
 mod user;
+mod web;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -149,22 +150,28 @@ pub async fn bind(
             })
         };
         let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
+        let mut routes =
+            tonic::service::Routes::new(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
+                .add_service(standard_health)
+                .add_service(UserServer::with_interceptor(
+                    user::UserService { coordinator: coordinator.clone() },
+                    auth::RequireToken::users(tokens.as_ref()),
+                ))
+                .add_service(InterceptedService::new(
+                    // a pool's messages are a chunk of at most 1 MiB plus a small header: a bigger one is
+                    // refused as it is decoded, not after
+                    PoolServer::new(pool::PoolService::new(coordinator.clone()))
+                        .max_decoding_message_size(glissade_proto::CHUNK_BYTES + (64 << 10)),
+                    auth::RequireToken::pools(tokens.as_ref()),
+                ))
+                .add_service(reflection_v1)
+                .add_service(reflection_v1alpha);
+        // the web page and its JSON API on the same port, over HTTP/1.1
+        let grpc = std::mem::take(routes.axum_router_mut());
+        *routes.axum_router_mut() = grpc.merge(web::router(coordinator.clone(), tokens.as_ref()));
         let serve = builder
-            .add_service(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
-            .add_service(standard_health)
-            .add_service(UserServer::with_interceptor(
-                user::UserService { coordinator: coordinator.clone() },
-                auth::RequireToken::users(tokens.as_ref()),
-            ))
-            .add_service(InterceptedService::new(
-                // a pool's messages are a chunk of at most 1 MiB plus a small header: a bigger
-                // one is refused as it is decoded, not after
-                PoolServer::new(pool::PoolService::new(coordinator.clone()))
-                    .max_decoding_message_size(glissade_proto::CHUNK_BYTES + (64 << 10)),
-                auth::RequireToken::pools(tokens.as_ref()),
-            ))
-            .add_service(reflection_v1)
-            .add_service(reflection_v1alpha)
+            .accept_http1(true)
+            .add_routes(routes)
             // No Nagle: a lease is several small messages, and delayed ACKs would add 40 ms to each.
             .serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), {
                 let c = coordinator.clone();

@@ -123,6 +123,7 @@ async fn run(args: Args) -> Result<()> {
     // with the default action and skip the database flush.
     let shutdown = shutdown_signal()?;
     // Bound before announcing, so the printed port is already accepting connections.
+    let scheme = if options.tls.is_some() { "https" } else { "http" };
     let (addr, serve) = glissade_server::bind(options, args.listen, shutdown).await?;
     {
         let mut out = std::io::stdout().lock();
@@ -130,6 +131,8 @@ async fn run(args: Args) -> Result<()> {
         out.flush().context("flushing stdout")?;
     }
     tracing::info!(%addr, version = env!("CARGO_PKG_VERSION"), "serving");
+    // the web page, for people (stdout stays the one line above, for scripts)
+    eprintln!("web page: {scheme}://{addr}/");
     serve.await
 }
 

@@ -86,6 +86,21 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     // the table for people
     let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A"]);
     assert_eq!(text(&out.stdout).lines().count(), 10, "{}", text(&out.stdout));
+    // the web page on the same port as gRPC: the study with a colour map of 9 cells per QoI, its
+    // table, downloads, and the JSON API
+    let (status, kind, page) = http_get(&addr, "/studies/1");
+    assert_eq!((status, kind.as_str()), (200, "text/html; charset=utf-8"), "{page}");
+    assert_eq!(page.matches("class=\"cell\"").count(), 9 * 3, "{page}");
+    assert!(page.contains("<table id=\"points\">") && page.contains("measured accuracy"), "{page}");
+    let (status, kind, csv) = http_get(&addr, "/api/studies/1/surface.csv");
+    assert_eq!((status, kind.as_str()), (200, "text/csv; charset=utf-8"));
+    assert!(csv.contains("f1,f2,middle_ux,slip_A,slip_B,state"), "{csv}");
+    let (status, kind, list) = http_get(&addr, "/api/studies");
+    assert_eq!((status, kind.as_str()), (200, "application/json"));
+    assert!(list.contains("\"study_id\":1"), "{list}");
+    assert_eq!(http_get(&addr, "/studies/999").0, 404);
+    assert_eq!(http_get(&addr, "/").0, 200);
+
     // predictions with error bars: a stored point gives its value back, less surely between
     let out = glissade(
         Some(&url),

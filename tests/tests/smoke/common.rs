@@ -422,3 +422,22 @@ impl Drop for SmallDisk {
 pub fn tiny_path() -> String {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml").display().to_string()
 }
+
+/// An HTTP/1.1 GET of `path` on `addr`: (status, content type, body).
+pub fn http_get(addr: &SocketAddr, path: &str) -> (u16, String, String) {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(addr).expect("connect");
+    stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+    write!(stream, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n").expect("request");
+    let mut raw = Vec::new();
+    stream.read_to_end(&mut raw).expect("response");
+    let raw = String::from_utf8_lossy(&raw).into_owned();
+    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((&raw, ""));
+    let status = head.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
+    let content_type = head
+        .lines()
+        .find_map(|l| l.to_ascii_lowercase().strip_prefix("content-type:").map(|v| v.trim().to_owned()))
+        .unwrap_or_default();
+    // chunked bodies: good enough to search in (the chunk sizes stay in as lines)
+    (status, content_type, body.to_owned())
+}

@@ -48,6 +48,11 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     let mut wrong = PoolClient::with_interceptor(channel.clone(), with(&"w".repeat(40)));
     let s = rt.block_on(wrong.lease_point(v1::LeasePointRequest::default())).map(drop).expect_err("wrong");
     assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
+    // The web page obeys the tokens: nothing without the user token, the page with it.
+    assert_eq!(http_get(&addr, "/api/studies").0, 401);
+    assert_eq!(http_get(&addr, &format!("/api/studies?token={}", "p".repeat(40))).0, 401);
+    let (status, _, body) = http_get(&addr, &format!("/?token={user_token}"));
+    assert_eq!(status, 200, "{body}");
     // Health stays open for monitoring, ours and the standard one.
     let out = glissade(Some(&url), &["health"]);
     assert!(out.status.success(), "{}", text(&out.stderr));

@@ -1,0 +1,478 @@
+//! The coordinator's read-only web page and JSON API, served on its gRPC port (HTTP/1.1 beside
+//! HTTP/2): the studies, each study with its progress (updated while it runs), its measured
+//! accuracy, a response surface per QoI drawn on the server as SVG (a colour map over two
+//! parameters, a curve over one; the value under the pointer), its points, and downloads. Nothing
+//! is fetched from elsewhere: the page's only script is inline and asks this server's
+//! `/api/studies/ID` for progress.
+//!
+//! When the coordinator has tokens, every request needs the user token: `Authorization: Bearer
+//! TOKEN`, or `?token=TOKEN` for a browser.
+//!
+//! JSON: `/api/studies`, `/api/studies/ID` (with points), `/api/studies/ID/surface` (every QoI of
+//! every point); CSV: `/api/studies/ID/surface.csv`.
+
+use std::collections::{BTreeMap, HashMap};
+use std::fmt::Write as _;
+use std::sync::Arc;
+
+use axum::extract::{Path, Query, State};
+use axum::http::{HeaderMap, StatusCode, header};
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use glissade_proto::auth::Token;
+use glissade_proto::{ParameterVector, StudyId};
+use serde_json::json;
+
+use crate::auth::Tokens;
+use crate::coordinator::{CoordError, Coordinator, StudyView, SurfaceSource, point_state_word, state_word};
+use crate::records::PointRecord;
+
+#[derive(Clone)]
+struct Web {
+    coordinator: Arc<Coordinator>,
+    token: Option<Token>,
+}
+
+/// The routes of the page and the API.
+pub fn router(coordinator: Arc<Coordinator>, tokens: Option<&Tokens>) -> axum::Router {
+    let web = Web { coordinator, token: tokens.map(|t| t.user.clone()) };
+    axum::Router::new()
+        .route("/", get(index))
+        .route("/studies/{id}", get(study_page))
+        .route("/api/studies", get(api_studies))
+        .route("/api/studies/{id}", get(api_study))
+        .route("/api/studies/{id}/surface", get(api_surface))
+        .route("/api/studies/{id}/surface.csv", get(api_surface_csv))
+        .with_state(web)
+}
+
+type Params = Query<HashMap<String, String>>;
+
+/// Why a request gets no page: a status and one line of text.
+struct Refusal(StatusCode, String);
+
+impl IntoResponse for Refusal {
+    fn into_response(self) -> Response {
+        (self.0, [(header::CONTENT_TYPE, "text/plain; charset=utf-8")], format!("{}\n", self.1)).into_response()
+    }
+}
+
+fn refuse(status: StatusCode, message: &str) -> Refusal {
+    Refusal(status, message.to_owned())
+}
+
+/// The user token, when the coordinator asks for one.
+fn check(web: &Web, headers: &HeaderMap, params: &HashMap<String, String>) -> Result<(), Refusal> {
+    let Some(token) = &web.token else { return Ok(()) };
+    let presented = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .or(params.get("token").map(String::as_str));
+    match presented {
+        Some(p) if token.matches(p) => Ok(()),
+        Some(_) => Err(refuse(StatusCode::UNAUTHORIZED, "wrong user token")),
+        None => Err(refuse(
+            StatusCode::UNAUTHORIZED,
+            "this coordinator needs the user token (?token=... or Authorization: Bearer ...)",
+        )),
+    }
+}
+
+fn failed(e: CoordError) -> Refusal {
+    match e {
+        CoordError::UnknownStudy(_) => refuse(StatusCode::NOT_FOUND, &e.to_string()),
+        e => refuse(StatusCode::INTERNAL_SERVER_ERROR, &glissade_core::text::one_line(&e.to_string())),
+    }
+}
+
+/// The study's id from the path, then the study.
+fn study(web: &Web, id: &str, points: bool) -> Result<StudyView, Refusal> {
+    let id: u64 = id
+        .parse()
+        .map_err(|_| refuse(StatusCode::NOT_FOUND, &format!("no study `{}`", glissade_core::text::excerpt(id, 40))))?;
+    web.coordinator.study(StudyId(id), points).map_err(failed)
+}
+
+fn study_json(v: &StudyView) -> serde_json::Value {
+    let p = v.progress;
+    let r = &v.record;
+    json!({
+        "study_id": r.id.0,
+        "label": r.label,
+        "state": state_word(v.state),
+        "tolerance": r.tolerance,
+        "parameters": r.parameters,
+        "strategy": r.strategy.name(),
+        "audit_of": r.audit_of.map(|s| s.0),
+        "progress": {"total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
+                     "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations},
+        "accuracy": v.accuracy.as_ref().map(|a| json!({
+            "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "audited": a.audited, "planned": a.planned,
+            "qoi": a.qoi.iter().map(|(q, (l, m))| (q.clone(), json!({"largest": l, "mean": m}))).collect::<serde_json::Map<_, _>>(),
+        })),
+        "points": v.points.iter().map(point_json).collect::<Vec<_>>(),
+    })
+}
+
+fn point_json(p: &PointRecord) -> serde_json::Value {
+    let r = p.result.as_ref();
+    json!({
+        "point_id": p.id.0,
+        "parameters": BTreeMap::from(p.parameters.clone()),
+        "state": point_state_word(&p.state),
+        "iterations": r.map(|r| r.iterations),
+        "error_indicator": r.map(|r| r.error_indicator),
+        "work": r.map(|r| r.work),
+        "started_from": r.and_then(|r| r.started_from.as_ref()).map(|o| BTreeMap::from(o.parameters.clone())),
+        "qoi": r.map(|r| r.qoi.clone()).unwrap_or_default(),
+    })
+}
+
+async fn api_studies(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> Response {
+    if let Err(r) = check(&web, &headers, &q) {
+        return r.into_response();
+    }
+    let list: Vec<serde_json::Value> = web.coordinator.studies().iter().map(study_json).collect();
+    axum::Json(list).into_response()
+}
+
+async fn api_study(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
+    if let Err(r) = check(&web, &headers, &q) {
+        return r.into_response();
+    }
+    match study(&web, &id, true) {
+        Ok(v) => axum::Json(study_json(&v)).into_response(),
+        Err(r) => r.into_response(),
+    }
+}
+
+async fn api_surface(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
+    if let Err(r) = check(&web, &headers, &q) {
+        return r.into_response();
+    }
+    match surface(&web, &id) {
+        Ok(s) => axum::Json(json!({
+            "parameters": s.parameters,
+            "qoi": s.qoi,
+            "points": s.rows.iter().map(|r| json!({
+                "parameters": BTreeMap::from(r.parameters.clone()), "qoi": r.qoi, "state": point_state_word(&r.state),
+            })).collect::<Vec<_>>(),
+        }))
+        .into_response(),
+        Err(r) => r.into_response(),
+    }
+}
+
+async fn api_surface_csv(
+    State(web): State<Web>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    Query(q): Params,
+) -> Response {
+    if let Err(r) = check(&web, &headers, &q) {
+        return r.into_response();
+    }
+    let s = match surface(&web, &id) {
+        Ok(s) => s,
+        Err(r) => return r.into_response(),
+    };
+    let mut out = s.parameters.iter().chain(&s.qoi).cloned().collect::<Vec<_>>().join(",") + ",state\n";
+    for r in &s.rows {
+        let mut fields: Vec<String> =
+            s.parameters.iter().map(|n| r.parameters.get(n).map_or(String::new(), |v| v.to_string())).collect();
+        fields.extend(s.qoi.iter().map(|q| r.qoi.get(q).map_or(String::new(), |v| format!("{v:e}"))));
+        fields.push(point_state_word(&r.state).to_owned());
+        out += &(fields.join(",") + "\n");
+    }
+    ([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response()
+}
+
+fn surface(web: &Web, id: &str) -> Result<crate::coordinator::Surface, Refusal> {
+    let v = study(web, id, false)?;
+    web.coordinator.surface(SurfaceSource::Study(v.record.id), &ParameterVector::default(), &[], &[]).map_err(failed)
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+const STYLE: &str = "body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse}\
+td,th{padding:2px 8px;border-bottom:1px solid #ddd;text-align:right}th{cursor:pointer}\
+.surface{display:inline-block;margin:0 2em 2em 0}.cell:hover{stroke:#000}";
+
+fn page(title: &str, body: &str) -> Html<String> {
+    Html(format!(
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head>\
+         <body><h1>{t}</h1>{body}</body></html>",
+        t = escape(title)
+    ))
+}
+
+fn with_token(path: &str, q: &HashMap<String, String>) -> String {
+    match q.get("token") {
+        Some(t) => format!("{path}?token={}", escape(t)),
+        None => path.to_owned(),
+    }
+}
+
+async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> Response {
+    if let Err(r) = check(&web, &headers, &q) {
+        return r.into_response();
+    }
+    let mut rows = String::new();
+    for v in web.coordinator.studies() {
+        let p = v.progress;
+        let _ = write!(
+            rows,
+            "<tr><td><a href=\"{}\">{}</a></td><td>{}</td><td>{}</td><td>{} / {}</td><td>{}</td><td>{}</td><td>{:.1e}</td></tr>",
+            with_token(&format!("/studies/{}", v.record.id.0), &q),
+            v.record.id.0,
+            escape(&v.record.label),
+            state_word(v.state),
+            p.done,
+            p.total,
+            p.leased,
+            p.pending,
+            v.record.tolerance
+        );
+    }
+    let body = format!(
+        "<table id=\"studies\"><tr><th>study</th><th>label</th><th>state</th><th>done</th><th>running</th><th>pending</th><th>tolerance</th></tr>{rows}</table>\
+         <p>JSON: <a href=\"{}\">/api/studies</a></p>",
+        with_token("/api/studies", &q)
+    );
+    page("glissade studies", &body).into_response()
+}
+
+/// A colour on a blue-to-yellow scale for `t` in [0, 1].
+fn colour(t: f64) -> String {
+    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+    format!("hsl({:.0},70%,{:.0}%)", 240.0 - 180.0 * t, 35.0 + 30.0 * t)
+}
+
+/// The SVG of one QoI over the done points: a colour map of cells over two parameters, a curve
+/// over one. Each cell or dot carries its value (the tooltip under the pointer).
+pub fn surface_svg(parameters: &[String], qoi: &str, points: &[(Vec<f64>, f64)]) -> String {
+    let (w, h, m) = (420.0, 320.0, 40.0);
+    let mut svg = format!(
+        "<svg class=\"surface\" data-qoi=\"{q}\" width=\"{w}\" height=\"{h}\" xmlns=\"http://www.w3.org/2000/svg\"><text x=\"{m}\" y=\"16\">{q}</text>",
+        q = escape(qoi)
+    );
+    if points.is_empty() {
+        return svg + "<text x=\"40\" y=\"60\">no point done yet</text></svg>";
+    }
+    let range = |k: usize| {
+        let lo = points.iter().map(|p| p.0[k]).fold(f64::INFINITY, f64::min);
+        let hi = points.iter().map(|p| p.0[k]).fold(f64::NEG_INFINITY, f64::max);
+        (lo, if hi > lo { hi } else { lo + 1.0 })
+    };
+    let (vlo, vhi) = {
+        let lo = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+        let hi = points.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
+        (lo, if hi > lo { hi } else { lo + 1.0 })
+    };
+    let label = |x: &[f64]| parameters.iter().zip(x).map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(" ");
+    if parameters.len() >= 2 {
+        let ((x0, x1), (y0, y1)) = (range(0), range(1));
+        let distinct = |k: usize| {
+            let mut v: Vec<f64> = points.iter().map(|p| p.0[k]).collect();
+            v.sort_by(f64::total_cmp);
+            v.dedup();
+            v.len().max(1) as f64
+        };
+        let (cw, ch) = ((w - 2.0 * m) / distinct(0), (h - 2.0 * m) / distinct(1));
+        for (x, v) in points {
+            let px = m + (x[0] - x0) / (x1 - x0) * (w - 2.0 * m - cw);
+            let py = h - m - ch - (x[1] - y0) / (y1 - y0) * (h - 2.0 * m - ch);
+            let _ = write!(
+                svg,
+                "<rect class=\"cell\" x=\"{px:.1}\" y=\"{py:.1}\" width=\"{cw:.1}\" height=\"{ch:.1}\" fill=\"{}\" data-value=\"{v:e}\"><title>{} {qoi} = {v:.4e}</title></rect>",
+                colour((v - vlo) / (vhi - vlo)),
+                label(x),
+                qoi = escape(qoi)
+            );
+        }
+        let _ = write!(
+            svg,
+            "<text x=\"{m}\" y=\"{}\">{} →</text><text x=\"4\" y=\"{}\">{}</text>",
+            h - 8.0,
+            escape(&parameters[0]),
+            m - 4.0,
+            escape(&parameters[1])
+        );
+    } else {
+        let (x0, x1) = range(0);
+        let mut sorted: Vec<&(Vec<f64>, f64)> = points.iter().collect();
+        sorted.sort_by(|a, b| a.0[0].total_cmp(&b.0[0]));
+        let xy = |x: f64, v: f64| {
+            (m + (x - x0) / (x1 - x0) * (w - 2.0 * m), h - m - (v - vlo) / (vhi - vlo) * (h - 2.0 * m))
+        };
+        let line: Vec<String> = sorted
+            .iter()
+            .map(|(x, v)| {
+                let (px, py) = xy(x[0], *v);
+                format!("{px:.1},{py:.1}")
+            })
+            .collect();
+        let _ = write!(svg, "<polyline fill=\"none\" stroke=\"#36c\" points=\"{}\"/>", line.join(" "));
+        for (x, v) in sorted {
+            let (px, py) = xy(x[0], *v);
+            let _ = write!(
+                svg,
+                "<circle class=\"cell\" cx=\"{px:.1}\" cy=\"{py:.1}\" r=\"4\" fill=\"#36c\" data-value=\"{v:e}\"><title>{} {qoi} = {v:.4e}</title></circle>",
+                label(x),
+                qoi = escape(qoi)
+            );
+        }
+    }
+    let _ = write!(svg, "<text x=\"{}\" y=\"16\">{vlo:.3e} … {vhi:.3e}</text></svg>", w - 200.0);
+    svg
+}
+
+async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
+    if let Err(r) = check(&web, &headers, &q) {
+        return r.into_response();
+    }
+    let v = match study(&web, &id, true) {
+        Ok(v) => v,
+        Err(r) => return r.into_response(),
+    };
+    let s = match surface(&web, &id) {
+        Ok(s) => s,
+        Err(r) => return r.into_response(),
+    };
+    let r = &v.record;
+    let p = v.progress;
+    let mut body = format!(
+        "<p id=\"progress\" data-state=\"{}\">{}: {} of {} done, {} running, {} pending, {} failed</p>\
+         <p>tolerance {:.1e}, strategy {}, parameters {}</p>",
+        state_word(v.state),
+        state_word(v.state),
+        p.done,
+        p.total,
+        p.leased,
+        p.pending,
+        p.failed,
+        r.tolerance,
+        r.strategy.name(),
+        escape(&r.parameters.join(", "))
+    );
+    if let Some(a) = &v.accuracy {
+        let errors: Vec<String> =
+            a.qoi.iter().map(|(q, (l, m))| format!("{} largest {l:.1e} mean {m:.1e}", escape(q))).collect();
+        let _ = write!(
+            body,
+            "<p id=\"accuracy\">measured accuracy: {} of {} points re-solved cold at {:.0e}: {}</p>",
+            a.audited,
+            a.planned,
+            a.tolerance,
+            errors.join(", ")
+        );
+    }
+    for qoi in &s.qoi {
+        let points: Vec<(Vec<f64>, f64)> = s
+            .rows
+            .iter()
+            .filter_map(|row| {
+                let x: Option<Vec<f64>> = s.parameters.iter().map(|n| row.parameters.get(n)).collect();
+                Some((x?, *row.qoi.get(qoi)?))
+            })
+            .collect();
+        body += &surface_svg(&s.parameters, qoi, &points);
+    }
+    let _ = write!(
+        body,
+        "<p>download: <a href=\"{}\">surface.csv</a>, <a href=\"{}\">study JSON</a></p>",
+        with_token(&format!("/api/studies/{}/surface.csv", r.id.0), &q),
+        with_token(&format!("/api/studies/{}", r.id.0), &q)
+    );
+    body += "<table id=\"points\"><tr><th>point</th>";
+    for n in &r.parameters {
+        let _ = write!(body, "<th>{}</th>", escape(n));
+    }
+    body += "<th>state</th><th>iterations</th><th>eta</th>";
+    for qoi in &s.qoi {
+        let _ = write!(body, "<th>{}</th>", escape(qoi));
+    }
+    body += "</tr>";
+    for point in &v.points {
+        let res = point.result.as_ref();
+        let _ = write!(body, "<tr><td>{}</td>", point.id.0);
+        for n in &r.parameters {
+            let _ = write!(body, "<td>{}</td>", point.parameters.get(n).map_or(String::new(), |x| x.to_string()));
+        }
+        let _ = write!(
+            body,
+            "<td>{}</td><td>{}</td><td>{}</td>",
+            point_state_word(&point.state),
+            res.map_or(String::new(), |r| r.iterations.to_string()),
+            res.map_or(String::new(), |r| format!("{:.2e}", r.error_indicator))
+        );
+        for qoi in &s.qoi {
+            let _ = write!(
+                body,
+                "<td>{}</td>",
+                res.and_then(|r| r.qoi.get(qoi)).map_or(String::new(), |x| format!("{x:.4e}"))
+            );
+        }
+        body += "</tr>";
+    }
+    body += "</table>";
+    // progress without reloading while the study runs; a sortable points table
+    let _ = write!(
+        body,
+        "<script>\
+         const api = {api:?};\
+         async function poll() {{\
+           const p = document.getElementById('progress');\
+           if (p.dataset.state !== 'active') return;\
+           try {{ const s = await (await fetch(api)).json(); const g = s.progress;\
+             p.textContent = s.state + ': ' + g.done + ' of ' + g.total + ' done, ' + g.leased + ' running, ' + g.pending + ' pending, ' + g.failed + ' failed';\
+             if (s.state !== 'active') location.reload(); else p.dataset.polled = (Number(p.dataset.polled || 0) + 1).toString();\
+           }} catch (e) {{}}\
+           setTimeout(poll, 1000);\
+         }}\
+         poll();\
+         document.querySelectorAll('#points th').forEach((th, k) => th.onclick = () => {{\
+           const t = document.getElementById('points'); const rows = [...t.rows].slice(1);\
+           const key = r => {{ const x = r.cells[k].textContent; const n = parseFloat(x); return isNaN(n) ? x : n; }};\
+           rows.sort((a, b) => key(a) < key(b) ? -1 : key(a) > key(b) ? 1 : 0).forEach(r => t.appendChild(r));\
+         }});\
+         </script>",
+        api = with_token(&format!("/api/studies/{}", r.id.0), &q)
+    );
+    let title = if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
+    page(&title, &body).into_response()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_11_by_11_study_draws_121_cells_and_one_parameter_a_curve() {
+        let names = vec!["f1".to_owned(), "f2".to_owned()];
+        let mut points = Vec::new();
+        for i in 0..11 {
+            for j in 0..11 {
+                let (a, b) = (0.1 + 0.01 * i as f64, 0.1 + 0.01 * j as f64);
+                points.push((vec![a, b], a * b));
+            }
+        }
+        let svg = surface_svg(&names, "slip_A", &points);
+        assert_eq!(svg.matches("class=\"cell\"").count(), 121);
+        assert!(svg.contains("<title>f1=0.1 f2=0.1 slip_A = 1.0000e-2</title>"), "the value under the pointer");
+        // every cell inside the picture
+        for part in svg.split("<rect class=\"cell\" x=\"").skip(1) {
+            let x: f64 = part.split('"').next().unwrap().parse().unwrap();
+            assert!((0.0..420.0).contains(&x), "{x}");
+        }
+        let curve =
+            surface_svg(&names[..1], "slip_A", &points[..11].iter().map(|(x, v)| (vec![x[1]], *v)).collect::<Vec<_>>());
+        assert!(curve.contains("<polyline") && curve.matches("<circle class=\"cell\"").count() == 11);
+        assert!(surface_svg(&names, "q", &[]).contains("no point done yet"));
+        // names are escaped
+        assert!(surface_svg(&names, "<b>", &points).contains("&lt;b&gt;"));
+    }
+}
