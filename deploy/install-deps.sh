@@ -14,6 +14,7 @@ PACKAGES=(
                               # target/)
   python3-h5py python3-numpy  # an independent reader of `glissade fields` output in the tests
   openssl                     # the TLS test makes a certificate authority with it
+  chromium                    # the web page's test loads it in a real (headless) browser
 )
 
 missing=()
@@ -48,7 +49,7 @@ for component in rustfmt clippy; do
 done
 
 # Check the tools the build actually calls, so a broken install fails here and not mid-build.
-for tool in mpiexec mpicc protoc pkg-config; do
+for tool in mpiexec mpicc protoc pkg-config chromium; do
   command -v "$tool" >/dev/null || { echo "install-deps: '$tool' not found after install" >&2; exit 1; }
 done
 pkg-config --exists hdf5 || { echo "install-deps: pkg-config cannot find hdf5" >&2; exit 1; }

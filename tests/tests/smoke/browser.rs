@@ -1,0 +1,70 @@
+//! The web page in a real browser: headless Chromium (installed by deploy/install-deps.sh) loads
+//! a study's page from the coordinator, runs its script, and the test reads the DOM it drew.
+
+use crate::common::*;
+
+/// The page's DOM after its scripts ran (3 s of the browser's virtual time).
+fn rendered(url: &str) -> String {
+    let out = run_with_timeout(
+        Command::new("chromium").args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--virtual-time-budget=3000",
+            "--dump-dom",
+            url,
+        ]),
+        LIMIT,
+    );
+    assert!(out.status.success(), "chromium: {}", text(&out.stderr));
+    text(&out.stdout)
+}
+
+#[test]
+fn a_browser_draws_the_study_page_and_follows_its_progress() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (server_log, pool_log) = (dir.path().join("server.log"), dir.path().join("pool.log"));
+    let (_server, addr) = start_server(&dir.path().join("db"), &server_log);
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let id = rt.block_on(async {
+        let mut client = user(&url).await?;
+        let mut request = grid_request(&["f1=0.1:0.2:3", "f2=0.1:0.2:3"], STUDY_TOL);
+        request.label = "browser test".into();
+        anyhow::Ok(client.submit_study(request).await?.into_inner().study_id)
+    })?;
+    let page = format!("{url}/studies/{id}");
+
+    // No pool yet: the study waits, and the page's script polls its progress.
+    let waiting = rendered(&page);
+    assert!(waiting.contains("<h1>study 1: browser test</h1>"), "{waiting}");
+    assert!(waiting.contains("active: 0 of 9 done"), "{waiting}");
+    let polled =
+        waiting.split("data-polled=\"").nth(1).and_then(|s| s.split('"').next()).and_then(|n| n.parse::<u32>().ok());
+    assert!(polled.is_some_and(|n| n >= 1), "the script polled the API: {waiting}");
+
+    // A pool solves it; the same page then draws three colour maps of 9 cells and the table.
+    let mut pool = start_pool(&url, "browser-pool", &pool_log);
+    rt.block_on(async { watch(&mut user(&url).await?, id, |_| true).await })?;
+    let done = rendered(&page);
+    assert!(done.contains("done: 9 of 9 done"), "{done}");
+    assert_eq!(done.matches("class=\"cell\"").count(), 27, "{done}");
+    assert_eq!(done.matches("<svg class=\"surface\"").count(), 3, "{done}");
+    assert!(done.contains("<table id=\"points\">"), "{done}");
+
+    // A picture a person can open: target/study-page.png.
+    let shot = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/study-page.png");
+    let out = run_with_timeout(
+        Command::new("chromium").args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars"]).args([
+            format!("--screenshot={}", shot.display()),
+            "--window-size=1280,900".into(),
+            "--virtual-time-budget=2000".into(),
+            page,
+        ]),
+        LIMIT,
+    );
+    assert!(out.status.success(), "chromium: {}", text(&out.stderr));
+    assert_eq!(png_size(&shot), (1280, 900));
+    assert!(terminate(&mut pool.0).success());
+    Ok(())
+}
