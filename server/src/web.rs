@@ -223,9 +223,20 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     let mut rows = String::new();
     for v in web.coordinator.studies() {
         let p = v.progress;
+        // mean work of the points solved cold and warm (answered ones aside)
+        let full = web.coordinator.study(v.record.id, true).map(|f| f.points).unwrap_or_default();
+        let mean = |warm: bool| {
+            let w: Vec<f64> = full
+                .iter()
+                .filter_map(|p| p.result.as_ref())
+                .filter(|r| !r.answered && r.converged && r.started_from.is_some() == warm)
+                .map(|r| r.work)
+                .collect();
+            if w.is_empty() { "-".to_owned() } else { format!("{:.1}", w.iter().sum::<f64>() / w.len() as f64) }
+        };
         let _ = write!(
             rows,
-            "<tr><td><a href=\"{}\">{}</a></td><td>{}</td><td>{}</td><td>{} / {}</td><td>{}</td><td>{}</td><td>{:.1e}</td></tr>",
+            "<tr><td><a href=\"{}\">{}</a></td><td>{}</td><td>{}</td><td>{} / {}</td><td>{}</td><td>{}</td><td>{:.1e}</td><td>{}</td><td>{}</td></tr>",
             with_token(&format!("/studies/{}", v.record.id.0), &q),
             v.record.id.0,
             escape(&v.record.label),
@@ -234,11 +245,14 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
             p.total,
             p.leased,
             p.pending,
-            v.record.tolerance
+            v.record.tolerance,
+            mean(false),
+            mean(true)
         );
     }
     let body = format!(
-        "<table id=\"studies\"><tr><th>study</th><th>label</th><th>state</th><th>done</th><th>running</th><th>pending</th><th>tolerance</th></tr>{rows}</table>\
+        "<table id=\"studies\"><tr><th>study</th><th>label</th><th>state</th><th>done</th><th>running</th><th>pending</th><th>tolerance</th><th>work cold</th><th>work warm</th></tr>{rows}</table>\
+         <p>work: dynamic iterations + static iterations / time steps, mean per point solved</p>\
          <p>JSON: <a href=\"{}\">/api/studies</a></p>",
         with_token("/api/studies", &q)
     );
@@ -330,6 +344,45 @@ pub fn surface_svg(parameters: &[String], qoi: &str, points: &[(Vec<f64>, f64)])
     svg
 }
 
+/// Eta against the iterations of every point solved (log scale), as the paper's Figures 7 and 8.
+pub fn convergence_svg(histories: &[Vec<f64>]) -> String {
+    let (w, h, m) = (420.0, 320.0, 40.0);
+    let mut svg = format!(
+        "<svg class=\"convergence\" width=\"{w}\" height=\"{h}\" xmlns=\"http://www.w3.org/2000/svg\"><text x=\"{m}\" y=\"16\">eta against iterations</text>"
+    );
+    let values = histories.iter().flatten().filter(|v| **v > 0.0 && v.is_finite());
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v.log10()), b.max(v.log10())));
+    let longest = histories.iter().map(Vec::len).max().unwrap_or(0);
+    if longest < 2 || lo >= hi {
+        return svg + "<text x=\"40\" y=\"60\">no history yet</text></svg>";
+    }
+    for history in histories.iter().filter(|h| h.len() >= 2) {
+        let line: Vec<String> = history
+            .iter()
+            .enumerate()
+            .filter(|(_, v)| **v > 0.0 && v.is_finite())
+            .map(|(k, v)| {
+                let x = m + k as f64 / (longest - 1) as f64 * (w - 2.0 * m);
+                let y = h - m - (v.log10() - lo) / (hi - lo) * (h - 2.0 * m);
+                format!("{x:.1},{y:.1}")
+            })
+            .collect();
+        let _ = write!(
+            svg,
+            "<polyline class=\"history\" fill=\"none\" stroke=\"#36c\" stroke-opacity=\"0.5\" points=\"{}\"/>",
+            line.join(" ")
+        );
+    }
+    let _ = write!(
+        svg,
+        "<text x=\"{m}\" y=\"{}\">iterations (0 … {}) →</text><text x=\"{}\" y=\"16\">1e{lo:.0} … 1e{hi:.0}</text></svg>",
+        h - 8.0,
+        longest - 1,
+        w - 140.0
+    );
+    svg
+}
+
 async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
@@ -370,17 +423,50 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
             errors.join(", ")
         );
     }
+    // a slice: `?fix=NAME=VALUE` keeps the points at that value and draws the others' curve
+    let fixed =
+        q.get("fix").and_then(|f| f.split_once('=')).and_then(|(n, v)| Some((n.to_owned(), v.parse::<f64>().ok()?)));
+    let free: Vec<String> =
+        s.parameters.iter().filter(|n| fixed.as_ref().is_none_or(|(f, _)| f != *n)).cloned().collect();
+    if let Some((name, value)) = &fixed {
+        let _ = write!(
+            body,
+            "<p id=\"slice\">slice at {} = {value} (<a href=\"{}\">whole surface</a>)</p>",
+            escape(name),
+            with_token(&format!("/studies/{}", r.id.0), &q)
+        );
+    } else if let Some(last) = s.parameters.last().filter(|_| s.parameters.len() >= 2) {
+        let first = s.rows.iter().find_map(|row| row.parameters.get(last));
+        if let Some(v) = first {
+            let mut link = with_token(&format!("/studies/{}", r.id.0), &q);
+            link += if link.contains('?') { "&" } else { "?" };
+            let _ = write!(
+                body,
+                "<p>slices: <a id=\"slice-link\" href=\"{link}fix={}={v}\">{} = {v}</a></p>",
+                escape(last),
+                escape(last)
+            );
+        }
+    }
     for qoi in &s.qoi {
         let points: Vec<(Vec<f64>, f64)> = s
             .rows
             .iter()
+            .filter(|row| {
+                fixed.as_ref().is_none_or(|(n, v)| {
+                    row.parameters.get(n).is_some_and(|x| (x - v).abs() <= 1e-9 * v.abs().max(1e-300))
+                })
+            })
             .filter_map(|row| {
-                let x: Option<Vec<f64>> = s.parameters.iter().map(|n| row.parameters.get(n)).collect();
+                let x: Option<Vec<f64>> = free.iter().map(|n| row.parameters.get(n)).collect();
                 Some((x?, *row.qoi.get(qoi)?))
             })
             .collect();
-        body += &surface_svg(&s.parameters, qoi, &points);
+        body += &surface_svg(&free, qoi, &points);
     }
+    let histories: Vec<Vec<f64>> =
+        v.points.iter().filter_map(|p| p.result.as_ref().map(|r| r.eta_history.clone())).collect();
+    body += &convergence_svg(&histories);
     let _ = write!(
         body,
         "<p>download: <a href=\"{}\">surface.csv</a>, <a href=\"{}\">study JSON</a></p>",
@@ -474,5 +560,13 @@ mod tests {
         assert!(surface_svg(&names, "q", &[]).contains("no point done yet"));
         // names are escaped
         assert!(surface_svg(&names, "<b>", &points).contains("&lt;b&gt;"));
+    }
+
+    #[test]
+    fn the_convergence_plot_draws_a_line_per_point() {
+        let histories = vec![vec![1.0, 0.1, 0.01], vec![0.5, 0.05], vec![]];
+        let svg = convergence_svg(&histories);
+        assert_eq!(svg.matches("class=\"history\"").count(), 2);
+        assert!(convergence_svg(&[]).contains("no history yet"));
     }
 }

@@ -92,6 +92,12 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     assert_eq!((status, kind.as_str()), (200, "text/html; charset=utf-8"), "{page}");
     assert_eq!(page.matches("class=\"cell\"").count(), 9 * 3, "{page}");
     assert!(page.contains("<table id=\"points\">") && page.contains("measured accuracy"), "{page}");
+    assert_eq!(page.matches("class=\"history\"").count(), 9, "a convergence line per point: {page}");
+    // a slice: the curves over f1 at f2 = 0.15, 3 points per QoI
+    let (status, _, slice) = http_get(&addr, "/studies/1?fix=f2=0.15");
+    assert_eq!(status, 200);
+    assert_eq!(slice.matches("<circle class=\"cell\"").count(), 3 * 3, "{slice}");
+    assert!(http_get(&addr, "/").2.contains("work cold"));
     let (status, kind, csv) = http_get(&addr, "/api/studies/1/surface.csv");
     assert_eq!((status, kind.as_str()), (200, "text/csv; charset=utf-8"));
     assert!(csv.contains("f1,f2,middle_ux,slip_A,slip_B,state"), "{csv}");
