@@ -32,7 +32,7 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     let (_server, addr) = start_server(&dir.path().join("db"), &logs[0]);
     let url = format!("http://{addr}");
     let _pool = start_pool(&url, "cli-pool", &logs[1]);
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let scene = shipped_scene("three-blocks-tiny.toml");
     let scene = scene.to_str().expect("utf-8");
     let path = |name: &str| dir.path().join(name).to_str().expect("utf-8").to_owned();
 

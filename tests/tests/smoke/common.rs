@@ -82,10 +82,15 @@ pub fn start_server_with(data: &Path, log: &Path, listen: &str, args: &[&str]) -
 
 // ---- glissade-worker solve: warm starts, solution files, field output, bad input ----
 
+/// The path of a scene the repository ships (scenes/FILE): the tests solve what users get.
+pub fn shipped_scene(file: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(file)
+}
+
 /// The shipped 1D impact scene: a bar at v0 = 1 m/s hits a wall; 400 steps, 4 substructures,
 /// 101 nodes of which 3 are duplicated at the substructure interfaces (104 in field output).
 pub fn bar_scene() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/bar-impact-1d.toml")
+    shipped_scene("bar-impact-1d.toml")
 }
 pub const BAR_STEPS: usize = 400;
 pub const BAR_FIELD_NODES: usize = 104;
@@ -119,7 +124,7 @@ pub use tonic::transport::Channel;
 /// The shipped tiny three-blocks scene: f1, f2 in [0.1, 0.2]; a cold solve takes well under a
 /// second in a debug build.
 pub fn tiny_scene() -> String {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let path = shipped_scene("three-blocks-tiny.toml");
     std::fs::read_to_string(path).expect("read scenes/three-blocks-tiny.toml")
 }
 
@@ -215,7 +220,7 @@ pub async fn study(client: &mut UserClient<Channel>, id: u64) -> anyhow::Result<
 /// The `--json` summary of a direct `glissade-worker solve` of the tiny scene at a point.
 pub fn direct_solve(parameters: &std::collections::BTreeMap<String, f64>, tol: f64) -> serde_json::Value {
     let dir = tempfile::tempdir().expect("tempdir");
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let scene = shipped_scene("three-blocks-tiny.toml");
     let mut args = vec![scene.into_os_string(), "--json".into(), "--tol".into(), tol.to_string().into()];
     for (k, v) in parameters {
         args.push("--set".into());
@@ -420,7 +425,7 @@ impl Drop for SmallDisk {
 }
 
 pub fn tiny_path() -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml").display().to_string()
+    shipped_scene("three-blocks-tiny.toml").display().to_string()
 }
 
 /// An HTTP/1.1 GET of `path` on `addr`: (status, content type, body).

@@ -100,7 +100,7 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
     let url = format!("http://{addr}");
     let mut pools = [start_pool(&url, "pool-a", &pool_logs[0]), start_pool(&url, "pool-b", &pool_logs[1])];
     let glissade = workspace_bin("glissade");
-    let scene_path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let scene_path = shipped_scene("three-blocks-tiny.toml");
     let logs = || {
         let [a, b] = &pool_logs;
         format!("server:\n{}\npool-a:\n{}\npool-b:\n{}", log_of(&server_log), log_of(a), log_of(b))
@@ -433,7 +433,7 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
     let status =
         rt.block_on(complete(&mut pool, &lease2, "tester", &good2, &corrupt, corrupt.len())).expect_err("corrupt");
     assert_eq!(status.code(), Code::DataLoss, "{status:?}");
-    let bar = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/bar-impact-1d.toml");
+    let bar = shipped_scene("bar-impact-1d.toml");
     let foreign = {
         let file = dir.path().join("bar.bin");
         let out = run_with_timeout(
@@ -476,7 +476,7 @@ fn python_example_client_submits_a_grid_and_reads_the_surface() -> anyhow::Resul
     let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
     let _pool = start_pool(&format!("http://{addr}"), "py-pool", &dir.path().join("pool.log"));
     let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("../client/examples/submit_and_surface.py");
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/three-blocks-tiny.toml");
+    let scene = shipped_scene("three-blocks-tiny.toml");
     let run = |grid: &[&str]| {
         let mut cmd = Command::new(&python);
         cmd.arg(&example).args(["--server", &addr.to_string(), "--tol", "1e-3", "--json"]).arg(&scene);
