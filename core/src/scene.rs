@@ -182,6 +182,9 @@ pub struct SolverSpec {
     /// multiplies the default search direction k0 = sqrt(rho E) of each side
     #[serde(default = "one")]
     pub k0_factor: Scalar,
+    /// tangential / normal search direction on contact and friction interfaces
+    #[serde(default = "default_tangential_factor")]
+    pub tangential_factor: f64,
     #[serde(default = "default_relaxation")]
     pub relaxation: f64,
     #[serde(default)]
@@ -197,6 +200,12 @@ fn default_tolerance() -> f64 {
 fn default_max_iterations() -> usize {
     1000
 }
+fn default_tangential_factor() -> f64 {
+    TANGENTIAL_FACTOR
+}
+/// The default [`SolverSpec::tangential_factor`] (measured in docs/performance.md, "Search
+/// direction").
+pub const TANGENTIAL_FACTOR: f64 = 2.0;
 fn default_relaxation() -> f64 {
     0.8
 }
@@ -213,6 +222,7 @@ impl Default for SolverSpec {
             tolerance: default_tolerance(),
             max_iterations: default_max_iterations(),
             k0_factor: one(),
+            tangential_factor: default_tangential_factor(),
             relaxation: default_relaxation(),
             scale: Scale::Single,
             warm_tolerance_ratio: default_warm_tolerance_ratio(),

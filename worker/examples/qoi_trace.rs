@@ -29,7 +29,7 @@ fn run<const D: usize>(scene: &Scene, p: &[(String, f64)], q: Option<&[(String, 
         m.settings.max_iterations = max;
         if let Some(k) = k0 {
             for sub in m.interfaces.iter_mut().flat_map(|i| i.sides.iter_mut()) {
-                sub.k_dynamic *= k;
+                sub.k_dynamic = sub.k_dynamic.scaled(k);
             }
         }
         m

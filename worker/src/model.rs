@@ -4,6 +4,7 @@
 use std::collections::{BTreeMap, HashMap};
 
 use crate::element::{Material, element_matrices, face_area_and_normal, nodes_per_element};
+use crate::latin::search_direction::SearchDirection;
 use crate::mesh::{Face, Mesh};
 use crate::sparse::CsrMatrix;
 use glissade_core::scene::{
@@ -25,10 +26,10 @@ pub struct InterfaceSide {
     pub substructure: usize,
     /// substructure-local node numbers
     pub nodes: Vec<usize>,
-    /// dynamic search direction k = k0 (traction per velocity, Pa s/m)
-    pub k_dynamic: f64,
+    /// dynamic search direction (traction per velocity, Pa s/m)
+    pub k_dynamic: SearchDirection,
     /// static search direction (traction per displacement, Pa/m), for the prestress stage
-    pub k_static: f64,
+    pub k_static: SearchDirection,
 }
 
 /// An interface between two substructures, or between a substructure and a fixed rigid wall.
@@ -245,6 +246,10 @@ impl<const D: usize> Model<D> {
         if !(st.relaxation > 0.0 && st.relaxation <= 1.0) {
             return Err(invalid("solver.relaxation", "must be in (0, 1]"));
         }
+        let tangential_factor = st.tangential_factor;
+        if !(tangential_factor > 0.0 && tangential_factor.is_finite()) {
+            return Err(invalid("solver.tangential_factor", "must be a positive number"));
+        }
         if !(st.warm_tolerance_ratio > 0.0 && st.warm_tolerance_ratio <= 1.0) {
             return Err(invalid("solver.warm_tolerance_ratio", "must be in (0, 1]"));
         }
@@ -349,8 +354,8 @@ impl<const D: usize> Model<D> {
             InterfaceSide {
                 substructure: s,
                 nodes: body_nodes.iter().map(|g| local_of[s][g]).collect(),
-                k_dynamic: k0_factor * sub.material.impedance(),
-                k_static: k0_factor * sub.material.young / assembly_size,
+                k_dynamic: SearchDirection::isotropic(k0_factor * sub.material.impedance()),
+                k_static: SearchDirection::isotropic(k0_factor * sub.material.young / assembly_size),
             }
         };
 
@@ -690,7 +695,13 @@ impl<const D: usize> Model<D> {
         for itf in interfaces.iter_mut() {
             let normal = itf.mean_normal();
             for side in itf.sides.iter_mut() {
-                side.k_dynamic = k0_factor * dynamic_search_direction(&substructures[side.substructure], &normal, dt);
+                let k = k0_factor * dynamic_search_direction(&substructures[side.substructure], &normal, dt);
+                // a contact's slip history converges at a rate set by k_t (docs/performance.md)
+                let tangential = match itf.law {
+                    InterfaceLaw::Perfect => k,
+                    _ => k * tangential_factor,
+                };
+                side.k_dynamic = SearchDirection { normal: k, tangential };
             }
         }
 

@@ -76,6 +76,12 @@ impl CsrMatrix {
         self.combine(1.0, &diag, 1.0)
     }
 
+    /// This matrix plus the sum of the triplets (row, column, value).
+    pub fn add_triplets(&self, t: Vec<(usize, usize, f64)>) -> CsrMatrix {
+        let extra = CsrMatrix::from_triplets(self.n, t);
+        self.combine(1.0, &extra, 1.0)
+    }
+
     /// Row sums (the lumped version of a mass-like matrix).
     pub fn row_sums(&self) -> Vec<f64> {
         (0..self.n).map(|i| self.val[self.row_ptr[i]..self.row_ptr[i + 1]].iter().sum()).collect()

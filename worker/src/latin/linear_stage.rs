@@ -6,6 +6,7 @@
 //! the two micro problems: `predict` (micro problem 1), then optionally `correct` (micro problem 2,
 //! a combination of precomputed responses to the macro basis), then `finish`.
 
+use super::search_direction::SearchDirection;
 use crate::model::{Interface, InterfaceSide, Model, PrescribedDof, Substructure};
 use crate::newmark::{NewmarkState, step_operator};
 use crate::sparse::{FactorisedOperator, SparseError};
@@ -23,7 +24,7 @@ pub enum Stage {
 }
 
 impl Stage {
-    pub fn k(self, side: &InterfaceSide) -> f64 {
+    pub fn k(self, side: &InterfaceSide) -> SearchDirection {
         match self {
             Stage::Static => side.k_static,
             Stage::Dynamic => side.k_dynamic,
@@ -55,32 +56,43 @@ pub struct SubstructureOperators {
     rhs: Vec<f64>,
 }
 
-/// Interface contribution N^T M_Gamma k N: a diagonal over the interface dofs.
-fn interface_diagonal<const D: usize>(sub: &Substructure<D>, interfaces: &[Interface<D>], stage: Stage) -> Vec<f64> {
-    let mut d = vec![0.0; sub.n_dofs()];
+/// Interface contribution N^T M_Gamma k N: a D x D block per interface node (its normal and
+/// tangential values), as triplets.
+fn interface_blocks<const D: usize>(
+    sub: &Substructure<D>,
+    interfaces: &[Interface<D>],
+    stage: Stage,
+) -> Vec<(usize, usize, f64)> {
+    let mut t = Vec::new();
     for &(i, side) in &sub.sides {
         let itf = &interfaces[i];
         let s = &itf.sides[side];
+        let k = stage.k(s);
         for (j, &node) in s.nodes.iter().enumerate() {
-            for c in 0..D {
-                d[node * D + c] += itf.area[j] * stage.k(s);
+            for a in 0..D {
+                for b in 0..D {
+                    let v = itf.area[j] * k.entry(&itf.normal[j], a, b);
+                    if v != 0.0 {
+                        t.push((node * D + a, node * D + b, v));
+                    }
+                }
             }
         }
     }
-    d
+    t
 }
 
 impl SubstructureOperators {
     pub fn new<const D: usize>(model: &Model<D>, s: usize, with_static: bool) -> Result<Self, SparseError> {
         let sub = &model.substructures[s];
-        let a = step_operator(&sub.mass, &sub.stiffness, model.dt).add_diagonal(&interface_diagonal(
+        let a = step_operator(&sub.mass, &sub.stiffness, model.dt).add_triplets(interface_blocks(
             sub,
             &model.interfaces,
             Stage::Dynamic,
         ));
         let dynamic = FactorisedOperator::new(a, &sub.fixed)?;
         let statics = if with_static {
-            let a = sub.stiffness.add_diagonal(&interface_diagonal(sub, &model.interfaces, Stage::Static));
+            let a = sub.stiffness.add_triplets(interface_blocks(sub, &model.interfaces, Stage::Static));
             Some(FactorisedOperator::new(a, &sub.fixed)?)
         } else {
             None
@@ -150,9 +162,10 @@ impl SubstructureOperators {
             let hat = &fields[i].hat[side];
             let m = sd.nodes.len();
             for (j, &node) in sd.nodes.iter().enumerate() {
+                let at = (step * m + j) * D;
+                let kw = k.apply(&itf.normal[j], &node_vector(&hat.velocity[at..at + D]));
                 for c in 0..D {
-                    let idx = (step * m + j) * D + c;
-                    self.rhs[node * D + c] += itf.area[j] * (hat.force[idx] + k * hat.velocity[idx]);
+                    self.rhs[node * D + c] += itf.area[j] * (hat.force[at + c] + kw[c]);
                 }
             }
         }
@@ -192,17 +205,20 @@ impl SubstructureOperators {
     ) {
         let sub = &model.substructures[s];
         for &(i, side) in &sub.sides {
-            let sd = &model.interfaces[i].sides[side];
+            let itf = &model.interfaces[i];
+            let sd = &itf.sides[side];
             let k = stage.k(sd);
             let m = sd.nodes.len();
             let f = &mut fields[i];
             let (hat, lin) = (&f.hat[side], &mut f.s[side]);
             for (j, &node) in sd.nodes.iter().enumerate() {
+                let at = (step * m + j) * D;
+                let jump: [f64; D] =
+                    std::array::from_fn(|c| hat.velocity[at + c] - self.x[node * D + c] + macro_field(i, side, j, c));
+                let kj = k.apply(&itf.normal[j], &jump);
                 for c in 0..D {
-                    let idx = (step * m + j) * D + c;
-                    let w = self.x[node * D + c];
-                    lin.velocity[idx] = w;
-                    lin.force[idx] = hat.force[idx] + k * (hat.velocity[idx] - w + macro_field(i, side, j, c));
+                    lin.velocity[at + c] = self.x[node * D + c];
+                    lin.force[at + c] = hat.force[at + c] + kj[c];
                 }
             }
         }
@@ -211,6 +227,11 @@ impl SubstructureOperators {
             Stage::Dynamic => self.state.advance(&self.x, model.dt),
         }
     }
+}
+
+/// The D components of one node, copied out of a field.
+pub fn node_vector<const D: usize>(v: &[f64]) -> [f64; D] {
+    std::array::from_fn(|c| v[c])
 }
 
 /// Zeroes `x` and writes the prescribed velocities at time t; says whether any is non-zero.

@@ -1,18 +1,20 @@
 //! Local stage: the interface laws in closed form, pointwise in space, stepwise in time
 //! (docs/method.md 3, "Local stage"). Pure functions of the linear-stage fields.
 
+use super::search_direction::SearchDirection;
 use crate::model::InterfaceLaw;
 
 /// Inputs of one interface node at one step: linear-stage fields of both sides, the normal, and
-/// the search directions h = 1/k. A rigid wall is side 2 with `h2 = 0` and `w2` its velocity.
+/// the search directions as compliances h = 1/k (normal and tangential values). A rigid wall is
+/// side 2 with `h2 = 0` and `w2` its velocity.
 #[derive(Debug, Clone, Copy)]
 pub struct NodeInput<const D: usize> {
     pub w1: [f64; D],
     pub f1: [f64; D],
     pub w2: [f64; D],
     pub f2: [f64; D],
-    pub h1: f64,
-    pub h2: f64,
+    pub h1: SearchDirection,
+    pub h2: SearchDirection,
     pub normal: [f64; D],
 }
 
@@ -38,24 +40,39 @@ fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
     (0..D).map(|i| a[i] * b[i]).sum()
 }
 
-/// Applies the interface law to one node (search direction E+: F^ - F = k (W^ - W)).
+/// Applies the interface law to one node (search direction E+: F^ - F = k (W^ - W), k with a
+/// normal and a tangential value: the law is solved on the normal and the tangential parts
+/// apart, each with its own scalar h).
 pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRule) -> NodeOutput<D> {
     let (h1, h2) = (x.h1, x.h2);
+    let n = &x.normal;
     let mut f1h = [0.0; D];
     match law {
         InterfaceLaw::Perfect => {
-            // W^1 = W^2 = (k1 W1 + k2 W2 - (F1 + F2)) / (k1 + k2), written with h to allow h2 = 0
-            for i in 0..D {
-                let w = (h2 * x.w1[i] + h1 * x.w2[i] - h1 * h2 * (x.f1[i] + x.f2[i])) / (h1 + h2);
-                f1h[i] = x.f1[i] + (w - x.w1[i]) / h1;
+            // W^1 = W^2 = (k1 W1 + k2 W2 - (F1 + F2)) / (k1 + k2), written with h to allow h2 = 0,
+            // on the normal part (along n) and the tangential part (the rest) apart
+            let split = |v: &[f64; D]| -> ([f64; D], [f64; D]) {
+                let vn = dot(v, n);
+                let along: [f64; D] = std::array::from_fn(|i| vn * n[i]);
+                (along, std::array::from_fn(|i| v[i] - along[i]))
+            };
+            let parts = [split(&x.w1), split(&x.w2), split(&x.f1), split(&x.f2)];
+            for normal in [true, false] {
+                let pick = |p: &([f64; D], [f64; D])| if normal { p.0 } else { p.1 };
+                let (w1, w2, f1, f2) = (pick(&parts[0]), pick(&parts[1]), pick(&parts[2]), pick(&parts[3]));
+                let (h1, h2) = (h1.part(normal), h2.part(normal));
+                for i in 0..D {
+                    let w = (h2 * w1[i] + h1 * w2[i] - h1 * h2 * (f1[i] + f2[i])) / (h1 + h2);
+                    f1h[i] += f1[i] + (w - w1[i]) / h1;
+                }
             }
         }
         InterfaceLaw::Contact | InterfaceLaw::Friction { .. } => {
-            let n = &x.normal;
-            // free relative velocity: what n.(W^2 - W^1) would be with F^ = 0
+            // free relative velocity: what W^2 - W^1 would be with F^ = 0
+            let (hf1, hf2) = (h1.apply(n, &x.f1), h2.apply(n, &x.f2));
             let mut rel = [0.0; D];
             for i in 0..D {
-                rel[i] = (x.w2[i] - x.w1[i]) - (h2 * x.f2[i] - h1 * x.f1[i]);
+                rel[i] = (x.w2[i] - x.w1[i]) - (hf2[i] - hf1[i]);
             }
             let rel_n = dot(&rel, n);
             // A closed gap (base <= 0) is clipped at zero: contact then holds on the velocity level
@@ -64,7 +81,7 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
             let trial_gap = gap.base.max(0.0) + gap.weight * rel_n;
             if trial_gap <= 0.0 {
                 // contact: the normal force closes the gap exactly
-                let f1n = trial_gap / (gap.weight * (h1 + h2));
+                let f1n = trial_gap / (gap.weight * (h1.normal + h2.normal));
                 let mu = match law {
                     InterfaceLaw::Friction { coefficient } => coefficient,
                     _ => 0.0,
@@ -72,7 +89,7 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
                 // stick trial T from zero relative tangential velocity
                 let mut t = [0.0; D];
                 for i in 0..D {
-                    t[i] = (rel[i] - rel_n * n[i]) / (h1 + h2);
+                    t[i] = (rel[i] - rel_n * n[i]) / (h1.tangential + h2.tangential);
                 }
                 let t_norm = dot(&t, &t).sqrt();
                 let threshold = mu * f1n.abs();
@@ -83,13 +100,15 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
             }
         }
     }
-    let mut out = NodeOutput { w1: [0.0; D], f1: f1h, w2: [0.0; D], f2: [0.0; D] };
-    for i in 0..D {
-        out.f2[i] = -f1h[i];
-        out.w1[i] = x.w1[i] + h1 * (f1h[i] - x.f1[i]);
-        out.w2[i] = x.w2[i] + h2 * (out.f2[i] - x.f2[i]);
+    let f2h: [f64; D] = std::array::from_fn(|i| -f1h[i]);
+    let d1 = h1.apply(n, &std::array::from_fn(|i| f1h[i] - x.f1[i]));
+    let d2 = h2.apply(n, &std::array::from_fn(|i| f2h[i] - x.f2[i]));
+    NodeOutput {
+        w1: std::array::from_fn(|i| x.w1[i] + d1[i]),
+        f1: f1h,
+        w2: std::array::from_fn(|i| x.w2[i] + d2[i]),
+        f2: f2h,
     }
-    out
 }
 
 #[cfg(test)]
@@ -97,13 +116,28 @@ mod tests {
     use super::*;
 
     fn input(w1: [f64; 2], f1: [f64; 2], w2: [f64; 2], f2: [f64; 2]) -> NodeInput<2> {
-        NodeInput { w1, f1, w2, f2, h1: 0.5, h2: 0.25, normal: [0.0, 1.0] }
+        NodeInput {
+            w1,
+            f1,
+            w2,
+            f2,
+            h1: SearchDirection::isotropic(0.5),
+            h2: SearchDirection::isotropic(0.25),
+            normal: [0.0, 1.0],
+        }
     }
 
-    fn assert_search_direction(x: &NodeInput<2>, o: &NodeOutput<2>) {
-        for i in 0..2 {
-            assert!((o.f1[i] - x.f1[i] - (o.w1[i] - x.w1[i]) / x.h1).abs() < 1e-12);
-            assert!((o.f2[i] - x.f2[i] - (o.w2[i] - x.w2[i]) / x.h2).abs() < 1e-12);
+    /// F^ - F = k (W^ - W) on both sides, k = h^-1 with its normal and tangential values, and
+    /// F^1 + F^2 = 0.
+    fn assert_search_direction<const D: usize>(x: &NodeInput<D>, o: &NodeOutput<D>) {
+        let n = &x.normal;
+        for (h, w, wh, f, fh) in [(x.h1, x.w1, o.w1, x.f1, o.f1), (x.h2, x.w2, o.w2, x.f2, o.f2)] {
+            let dw = h.inverse().apply(n, &std::array::from_fn(|i| wh[i] - w[i]));
+            for i in 0..D {
+                assert!((fh[i] - f[i] - dw[i]).abs() < 1e-12, "{fh:?} - {f:?} != k ({wh:?} - {w:?})");
+            }
+        }
+        for i in 0..D {
             assert!((o.f1[i] + o.f2[i]).abs() < 1e-12);
         }
     }
@@ -151,11 +185,67 @@ mod tests {
 
     #[test]
     fn rigid_wall_side_keeps_its_velocity() {
-        let x = NodeInput { w1: [-2.0], f1: [0.0], w2: [0.0], f2: [0.0], h1: 0.5, h2: 0.0, normal: [-1.0] };
+        let x = NodeInput {
+            w1: [-2.0],
+            f1: [0.0],
+            w2: [0.0],
+            f2: [0.0],
+            h1: SearchDirection::isotropic(0.5),
+            h2: SearchDirection::isotropic(0.0),
+            normal: [-1.0],
+        };
         // side 1 moves along -x towards a wall whose outward normal from side 1 is -x
         let o = apply_law(InterfaceLaw::Contact, &x, GapRule { base: 0.0, weight: 0.1 });
         assert_eq!(o.w2, [0.0]);
         assert!(o.w1[0].abs() < 1e-12, "side 1 stopped by the wall");
         assert!(o.f1[0] > 0.0, "wall pushes along +x");
+    }
+
+    #[test]
+    fn tangential_and_normal_directions_apart_on_an_oblique_normal() {
+        // a 3D node whose normal is along no axis, k_t = 3 k_n on side 1, k_t = k_n / 2 on side 2
+        let s = 1.0 / 3.0f64.sqrt();
+        let normal = [s, -s, s];
+        let h1 = SearchDirection { normal: 1.0, tangential: 3.0 }.inverse();
+        let h2 = SearchDirection { normal: 2.0, tangential: 1.0 }.inverse();
+        let rule = GapRule { base: 0.0, weight: 0.1 };
+        let dot3 = |a: &[f64; 3], b: &[f64; 3]| (0..3).map(|i| a[i] * b[i]).sum::<f64>();
+        // perfect: equal velocities
+        let x = NodeInput {
+            w1: [1.0, 0.2, -0.3],
+            f1: [0.4, 0.0, 1.0],
+            w2: [-0.5, 0.7, 0.1],
+            f2: [0.1, -0.2, 0.3],
+            h1,
+            h2,
+            normal,
+        };
+        let o = apply_law(InterfaceLaw::Perfect, &x, rule);
+        assert_search_direction(&x, &o);
+        assert!((0..3).all(|i| (o.w1[i] - o.w2[i]).abs() < 1e-12), "{o:?}");
+        // side 2 pushed into side 1 (against n) and dragged across it
+        let x = NodeInput { w1: [0.0; 3], f1: [0.0; 3], w2: [-1.0, 2.0, 0.5], f2: [0.0; 3], h1, h2, normal };
+        for mu in [0.0, 0.2, 50.0] {
+            let o = apply_law(InterfaceLaw::Friction { coefficient: mu }, &x, rule);
+            assert_search_direction(&x, &o);
+            let rel: [f64; 3] = std::array::from_fn(|i| o.w2[i] - o.w1[i]);
+            let rel_n = dot3(&rel, &normal);
+            assert!((rule.base + rule.weight * rel_n).abs() < 1e-12, "gap closed: {rel_n}");
+            let fn1 = dot3(&o.f1, &normal);
+            assert!(fn1 < 0.0, "compressive");
+            let ft: [f64; 3] = std::array::from_fn(|i| o.f1[i] - fn1 * normal[i]);
+            let ft_norm = dot3(&ft, &ft).sqrt();
+            assert!(ft_norm <= mu * fn1.abs() * (1.0 + 1e-12) + 1e-15, "Coulomb: {ft_norm} > {mu} {fn1}");
+            let slip: [f64; 3] = std::array::from_fn(|i| rel[i] - rel_n * normal[i]);
+            let slip_norm = dot3(&slip, &slip).sqrt();
+            if mu == 50.0 {
+                assert!(slip_norm < 1e-12, "sticks: {slip_norm}");
+            } else {
+                // sliding: the force on side 1 is along the slip of side 2 over side 1, at the threshold
+                assert!(slip_norm > 1e-6);
+                assert!((ft_norm - mu * fn1.abs()).abs() < 1e-12);
+                assert!(dot3(&ft, &slip) >= 0.0);
+            }
+        }
     }
 }

@@ -12,7 +12,7 @@ use faer::{Mat, MatMut, Side};
 use crate::comm::Communicator;
 use crate::model::{Interface, Model};
 
-use super::linear_stage::{Stage, SubstructureOperators};
+use super::linear_stage::{Stage, SubstructureOperators, node_vector};
 use glissade_core::field::InterfaceField;
 
 /// Relative M_Gamma-norm below which a candidate macro field is dependent on the previous ones.
@@ -186,29 +186,37 @@ impl MacroProblem {
                 for (mode, e) in basis[i].iter().enumerate() {
                     let mut rhs = vec![0.0; sub.n_dofs()];
                     for (j, &node) in sd.nodes.iter().enumerate() {
+                        let ke = k.apply(&itf.normal[j], &node_vector(&e[j * D..(j + 1) * D]));
                         for c in 0..D {
-                            rhs[node * D + c] = itf.area[j] * k * e[j * D + c];
+                            rhs[node * D + c] = itf.area[j] * ke[c];
                         }
                     }
                     let response = op.solve_homogeneous(stage, &rhs);
                     cols.push(Column { interface: i, side, mode, dof: off + mode, response });
                 }
             }
-            // L_E[c', c] = k' (delta_cc' - <e_c', N_c' q_c>)
+            // L_E[c', c] = <e_c', k' (e_c - N_c' q_c)>, e_c counted on its own interface side
+            // only (k e_c there is what loaded q_c); with k = k' I this is k (delta_cc' - <e_c', N q_c>)
             for c in &cols {
                 for cp in &cols {
                     let itf = &model.interfaces[cp.interface];
                     let sd = &itf.sides[cp.side];
                     let k = stage.k(sd);
                     let e = &basis[cp.interface][cp.mode];
-                    let mut proj = 0.0;
+                    let own = (c.interface, c.side) == (cp.interface, cp.side);
+                    let ec = &basis[c.interface][c.mode];
+                    let mut sum = 0.0;
                     for (j, &node) in sd.nodes.iter().enumerate() {
+                        let jump: [f64; D] = std::array::from_fn(|d| {
+                            let base = if own { ec[j * D + d] } else { 0.0 };
+                            base - c.response[node * D + d]
+                        });
+                        let kj = k.apply(&itf.normal[j], &jump);
                         for d in 0..D {
-                            proj += itf.area[j] * e[j * D + d] * c.response[node * D + d];
+                            sum += itf.area[j] * e[j * D + d] * kj[d];
                         }
                     }
-                    let delta = if c.dof == cp.dof && c.side == cp.side { 1.0 } else { 0.0 };
-                    operator[c.dof * n + cp.dof] += k * (delta - proj);
+                    operator[c.dof * n + cp.dof] += sum;
                 }
             }
             columns.push(cols);
@@ -243,13 +251,23 @@ impl MacroProblem {
             let k = stage.k(sd);
             let hat = &fields[i].hat[side];
             let m = sd.nodes.len();
+            // F1 = F^ + k (W^ - N x) at every node of the side, then its projections
+            let f1: Vec<[f64; D]> = sd
+                .nodes
+                .iter()
+                .enumerate()
+                .map(|(j, &node)| {
+                    let at = (step * m + j) * D;
+                    let jump: [f64; D] = std::array::from_fn(|c| hat.velocity[at + c] - x[node * D + c]);
+                    let kj = k.apply(&itf.normal[j], &jump);
+                    std::array::from_fn(|c| hat.force[at + c] + kj[c])
+                })
+                .collect();
             for (mode, e) in self.basis[i].iter().enumerate() {
                 let mut proj = 0.0;
-                for (j, &node) in sd.nodes.iter().enumerate() {
+                for (j, f) in f1.iter().enumerate() {
                     for c in 0..D {
-                        let idx = (step * m + j) * D + c;
-                        let f1 = hat.force[idx] + k * (hat.velocity[idx] - x[node * D + c]);
-                        proj += itf.area[j] * e[j * D + c] * f1;
+                        proj += itf.area[j] * e[j * D + c] * f[c];
                     }
                 }
                 self.rhs[off + mode] -= proj;
@@ -290,6 +308,7 @@ impl MacroProblem {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::latin::search_direction::SearchDirection;
     use crate::model::{InterfaceLaw, InterfaceSide};
 
     fn square_interface(nx: usize) -> Interface<3> {
@@ -303,7 +322,8 @@ mod tests {
             }
         }
         let n = coords.len();
-        let side = InterfaceSide { substructure: 0, nodes: (0..n).collect(), k_dynamic: 1.0, k_static: 1.0 };
+        let iso = SearchDirection::isotropic(1.0);
+        let side = InterfaceSide { substructure: 0, nodes: (0..n).collect(), k_dynamic: iso, k_static: iso };
         Interface {
             name: "t".into(),
             law: InterfaceLaw::Perfect,

@@ -5,6 +5,7 @@ pub mod distribution;
 pub mod linear_stage;
 pub mod local_stage;
 pub mod macro_problem;
+pub mod search_direction;
 pub mod stopping;
 
 use std::time::Instant;
@@ -21,6 +22,7 @@ use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSo
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};
+use search_direction::SearchDirection;
 use stopping::{ErrorEstimator, UnitScales};
 
 /// Tolerance of the static prestress stage relative to the asked one.
@@ -575,8 +577,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 continue;
             }
             let n = itf.n_nodes();
-            let h1 = 1.0 / stage.k(&itf.sides[0]);
-            let h2 = itf.sides.get(1).map_or(0.0, |s| 1.0 / stage.k(s));
+            let h1 = stage.k(&itf.sides[0]).inverse();
+            // a rigid wall takes no velocity change: zero compliance
+            let h2 = itf.sides.get(1).map_or(SearchDirection::isotropic(0.0), |s| stage.k(s).inverse());
             let f = &mut fields[i];
             // gap rule state: base = g(t_{n-1}) + dt/2 vn(t_{n-1})
             let mut base: Vec<f64> = match stage {
@@ -871,13 +874,17 @@ fn interface_error<const D: usize>(m: &Model<D>, stage: Stage, i: usize, f: &Int
     let (mut num, mut den) = (0.0, 0.0);
     for (k, side) in itf.sides.iter().enumerate() {
         let kk = stage.k(side);
+        let hh = kk.inverse();
         let (s, h) = (&f.s[k], &f.hat[k]);
-        for idx in 0..s.force.len() {
-            let a = itf.area[(idx / D) % n];
-            let (df, dw) = (s.force[idx] - h.force[idx], s.velocity[idx] - h.velocity[idx]);
-            let (sf, sw) = (s.force[idx] + h.force[idx], s.velocity[idx] + h.velocity[idx]);
-            num += a * (df * df / kk + kk * dw * dw);
-            den += a * (sf * sf / kk + kk * sw * sw);
+        for at in (0..s.force.len()).step_by(D) {
+            let j = (at / D) % n;
+            let (a, nrm) = (itf.area[j], &itf.normal[j]);
+            let df: [f64; D] = std::array::from_fn(|c| s.force[at + c] - h.force[at + c]);
+            let dw: [f64; D] = std::array::from_fn(|c| s.velocity[at + c] - h.velocity[at + c]);
+            let sf: [f64; D] = std::array::from_fn(|c| s.force[at + c] + h.force[at + c]);
+            let sw: [f64; D] = std::array::from_fn(|c| s.velocity[at + c] + h.velocity[at + c]);
+            num += a * (hh.energy(nrm, &df) + kk.energy(nrm, &dw));
+            den += a * (hh.energy(nrm, &sf) + kk.energy(nrm, &sw));
         }
     }
     (num, den)
