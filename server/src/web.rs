@@ -347,13 +347,17 @@ pub fn surface_svg(
         for k in 1..=4 {
             let level = vlo + (vhi - vlo) * k as f64 / 5.0;
             let segments = contour(&grid, xs.len(), level, centre);
-            let Some(((ax, ay), (bx, by))) = segments.get(segments.len() / 2) else { continue };
+            if segments.is_empty() {
+                continue;
+            }
+            // neighbouring levels labelled on different segments: close lines' labels do not overlap
+            let ((ax, ay), (bx, by)) = segments[(segments.len() / 2 + k) % segments.len()];
             let d: String =
                 segments.iter().map(|((ax, ay), (bx, by))| format!("M{ax:.1} {ay:.1}L{bx:.1} {by:.1}")).collect();
             let _ = write!(
                 svg,
                 "<path class=\"contour\" data-level=\"{level:e}\" d=\"{d}\" fill=\"none\" stroke=\"#000\" stroke-width=\"0.8\" pointer-events=\"none\"/>\
-                 <text class=\"contour-label\" x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" pointer-events=\"none\">{level:.2e}</text>",
+                 <text class=\"contour-label\" x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" stroke=\"#fff\" stroke-width=\"2\" paint-order=\"stroke\" pointer-events=\"none\">{level:.2e}</text>",
                 (ax + bx) / 2.0,
                 (ay + by) / 2.0
             );
@@ -405,7 +409,7 @@ type Vertex = (f64, f64);
 /// Each square's crossings are linear along its edges; a saddle is split by the square's mean.
 fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize) -> Vertex) -> Vec<(Vertex, Vertex)> {
     let mut segments = Vec::new();
-    let ny = if nx == 0 { 0 } else { grid.len() / nx };
+    let ny = grid.len().checked_div(nx).unwrap_or(0);
     for j in 0..ny.saturating_sub(1) {
         for i in 0..nx - 1 {
             // the square's corners in turn around it; edge k joins corner k to corner k + 1
