@@ -152,6 +152,20 @@ pub enum QoiKind {
     Force,
 }
 
+impl QoiKind {
+    /// The SI unit of the value, by the scene's dimension (docs/scenes.md, Conventions: forces
+    /// are per unit cross-section in 1D, per metre of thickness in 2D).
+    pub fn unit(self, dimension: usize) -> &'static str {
+        match (self, dimension) {
+            (QoiKind::Slip | QoiKind::Displacement, _) => "m",
+            (QoiKind::Velocity, _) => "m/s",
+            (QoiKind::Force, 1) => "Pa",
+            (QoiKind::Force, 2) => "N/m",
+            (QoiKind::Force, _) => "N",
+        }
+    }
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct QoiSpec {
@@ -305,6 +319,14 @@ impl Scene {
             }
         }
         Ok(scene)
+    }
+
+    /// The unit of a parameter (as declared; None if it has none) or of a QoI (from its kind).
+    pub fn unit(&self, name: &str) -> Option<&str> {
+        match self.parameters.get(name) {
+            Some(p) => p.unit.as_deref(),
+            None => self.qoi.iter().find(|q| q.name == name).map(|q| q.kind.unit(self.dimension)),
+        }
     }
 
     /// What solving this scene will take, from its text alone (nothing is built): the work of
@@ -565,6 +587,17 @@ mod tests {
         // a friction parameter also used as a load is no longer law-only
         let scene = Scene::parse(&text.replace("pressure = \"pressure\"", "pressure = \"f1\"")).unwrap();
         assert_eq!(scene.interface_law_parameters().into_iter().collect::<Vec<_>>(), vec!["f2".to_string()]);
+    }
+
+    #[test]
+    fn units_are_the_parameters_own_and_follow_from_a_qois_kind() {
+        let scene = Scene::parse(include_str!("../../scenes/three-blocks-tiny.toml")).unwrap();
+        let units: Vec<Option<&str>> =
+            ["pressure", "f1", "slip_A", "middle_ux", "nothing"].iter().map(|n| scene.unit(n)).collect();
+        assert_eq!(units, [Some("Pa"), None, Some("m"), Some("m"), None]);
+        assert_eq!(QoiKind::Velocity.unit(3), "m/s");
+        let forces: Vec<&str> = (1..=3).map(|d| QoiKind::Force.unit(d)).collect();
+        assert_eq!(forces, ["Pa", "N/m", "N"]);
     }
 
     #[test]

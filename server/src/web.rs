@@ -1,15 +1,16 @@
 //! The coordinator's read-only web page and JSON API, served on its gRPC port (HTTP/1.1 beside
-//! HTTP/2): the studies, each study with its progress (updated while it runs), its measured
-//! accuracy, a response surface per QoI drawn on the server as SVG (a colour map over two
-//! parameters, a curve over one; the value under the pointer), its points, and downloads. Nothing
-//! is fetched from elsewhere: the page's only script is inline and asks this server's
-//! `/api/studies/ID` for progress.
+//! HTTP/2): the studies, each study with its progress and running points (updated while it runs),
+//! its measured accuracy, a response surface per QoI drawn on the server as SVG (a colour map with
+//! contour lines over two parameters, a curve over one; the value under the pointer; axes named
+//! with the scene's units), its points, and downloads. Nothing is fetched from elsewhere: the
+//! page's only script is inline and asks this server's `/api/studies/ID` for progress.
 //!
 //! When the coordinator has tokens, every request needs the user token: `Authorization: Bearer
 //! TOKEN`, or `?token=TOKEN` for a browser.
 //!
-//! JSON: `/api/studies`, `/api/studies/ID` (with points), `/api/studies/ID/surface` (every QoI of
-//! every point); CSV: `/api/studies/ID/surface.csv`.
+//! JSON: `/api/studies`, `/api/studies/ID` (with points, and the running points with the
+//! iterations and eta their pools last reported), `/api/studies/ID/surface` (every QoI of every
+//! point); CSV: `/api/studies/ID/surface.csv`.
 
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
@@ -24,8 +25,8 @@ use glissade_proto::{ParameterVector, StudyId};
 use serde_json::json;
 
 use crate::auth::Tokens;
-use crate::coordinator::{CoordError, Coordinator, StudyView, SurfaceSource, point_state_word, state_word};
-use crate::records::PointRecord;
+use crate::coordinator::{CoordError, Coordinator, StudyState, StudyView, SurfaceSource, point_state_word, state_word};
+use crate::records::{PointRecord, PointState};
 
 #[derive(Clone)]
 struct Web {
@@ -112,6 +113,16 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             "qoi": a.qoi.iter().map(|(q, (l, m))| (q.clone(), json!({"largest": l, "mean": m}))).collect::<serde_json::Map<_, _>>(),
         })),
         "points": v.points.iter().map(point_json).collect::<Vec<_>>(),
+        "running": v.points.iter().filter_map(|p| match &p.state {
+            PointState::Leased { pool, .. } => {
+                let solving = v.solving.get(&p.id);
+                Some(json!({
+                    "point_id": p.id.0, "parameters": BTreeMap::from(p.parameters.clone()), "pool": pool,
+                    "iterations": solving.map(|s| s.0), "eta": solving.map(|s| s.1),
+                }))
+            }
+            _ => None,
+        }).collect::<Vec<_>>(),
     })
 }
 
@@ -265,13 +276,28 @@ fn colour(t: f64) -> String {
     format!("hsl({:.0},70%,{:.0}%)", 240.0 - 180.0 * t, 35.0 + 30.0 * t)
 }
 
-/// The SVG of one QoI over the done points: a colour map of cells over two parameters, a curve
-/// over one. Each cell or dot carries its value (the tooltip under the pointer).
-pub fn surface_svg(parameters: &[String], qoi: &str, points: &[(Vec<f64>, f64)]) -> String {
+/// `name (unit)`, or the name alone when the scene gives it no unit.
+fn named(name: &str, units: &BTreeMap<String, String>) -> String {
+    match units.get(name) {
+        Some(u) => format!("{name} ({u})"),
+        None => name.to_owned(),
+    }
+}
+
+/// The SVG of one QoI over the done points: a colour map of cells over two parameters with
+/// labelled contour lines, a curve over one. Each cell or dot carries its value (the tooltip
+/// under the pointer). `units` (the scene's, by name) label the axes.
+pub fn surface_svg(
+    parameters: &[String],
+    qoi: &str,
+    points: &[(Vec<f64>, f64)],
+    units: &BTreeMap<String, String>,
+) -> String {
     let (w, h, m) = (420.0, 320.0, 40.0);
     let mut svg = format!(
-        "<svg class=\"surface\" data-qoi=\"{q}\" width=\"{w}\" height=\"{h}\" xmlns=\"http://www.w3.org/2000/svg\"><text x=\"{m}\" y=\"16\">{q}</text>",
-        q = escape(qoi)
+        "<svg class=\"surface\" data-qoi=\"{q}\" width=\"{w}\" height=\"{h}\" xmlns=\"http://www.w3.org/2000/svg\"><text x=\"{m}\" y=\"16\">{t}</text>",
+        q = escape(qoi),
+        t = escape(&named(qoi, units))
     );
     if points.is_empty() {
         return svg + "<text x=\"40\" y=\"60\">no point done yet</text></svg>";
@@ -293,27 +319,56 @@ pub fn surface_svg(parameters: &[String], qoi: &str, points: &[(Vec<f64>, f64)])
             let mut v: Vec<f64> = points.iter().map(|p| p.0[k]).collect();
             v.sort_by(f64::total_cmp);
             v.dedup();
-            v.len().max(1) as f64
+            v
         };
-        let (cw, ch) = ((w - 2.0 * m) / distinct(0), (h - 2.0 * m) / distinct(1));
+        let (xs, ys) = (distinct(0), distinct(1));
+        let (cw, ch) = ((w - 2.0 * m) / xs.len() as f64, (h - 2.0 * m) / ys.len() as f64);
+        // the top left corner of a cell
+        let px = |x: f64| m + (x - x0) / (x1 - x0) * (w - 2.0 * m - cw);
+        let py = |y: f64| h - m - ch - (y - y0) / (y1 - y0) * (h - 2.0 * m - ch);
         for (x, v) in points {
-            let px = m + (x[0] - x0) / (x1 - x0) * (w - 2.0 * m - cw);
-            let py = h - m - ch - (x[1] - y0) / (y1 - y0) * (h - 2.0 * m - ch);
             let _ = write!(
                 svg,
-                "<rect class=\"cell\" x=\"{px:.1}\" y=\"{py:.1}\" width=\"{cw:.1}\" height=\"{ch:.1}\" fill=\"{}\" data-value=\"{v:e}\"><title>{} {qoi} = {v:.4e}</title></rect>",
+                "<rect class=\"cell\" x=\"{:.1}\" y=\"{:.1}\" width=\"{cw:.1}\" height=\"{ch:.1}\" fill=\"{}\" data-value=\"{v:e}\"><title>{} {qoi} = {v:.4e}</title></rect>",
+                px(x[0]),
+                py(x[1]),
                 colour((v - vlo) / (vhi - vlo)),
                 label(x),
                 qoi = escape(qoi)
             );
         }
+        // contours through the cells' centres, at 4 levels evenly between the extremes
+        let mut grid = vec![None; xs.len() * ys.len()];
+        for (x, v) in points {
+            let (i, j) = (xs.partition_point(|a| *a < x[0]), ys.partition_point(|b| *b < x[1]));
+            grid[j * xs.len() + i] = Some(*v);
+        }
+        let centre = |i: usize, j: usize| (px(xs[i]) + cw / 2.0, py(ys[j]) + ch / 2.0);
+        for k in 1..=4 {
+            let level = vlo + (vhi - vlo) * k as f64 / 5.0;
+            let segments = contour(&grid, xs.len(), level, centre);
+            if segments.is_empty() {
+                continue;
+            }
+            // neighbouring levels labelled on different segments: close lines' labels do not overlap
+            let ((ax, ay), (bx, by)) = segments[(segments.len() / 2 + k) % segments.len()];
+            let d: String =
+                segments.iter().map(|((ax, ay), (bx, by))| format!("M{ax:.1} {ay:.1}L{bx:.1} {by:.1}")).collect();
+            let _ = write!(
+                svg,
+                "<path class=\"contour\" data-level=\"{level:e}\" d=\"{d}\" fill=\"none\" stroke=\"#000\" stroke-width=\"0.8\" pointer-events=\"none\"/>\
+                 <text class=\"contour-label\" x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" stroke=\"#fff\" stroke-width=\"2\" paint-order=\"stroke\" pointer-events=\"none\">{level:.2e}</text>",
+                (ax + bx) / 2.0,
+                (ay + by) / 2.0
+            );
+        }
         let _ = write!(
             svg,
-            "<text x=\"{m}\" y=\"{}\">{} →</text><text x=\"4\" y=\"{}\">{}</text>",
+            "<text x=\"{m}\" y=\"{}\">{} →</text><text x=\"4\" y=\"{}\">↑ {}</text>",
             h - 8.0,
-            escape(&parameters[0]),
+            escape(&named(&parameters[0], units)),
             m - 4.0,
-            escape(&parameters[1])
+            escape(&named(&parameters[1], units))
         );
     } else {
         let (x0, x1) = range(0);
@@ -339,9 +394,48 @@ pub fn surface_svg(parameters: &[String], qoi: &str, points: &[(Vec<f64>, f64)])
                 qoi = escape(qoi)
             );
         }
+        if let Some(p) = parameters.first() {
+            let _ = write!(svg, "<text x=\"{m}\" y=\"{}\">{} →</text>", h - 8.0, escape(&named(p, units)));
+        }
     }
     let _ = write!(svg, "<text x=\"{}\" y=\"16\">{vlo:.3e} … {vhi:.3e}</text></svg>", w - 200.0);
     svg
+}
+
+type Vertex = (f64, f64);
+
+/// Marching squares: the segments of the line where the value is `level`, over a grid of `nx`
+/// columns (row-major, None where no point is done) whose node (i, j) is drawn at `at(i, j)`.
+/// Each square's crossings are linear along its edges; a saddle is split by the square's mean.
+fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize) -> Vertex) -> Vec<(Vertex, Vertex)> {
+    let mut segments = Vec::new();
+    let ny = grid.len().checked_div(nx).unwrap_or(0);
+    for j in 0..ny.saturating_sub(1) {
+        for i in 0..nx - 1 {
+            // the square's corners in turn around it; edge k joins corner k to corner k + 1
+            let nodes = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)];
+            let Some(v) = nodes.iter().map(|&(a, b)| grid[b * nx + a]).collect::<Option<Vec<f64>>>() else { continue };
+            let above = |x: f64| x >= level;
+            let crossings: Vec<Vertex> = (0..4)
+                .filter(|&k| above(v[k]) != above(v[(k + 1) % 4]))
+                .map(|k| {
+                    let (a, b) = (at(nodes[k].0, nodes[k].1), at(nodes[(k + 1) % 4].0, nodes[(k + 1) % 4].1));
+                    let t = (level - v[k]) / (v[(k + 1) % 4] - v[k]);
+                    (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1))
+                })
+                .collect();
+            match crossings[..] {
+                [p, q] => segments.push((p, q)),
+                // a saddle: if the middle is on corner 0's side, corners 1 and 3 are cut off
+                [p0, p1, p2, p3] if above(v.iter().sum::<f64>() / 4.0) == above(v[0]) => {
+                    segments.extend([(p0, p1), (p2, p3)])
+                }
+                [p0, p1, p2, p3] => segments.extend([(p3, p0), (p1, p2)]),
+                _ => {}
+            }
+        }
+    }
+    segments
 }
 
 /// Eta against the iterations of every point solved (log scale), as the paper's Figures 7 and 8.
@@ -397,6 +491,14 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     };
     let r = &v.record;
     let p = v.progress;
+    // the units the scene gives its parameters and QoIs (it parsed when the study was submitted)
+    let scene = glissade_core::scene::Scene::parse(&r.scene).ok();
+    let units: BTreeMap<String, String> = r
+        .parameters
+        .iter()
+        .chain(&s.qoi)
+        .filter_map(|n| Some((n.clone(), scene.as_ref()?.unit(n)?.to_owned())))
+        .collect();
     let mut body = format!(
         "<p id=\"progress\" data-state=\"{}\">{}: {} of {} done, {} running, {} pending, {} failed</p>\
          <p>tolerance {:.1e}, strategy {}, parameters {}</p>",
@@ -462,7 +564,15 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 Some((x?, *row.qoi.get(qoi)?))
             })
             .collect();
-        body += &surface_svg(&free, qoi, &points);
+        body += &surface_svg(&free, qoi, &points, &units);
+    }
+    // the running points: the script fills this table from the JSON while the study runs
+    if v.state == StudyState::Active {
+        body += "<table id=\"running\"><caption>running points</caption><tr><th>point</th>";
+        for n in &r.parameters {
+            let _ = write!(body, "<th>{}</th>", escape(&named(n, &units)));
+        }
+        body += "<th>pool</th><th>iterations</th><th>eta</th></tr></table>";
     }
     let histories: Vec<Vec<f64>> =
         v.points.iter().filter_map(|p| p.result.as_ref().map(|r| r.eta_history.clone())).collect();
@@ -475,11 +585,11 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     );
     body += "<table id=\"points\"><tr><th>point</th>";
     for n in &r.parameters {
-        let _ = write!(body, "<th>{}</th>", escape(n));
+        let _ = write!(body, "<th>{}</th>", escape(&named(n, &units)));
     }
     body += "<th>state</th><th>iterations</th><th>eta</th>";
     for qoi in &s.qoi {
-        let _ = write!(body, "<th>{}</th>", escape(qoi));
+        let _ = write!(body, "<th>{}</th>", escape(&named(qoi, &units)));
     }
     body += "</tr>";
     for point in &v.points {
@@ -515,6 +625,11 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
            if (p.dataset.state !== 'active') return;\
            try {{ const s = await (await fetch(api)).json(); const g = s.progress;\
              p.textContent = s.state + ': ' + g.done + ' of ' + g.total + ' done, ' + g.leased + ' running, ' + g.pending + ' pending, ' + g.failed + ' failed';\
+             const t = document.getElementById('running');\
+             if (t) {{ [...t.rows].slice(1).forEach(r => r.remove());\
+               s.running.forEach(r => {{ const row = t.insertRow();\
+                 [r.point_id, ...s.parameters.map(n => r.parameters[n]), r.pool, r.iterations ?? '', r.eta == null ? '' : r.eta.toExponential(2)]\
+                   .forEach(x => row.insertCell().textContent = x); }}); }}\
              if (s.state !== 'active') location.reload(); else p.dataset.polled = (Number(p.dataset.polled || 0) + 1).toString();\
            }} catch (e) {{}}\
            setTimeout(poll, 1000);\
@@ -539,6 +654,7 @@ mod tests {
     #[test]
     fn an_11_by_11_study_draws_121_cells_and_one_parameter_a_curve() {
         let names = vec!["f1".to_owned(), "f2".to_owned()];
+        let none = BTreeMap::new();
         let mut points = Vec::new();
         for i in 0..11 {
             for j in 0..11 {
@@ -546,7 +662,7 @@ mod tests {
                 points.push((vec![a, b], a * b));
             }
         }
-        let svg = surface_svg(&names, "slip_A", &points);
+        let svg = surface_svg(&names, "slip_A", &points, &none);
         assert_eq!(svg.matches("class=\"cell\"").count(), 121);
         assert!(svg.contains("<title>f1=0.1 f2=0.1 slip_A = 1.0000e-2</title>"), "the value under the pointer");
         // every cell inside the picture
@@ -554,12 +670,73 @@ mod tests {
             let x: f64 = part.split('"').next().unwrap().parse().unwrap();
             assert!((0.0..420.0).contains(&x), "{x}");
         }
-        let curve =
-            surface_svg(&names[..1], "slip_A", &points[..11].iter().map(|(x, v)| (vec![x[1]], *v)).collect::<Vec<_>>());
+        let curve = surface_svg(
+            &names[..1],
+            "slip_A",
+            &points[..11].iter().map(|(x, v)| (vec![x[1]], *v)).collect::<Vec<_>>(),
+            &none,
+        );
         assert!(curve.contains("<polyline") && curve.matches("<circle class=\"cell\"").count() == 11);
-        assert!(surface_svg(&names, "q", &[]).contains("no point done yet"));
+        assert!(surface_svg(&names, "q", &[], &none).contains("no point done yet"));
         // names are escaped
-        assert!(surface_svg(&names, "<b>", &points).contains("&lt;b&gt;"));
+        assert!(surface_svg(&names, "<b>", &points, &none).contains("&lt;b&gt;"));
+    }
+
+    /// The numbers of attribute `name` in every element of class `class`.
+    fn attributes(svg: &str, class: &str, name: &str) -> Vec<String> {
+        svg.split(&format!("class=\"{class}\""))
+            .skip(1)
+            .filter_map(|e| e.split(&format!(" {name}=\"")).nth(1)?.split('"').next().map(str::to_owned))
+            .collect()
+    }
+
+    #[test]
+    fn contour_lines_lie_where_the_surface_takes_their_level() {
+        let names = vec!["a".to_owned(), "b".to_owned()];
+        // v = a over an 11 x 11 grid: every contour is straight across, at its level's column
+        let grid: Vec<(Vec<f64>, f64)> =
+            (0..121).map(|k| (vec![0.1 * (k % 11) as f64, 0.1 * (k / 11) as f64], 0.1 * (k % 11) as f64)).collect();
+        let svg = surface_svg(&names, "v", &grid, &BTreeMap::new());
+        let levels = attributes(&svg, "contour", "data-level");
+        assert_eq!(levels.len(), 4, "{svg}");
+        assert_eq!(attributes(&svg, "contour-label", "x").len(), 4, "each labelled");
+        // the centres of the columns where v = 0 and v = 1 (the first and last cells)
+        let xs: Vec<f64> = attributes(&svg, "cell", "x").iter().map(|x| x.parse().unwrap()).collect();
+        let cw: f64 = attributes(&svg, "cell", "width")[0].parse().unwrap();
+        let (c0, c1) = (xs[0] + cw / 2.0, xs[10] + cw / 2.0);
+        for (level, d) in levels.iter().zip(attributes(&svg, "contour", "d")) {
+            let level: f64 = level.parse().unwrap();
+            let vertices: Vec<(f64, f64)> = d
+                .split(['M', 'L'])
+                .filter(|p| !p.is_empty())
+                .map(|p| p.split_once(' ').map(|(x, y)| (x.parse().unwrap(), y.parse().unwrap())).unwrap())
+                .collect();
+            assert_eq!(vertices.len(), 2 * 10, "a segment per row of squares: {d}");
+            for (x, y) in vertices {
+                assert!((x - (c0 + level * (c1 - c0))).abs() <= 0.06, "level {level}: x = {x}");
+                assert!((40.0..280.0).contains(&y), "{y}");
+            }
+        }
+        // a saddle, v = (a - 0.5)(b - 0.5): lines, none outside the picture
+        let saddle: Vec<(Vec<f64>, f64)> = grid.iter().map(|(x, _)| (x.clone(), (x[0] - 0.5) * (x[1] - 0.5))).collect();
+        let svg = surface_svg(&names, "v", &saddle, &BTreeMap::new());
+        assert_eq!(attributes(&svg, "contour", "d").len(), 4, "{svg}");
+        // a constant surface has no contour
+        let flat: Vec<(Vec<f64>, f64)> = grid.iter().map(|(x, _)| (x.clone(), 2.0)).collect();
+        assert!(!surface_svg(&names, "v", &flat, &BTreeMap::new()).contains("contour"));
+    }
+
+    #[test]
+    fn the_axes_carry_the_scenes_names_and_units() {
+        let names = vec!["pressure".to_owned(), "f1".to_owned()];
+        let units = BTreeMap::from([("pressure".to_owned(), "Pa".to_owned()), ("slip_A".to_owned(), "m".to_owned())]);
+        let points = vec![(vec![1e7, 0.1], 1e-5), (vec![2e7, 0.2], 2e-5)];
+        let svg = surface_svg(&names, "slip_A", &points, &units);
+        assert!(svg.contains(">slip_A (m)</text>"), "the title: {svg}");
+        assert!(svg.contains(">pressure (Pa) →</text>"), "the x axis: {svg}");
+        assert!(svg.contains(">↑ f1</text>"), "no unit, the name alone: {svg}");
+        let curve = surface_svg(&names[..1], "slip_A", &[(vec![1e7], 1e-5), (vec![2e7], 2e-5)], &units);
+        assert!(curve.contains(">pressure (Pa) →</text>") && curve.contains(">slip_A (m)</text>"), "{curve}");
     }
 
     #[test]

@@ -444,8 +444,18 @@ impl Coordinator {
         Ok((id, n, scene_hash))
     }
 
-    fn view(studies: &BTreeMap<StudyId, StudyEntry>, entry: &StudyEntry, with_points: bool) -> StudyView {
+    fn view(state: &State, entry: &StudyEntry, with_points: bool) -> StudyView {
+        let studies = &state.studies;
+        let solving = entry
+            .points
+            .iter()
+            .filter_map(|p| match p.state {
+                PointState::Leased { lease_id, .. } => Some((p.id, *state.lease_progress.get(&lease_id)?)),
+                _ => None,
+            })
+            .collect();
         StudyView {
+            solving,
             record: entry.record.clone(),
             state: entry.state(),
             progress: entry.progress(),
@@ -457,12 +467,12 @@ impl Coordinator {
     pub fn study(&self, id: StudyId, with_points: bool) -> Result<StudyView, CoordError> {
         let state = self.lock();
         let entry = state.studies.get(&id).ok_or(CoordError::UnknownStudy(id))?;
-        Ok(Self::view(&state.studies, entry, with_points))
+        Ok(Self::view(&state, entry, with_points))
     }
 
     pub fn studies(&self) -> Vec<StudyView> {
         let state = self.lock();
-        state.studies.values().map(|e| Self::view(&state.studies, e, false)).collect()
+        state.studies.values().map(|e| Self::view(&state, e, false)).collect()
     }
 
     /// The events replaying a study's state, and a subscription for what follows (taken under
@@ -529,7 +539,7 @@ impl Coordinator {
             state = self.lock();
         }
         let entry = state.studies.get(&id).expect("cancelled above");
-        Ok(Self::view(&state.studies, entry, false))
+        Ok(Self::view(&state, entry, false))
     }
 
     pub fn retry_failed(&self, id: StudyId) -> Result<(u32, StudyView), CoordError> {
@@ -550,7 +560,7 @@ impl Coordinator {
             tracing::info!(study = %id, requeued, "failed points requeued");
             self.emit(EventKind::Snapshot, entry, None);
         }
-        let view = Self::view(&state.studies, &state.studies[&id], false);
+        let view = Self::view(&state, &state.studies[&id], false);
         drop(state);
         self.work.notify_waiters();
         Ok((requeued, view))

@@ -271,6 +271,24 @@ fn lost_leases_requeue_then_fail_and_retry_requeues() {
 }
 
 #[test]
+fn a_study_shows_what_its_running_points_last_reported_and_forgets_it_when_they_stop() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 2);
+    pool(&c, "p", VERSION);
+    let id = submit(&c, &["f1=0.1,0.2"], 1e-3, InitStrategy::Nearest);
+    let g = c.lease("p").unwrap().unwrap();
+    assert!(c.study(id, false).unwrap().solving.is_empty(), "nothing reported yet");
+    c.heartbeat("p", &[g.lease_id], &[(g.lease_id, 3, 0.5)]);
+    c.heartbeat("p", &[g.lease_id], &[(g.lease_id, 7, 3.2e-2)]);
+    // another pool's report for this lease is not believed
+    pool(&c, "q", VERSION);
+    c.heartbeat("q", &[g.lease_id], &[(g.lease_id, 99, 1e-9)]);
+    assert_eq!(c.study(id, false).unwrap().solving.into_iter().collect::<Vec<_>>(), [(g.point, (7, 3.2e-2))]);
+    c.release("p", g.lease_id, g.study, g.point).unwrap();
+    assert!(c.study(id, false).unwrap().solving.is_empty());
+}
+
+#[test]
 fn everything_committed_survives_a_reopen_and_leases_get_a_fresh_deadline() {
     let dir = tempfile::tempdir().unwrap();
     let (id, held) = {

@@ -123,6 +123,8 @@ pub struct StudyView {
     pub progress: Progress,
     pub points: Vec<PointRecord>,
     pub accuracy: Option<Accuracy>,
+    /// Iterations and eta its pool last reported, per leased point that reported (not stored).
+    pub solving: BTreeMap<PointId, (u64, f64)>,
 }
 
 /// A submission, validated by the service layer's conversions.

@@ -35,13 +35,26 @@ fn a_browser_draws_the_study_page_and_follows_its_progress() -> anyhow::Result<(
     })?;
     let page = format!("{url}/studies/{id}");
 
-    // No pool yet: the study waits, and the page's script polls its progress.
+    // One point held by a pool that reported its solve's progress; the others wait. The page's
+    // script polls the progress and lists the running point (the server draws no row of it).
+    let (mut fake, lease) = rt.block_on(fake_pool(&url, "fake"))?;
+    rt.block_on(report_progress(&mut fake, "fake", &lease, 7, 3.2e-2))?;
     let waiting = rendered(&page);
     assert!(waiting.contains("<h1>study 1: browser test</h1>"), "{waiting}");
-    assert!(waiting.contains("active: 0 of 9 done"), "{waiting}");
+    assert!(waiting.contains("active: 0 of 9 done, 1 running"), "{waiting}");
     let polled =
         waiting.split("data-polled=\"").nth(1).and_then(|s| s.split('"').next()).and_then(|n| n.parse::<u32>().ok());
     assert!(polled.is_some_and(|n| n >= 1), "the script polled the API: {waiting}");
+    let row = format!("<tr><td>{}</td>", lease.point_id);
+    let running =
+        waiting.split("<table id=\"running\">").nth(1).and_then(|t| t.split("</table>").next()).unwrap_or_default();
+    assert!(running.contains(&row) && running.contains("<td>fake</td><td>7</td><td>3.20e-2</td></tr>"), "{waiting}");
+    rt.block_on(fake.release_point(v1::ReleasePointRequest {
+        pool_id: "fake".into(),
+        lease_id: lease.lease_id,
+        study_id: lease.study_id,
+        point_id: lease.point_id,
+    }))?;
 
     // A pool solves it; the same page then draws three colour maps of 9 cells and the table.
     let mut pool = start_pool(&url, "browser-pool", &pool_log);
@@ -51,6 +64,7 @@ fn a_browser_draws_the_study_page_and_follows_its_progress() -> anyhow::Result<(
     assert_eq!(done.matches("class=\"cell\"").count(), 27, "{done}");
     assert_eq!(done.matches("<svg class=\"surface\"").count(), 3, "{done}");
     assert!(done.contains("<table id=\"points\">"), "{done}");
+    assert!(done.contains("class=\"contour\"") && done.contains(">slip_A (m)</text>"), "contours, units: {done}");
 
     // A picture a person can open: target/study-page.png.
     let shot = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/study-page.png");

@@ -93,6 +93,10 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     assert_eq!(page.matches("class=\"cell\"").count(), 9 * 3, "{page}");
     assert!(page.contains("<table id=\"points\">") && page.contains("measured accuracy"), "{page}");
     assert_eq!(page.matches("class=\"history\"").count(), 9, "a convergence line per point: {page}");
+    // labelled contour lines on the maps of QoIs that vary; the QoIs' units from the scene
+    assert!(page.matches("<path class=\"contour\"").count() >= 4, "{page}");
+    assert_eq!(page.matches("<path class=\"contour\"").count(), page.matches("class=\"contour-label\"").count());
+    assert!(page.contains(">slip_A (m)</text>") && page.contains(">middle_ux (m)</text>"), "{page}");
     // a slice: the curves over f1 at f2 = 0.15, 3 points per QoI
     let (status, _, slice) = http_get(&addr, "/studies/1?fix=f2=0.15");
     assert_eq!(status, 200);

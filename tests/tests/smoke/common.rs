@@ -283,6 +283,22 @@ pub async fn fake_pool(url: &str, id: &str) -> anyhow::Result<(PoolClient<Channe
     Ok((pool, lease))
 }
 
+/// A heartbeat of pool `pool_id` for `lease`, reporting `iterations` so far and `eta`.
+pub async fn report_progress(
+    pool: &mut PoolClient<Channel>,
+    pool_id: &str,
+    lease: &v1::Lease,
+    iterations: u64,
+    eta: f64,
+) -> anyhow::Result<()> {
+    let progress = v1::SolveProgress { lease_id: lease.lease_id, iterations, error_indicator: eta };
+    let request =
+        v1::HeartbeatRequest { pool_id: pool_id.into(), lease_ids: vec![lease.lease_id], progress: vec![progress] };
+    let reply = pool.heartbeat(request).await?.into_inner();
+    anyhow::ensure!(reply.leases.iter().all(|l| l.valid), "lease lost: {reply:?}");
+    Ok(())
+}
+
 /// CompletePoint: a header with the outcome of the solution file `valid` announcing `announced`
 /// bytes, then the chunks of `bytes` (`valid` itself, or a damaged or foreign file).
 pub async fn complete(

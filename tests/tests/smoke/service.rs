@@ -555,6 +555,46 @@ fn service_forwards_solve_progress_to_watchers() -> anyhow::Result<()> {
 }
 
 #[test]
+fn the_study_json_shows_the_running_points_with_their_iterations_and_eta() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let id = rt.block_on(async {
+        anyhow::Ok(
+            user(&url).await?.submit_study(grid_request(&["f1=0.1,0.2"], STUDY_TOL)).await?.into_inner().study_id,
+        )
+    })?;
+    let api = format!("/api/studies/{id}");
+    let running = |json: &serde_json::Value| json["running"].as_array().cloned().unwrap_or_default();
+    // a pool holds a point but has not reported yet: running, without iterations
+    let (mut pool, lease) = rt.block_on(fake_pool(&url, "tester"))?;
+    let json: serde_json::Value = serde_json::from_str(&http_get(&addr, &api).2)?;
+    assert_eq!(running(&json).len(), 1, "{json}");
+    assert_eq!(running(&json)[0]["point_id"], lease.point_id, "{json}");
+    assert_eq!(running(&json)[0]["pool"], "tester", "{json}");
+    assert!(running(&json)[0]["iterations"].is_null() && running(&json)[0]["eta"].is_null(), "{json}");
+    // its heartbeats report the solve's progress: the latest is what the JSON says
+    for (iterations, eta) in [(3, 0.5), (7, 3.2e-2)] {
+        rt.block_on(report_progress(&mut pool, "tester", &lease, iterations, eta))?;
+    }
+    let json: serde_json::Value = serde_json::from_str(&http_get(&addr, &api).2)?;
+    let r = &running(&json)[0];
+    assert_eq!((r["iterations"].as_u64(), r["eta"].as_f64()), (Some(7), Some(3.2e-2)), "{json}");
+    assert_eq!(r["parameters"]["f1"].as_f64(), lease.parameters.get("f1").copied(), "{json}");
+    // given back, it runs no more
+    rt.block_on(pool.release_point(v1::ReleasePointRequest {
+        pool_id: "tester".into(),
+        lease_id: lease.lease_id,
+        study_id: lease.study_id,
+        point_id: lease.point_id,
+    }))?;
+    let json: serde_json::Value = serde_json::from_str(&http_get(&addr, &api).2)?;
+    assert!(running(&json).is_empty(), "{json}");
+    Ok(())
+}
+
+#[test]
 fn a_pool_fails_a_point_too_big_for_its_memory_with_the_reason_and_lives_on() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
     let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
