@@ -4,6 +4,7 @@
 mod fixtures;
 
 use glissade_core::scene::{Scale, Scene};
+use glissade_worker::element::ElementKind;
 use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
 use glissade_worker::model::{Model, QoiTarget};
 use glissade_worker::monolithic;
@@ -806,4 +807,196 @@ fn refined_sliding_block_and_fine_time_steps_converge_within_the_default_limit()
     let m = build::<1>(&bar, &[]);
     let r = solve(&m, false);
     eprintln!("bar, dt = transit / 2: {} iterations", r.iterations());
+}
+
+/// Two stacked blocks meshed by Gmsh (worker/tests/data/bar.geo, one mesh, two physical
+/// volumes), each a body cut into 3 substructures by METIS, glued by a declared perfect
+/// interface on their shared physical surface "joint": clamped base, pressure pulse on top.
+const MESHED_BAR: &str = r#"
+dimension = 3
+[time]
+duration = 4e-5
+steps = 40
+[materials.steel]
+E = 200e9
+nu = 0.3
+rho = 7800
+[[bodies]]
+name = "lower"
+material = "steel"
+mesh = { file = "MESH", volume = "lower" }
+substructures = 3
+[[bodies]]
+name = "upper"
+material = "steel"
+mesh = { file = "MESH", volume = "upper" }
+substructures = 3
+[[interfaces]]
+name = "joint"
+a = "lower.joint"
+b = "upper.joint"
+law = "perfect"
+[[boundary]]
+face = "lower.base"
+clamped = true
+[[loads]]
+face = "upper.top"
+pressure = 5e7
+history = [[0, 0], [5e-6, 1], [1e-5, 0]]
+[[qoi]]
+name = "top_vz"
+kind = "velocity"
+body = "upper"
+point = [0.02, 0.02, 0.04]
+component = "z"
+[[qoi]]
+name = "top_uz"
+kind = "displacement"
+body = "upper"
+point = [0.02, 0.02, 0.04]
+component = "z"
+[[qoi]]
+name = "joint_ux"
+kind = "displacement"
+body = "lower"
+point = [0.02, 0.0, 0.02]
+component = "x"
+"#;
+
+fn mesh_data_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data")
+}
+
+/// The scene `text` with its mesh files found in worker/tests/data.
+fn meshed_scene(text: &str) -> Scene {
+    let mut scene = Scene::parse(text).expect("test scene parses");
+    scene.directory = Some(mesh_data_dir());
+    scene
+}
+
+fn build_meshed(text: &str) -> Result<Model<3>, String> {
+    let scene = meshed_scene(text);
+    Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).map_err(|e| e.to_string())
+}
+
+/// Perfect interfaces on a Gmsh mesh (the declared one between the bodies, METIS's cuts
+/// within them) against the monolithic solve: every QoI history and the whole displacement
+/// field within 10 x tol, single- and multiscale, at the default tolerance and a tight one.
+fn check_gmsh_bar_against_monolithic(file: &str, kind: ElementKind) {
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let model = build_meshed(&MESHED_BAR.replace("MESH", file)).expect("model builds");
+    assert!(model.bodies.iter().all(|b| b.mesh.kind == kind));
+    assert_eq!(model.substructures.len(), 6);
+    let joints: Vec<_> = model.interfaces.iter().filter(|i| i.name == "joint").collect();
+    let joint_area: f64 = joints.iter().flat_map(|i| i.area.iter()).sum();
+    assert!((joint_area - 4e-4).abs() < 1e-15, "joint area {joint_area}");
+    assert!(joints.iter().flat_map(|i| &i.normal).all(|n| (n[2] - 1.0).abs() < 1e-12), "the joint's normal is +z");
+    let elements: Vec<usize> =
+        (0..6).map(|s| model.bodies.iter().flat_map(|b| &b.partition).filter(|&&p| p == s).count()).collect();
+    eprintln!("{file}: {} dofs, elements per substructure {elements:?}", model.n_dofs());
+    let reference = monolithic::solve(&model).expect("monolithic");
+    for scale in [Scale::Single, Scale::Multi] {
+        for tol in [model.settings.tolerance, 1e-5] {
+            let mut m = model.clone();
+            m.settings.scale = scale;
+            m.settings.tolerance = tol;
+            let r = solve(&m, true);
+            let fields = r.fields.as_ref().expect("fields recorded");
+            let (mut num, mut den) = (0.0, 0.0);
+            for (s, steps) in fields.displacement.iter().enumerate() {
+                for (n, u) in steps.iter().enumerate() {
+                    for (l, &ul) in u.iter().enumerate() {
+                        let ur = reference.displacement[n][reference.dof_map[s][l]];
+                        num += (ul - ur).powi(2);
+                        den += ur * ur;
+                    }
+                }
+            }
+            let field = (num / den).sqrt();
+            let mut report = format!("field {field:.2e}");
+            assert!(field < 10.0 * tol, "{file} {scale:?} at {tol:e}: field error {field:.2e}");
+            for (q, series) in m.qois.iter().zip(&r.qoi) {
+                let expected = monolithic_qoi::<3>(&reference, &q.target);
+                let d: Vec<f64> = series.values.iter().zip(&expected).map(|(a, b)| a - b).collect();
+                let err = norm(&d) / norm(&expected);
+                report += &format!(", {} {err:.2e}", q.name);
+                assert!(err <= 10.0 * tol, "{file} {scale:?} at {tol:e}: {} off by {err:.2e}", q.name);
+            }
+            eprintln!("{file} {scale:?} tol {tol:.0e}: {} iterations; errors: {report}", r.iterations());
+        }
+    }
+}
+
+#[test]
+fn gmsh_tetrahedra_match_monolithic() {
+    check_gmsh_bar_against_monolithic("bar-tet.msh", ElementKind::Simplex);
+}
+
+#[test]
+fn gmsh_hexahedra_match_monolithic() {
+    check_gmsh_bar_against_monolithic("bar-hex.msh", ElementKind::Tensor);
+}
+
+/// ASCII and binary files of one mesh give the same body (to the 16 digits Gmsh writes in ASCII).
+#[test]
+fn gmsh_ascii_and_binary_agree() {
+    let read = |file: &str| {
+        let bytes = std::fs::read(mesh_data_dir().join(file)).unwrap();
+        glissade_worker::gmsh::parse_volume(&bytes, "upper").unwrap()
+    };
+    let (a, b) = (read("bar-tet.msh"), read("bar-tet-bin.msh"));
+    assert_eq!((&a.connectivity, &a.face_sets), (&b.connectivity, &b.face_sets));
+    assert_eq!(a.nodes.len(), b.nodes.len());
+    for (p, q) in a.nodes.iter().zip(&b.nodes) {
+        assert!((0..3).all(|d| (p[d] - q[d]).abs() < 1e-17), "{p:?} against {q:?}");
+    }
+}
+
+/// Mesh bodies with an unsupported element, an unknown physical name or non-conforming
+/// interface faces give errors naming them; so does a mesh body of a scene given as text alone.
+#[test]
+fn gmsh_bad_meshes_give_precise_errors() {
+    let bar = MESHED_BAR.replace("MESH", "bar-tet.msh");
+    let cases = [
+        (
+            MESHED_BAR.replace("MESH", "bar-tet10.msh"),
+            "bodies[0].mesh: bar-tet10.msh: volume 'lower': element type Tet10 (Gmsh type 11); only 4-node tetrahedra and 8-node hexahedra are supported",
+        ),
+        (
+            bar.replacen("volume = \"upper\"", "volume = \"middle\"", 1),
+            "bodies[1].mesh: bar-tet.msh: no physical volume 'middle' in the file (physical volumes: 'lower', 'upper')",
+        ),
+        (
+            bar.replacen("a = \"lower.joint\"", "a = \"lower.top\"", 1),
+            "interfaces[0].a: body 'lower' has no face 'top' (has: base, joint)",
+        ),
+        (
+            bar.replacen("substructures = 3", "substructures = [1, 1, 3]", 1),
+            "bodies[0].substructures: a mesh body takes a number of substructures",
+        ),
+    ];
+    for (text, expected) in &cases {
+        let err = build_meshed(text).err().unwrap_or_default();
+        assert!(err.starts_with(expected), "expected '{expected}', got '{err}'");
+    }
+    let text = MESHED_BAR.replace("MESH", "bar-tet.msh");
+    let scene = Scene::parse(&text).unwrap();
+    let err = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).err().map(|e| e.to_string());
+    assert!(err.unwrap_or_default().starts_with("bodies[0].mesh: a mesh body needs its scene file"));
+    let err = build_meshed(&MESHED_BAR.replace("MESH", "nonconforming.msh")).err().unwrap_or_default();
+    assert!(err.starts_with("interfaces[0]: interface faces do not match: the face of 'lower.joint' at [["), "{err}");
+}
+
+/// The content hash covers the mesh file's content, not only its name.
+#[test]
+fn scene_hash_covers_the_mesh_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene_file = dir.path().join("bar.toml");
+    std::fs::write(&scene_file, MESHED_BAR.replace("MESH", "bar.msh")).unwrap();
+    let hash_with = |mesh: &str| {
+        std::fs::copy(mesh_data_dir().join(mesh), dir.path().join("bar.msh")).unwrap();
+        Scene::read(&scene_file).unwrap().content_hash()
+    };
+    assert_ne!(hash_with("bar-tet.msh"), hash_with("bar-hex.msh"));
+    assert_eq!(hash_with("bar-tet.msh"), hash_with("bar-tet.msh"));
 }
