@@ -121,6 +121,8 @@ pub enum LawSpec {
     Perfect,
     Contact,
     Friction,
+    /// glued with a prescribed normal shortening (a bolt's prestress)
+    Prestress,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -135,6 +137,10 @@ pub struct InterfaceSpec {
     pub friction: Option<Scalar>,
     /// initial normal gap to a wall (m)
     pub gap: Option<Scalar>,
+    /// normal shortening of law `prestress` (m): n.(u_b - u_a) = -prestress, reached in the
+    /// static stage and held in the dynamics (absent from the hash when absent)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prestress: Option<Scalar>,
 }
 
 /// Piecewise-linear factor `[[t, value], ...]`, constant beyond its ends.

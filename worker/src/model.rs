@@ -16,7 +16,24 @@ use glissade_core::scene::{
 pub enum InterfaceLaw {
     Perfect,
     Contact,
-    Friction { coefficient: f64 },
+    Friction {
+        coefficient: f64,
+    },
+    /// glued, side 2 displaced by `-shortening` along the normal in the static stage (a bolt
+    /// shortened by its prestress), the jump then held: perfect in the dynamics
+    Prestress {
+        shortening: f64,
+    },
+}
+
+impl InterfaceLaw {
+    /// The law of the dynamic stage (velocities): a prestress's jump is held.
+    pub fn in_dynamics(self) -> Self {
+        match self {
+            InterfaceLaw::Prestress { .. } => InterfaceLaw::Perfect,
+            law => law,
+        }
+    }
 }
 
 /// One side of an interface: a substructure and its nodes on the interface (same order on both
@@ -206,7 +223,10 @@ impl<const D: usize> Model<D> {
         self.substructures.iter().any(|s| {
             s.prescribed.iter().any(|p| p.static_displacement != 0.0)
                 || s.loads.iter().any(|l| self.histories[l.history].at(0.0) != 0.0)
-        })
+        }) || self
+            .interfaces
+            .iter()
+            .any(|i| matches!(i.law, InterfaceLaw::Prestress { shortening } if shortening != 0.0))
     }
 
     pub fn n_dofs(&self) -> usize {
@@ -383,10 +403,10 @@ impl<const D: usize> Model<D> {
             let mesh_a = &bodies[ba].mesh;
             let first = interfaces.len();
             if spec.b == "wall" {
-                if law == InterfaceLaw::Perfect {
+                if matches!(law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
                     return Err(invalid(
                         format!("{key}.law"),
-                        "a perfect interface with a wall is a clamped boundary: use [[boundary]] clamped = true",
+                        "a glued interface with a wall is a boundary condition: use [[boundary]] (clamped or displacement)",
                     ));
                 }
                 let gap = match &spec.gap {
@@ -792,6 +812,9 @@ fn resolve_law(
     key: &str,
     spec: &glissade_core::scene::InterfaceSpec,
 ) -> Result<InterfaceLaw, SceneError> {
+    if spec.prestress.is_some() && spec.law != LawSpec::Prestress {
+        return Err(invalid(format!("{key}.prestress"), "only law 'prestress' takes a prestress"));
+    }
     Ok(match spec.law {
         LawSpec::Perfect => InterfaceLaw::Perfect,
         LawSpec::Contact => InterfaceLaw::Contact,
@@ -805,6 +828,13 @@ fn resolve_law(
                 return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
             }
             InterfaceLaw::Friction { coefficient: f }
+        }
+        LawSpec::Prestress => {
+            let s = spec
+                .prestress
+                .as_ref()
+                .ok_or_else(|| invalid(format!("{key}.prestress"), "law 'prestress' needs a shortening (m)"))?;
+            InterfaceLaw::Prestress { shortening: r.get(&format!("{key}.prestress"), s)? }
         }
     })
 }

@@ -585,6 +585,8 @@ fn bad_scenes_give_named_errors() {
         ("pressure = 1e7", "pressure = 1e7\nbogus = 1", "bogus"),
         ("elements = [8, 4]", "elements = [8]", "bodies[0].elements"),
         ("a = \"block.y-\"", "a = \"block.q+\"", "no face 'q+'"),
+        ("friction = \"f\"", "friction = \"f\"\nprestress = 1e-5", "interfaces[0].prestress: only law 'prestress'"),
+        ("law = \"friction\"", "law = \"prestress\"", "interfaces[0].prestress: law 'prestress' needs"),
     ];
     for (from, to, expected) in cases {
         assert!(base.contains(from), "test case pattern {from}");
@@ -1088,4 +1090,86 @@ fn bolted_joint_tiny_builds_with_radial_normals_in_the_holes() {
     eprintln!("bolted joint: {} dofs, {holes} hole nodes, worst cos(normal, radius) {worst_radial:.4}", m.n_dofs());
     // the tiny mesh has a few facets around a shank (4 mm elements on a 3 mm radius)
     assert!(worst_radial > 0.85, "hole normals not radial: cos {worst_radial}");
+}
+
+/// Two clamped steel bars (nu = 0) glued end to end by a prestress interface: a shortening s
+/// gives the bar force E A s / (L1 + L2) in the static stage (exact for linear elements), held
+/// through the dynamics, and the jump n.(u_b - u_a) = -s; a shortening of zero leaves it unloaded.
+const PRESTRESSED_BARS: &str = r#"
+dimension = 3
+[time]
+duration = 1e-5
+steps = 10
+[parameters]
+s = { default = 1e-5, unit = "m" }
+[materials.steel]
+E = 200e9
+nu = 0
+rho = 7800
+[[bodies]]
+name = "lower"
+material = "steel"
+size = [0.01, 0.01, 0.02]
+elements = [2, 2, 4]
+substructures = [1, 1, 2]
+[[bodies]]
+name = "upper"
+material = "steel"
+origin = [0, 0, 0.02]
+size = [0.01, 0.01, 0.02]
+elements = [2, 2, 4]
+[[interfaces]]
+name = "cut"
+a = "lower.z+"
+b = "upper.z-"
+law = "prestress"
+prestress = "s"
+[[boundary]]
+face = "lower.z-"
+clamped = true
+[[boundary]]
+face = "upper.z+"
+clamped = true
+[[qoi]]
+name = "force"
+kind = "force"
+interface = "cut"
+component = "z"
+[[qoi]]
+name = "lower_top"
+kind = "displacement"
+body = "lower"
+point = [0.01, 0.01, 0.02]
+component = "z"
+[[qoi]]
+name = "upper_bottom"
+kind = "displacement"
+body = "upper"
+point = [0.01, 0.01, 0.02]
+component = "z"
+"#;
+
+#[test]
+fn prestress_gives_the_bar_force_and_holds_it() {
+    let s = 1e-5;
+    let m = build::<3>(PRESTRESSED_BARS, &[]);
+    assert!(m.needs_static_stage());
+    let tol = m.settings.tolerance;
+    let r = solve(&m, false);
+    let series = |name: &str| &r.qoi.iter().find(|q| q.name == name).unwrap().values;
+    let exact = 200e9 * 1e-4 * s / 0.04;
+    let force_err = series("force").iter().map(|f| (f - exact).abs() / exact).fold(0.0, f64::max);
+    let (lower, upper) = (series("lower_top"), series("upper_bottom"));
+    let jump_err = (0..=m.steps).map(|n| (upper[n] - lower[n] + s).abs() / s).fold(0.0, f64::max);
+    let split_err = (lower[m.steps] - s / 2.0).abs() / s;
+    eprintln!(
+        "prestress: force {:.6e} N against {exact:.6e} (worst step {force_err:.2e}), jump {jump_err:.2e}, lower top {:.4e} m, {} iterations",
+        series("force")[m.steps],
+        lower[m.steps],
+        r.iterations()
+    );
+    assert!(force_err < 10.0 * tol, "bar force off by {force_err:.2e}");
+    assert!(jump_err < 10.0 * tol && split_err < 10.0 * tol, "jump off by {jump_err:.2e}, split {split_err:.2e}");
+    let unloaded = solve(&build::<3>(PRESTRESSED_BARS, &[("s", 0.0)]), false);
+    assert!(unloaded.qoi.iter().all(|q| q.values.iter().all(|&v| v == 0.0)), "a zero prestress loads nothing");
 }

@@ -43,10 +43,15 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
     let (h1, h2) = (x.h1, x.h2);
     let mut f1h = [0.0; D];
     match law {
-        InterfaceLaw::Perfect => {
-            // W^1 = W^2 = (k1 W1 + k2 W2 - (F1 + F2)) / (k1 + k2), written with h to allow h2 = 0
+        InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => {
+            // W^1 = W^2 + s n = (k1 W1 + k2 (W2 + s n) - (F1 + F2)) / (k1 + k2), written with h
+            // to allow h2 = 0; s is a prestress's shortening (static stage), else none
             for i in 0..D {
-                let w = (h2 * x.w1[i] + h1 * x.w2[i] - h1 * h2 * (x.f1[i] + x.f2[i])) / (h1 + h2);
+                let w2 = match law {
+                    InterfaceLaw::Prestress { shortening } => x.w2[i] + shortening * x.normal[i],
+                    _ => x.w2[i],
+                };
+                let w = (h2 * x.w1[i] + h1 * w2 - h1 * h2 * (x.f1[i] + x.f2[i])) / (h1 + h2);
                 f1h[i] = x.f1[i] + (w - x.w1[i]) / h1;
             }
         }
@@ -116,6 +121,16 @@ mod tests {
         for i in 0..2 {
             assert!((o.w1[i] - o.w2[i]).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn prestress_gives_the_prescribed_jump() {
+        let x = input([1.0, 2.0], [0.3, -0.1], [-1.0, 0.5], [0.2, 0.4]);
+        let o = apply_law(InterfaceLaw::Prestress { shortening: 0.125 }, &x, GapRule { base: 0.0, weight: 1.0 });
+        assert_search_direction(&x, &o);
+        // W^2 - W^1 = -s n (n = y)
+        assert!((o.w2[0] - o.w1[0]).abs() < 1e-12 && (o.w2[1] - o.w1[1] + 0.125).abs() < 1e-12);
+        assert_eq!(InterfaceLaw::Prestress { shortening: 0.125 }.in_dynamics(), InterfaceLaw::Perfect);
     }
 
     #[test]
