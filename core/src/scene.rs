@@ -82,12 +82,37 @@ pub struct BodySpec {
     pub material: String,
     #[serde(default)]
     pub origin: Option<Vec<Scalar>>,
-    pub size: Vec<Scalar>,
-    pub elements: Vec<usize>,
+    /// a box: its extents and element counts (exactly one of a box or `mesh`)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub size: Option<Vec<Scalar>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub elements: Option<Vec<usize>>,
+    /// a volume of a Gmsh mesh file
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh: Option<MeshSpec>,
     #[serde(default)]
-    pub substructures: Option<Vec<usize>>,
+    pub substructures: Option<Substructures>,
     #[serde(default)]
     pub initial_velocity: Option<Vec<Scalar>>,
+}
+
+/// A body meshed by Gmsh: a physical volume of an MSH 4.1 file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshSpec {
+    /// path of the `.msh` file, relative to the scene file
+    pub file: String,
+    /// name of the physical volume (Gmsh `Physical Volume("name")`)
+    pub volume: String,
+}
+
+/// How a body is cut into substructures: blocks per axis (boxes) or a count of graph parts
+/// (mesh bodies).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Substructures {
+    PerAxis(Vec<usize>),
+    Count(usize),
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -96,6 +121,8 @@ pub enum LawSpec {
     Perfect,
     Contact,
     Friction,
+    /// glued with a prescribed normal shortening (a bolt's prestress)
+    Prestress,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -110,6 +137,10 @@ pub struct InterfaceSpec {
     pub friction: Option<Scalar>,
     /// initial normal gap to a wall (m)
     pub gap: Option<Scalar>,
+    /// normal shortening of law `prestress` (m): n.(u_b - u_a) = -prestress, reached in the
+    /// static stage and held in the dynamics (absent from the hash when absent)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prestress: Option<Scalar>,
 }
 
 /// Piecewise-linear factor `[[t, value], ...]`, constant beyond its ends.
@@ -294,6 +325,37 @@ pub struct Scene {
     pub qoi: Vec<QoiSpec>,
     #[serde(default)]
     pub solver: SolverSpec,
+    /// directory of the scene file, where mesh files are found (set by [`Scene::read`]); a
+    /// scene without one (text from the service) cannot have mesh bodies
+    #[serde(skip)]
+    pub directory: Option<std::path::PathBuf>,
+    /// SHA-256 of each mesh file by its `file` in the scene, taken by [`Scene::read`]: the
+    /// content hash covers the meshes, not only their names
+    #[serde(skip)]
+    pub mesh_digests: BTreeMap<String, String>,
+}
+
+/// The largest mesh file read (bytes): parsed, a mesh takes a few times its file, so this keeps
+/// a hostile or mistaken file well under a gigabyte; 128 MiB of binary MSH is ~2 M tetrahedra.
+pub const MAX_MESH_FILE_BYTES: u64 = 128 << 20;
+
+/// Reads a mesh file named by a scene, its size bounded before it is read.
+pub fn read_mesh_file(path: &std::path::Path) -> Result<Vec<u8>, String> {
+    use std::io::Read;
+    let file = std::fs::File::open(path).map_err(|e| format!("cannot open {}: {e}", path.display()))?;
+    let len = file.metadata().map_err(|e| format!("cannot read {}: {e}", path.display()))?.len();
+    if len > MAX_MESH_FILE_BYTES {
+        return Err(format!("{} is {len} bytes, more than the {MAX_MESH_FILE_BYTES} allowed", path.display()));
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    // take() holds the bound even if the file grows while it is read
+    file.take(MAX_MESH_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    if bytes.len() as u64 > MAX_MESH_FILE_BYTES {
+        return Err(format!("{} grew past {MAX_MESH_FILE_BYTES} bytes while read", path.display()));
+    }
+    Ok(bytes)
 }
 
 /// Parameter values of one design point, by name.
@@ -329,6 +391,30 @@ impl Scene {
         }
     }
 
+    /// Reads and parses a scene file; its mesh files are found next to it and hashed.
+    pub fn read(path: &std::path::Path) -> Result<Self, SceneError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| invalid("scene", format!("cannot read {}: {e}", path.display())))?;
+        let mut scene = Self::parse(&text)?;
+        scene.attach_meshes(path.parent().unwrap_or(std::path::Path::new("")))?;
+        Ok(scene)
+    }
+
+    /// Takes `directory` as the scene file's: mesh files are found there, and hashed.
+    pub fn attach_meshes(&mut self, directory: &std::path::Path) -> Result<(), SceneError> {
+        use sha2::{Digest, Sha256};
+        for (bi, b) in self.bodies.iter().enumerate() {
+            if let Some(m) = &b.mesh {
+                let bytes = read_mesh_file(&directory.join(&m.file))
+                    .map_err(|e| invalid(format!("bodies[{bi}].mesh.file"), e))?;
+                let digest = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
+                self.mesh_digests.insert(m.file.clone(), digest);
+            }
+        }
+        self.directory = Some(directory.to_path_buf());
+        Ok(())
+    }
+
     /// What solving this scene will take, from its text alone (nothing is built): the work of
     /// refusing a scene too big for a coordinator or a pool before it allocates.
     pub fn size(&self) -> SceneSize {
@@ -336,12 +422,18 @@ impl Scene {
         let dim = self.dimension as u64;
         let mut dofs = 0u64;
         let mut interface_nodes = 0u64;
+        // Mesh bodies are sized by their file, which the text does not hold: they count here
+        // for nothing (the worker bounds the file it reads).
         for b in &self.bodies {
-            dofs = dofs.saturating_add(nodes(&b.elements).saturating_mul(dim));
+            let Some(elements) = &b.elements else { continue };
+            dofs = dofs.saturating_add(nodes(elements).saturating_mul(dim));
             // substructure cuts: a plane of nodes per cut, held by both sides
-            let subs = b.substructures.clone().unwrap_or_default();
-            for (axis, &s) in subs.iter().enumerate().filter(|&(a, _)| a < b.elements.len()) {
-                let mut face = b.elements.clone();
+            let subs = match &b.substructures {
+                Some(Substructures::PerAxis(p)) => p.clone(),
+                _ => Vec::new(),
+            };
+            for (axis, &s) in subs.iter().enumerate().filter(|&(a, _)| a < elements.len()) {
+                let mut face = elements.clone();
                 face.remove(axis);
                 let cut = nodes(&face).saturating_mul(s.saturating_sub(1) as u64);
                 interface_nodes = interface_nodes.saturating_add(cut);
@@ -351,10 +443,13 @@ impl Scene {
         for itf in &self.interfaces {
             for side in [&itf.a, &itf.b] {
                 let Some((body, face)) = side.split_once('.') else { continue };
-                let Some(b) = self.bodies.iter().find(|b| b.name == body) else { continue };
+                let Some(elements) = self.bodies.iter().find(|b| b.name == body).and_then(|b| b.elements.as_ref())
+                else {
+                    continue;
+                };
                 let Some(axis) = face.chars().next().and_then(|c| "xyz".find(c)) else { continue };
-                if axis < b.elements.len() {
-                    let mut f = b.elements.clone();
+                if axis < elements.len() {
+                    let mut f = elements.clone();
                     f.remove(axis);
                     interface_nodes = interface_nodes.saturating_add(nodes(&f));
                 }
@@ -446,6 +541,14 @@ impl Scene {
         // Serialising plain data (no maps with non-string keys) cannot fail.
         let json = serde_json::to_vec(&canonical).expect("scene serialises to JSON");
         hasher.update(&json);
+        // Mesh bodies: the files' contents and the partitioner that cuts them (a box's text
+        // says it all, so box scenes keep their hash).
+        if self.bodies.iter().any(|b| b.mesh.is_some()) {
+            hasher.update(b"\npartition: metis-5 k-way, contiguous, seed 0\n");
+            for (file, digest) in &self.mesh_digests {
+                hasher.update(format!("{file}: {digest}\n").as_bytes());
+            }
+        }
         hasher.finalize().iter().map(|b| format!("{b:02x}")).collect()
     }
 
@@ -633,6 +736,25 @@ size = [0.1]
 elements = [10]
 initial_velocity = ["v0"]
 "#;
+
+    /// A mesh file over the bound is refused from its length, before a byte is read.
+    #[test]
+    fn mesh_files_are_bounded_before_reading() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("big.msh");
+        // sparse: no disk used
+        std::fs::File::create(&path).unwrap().set_len(MAX_MESH_FILE_BYTES + 1).unwrap();
+        let err = read_mesh_file(&path).unwrap_err();
+        assert!(
+            err.ends_with(&format!(
+                "is {} bytes, more than the {MAX_MESH_FILE_BYTES} allowed",
+                MAX_MESH_FILE_BYTES + 1
+            )),
+            "{err}"
+        );
+        std::fs::write(&path, b"$MeshFormat").unwrap();
+        assert_eq!(read_mesh_file(&path).unwrap(), b"$MeshFormat");
+    }
 
     #[test]
     fn content_hash_ignores_solver_settings_and_parameter_defaults() {

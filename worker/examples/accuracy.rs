@@ -114,7 +114,7 @@ fn solve(args: &Args, scene_path: &Path, tol: f64, warm: bool) -> Sample {
     .expect("study");
     let r = result.records.last().expect("a record");
     assert!(r.point.get("f1") == p.get("f1") && r.point.get("f2") == p.get("f2"), "P must be solved last");
-    let body = &scene.bodies[0].elements;
+    let body = scene.bodies[0].elements.as_deref().expect("the accuracy scenes are boxes");
     let sample = Sample {
         mesh,
         dofs_label: format!("{}x{}x{} per block", body[0], body.get(1).unwrap_or(&1), body.get(2).unwrap_or(&1)),

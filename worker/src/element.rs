@@ -1,8 +1,52 @@
 //! Isoparametric Lagrange elements of order 1, generic over the dimension `D`:
-//! 2-node bars (D = 1), 4-node quads (D = 2, plane strain), 8-node hexahedra (D = 3).
+//! 2-node bars (D = 1), 4-node quads (D = 2, plane strain), 8-node hexahedra (D = 3), and
+//! linear simplices (the 4-node tetrahedra of Gmsh meshes).
 //!
-//! Local nodes are in tensor order: bit `d` of the local index is the node's side along
-//! reference axis `d` (0 -> xi_d = -1, 1 -> xi_d = +1). Full 2-point Gauss integration (docs/method.md 2).
+//! Tensor elements' local nodes are in tensor order: bit `d` of the local index is the node's
+//! side along reference axis `d` (0 -> xi_d = -1, 1 -> xi_d = +1). Full 2-point Gauss
+//! integration (docs/method.md 2). Simplices are integrated exactly (constant strain).
+
+/// The element family of a mesh.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ElementKind {
+    /// multilinear, `2^D` nodes in tensor order; face `2 axis + side` is normal to `axis`
+    Tensor,
+    /// linear, `D + 1` nodes (tetrahedra in 3D); face `i` is the one opposite node `i`
+    Simplex,
+}
+
+impl ElementKind {
+    pub const fn nodes(self, dim: usize) -> usize {
+        match self {
+            ElementKind::Tensor => nodes_per_element(dim),
+            ElementKind::Simplex => dim + 1,
+        }
+    }
+
+    pub const fn faces(self, dim: usize) -> usize {
+        match self {
+            ElementKind::Tensor => 2 * dim,
+            ElementKind::Simplex => dim + 1,
+        }
+    }
+
+    /// Local nodes of face `local`: in the face's tensor order (tensor elements), in
+    /// increasing order (simplices).
+    pub fn face_local_nodes(self, dim: usize, local: usize) -> Vec<usize> {
+        match self {
+            ElementKind::Tensor => face_local_nodes(dim, local / 2, local % 2),
+            ElementKind::Simplex => (0..=dim).filter(|&a| a != local).collect(),
+        }
+    }
+
+    /// Stiffness and consistent mass of one element (see [`element_matrices`]).
+    pub fn matrices<const D: usize>(self, x: &[[f64; D]], mat: &Material) -> Result<(Vec<f64>, Vec<f64>), f64> {
+        match self {
+            ElementKind::Tensor => element_matrices(x, mat),
+            ElementKind::Simplex => simplex_matrices(x, mat),
+        }
+    }
+}
 
 /// Isotropic linear elastic material.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -131,19 +175,75 @@ pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Resul
             })
             .collect();
         let wd = w * det;
+        add_stiffness(&mut k, &g, wd, lambda, mu);
         for a in 0..nn {
             for b in 0..nn {
-                let gab: f64 = (0..D).map(|l| g[a][l] * g[b][l]).sum();
                 for i in 0..D {
-                    for j in 0..D {
-                        let mut v = lambda * g[a][i] * g[b][j] + mu * g[a][j] * g[b][i];
-                        if i == j {
-                            v += mu * gab;
-                            m[(a * D + i) * nd + b * D + j] += wd * mat.density * n[a] * n[b];
-                        }
-                        k[(a * D + i) * nd + b * D + j] += wd * v;
-                    }
+                    m[(a * D + i) * nd + b * D + i] += wd * mat.density * n[a] * n[b];
                 }
+            }
+        }
+    }
+    Ok((k, m))
+}
+
+/// Adds `wd` x the isotropic stiffness density of the physical shape-function gradients `g`.
+fn add_stiffness<const D: usize>(k: &mut [f64], g: &[[f64; D]], wd: f64, lambda: f64, mu: f64) {
+    let nd = g.len() * D;
+    for a in 0..g.len() {
+        for b in 0..g.len() {
+            let gab: f64 = (0..D).map(|l| g[a][l] * g[b][l]).sum();
+            for i in 0..D {
+                for j in 0..D {
+                    let mut v = lambda * g[a][i] * g[b][j] + mu * g[a][j] * g[b][i];
+                    if i == j {
+                        v += mu * gab;
+                    }
+                    k[(a * D + i) * nd + b * D + j] += wd * v;
+                }
+            }
+        }
+    }
+}
+
+/// Stiffness and consistent mass of a linear simplex (`D + 1` nodes, any order of positive
+/// volume): constant strain, and the exact mass rho V (1 + delta_ab) / ((D + 1)(D + 2)).
+pub fn simplex_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Result<(Vec<f64>, Vec<f64>), f64> {
+    let nn = D + 1;
+    let nd = nn * D;
+    let (lambda, mu) = mat.lame(D);
+    // J[i][d] = dx_i / dxi_d = x_{d+1} - x_0; N_0 = 1 - sum xi, N_{d+1} = xi_d
+    let mut jac = [[0.0; D]; D];
+    for i in 0..D {
+        for d in 0..D {
+            jac[i][d] = x[d + 1][i] - x[0][i];
+        }
+    }
+    let (det, inv) = det_inv(&jac);
+    if det <= 0.0 || !det.is_finite() {
+        return Err(det);
+    }
+    let volume = det / (1..=D).product::<usize>() as f64;
+    let g: Vec<[f64; D]> = (0..nn)
+        .map(|a| {
+            let mut gi = [0.0; D];
+            for (i, gii) in gi.iter_mut().enumerate() {
+                *gii = match a {
+                    0 => -(0..D).map(|d| inv[d][i]).sum::<f64>(),
+                    _ => inv[a - 1][i],
+                };
+            }
+            gi
+        })
+        .collect();
+    let mut k = vec![0.0; nd * nd];
+    add_stiffness(&mut k, &g, volume, lambda, mu);
+    let mut m = vec![0.0; nd * nd];
+    let unit = mat.density * volume / ((D + 1) * (D + 2)) as f64;
+    for a in 0..nn {
+        for b in 0..nn {
+            for i in 0..D {
+                m[(a * D + i) * nd + b * D + i] = if a == b { 2.0 * unit } else { unit };
             }
         }
     }
@@ -158,7 +258,11 @@ pub fn face_local_nodes(dim: usize, axis: usize, side: usize) -> Vec<usize> {
 
 /// Integral of each face shape function over a face (lumped interface "mass" M_Gamma:
 /// the nodal area), and the face's unit normal at its centre pointing away from `inside`.
+/// Faces of tensor elements come in tensor order; a face of 3 nodes in 3D is a triangle.
 pub fn face_area_and_normal<const D: usize>(x: &[[f64; D]], inside: [f64; D]) -> (Vec<f64>, [f64; D]) {
+    if D == 3 && x.len() == 3 {
+        return triangle_area_and_normal(x, inside);
+    }
     let k = D - 1;
     let nn = 1usize << k;
     let mut area = vec![0.0; nn];
@@ -202,6 +306,24 @@ pub fn face_area_and_normal<const D: usize>(x: &[[f64; D]], inside: [f64; D]) ->
         *v *= outward.signum() / len;
     }
     (area, normal)
+}
+
+/// A flat triangle: a third of its area per node, its normal away from `inside`.
+fn triangle_area_and_normal<const D: usize>(x: &[[f64; D]], inside: [f64; D]) -> (Vec<f64>, [f64; D]) {
+    let edge = |a: usize| {
+        let mut t = [0.0; D];
+        for i in 0..D {
+            t[i] = x[a][i] - x[0][i];
+        }
+        t
+    };
+    let mut normal = cross(&edge(1), &edge(2));
+    let len = norm(&normal);
+    let outward: f64 = (0..D).map(|i| normal[i] * ((x[0][i] + x[1][i] + x[2][i]) / 3.0 - inside[i])).sum();
+    for v in normal.iter_mut() {
+        *v *= outward.signum() / len;
+    }
+    (vec![len / 6.0; 3], normal)
 }
 
 fn norm<const D: usize>(v: &[f64; D]) -> f64 {
@@ -282,6 +404,51 @@ mod tests {
         let energy: f64 = 0.5 * (0..24).map(|r| (0..24).map(|c| u[r] * k[r * 24 + c] * u[c]).sum::<f64>()).sum::<f64>();
         let exact = 0.5 * mat.young * e * e * h.iter().product::<f64>();
         assert!((energy - exact).abs() < 1e-13, "{energy} vs {exact}");
+    }
+
+    /// A tetrahedron: mass rho V, no force from rigid translations, the uniaxial strain
+    /// energy 1/2 E e^2 V at nu = 0, whichever node comes first.
+    #[test]
+    fn tetrahedron_mass_rigid_modes_and_energy() {
+        let mat = Material { young: 3.0, poisson: 0.0, density: 2.0 };
+        let x = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.5]];
+        let vol = 2.0 * 1.0 * 0.5 / 6.0;
+        for shift in 0..4 {
+            // an even permutation keeps the orientation
+            let xs: Vec<[f64; 3]> = match shift {
+                0 => x.to_vec(),
+                1 => vec![x[1], x[2], x[0], x[3]],
+                2 => vec![x[2], x[0], x[1], x[3]],
+                _ => vec![x[3], x[1], x[0], x[2]],
+            };
+            let (k, m) = ElementKind::Simplex.matrices(&xs, &mat).unwrap();
+            let total: f64 = (0..12)
+                .flat_map(|r| (0..12).map(move |c| (r, c)))
+                .filter(|(r, c)| r % 3 == 0 && c % 3 == 0)
+                .map(|(r, c)| m[r * 12 + c])
+                .sum();
+            assert!((total - mat.density * vol).abs() < 1e-14, "{total}");
+            for r in 0..12 {
+                let f: f64 = (0..12).filter(|c| c % 3 == 1).map(|c| k[r * 12 + c]).sum();
+                assert!(f.abs() < 1e-14, "rigid translation gives force {f}");
+            }
+            let e = 0.01;
+            let u: Vec<f64> = (0..12).map(|r| if r % 3 == 0 { e * xs[r / 3][0] } else { 0.0 }).collect();
+            let energy = 0.5 * (0..12).map(|r| (0..12).map(|c| u[r] * k[r * 12 + c] * u[c]).sum::<f64>()).sum::<f64>();
+            assert!((energy - 0.5 * mat.young * e * e * vol).abs() < 1e-15, "{energy}");
+        }
+        // an inverted tetrahedron is refused
+        assert!(simplex_matrices(&[x[1], x[0], x[2], x[3]], &mat).is_err());
+    }
+
+    #[test]
+    fn triangle_faces() {
+        let x = [[0.0, 0.0, 1.0], [2.0, 0.0, 1.0], [0.0, 3.0, 1.0]];
+        let (a, n) = face_area_and_normal::<3>(&x, [0.5, 0.5, 2.0]);
+        assert!(a.iter().all(|v| (v - 1.0).abs() < 1e-15), "{a:?}");
+        assert_eq!(n, [0.0, 0.0, -1.0]);
+        assert_eq!(ElementKind::Simplex.face_local_nodes(3, 1), vec![0, 2, 3]);
+        assert_eq!(ElementKind::Tensor.face_local_nodes(3, 5), face_local_nodes(3, 2, 1));
     }
 
     #[test]

@@ -227,8 +227,16 @@ fn parse_set(s: &str) -> Result<(String, f64)> {
     Ok((name.trim().to_string(), v))
 }
 
-/// Parses a scene; TOML errors become one line with their position.
+/// Parses a scene (its mesh files next to it); TOML errors become one line with their position.
 fn parse_scene(text: &str, path: &Path) -> Result<Scene> {
+    let mut scene = parse_scene_text(text, path)?;
+    scene
+        .attach_meshes(path.parent().unwrap_or(Path::new("")))
+        .map_err(|e| anyhow!("scene {}: {e}", path.display()))?;
+    Ok(scene)
+}
+
+fn parse_scene_text(text: &str, path: &Path) -> Result<Scene> {
     Scene::parse(text).map_err(|e| {
         let detail = match (&e, toml::from_str::<Scene>(text)) {
             // Scene::parse keeps only toml's multi-line rendering: redo the parse for the parts

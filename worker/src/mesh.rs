@@ -1,28 +1,38 @@
-//! Unstructured multilinear meshes with tagged faces, and the structured box generator.
+//! Unstructured meshes of linear elements with tagged faces, and the structured box generator.
 //!
-//! The solver only sees [`Mesh`] (nodes, elements in tensor order, named face sets) and an element
-//! partition into substructures, so Gmsh meshes can replace the boxes without touching it.
+//! The solver only sees [`Mesh`] (nodes, elements of one [`ElementKind`], named face sets) and
+//! an element partition into substructures, so Gmsh meshes (crate::gmsh) replace the boxes
+//! without touching it.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 
-use crate::element::{face_local_nodes, nodes_per_element};
+use crate::element::{ElementKind, nodes_per_element};
 
 /// Axis names used in face tags and vector components.
 pub const AXES: [char; 3] = ['x', 'y', 'z'];
 
-/// A face of an element: the reference face normal to `axis` on `side` (0: xi = -1, 1: xi = +1).
+/// A face of an element: its local face `local` ([`ElementKind::face_local_nodes`]); for
+/// tensor elements `2 axis + side`, the reference face normal to `axis` on `side`
+/// (0: xi = -1, 1: xi = +1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Face {
     pub element: usize,
-    pub axis: u8,
-    pub side: u8,
+    pub local: u8,
+}
+
+impl Face {
+    /// The face of a tensor element normal to `axis` on `side`.
+    pub fn tensor(element: usize, axis: usize, side: usize) -> Self {
+        Face { element, local: (2 * axis + side) as u8 }
+    }
 }
 
 /// A mesh of one body.
 #[derive(Debug, Clone)]
 pub struct Mesh<const D: usize> {
     pub nodes: Vec<[f64; D]>,
-    /// element connectivity, `2^D` nodes per element in tensor order
+    pub kind: ElementKind,
+    /// element connectivity, [`ElementKind::nodes`] per element (tensor order for tensor elements)
     pub connectivity: Vec<usize>,
     /// named face sets (`x-`, `x+`, ... for boxes; physical groups for Gmsh meshes)
     pub face_sets: BTreeMap<String, Vec<Face>>,
@@ -30,18 +40,23 @@ pub struct Mesh<const D: usize> {
 
 impl<const D: usize> Mesh<D> {
     pub fn n_elements(&self) -> usize {
-        self.connectivity.len() / nodes_per_element(D)
+        self.connectivity.len() / self.kind.nodes(D)
     }
 
     pub fn element(&self, e: usize) -> &[usize] {
-        let nn = nodes_per_element(D);
+        let nn = self.kind.nodes(D);
         &self.connectivity[e * nn..(e + 1) * nn]
     }
 
-    /// Body node numbers of a face, in the face's own tensor order.
+    /// Every face of element `e`.
+    pub fn faces_of(&self, e: usize) -> impl Iterator<Item = Face> {
+        (0..self.kind.faces(D)).map(move |local| Face { element: e, local: local as u8 })
+    }
+
+    /// Body node numbers of a face, in the face's own order.
     pub fn face_nodes(&self, f: Face) -> Vec<usize> {
         let el = self.element(f.element);
-        face_local_nodes(D, f.axis as usize, f.side as usize).into_iter().map(|a| el[a]).collect()
+        self.kind.face_local_nodes(D, f.local as usize).into_iter().map(|a| el[a]).collect()
     }
 
     /// Centroid of an element.
@@ -96,15 +111,15 @@ impl<const D: usize> Mesh<D> {
                 connectivity.push(node_id(&idx));
             }
             for d in 0..D {
-                for (side, at_side) in [(0u8, eidx[d] == 0), (1u8, eidx[d] + 1 == counts[d])] {
+                for (side, at_side) in [(0, eidx[d] == 0), (1, eidx[d] + 1 == counts[d])] {
                     if at_side {
                         let name = format!("{}{}", AXES[d], if side == 0 { '-' } else { '+' });
-                        face_sets.entry(name).or_default().push(Face { element: e, axis: d as u8, side });
+                        face_sets.entry(name).or_default().push(Face::tensor(e, d, side));
                     }
                 }
             }
         }
-        Self { nodes, connectivity, face_sets }
+        Self { nodes, kind: ElementKind::Tensor, connectivity, face_sets }
     }
 
     /// Partition of a structured box's elements into `parts[d]` blocks along each axis
@@ -128,6 +143,81 @@ impl<const D: usize> Mesh<D> {
     }
 }
 
+impl<const D: usize> Mesh<D> {
+    /// Partition of the elements into `parts` substructures (element -> part) by METIS k-way on
+    /// the dual graph (elements joined by a face): parts balanced (METIS's default 3 %
+    /// imbalance) and contiguous, checked here; deterministic (fixed seed).
+    pub fn graph_partition(&self, parts: usize) -> Result<Vec<usize>, String> {
+        let n = self.n_elements();
+        if parts <= 1 {
+            return Ok(vec![0; n]);
+        }
+        let neighbours = self.dual_graph();
+        let too_big = || format!("{n} elements are too many for METIS's 32-bit indices");
+        let idx = |v: usize| metis::Idx::try_from(v).map_err(|_| too_big());
+        let mut xadj = vec![0];
+        let mut adjncy = Vec::new();
+        for adj in &neighbours {
+            for &e in adj {
+                adjncy.push(idx(e)?);
+            }
+            xadj.push(idx(adjncy.len())?);
+        }
+        let mut part = vec![0; n];
+        metis::Graph::new(1, idx(parts)?, &xadj, &adjncy)
+            .map_err(|e| format!("METIS refused the graph: {e}"))?
+            .set_option(metis::option::Contig(true))
+            .set_option(metis::option::Seed(0))
+            .part_kway(&mut part)
+            .map_err(|e| format!("METIS failed: {e}"))?;
+        let part: Vec<usize> = part.into_iter().map(|p| p as usize).collect();
+        // every part present and connected (a disconnected volume cannot be cut contiguously)
+        let mut reached = vec![false; n];
+        for p in 0..parts {
+            let Some(seed) = (0..n).find(|&e| part[e] == p) else {
+                return Err(format!("METIS left substructure {p} of {parts} empty: ask for fewer"));
+            };
+            let mut stack = vec![seed];
+            reached[seed] = true;
+            while let Some(e) = stack.pop() {
+                for &f in &neighbours[e] {
+                    if part[f] == p && !reached[f] {
+                        reached[f] = true;
+                        stack.push(f);
+                    }
+                }
+            }
+        }
+        if let Some(e) = reached.iter().position(|r| !r) {
+            return Err(format!(
+                "substructure {} is not contiguous (element {e}): is the volume in one piece?",
+                part[e]
+            ));
+        }
+        Ok(part)
+    }
+
+    /// Elements sharing a face with each element, in increasing order.
+    fn dual_graph(&self) -> Vec<Vec<usize>> {
+        let mut by_face: HashMap<Vec<usize>, usize> = HashMap::new();
+        let mut neighbours = vec![Vec::new(); self.n_elements()];
+        for e in 0..self.n_elements() {
+            for f in self.faces_of(e) {
+                let mut key = self.face_nodes(f);
+                key.sort_unstable();
+                if let Some(other) = by_face.insert(key, e) {
+                    neighbours[e].push(other);
+                    neighbours[other].push(e);
+                }
+            }
+        }
+        for adj in neighbours.iter_mut() {
+            adj.sort_unstable();
+        }
+        neighbours
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -145,6 +235,18 @@ mod tests {
         let p = Mesh::<3>::box_partition([2, 3, 4], [1, 1, 2]);
         assert_eq!(p.iter().filter(|&&s| s == 0).count(), 12);
         assert_eq!(*p.iter().max().unwrap(), 1);
+    }
+
+    #[test]
+    fn graph_partition_is_balanced_and_contiguous() {
+        let m = Mesh::<3>::structured_box([0.0; 3], [1.0; 3], [6, 4, 2]);
+        let p = m.graph_partition(4).unwrap();
+        for s in 0..4 {
+            let n = p.iter().filter(|&&q| q == s).count();
+            assert!((11..=13).contains(&n), "part {s} has {n} of 48 elements");
+        }
+        assert_eq!(p, m.graph_partition(4).unwrap(), "deterministic");
+        assert!(m.graph_partition(1).unwrap().iter().all(|&q| q == 0));
     }
 
     #[test]

@@ -3,12 +3,13 @@
 
 use std::collections::{BTreeMap, HashMap};
 
-use crate::element::{Material, element_matrices, face_area_and_normal, nodes_per_element};
+use crate::element::{ElementKind, Material, face_area_and_normal};
 use crate::latin::search_direction::SearchDirection;
 use crate::mesh::{Face, Mesh};
 use crate::sparse::CsrMatrix;
 use glissade_core::scene::{
-    History, LawSpec, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError, component_index, invalid,
+    BodySpec, History, LawSpec, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError, Substructures,
+    component_index, invalid,
 };
 
 /// Interface behaviour (docs/method.md 1).
@@ -16,7 +17,24 @@ use glissade_core::scene::{
 pub enum InterfaceLaw {
     Perfect,
     Contact,
-    Friction { coefficient: f64 },
+    Friction {
+        coefficient: f64,
+    },
+    /// glued, side 2 displaced by `-shortening` along the normal in the static stage (a bolt
+    /// shortened by its prestress), the jump then held: perfect in the dynamics
+    Prestress {
+        shortening: f64,
+    },
+}
+
+impl InterfaceLaw {
+    /// The law of the dynamic stage (velocities): a prestress's jump is held.
+    pub fn in_dynamics(self) -> Self {
+        match self {
+            InterfaceLaw::Prestress { .. } => InterfaceLaw::Perfect,
+            law => law,
+        }
+    }
 }
 
 /// One side of an interface: a substructure and its nodes on the interface (same order on both
@@ -77,8 +95,9 @@ pub struct Substructure<const D: usize> {
     /// body node number of each local node
     pub nodes: Vec<usize>,
     pub coords: Vec<[f64; D]>,
-    /// connectivity in local node numbers
+    /// connectivity in local node numbers, [`ElementKind::nodes`] per element
     pub connectivity: Vec<usize>,
+    pub kind: ElementKind,
     pub material: Material,
     pub stiffness: CsrMatrix,
     pub mass: CsrMatrix,
@@ -205,7 +224,10 @@ impl<const D: usize> Model<D> {
         self.substructures.iter().any(|s| {
             s.prescribed.iter().any(|p| p.static_displacement != 0.0)
                 || s.loads.iter().any(|l| self.histories[l.history].at(0.0) != 0.0)
-        })
+        }) || self
+            .interfaces
+            .iter()
+            .any(|i| matches!(i.law, InterfaceLaw::Prestress { shortening } if shortening != 0.0))
     }
 
     pub fn n_dofs(&self) -> usize {
@@ -294,36 +316,14 @@ impl<const D: usize> Model<D> {
             let material = *materials
                 .get(&b.material)
                 .ok_or_else(|| invalid(format!("{key}.material"), format!("unknown material '{}'", b.material)))?;
-            let origin = match &b.origin {
-                Some(o) => r.vector::<D>(&format!("{key}.origin"), o)?,
-                None => [0.0; D],
-            };
-            let size = r.vector::<D>(&format!("{key}.size"), &b.size)?;
-            if size.iter().any(|&s| s <= 0.0) {
-                return Err(invalid(format!("{key}.size"), "every extent must be > 0"));
-            }
-            let counts = usize_vector::<D>(&format!("{key}.elements"), &b.elements)?;
-            let parts = match &b.substructures {
-                Some(p) => usize_vector::<D>(&format!("{key}.substructures"), p)?,
-                None => [1; D],
-            };
-            for d in 0..D {
-                if parts[d] > counts[d] {
-                    return Err(invalid(
-                        format!("{key}.substructures"),
-                        format!("{} substructures along axis {d} but only {} elements", parts[d], counts[d]),
-                    ));
-                }
-            }
             let v0 = match &b.initial_velocity {
                 Some(v) => r.vector::<D>(&format!("{key}.initial_velocity"), v)?,
                 None => [0.0; D],
             };
-            let mesh = Mesh::structured_box(origin, size, counts);
+            let (mesh, parts) = body_mesh::<D>(scene, &r, &key, b)?;
             let offset = substructures.len();
-            let partition: Vec<usize> =
-                Mesh::<D>::box_partition(counts, parts).into_iter().map(|p| p + offset).collect();
-            let n_sub = parts.iter().product::<usize>();
+            let partition: Vec<usize> = parts.iter().map(|p| p + offset).collect();
+            let n_sub = parts.iter().max().map_or(0, |m| m + 1);
             for s in 0..n_sub {
                 let elements: Vec<usize> = (0..partition.len()).filter(|&e| partition[e] == offset + s).collect();
                 substructures.push(assemble_substructure(bi, &mesh, &elements, material, v0).map_err(|det| {
@@ -364,13 +364,10 @@ impl<const D: usize> Model<D> {
         for (bi, body) in bodies.iter().enumerate() {
             let mut by_key: HashMap<Vec<usize>, Vec<Face>> = HashMap::new();
             for e in 0..body.mesh.n_elements() {
-                for axis in 0..D as u8 {
-                    for s in 0..2u8 {
-                        let f = Face { element: e, axis, side: s };
-                        let mut key = body.mesh.face_nodes(f);
-                        key.sort_unstable();
-                        by_key.entry(key).or_default().push(f);
-                    }
+                for f in body.mesh.faces_of(e) {
+                    let mut key = body.mesh.face_nodes(f);
+                    key.sort_unstable();
+                    by_key.entry(key).or_default().push(f);
                 }
             }
             let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
@@ -411,10 +408,10 @@ impl<const D: usize> Model<D> {
             let mesh_a = &bodies[ba].mesh;
             let first = interfaces.len();
             if spec.b == "wall" {
-                if law == InterfaceLaw::Perfect {
+                if matches!(law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
                     return Err(invalid(
                         format!("{key}.law"),
-                        "a perfect interface with a wall is a clamped boundary: use [[boundary]] clamped = true",
+                        "a glued interface with a wall is a boundary condition: use [[boundary]] (clamped or displacement)",
                     ));
                 }
                 let gap = match &spec.gap {
@@ -470,29 +467,27 @@ impl<const D: usize> Model<D> {
                 let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
                 for f in faces_a {
                     let mut matched = Vec::new();
-                    for n in mesh_a.face_nodes(*f) {
-                        let p = mesh_a.nodes[n];
-                        let nb = node_b.get(&quant(&p)).ok_or_else(|| {
-                            invalid(
-                                key.clone(),
-                                format!(
-                                    "interface faces do not match: node at {p:?} of '{}' has no counterpart on '{}'",
-                                    spec.a, spec.b
-                                ),
-                            )
-                        })?;
-                        matched.push(*nb);
-                    }
-                    matched.sort_unstable();
-                    let s2 = face_b.get(&matched).ok_or_else(|| {
+                    let fnodes = mesh_a.face_nodes(*f);
+                    // names the face by its nodes' coordinates, what the user can find in a viewer
+                    let nonconforming = |why: String| {
+                        let at: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh_a.nodes[n]).collect();
                         invalid(
                             key.clone(),
                             format!(
-                                "interface faces do not match: a face of '{}' has no conforming face on '{}'",
+                                "interface faces do not match: the face of '{}' at {at:?} {why} on '{}'",
                                 spec.a, spec.b
                             ),
                         )
-                    })?;
+                    };
+                    for &n in &fnodes {
+                        let p = mesh_a.nodes[n];
+                        let nb = node_b
+                            .get(&quant(&p))
+                            .ok_or_else(|| nonconforming(format!("has a node at {p:?} with no counterpart")))?;
+                        matched.push(*nb);
+                    }
+                    matched.sort_unstable();
+                    let s2 = face_b.get(&matched).ok_or_else(|| nonconforming("has no conforming face".into()))?;
                     groups.entry((bodies[ba].partition[f.element], *s2)).or_default().push(*f);
                 }
                 if groups.values().map(Vec::len).sum::<usize>() != faces_b.len() {
@@ -698,8 +693,8 @@ impl<const D: usize> Model<D> {
                 let k = k0_factor * dynamic_search_direction(&substructures[side.substructure], &normal, dt);
                 // a contact's slip history converges at a rate set by k_t (docs/performance.md)
                 let tangential = match itf.law {
-                    InterfaceLaw::Perfect => k,
-                    _ => k * tangential_factor,
+                    InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => k,
+                    InterfaceLaw::Contact | InterfaceLaw::Friction { .. } => k * tangential_factor,
                 };
                 side.k_dynamic = SearchDirection { normal: k, tangential };
             }
@@ -744,12 +739,93 @@ pub fn dynamic_search_direction<const D: usize>(sub: &Substructure<D>, normal: &
     impedance * ratio.clamp(SEARCH_DIRECTION_BOUNDS.0, SEARCH_DIRECTION_BOUNDS.1)
 }
 
+/// The mesh of a body (a box or a Gmsh volume) and its partition (element -> substructure of
+/// the body).
+fn body_mesh<const D: usize>(
+    scene: &Scene,
+    r: &Resolver,
+    key: &str,
+    b: &BodySpec,
+) -> Result<(Mesh<D>, Vec<usize>), SceneError> {
+    let count_key = format!("{key}.substructures");
+    if let Some(spec) = &b.mesh {
+        if b.size.is_some() || b.elements.is_some() || b.origin.is_some() {
+            return Err(invalid(key, "a mesh body takes no size, elements or origin"));
+        }
+        if D != 3 {
+            return Err(invalid(format!("{key}.mesh"), format!("mesh bodies need dimension = 3, not {D}")));
+        }
+        // A scene from the service is text alone: its mesh files did not travel with it, and a
+        // path from elsewhere must not open this machine's files.
+        let Some(directory) = &scene.directory else {
+            return Err(invalid(
+                format!("{key}.mesh"),
+                "a mesh body needs its scene file (Scene::read); the service does not carry mesh files yet",
+            ));
+        };
+        let path = directory.join(&spec.file);
+        let bytes = glissade_core::scene::read_mesh_file(&path).map_err(|e| invalid(format!("{key}.mesh.file"), e))?;
+        let mesh3 = crate::gmsh::parse_volume(&bytes, &spec.volume)
+            .map_err(|e| invalid(format!("{key}.mesh"), format!("{}: {e}", spec.file)))?;
+        // D == 3, checked above: the same mesh with its points typed as [f64; D]
+        let mesh = Mesh::<D> {
+            nodes: mesh3.nodes.iter().map(|p| std::array::from_fn(|d| p[d])).collect(),
+            kind: mesh3.kind,
+            connectivity: mesh3.connectivity,
+            face_sets: mesh3.face_sets,
+        };
+        let parts = match &b.substructures {
+            None => 1,
+            Some(Substructures::Count(n)) => *n,
+            Some(Substructures::PerAxis(_)) => {
+                return Err(invalid(count_key, "a mesh body takes a number of substructures (substructures = 8)"));
+            }
+        };
+        if parts == 0 || parts > mesh.n_elements() {
+            return Err(invalid(count_key, format!("must be 1 to {} (the elements), got {parts}", mesh.n_elements())));
+        }
+        let partition = mesh.graph_partition(parts).map_err(|e| invalid(count_key, e))?;
+        return Ok((mesh, partition));
+    }
+    let (Some(size), Some(elements)) = (&b.size, &b.elements) else {
+        return Err(invalid(key, "a body is a box (size and elements) or a mesh (mesh = { file, volume })"));
+    };
+    let origin = match &b.origin {
+        Some(o) => r.vector::<D>(&format!("{key}.origin"), o)?,
+        None => [0.0; D],
+    };
+    let size = r.vector::<D>(&format!("{key}.size"), size)?;
+    if size.iter().any(|&s| s <= 0.0) {
+        return Err(invalid(format!("{key}.size"), "every extent must be > 0"));
+    }
+    let counts = usize_vector::<D>(&format!("{key}.elements"), elements)?;
+    let parts = match &b.substructures {
+        Some(Substructures::PerAxis(p)) => usize_vector::<D>(&count_key, p)?,
+        Some(Substructures::Count(_)) => {
+            return Err(invalid(count_key, format!("a box takes a count per axis (substructures = [..; {D}])")));
+        }
+        None => [1; D],
+    };
+    for d in 0..D {
+        if parts[d] > counts[d] {
+            return Err(invalid(
+                count_key,
+                format!("{} substructures along axis {d} but only {} elements", parts[d], counts[d]),
+            ));
+        }
+    }
+    Ok((Mesh::structured_box(origin, size, counts), Mesh::<D>::box_partition(counts, parts)))
+}
+
 /// The law of a declared interface at a design point.
 fn resolve_law(
     r: &Resolver,
     key: &str,
     spec: &glissade_core::scene::InterfaceSpec,
 ) -> Result<InterfaceLaw, SceneError> {
+    if spec.prestress.is_some() && spec.law != LawSpec::Prestress {
+        return Err(invalid(format!("{key}.prestress"), "only law 'prestress' takes a prestress"));
+    }
     Ok(match spec.law {
         LawSpec::Perfect => InterfaceLaw::Perfect,
         LawSpec::Contact => InterfaceLaw::Contact,
@@ -763,6 +839,13 @@ fn resolve_law(
                 return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
             }
             InterfaceLaw::Friction { coefficient: f }
+        }
+        LawSpec::Prestress => {
+            let s = spec
+                .prestress
+                .as_ref()
+                .ok_or_else(|| invalid(format!("{key}.prestress"), "law 'prestress' needs a shortening (m)"))?;
+            InterfaceLaw::Prestress { shortening: r.get(&format!("{key}.prestress"), s)? }
         }
     })
 }
@@ -888,7 +971,7 @@ fn assemble_substructure<const D: usize>(
     nodes.sort_unstable();
     nodes.dedup();
     let local: HashMap<usize, usize> = nodes.iter().enumerate().map(|(l, &g)| (g, l)).collect();
-    let nn = nodes_per_element(D);
+    let nn = mesh.kind.nodes(D);
     let nd = nn * D;
     let mut kt = Vec::with_capacity(elements.len() * nd * nd);
     let mut mt = Vec::with_capacity(elements.len() * nd * nd);
@@ -896,7 +979,7 @@ fn assemble_substructure<const D: usize>(
     for &e in elements {
         let el = mesh.element(e);
         let x: Vec<[f64; D]> = el.iter().map(|&n| mesh.nodes[n]).collect();
-        let (ke, me) = element_matrices(&x, &material)?;
+        let (ke, me) = mesh.kind.matrices(&x, &material)?;
         let local = &local;
         let dofs: Vec<usize> = el.iter().flat_map(|n| (0..D).map(move |c| local[n] * D + c)).collect();
         connectivity.extend(el.iter().map(|n| local[n]));
@@ -917,6 +1000,7 @@ fn assemble_substructure<const D: usize>(
         coords: nodes.iter().map(|&g| mesh.nodes[g]).collect(),
         nodes,
         connectivity,
+        kind: mesh.kind,
         material,
         stiffness: CsrMatrix::from_triplets(n, kt),
         mass: CsrMatrix::from_triplets(n, mt),

@@ -82,6 +82,7 @@ impl SolveSummary {
 #[derive(Debug, Clone)]
 pub struct SubstructureMesh {
     pub dimension: usize,
+    pub kind: crate::element::ElementKind,
     /// coordinates padded to 3 components
     pub coords: Vec<[f64; 3]>,
     pub connectivity: Vec<usize>,
@@ -262,6 +263,7 @@ fn solve_dim<const D: usize>(
             .iter()
             .map(|s| SubstructureMesh {
                 dimension: D,
+                kind: s.kind,
                 coords: s
                     .coords
                     .iter()

@@ -4,6 +4,7 @@
 mod fixtures;
 
 use glissade_core::scene::{Scale, Scene};
+use glissade_worker::element::ElementKind;
 use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
 use glissade_worker::model::{Model, QoiTarget};
 use glissade_worker::monolithic;
@@ -584,6 +585,8 @@ fn bad_scenes_give_named_errors() {
         ("pressure = 1e7", "pressure = 1e7\nbogus = 1", "bogus"),
         ("elements = [8, 4]", "elements = [8]", "bodies[0].elements"),
         ("a = \"block.y-\"", "a = \"block.q+\"", "no face 'q+'"),
+        ("friction = \"f\"", "friction = \"f\"\nprestress = 1e-5", "interfaces[0].prestress: only law 'prestress'"),
+        ("law = \"friction\"", "law = \"prestress\"", "interfaces[0].prestress: law 'prestress' needs"),
     ];
     for (from, to, expected) in cases {
         assert!(base.contains(from), "test case pattern {from}");
@@ -806,4 +809,367 @@ fn refined_sliding_block_and_fine_time_steps_converge_within_the_default_limit()
     let m = build::<1>(&bar, &[]);
     let r = solve(&m, false);
     eprintln!("bar, dt = transit / 2: {} iterations", r.iterations());
+}
+
+/// Two stacked blocks meshed by Gmsh (worker/tests/data/bar.geo, one mesh, two physical
+/// volumes), each a body cut into 3 substructures by METIS, glued by a declared perfect
+/// interface on their shared physical surface "joint": clamped base, pressure pulse on top.
+const MESHED_BAR: &str = r#"
+dimension = 3
+[time]
+duration = 4e-5
+steps = 40
+[materials.steel]
+E = 200e9
+nu = 0.3
+rho = 7800
+[[bodies]]
+name = "lower"
+material = "steel"
+mesh = { file = "MESH", volume = "lower" }
+substructures = 3
+[[bodies]]
+name = "upper"
+material = "steel"
+mesh = { file = "MESH", volume = "upper" }
+substructures = 3
+[[interfaces]]
+name = "joint"
+a = "lower.joint"
+b = "upper.joint"
+law = "perfect"
+[[boundary]]
+face = "lower.base"
+clamped = true
+[[loads]]
+face = "upper.top"
+pressure = 5e7
+history = [[0, 0], [5e-6, 1], [1e-5, 0]]
+[[qoi]]
+name = "top_vz"
+kind = "velocity"
+body = "upper"
+point = [0.02, 0.02, 0.04]
+component = "z"
+[[qoi]]
+name = "top_uz"
+kind = "displacement"
+body = "upper"
+point = [0.02, 0.02, 0.04]
+component = "z"
+[[qoi]]
+name = "joint_ux"
+kind = "displacement"
+body = "lower"
+point = [0.02, 0.0, 0.02]
+component = "x"
+"#;
+
+fn mesh_data_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data")
+}
+
+/// The scene `text` with its mesh files found in worker/tests/data.
+fn meshed_scene(text: &str) -> Scene {
+    let mut scene = Scene::parse(text).expect("test scene parses");
+    scene.directory = Some(mesh_data_dir());
+    scene
+}
+
+fn build_meshed(text: &str) -> Result<Model<3>, String> {
+    let scene = meshed_scene(text);
+    Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).map_err(|e| e.to_string())
+}
+
+/// Perfect interfaces on a Gmsh mesh (the declared one between the bodies, METIS's cuts
+/// within them) against the monolithic solve: every QoI history and the whole displacement
+/// field within 10 x tol, single- and multiscale, at the default tolerance and a tight one.
+fn check_gmsh_bar_against_monolithic(file: &str, kind: ElementKind) {
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let model = build_meshed(&MESHED_BAR.replace("MESH", file)).expect("model builds");
+    assert!(model.bodies.iter().all(|b| b.mesh.kind == kind));
+    assert_eq!(model.substructures.len(), 6);
+    let joints: Vec<_> = model.interfaces.iter().filter(|i| i.name == "joint").collect();
+    let joint_area: f64 = joints.iter().flat_map(|i| i.area.iter()).sum();
+    assert!((joint_area - 4e-4).abs() < 1e-15, "joint area {joint_area}");
+    assert!(joints.iter().flat_map(|i| &i.normal).all(|n| (n[2] - 1.0).abs() < 1e-12), "the joint's normal is +z");
+    let elements: Vec<usize> =
+        (0..6).map(|s| model.bodies.iter().flat_map(|b| &b.partition).filter(|&&p| p == s).count()).collect();
+    eprintln!("{file}: {} dofs, elements per substructure {elements:?}", model.n_dofs());
+    let reference = monolithic::solve(&model).expect("monolithic");
+    for scale in [Scale::Single, Scale::Multi] {
+        for tol in [model.settings.tolerance, 1e-5] {
+            let mut m = model.clone();
+            m.settings.scale = scale;
+            m.settings.tolerance = tol;
+            let r = solve(&m, true);
+            let fields = r.fields.as_ref().expect("fields recorded");
+            let (mut num, mut den) = (0.0, 0.0);
+            for (s, steps) in fields.displacement.iter().enumerate() {
+                for (n, u) in steps.iter().enumerate() {
+                    for (l, &ul) in u.iter().enumerate() {
+                        let ur = reference.displacement[n][reference.dof_map[s][l]];
+                        num += (ul - ur).powi(2);
+                        den += ur * ur;
+                    }
+                }
+            }
+            let field = (num / den).sqrt();
+            let mut report = format!("field {field:.2e}");
+            assert!(field < 10.0 * tol, "{file} {scale:?} at {tol:e}: field error {field:.2e}");
+            for (q, series) in m.qois.iter().zip(&r.qoi) {
+                let expected = monolithic_qoi::<3>(&reference, &q.target);
+                let d: Vec<f64> = series.values.iter().zip(&expected).map(|(a, b)| a - b).collect();
+                let err = norm(&d) / norm(&expected);
+                report += &format!(", {} {err:.2e}", q.name);
+                assert!(err <= 10.0 * tol, "{file} {scale:?} at {tol:e}: {} off by {err:.2e}", q.name);
+            }
+            eprintln!("{file} {scale:?} tol {tol:.0e}: {} iterations; errors: {report}", r.iterations());
+        }
+    }
+}
+
+#[test]
+fn gmsh_tetrahedra_match_monolithic() {
+    check_gmsh_bar_against_monolithic("bar-tet.msh", ElementKind::Simplex);
+}
+
+#[test]
+fn gmsh_hexahedra_match_monolithic() {
+    check_gmsh_bar_against_monolithic("bar-hex.msh", ElementKind::Tensor);
+}
+
+/// ASCII and binary files of one mesh give the same body (to the 16 digits Gmsh writes in ASCII).
+#[test]
+fn gmsh_ascii_and_binary_agree() {
+    let read = |file: &str| {
+        let bytes = std::fs::read(mesh_data_dir().join(file)).unwrap();
+        glissade_worker::gmsh::parse_volume(&bytes, "upper").unwrap()
+    };
+    let (a, b) = (read("bar-tet.msh"), read("bar-tet-bin.msh"));
+    assert_eq!((&a.connectivity, &a.face_sets), (&b.connectivity, &b.face_sets));
+    assert_eq!(a.nodes.len(), b.nodes.len());
+    for (p, q) in a.nodes.iter().zip(&b.nodes) {
+        assert!((0..3).all(|d| (p[d] - q[d]).abs() < 1e-17), "{p:?} against {q:?}");
+    }
+}
+
+/// Mesh bodies with an unsupported element, an unknown physical name or non-conforming
+/// interface faces give errors naming them; so does a mesh body of a scene given as text alone.
+#[test]
+fn gmsh_bad_meshes_give_precise_errors() {
+    let bar = MESHED_BAR.replace("MESH", "bar-tet.msh");
+    let cases = [
+        (
+            MESHED_BAR.replace("MESH", "bar-tet10.msh"),
+            "bodies[0].mesh: bar-tet10.msh: volume 'lower': element type Tet10 (Gmsh type 11); only 4-node tetrahedra and 8-node hexahedra are supported",
+        ),
+        (
+            bar.replacen("volume = \"upper\"", "volume = \"middle\"", 1),
+            "bodies[1].mesh: bar-tet.msh: no physical volume 'middle' in the file (physical volumes: 'lower', 'upper')",
+        ),
+        (
+            bar.replacen("a = \"lower.joint\"", "a = \"lower.top\"", 1),
+            "interfaces[0].a: body 'lower' has no face 'top' (has: base, joint)",
+        ),
+        (
+            bar.replacen("substructures = 3", "substructures = [1, 1, 3]", 1),
+            "bodies[0].substructures: a mesh body takes a number of substructures",
+        ),
+    ];
+    for (text, expected) in &cases {
+        let err = build_meshed(text).err().unwrap_or_default();
+        assert!(err.starts_with(expected), "expected '{expected}', got '{err}'");
+    }
+    let text = MESHED_BAR.replace("MESH", "bar-tet.msh");
+    let scene = Scene::parse(&text).unwrap();
+    let err = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).err().map(|e| e.to_string());
+    assert!(err.unwrap_or_default().starts_with("bodies[0].mesh: a mesh body needs its scene file"));
+    let err = build_meshed(&MESHED_BAR.replace("MESH", "nonconforming.msh")).err().unwrap_or_default();
+    assert!(err.starts_with("interfaces[0]: interface faces do not match: the face of 'lower.joint' at [["), "{err}");
+}
+
+/// The content hash covers the mesh file's content, not only its name.
+#[test]
+fn scene_hash_covers_the_mesh_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene_file = dir.path().join("bar.toml");
+    std::fs::write(&scene_file, MESHED_BAR.replace("MESH", "bar.msh")).unwrap();
+    let hash_with = |mesh: &str| {
+        std::fs::copy(mesh_data_dir().join(mesh), dir.path().join("bar.msh")).unwrap();
+        Scene::read(&scene_file).unwrap().content_hash()
+    };
+    assert_ne!(hash_with("bar-tet.msh"), hash_with("bar-hex.msh"));
+    assert_eq!(hash_with("bar-tet.msh"), hash_with("bar-tet.msh"));
+}
+
+/// Frictional contact on triangular faces: the Gmsh bar's joint with Coulomb friction, the
+/// upper block pressed (static stage) then pushed along x past f N. At every node and step of
+/// the converged local stage: Coulomb's inequality, no tension, no penetration, non-negative
+/// dissipation; the energy balance closes and sliding dissipates.
+#[test]
+fn gmsh_frictional_joint_obeys_coulomb() {
+    let f = 0.3;
+    let text = MESHED_BAR
+        .replace("MESH", "bar-tet.msh")
+        .replace("law = \"perfect\"", &format!("law = \"friction\"\nfriction = {f}"))
+        .replace(
+            "pressure = 5e7\nhistory = [[0, 0], [5e-6, 1], [1e-5, 0]]",
+            "pressure = 5e7\n[[loads]]\nface = \"upper.top\"\ntraction = [3e7, 0, 0]\nhistory = [[0, 0], [4e-5, 1]]",
+        );
+    let m = build_meshed(&text).expect("model builds");
+    let (itf_work, _) = check_energy("friction on tetrahedra", &m);
+    assert!(itf_work < 0.0, "sliding dissipates: interface work {itf_work}");
+    let r = solve(&m, false);
+    let scale = 5e7;
+    let (mut worst_cone, mut min_gap, mut min_power, mut max_slip_rate) = (f64::MIN, 0.0f64, 0.0f64, 0.0f64);
+    for (i, itf) in m.interfaces.iter().enumerate().filter(|(_, itf)| itf.name == "joint") {
+        let hat = &r.solution.dynamic.interfaces[i].hat;
+        let n_nodes = itf.n_nodes();
+        let mut gap = itf.gap0.clone();
+        let mut prev = vec![0.0; n_nodes];
+        for step in 0..m.steps {
+            for j in 0..n_nodes {
+                let at = (step * n_nodes + j) * 3;
+                let force = &hat[0].force[at..at + 3];
+                let dw: Vec<f64> = (0..3).map(|c| hat[1].velocity[at + c] - hat[0].velocity[at + c]).collect();
+                let nrm = itf.normal[j];
+                let fnormal = dot(force, &nrm);
+                let ft: Vec<f64> = (0..3).map(|c| force[c] - fnormal * nrm[c]).collect();
+                let ft_norm = ft.iter().map(|x| x * x).sum::<f64>().sqrt();
+                worst_cone = worst_cone.max(ft_norm - f * fnormal.abs());
+                assert!(ft_norm <= f * fnormal.abs() * (1.0 + 1e-8) + 1e-8 * scale, "Coulomb violated at step {step}");
+                assert!(fnormal <= 1e-8 * scale, "tensile contact force {fnormal}");
+                min_power = min_power.min(dot(force, &[dw[0], dw[1], dw[2]]));
+                let vn = dot(&dw, &nrm);
+                let slip_rate = (0..3).map(|c| (dw[c] - vn * nrm[c]).powi(2)).sum::<f64>().sqrt();
+                max_slip_rate = max_slip_rate.max(slip_rate);
+                gap[j] += 0.5 * m.dt * (prev[j] + vn);
+                prev[j] = vn;
+                min_gap = min_gap.min(gap[j]);
+            }
+        }
+    }
+    let joint_nodes: usize = m.interfaces.iter().filter(|itf| itf.name == "joint").map(|itf| itf.n_nodes()).sum();
+    eprintln!(
+        "Coulomb on tetrahedra, {joint_nodes} joint nodes: max(|Ft| - f|Fn|) = {worst_cone:.3e} Pa; min gap {min_gap:.3e} m; min friction power {min_power:.3e}; max slip rate {max_slip_rate:.3e} m/s; {} iterations",
+        r.iterations()
+    );
+    assert!(max_slip_rate > 1e-3, "the upper block slides: slip rate {max_slip_rate}");
+    assert!(min_power >= -1e-6 * scale, "negative dissipation {min_power}");
+    assert!(min_gap > -1e-9, "penetration {min_gap}");
+}
+
+/// The shipped bolted joint (scenes/bolted-joint.geo, tiny mesh) builds: 7 bodies from one Gmsh
+/// file, every contact surface conforming, and the per-node frames of the curved interfaces
+/// (the shanks in their holes) radial to within the faceting (triangles across the cylinder
+/// tilt), pointing from the steel part into its bolt; flat
+/// contacts (heads, nuts, the lap) along +z.
+#[test]
+fn bolted_joint_tiny_builds_with_radial_normals_in_the_holes() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/bolted-joint-tiny.toml");
+    let scene = Scene::read(&path).expect("the shipped scene reads");
+    let m = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).expect("model builds");
+    assert_eq!((m.bodies.len(), m.substructures.len()), (7, 11));
+    let (mut worst_radial, mut holes) = (1.0f64, 0);
+    for itf in &m.interfaces {
+        if itf.name.starts_with("hole_") {
+            let i: usize = itf.name[itf.name.len() - 1..].parse().unwrap();
+            let axis = [0.03, (i as f64 - 0.5) * 0.02];
+            for (x, n) in itf.coords.iter().zip(&itf.normal) {
+                let inward = [axis[0] - x[0], axis[1] - x[1]];
+                let r = (inward[0] * inward[0] + inward[1] * inward[1]).sqrt();
+                assert!((r - 0.003).abs() < 1e-9, "{}: node {x:?} off the shank", itf.name);
+                worst_radial = worst_radial.min((n[0] * inward[0] + n[1] * inward[1]) / r);
+                holes += 1;
+            }
+        } else if ["head_", "nut_", "lap"].iter().any(|p| itf.name.starts_with(p)) {
+            assert!(itf.normal.iter().all(|n| (n[2] - 1.0).abs() < 1e-12), "{}: normals not +z", itf.name);
+        }
+    }
+    eprintln!("bolted joint: {} dofs, {holes} hole nodes, worst cos(normal, radius) {worst_radial:.4}", m.n_dofs());
+    // the tiny mesh has a few facets around a shank (4 mm elements on a 3 mm radius)
+    assert!(worst_radial > 0.85, "hole normals not radial: cos {worst_radial}");
+}
+
+/// Two clamped steel bars (nu = 0) glued end to end by a prestress interface: a shortening s
+/// gives the bar force E A s / (L1 + L2) in the static stage (exact for linear elements), held
+/// through the dynamics, and the jump n.(u_b - u_a) = -s; a shortening of zero leaves it unloaded.
+const PRESTRESSED_BARS: &str = r#"
+dimension = 3
+[time]
+duration = 1e-5
+steps = 10
+[parameters]
+s = { default = 1e-5, unit = "m" }
+[materials.steel]
+E = 200e9
+nu = 0
+rho = 7800
+[[bodies]]
+name = "lower"
+material = "steel"
+size = [0.01, 0.01, 0.02]
+elements = [2, 2, 4]
+substructures = [1, 1, 2]
+[[bodies]]
+name = "upper"
+material = "steel"
+origin = [0, 0, 0.02]
+size = [0.01, 0.01, 0.02]
+elements = [2, 2, 4]
+[[interfaces]]
+name = "cut"
+a = "lower.z+"
+b = "upper.z-"
+law = "prestress"
+prestress = "s"
+[[boundary]]
+face = "lower.z-"
+clamped = true
+[[boundary]]
+face = "upper.z+"
+clamped = true
+[[qoi]]
+name = "force"
+kind = "force"
+interface = "cut"
+component = "z"
+[[qoi]]
+name = "lower_top"
+kind = "displacement"
+body = "lower"
+point = [0.01, 0.01, 0.02]
+component = "z"
+[[qoi]]
+name = "upper_bottom"
+kind = "displacement"
+body = "upper"
+point = [0.01, 0.01, 0.02]
+component = "z"
+"#;
+
+#[test]
+fn prestress_gives_the_bar_force_and_holds_it() {
+    let s = 1e-5;
+    let m = build::<3>(PRESTRESSED_BARS, &[]);
+    assert!(m.needs_static_stage());
+    let tol = m.settings.tolerance;
+    let r = solve(&m, false);
+    let series = |name: &str| &r.qoi.iter().find(|q| q.name == name).unwrap().values;
+    let exact = 200e9 * 1e-4 * s / 0.04;
+    let force_err = series("force").iter().map(|f| (f - exact).abs() / exact).fold(0.0, f64::max);
+    let (lower, upper) = (series("lower_top"), series("upper_bottom"));
+    let jump_err = (0..=m.steps).map(|n| (upper[n] - lower[n] + s).abs() / s).fold(0.0, f64::max);
+    let split_err = (lower[m.steps] - s / 2.0).abs() / s;
+    eprintln!(
+        "prestress: force {:.6e} N against {exact:.6e} (worst step {force_err:.2e}), jump {jump_err:.2e}, lower top {:.4e} m, {} iterations",
+        series("force")[m.steps],
+        lower[m.steps],
+        r.iterations()
+    );
+    assert!(force_err < 10.0 * tol, "bar force off by {force_err:.2e}");
+    assert!(jump_err < 10.0 * tol && split_err < 10.0 * tol, "jump off by {jump_err:.2e}, split {split_err:.2e}");
+    let unloaded = solve(&build::<3>(PRESTRESSED_BARS, &[("s", 0.0)]), false);
+    assert!(unloaded.qoi.iter().all(|q| q.values.iter().all(|&v| v == 0.0)), "a zero prestress loads nothing");
 }

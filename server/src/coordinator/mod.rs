@@ -302,6 +302,14 @@ impl Coordinator {
     pub fn submit(&self, submission: Submission) -> Result<(StudyId, u32, String), CoordError> {
         let scene = Scene::parse(&submission.scene_text)
             .map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
+        // a submission is the scene's text: mesh files do not travel with it (yet), and pools
+        // refuse a mesh body without its file
+        if let Some(b) = scene.bodies.iter().find(|b| b.mesh.is_some()) {
+            return Err(CoordError::Invalid(format!(
+                "scene: body '{}' is meshed by Gmsh; the service does not carry mesh files yet: solve it with glissade-worker solve or study",
+                b.name
+            )));
+        }
         let size = scene.size();
         if size.bytes() > self.config.max_scene_bytes {
             return Err(CoordError::Invalid(format!(

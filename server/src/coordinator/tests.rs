@@ -108,6 +108,11 @@ fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
     let poison = TINY.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
     let message = refused(&c, &poison, &["f1=0.1"]);
     assert!(message.contains("MiB") && message.contains("--max-scene-mib"), "{message}");
+    // mesh bodies: their files are not in the submission (Scene::size cannot count them)
+    let meshed =
+        TINY.replacen("elements = [2, 2, 4]", "elements = [2, 2, 4]\nmesh = { file = \"a.msh\", volume = \"v\" }", 1);
+    let message = refused(&c, &meshed, &["f1=0.1"]);
+    assert!(message.contains("is meshed by Gmsh; the service does not carry mesh files yet"), "{message}");
     assert!(started.elapsed() < Duration::from_secs(2), "refusals must not build anything");
     // nothing was stored, and a proper study still goes through
     assert!(c.studies().is_empty());

@@ -19,6 +19,7 @@ use std::path::{Path, PathBuf};
 
 use hdf5::types::VarLenUnicode;
 
+use crate::element::ElementKind;
 use crate::run::FieldOutput;
 
 /// Errors of writing field output.
@@ -43,7 +44,11 @@ pub fn vtk_order(dimension: usize) -> &'static [usize] {
 }
 
 /// XDMF topology type and its extra attributes for a dimension.
-fn xdmf_topology(dimension: usize) -> &'static str {
+fn xdmf_topology(dimension: usize, kind: ElementKind) -> &'static str {
+    if kind == ElementKind::Simplex {
+        // Gmsh's linear simplices are in VTK's order
+        return if dimension == 3 { r#"TopologyType="Tetrahedron""# } else { r#"TopologyType="Triangle""# };
+    }
     match dimension {
         1 => r#"TopologyType="Polyline" NodesPerElement="2""#,
         2 => r#"TopologyType="Quadrilateral""#,
@@ -59,6 +64,7 @@ pub fn xdmf_path(h5: &Path) -> PathBuf {
 /// All substructures merged into one mesh, and the fields laid out on it.
 struct Merged {
     dimension: usize,
+    kind: ElementKind,
     coords: Vec<f64>,
     topology: Vec<i64>,
     substructure: Vec<i64>,
@@ -77,7 +83,8 @@ fn merge(f: &FieldOutput) -> Result<Merged, FieldsError> {
     if !(1..=3).contains(&d) {
         return Err(invalid(format!("dimension {d} is not 1, 2 or 3")));
     }
-    let npe = 1 << d;
+    let kind = first.kind;
+    let npe = kind.nodes(d);
     let steps = f.times.len();
     let h = &f.history;
     if h.displacement.len() != f.meshes.len() || h.velocity.len() != f.meshes.len() {
@@ -88,9 +95,11 @@ fn merge(f: &FieldOutput) -> Result<Merged, FieldsError> {
             h.velocity.len()
         )));
     }
-    let order = vtk_order(d);
+    let tensor_order = vtk_order(d);
+    let order: Vec<usize> = if kind == ElementKind::Tensor { tensor_order.to_vec() } else { (0..npe).collect() };
     let mut m = Merged {
         dimension: d,
+        kind,
         coords: Vec::new(),
         topology: Vec::new(),
         substructure: Vec::new(),
@@ -103,6 +112,11 @@ fn merge(f: &FieldOutput) -> Result<Merged, FieldsError> {
         let ok_fields = [&h.displacement[s], &h.velocity[s]]
             .iter()
             .all(|per_step| per_step.len() == steps && per_step.iter().all(|v| v.len() == n * d));
+        if mesh.kind != kind {
+            return Err(invalid(format!(
+                "substructure {s}: tetrahedra and hexahedra in one output are not supported yet (one grid, one kind)"
+            )));
+        }
         if mesh.dimension != d || mesh.connectivity.len() % npe != 0 || !ok_fields {
             return Err(invalid(format!(
                 "substructure {s}: mesh and fields do not fit ({n} nodes, dimension {}, {} steps)",
@@ -180,7 +194,10 @@ fn write_h5(path: &Path, m: &Merged, f: &FieldOutput, scene_hash: &str) -> Resul
 
         let mesh = file.create_group("mesh")?;
         mesh.new_dataset::<f64>().shape((m.nodes, 3)).create("coordinates")?.write_raw(&m.coords)?;
-        mesh.new_dataset::<i64>().shape((m.elements, 1 << m.dimension)).create("topology")?.write_raw(&m.topology)?;
+        mesh.new_dataset::<i64>()
+            .shape((m.elements, m.kind.nodes(m.dimension)))
+            .create("topology")?
+            .write_raw(&m.topology)?;
         mesh.new_dataset::<i64>().shape(m.elements).create("substructure")?.write_raw(&m.substructure)?;
         file.new_dataset::<f64>().shape(f.times.len()).create("time")?.write_raw(&f.times)?;
         let group = file.create_group("fields")?;
@@ -216,7 +233,7 @@ fn xml_escape(s: &str) -> String {
 /// XDMF 3: a temporal collection of uniform grids sharing the mesh datasets.
 fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
     let h5 = xml_escape(h5_name);
-    let (n, e, npe) = (m.nodes, m.elements, 1 << m.dimension);
+    let (n, e, npe) = (m.nodes, m.elements, m.kind.nodes(m.dimension));
     let item = |dims: &str, kind: &str, path: &str| {
         format!(
             r#"<DataItem Dimensions="{dims}" NumberType="{kind}" Precision="8" Format="HDF">{h5}:{path}</DataItem>"#
@@ -250,7 +267,7 @@ fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
         </Attribute>
       </Grid>
 "#,
-            topo = xdmf_topology(m.dimension),
+            topo = xdmf_topology(m.dimension, m.kind),
             topology = item(&format!("{e} {npe}"), "Int", "/mesh/topology"),
             coordinates = item(&format!("{n} 3"), "Float", "/mesh/coordinates"),
             substructure = item(&format!("{e}"), "Int", "/mesh/substructure"),
@@ -272,6 +289,7 @@ mod tests {
     fn sample() -> FieldOutput {
         let square = |x0: f64| SubstructureMesh {
             dimension: 2,
+            kind: ElementKind::Tensor,
             // tensor order: (0,0), (1,0), (0,1), (1,1)
             coords: vec![[x0, 0.0, 0.0], [x0 + 1.0, 0.0, 0.0], [x0, 1.0, 0.0], [x0 + 1.0, 1.0, 0.0]],
             connectivity: vec![0, 1, 2, 3],

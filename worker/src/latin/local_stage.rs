@@ -48,15 +48,21 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
     let n = &x.normal;
     let mut f1h = [0.0; D];
     match law {
-        InterfaceLaw::Perfect => {
-            // W^1 = W^2 = (k1 W1 + k2 W2 - (F1 + F2)) / (k1 + k2), written with h to allow h2 = 0,
-            // on the normal part (along n) and the tangential part (the rest) apart
+        InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => {
+            // W^1 = W^2 + s n = (k1 W1 + k2 (W2 + s n) - (F1 + F2)) / (k1 + k2), written with h
+            // to allow h2 = 0, on the normal part (along n) and the tangential part (the rest)
+            // apart; s is a prestress's shortening (static stage), else none
+            let shortening = match law {
+                InterfaceLaw::Prestress { shortening } => shortening,
+                _ => 0.0,
+            };
+            let w2_target: [f64; D] = std::array::from_fn(|i| x.w2[i] + shortening * n[i]);
             let split = |v: &[f64; D]| -> ([f64; D], [f64; D]) {
                 let vn = dot(v, n);
                 let along: [f64; D] = std::array::from_fn(|i| vn * n[i]);
                 (along, std::array::from_fn(|i| v[i] - along[i]))
             };
-            let parts = [split(&x.w1), split(&x.w2), split(&x.f1), split(&x.f2)];
+            let parts = [split(&x.w1), split(&w2_target), split(&x.f1), split(&x.f2)];
             for normal in [true, false] {
                 let pick = |p: &([f64; D], [f64; D])| if normal { p.0 } else { p.1 };
                 let (w1, w2, f1, f2) = (pick(&parts[0]), pick(&parts[1]), pick(&parts[2]), pick(&parts[3]));
@@ -150,6 +156,16 @@ mod tests {
         for i in 0..2 {
             assert!((o.w1[i] - o.w2[i]).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn prestress_gives_the_prescribed_jump() {
+        let x = input([1.0, 2.0], [0.3, -0.1], [-1.0, 0.5], [0.2, 0.4]);
+        let o = apply_law(InterfaceLaw::Prestress { shortening: 0.125 }, &x, GapRule { base: 0.0, weight: 1.0 });
+        assert_search_direction(&x, &o);
+        // W^2 - W^1 = -s n (n = y)
+        assert!((o.w2[0] - o.w1[0]).abs() < 1e-12 && (o.w2[1] - o.w1[1] + 0.125).abs() < 1e-12);
+        assert_eq!(InterfaceLaw::Prestress { shortening: 0.125 }.in_dynamics(), InterfaceLaw::Perfect);
     }
 
     #[test]

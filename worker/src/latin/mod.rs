@@ -610,7 +610,11 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         h2,
                         normal: itf.normal[j],
                     };
-                    let out = apply_law(itf.law, &input, GapRule { base: base[j], weight });
+                    let law = match stage {
+                        Stage::Static => itf.law,
+                        Stage::Dynamic => itf.law.in_dynamics(),
+                    };
+                    let out = apply_law(law, &input, GapRule { base: base[j], weight });
                     let r = (step * n + j) * D..(step * n + j + 1) * D;
                     f.hat[0].velocity[r.clone()].copy_from_slice(&out.w1);
                     f.hat[0].force[r.clone()].copy_from_slice(&out.f1);
