@@ -80,19 +80,27 @@ impl StudyEngine {
         if self.strategy == InitStrategy::Cold {
             return Ok(Start::Solve { init: Initialisation::cold(), kind: StartKind::Cold });
         }
-        // Stored solutions of this very point: the one that answers it, or the most accurate.
+        // Stored solutions of this very point: the most accurate of those that answer it, or
+        // else the most accurate to continue from (the index gives same-point solutions in no
+        // particular order).
+        let mut answer: Option<SolutionInfo> = None;
         let mut same: Option<SolutionInfo> = None;
         for (d, id) in store.nearest(point, 8)? {
             if d > SAME_POINT {
                 break;
             }
             let info = store.info(id)?;
-            if info.converged && info.tolerance <= self.tolerance && info.solver_version == solver_version {
-                return Ok(Start::Answer(info));
+            let best = if info.converged && info.tolerance <= self.tolerance && info.solver_version == solver_version {
+                &mut answer
+            } else {
+                &mut same
+            };
+            if best.as_ref().is_none_or(|b| info.tolerance < b.tolerance) {
+                *best = Some(info);
             }
-            if same.as_ref().is_none_or(|b| info.tolerance < b.tolerance) {
-                same = Some(info);
-            }
+        }
+        if let Some(info) = answer {
+            return Ok(Start::Answer(info));
         }
         if let Some(info) = same {
             let solution = store.get(info.id)?.solution;
@@ -181,6 +189,11 @@ mod tests {
         // a tighter one of this version answers
         store.insert(stored(&point, 5e-5, true, SOLVER_VERSION)).unwrap();
         assert!(matches!(engine.start(&store, &point, None, SOLVER_VERSION).unwrap(), Start::Answer(i) if i.id == 3));
+        // of several that answer, the most accurate, whatever the order they are stored in
+        store.insert(stored(&point, 1e-4, true, SOLVER_VERSION)).unwrap();
+        store.insert(stored(&point, 2e-5, true, SOLVER_VERSION)).unwrap();
+        store.insert(stored(&point, 8e-5, true, SOLVER_VERSION)).unwrap();
+        assert!(matches!(engine.start(&store, &point, None, SOLVER_VERSION).unwrap(), Start::Answer(i) if i.id == 5));
         // a cold study reads nothing
         let cold = StudyEngine::new(&scene, InitStrategy::Cold, Some(1e-4)).unwrap();
         assert!(matches!(
