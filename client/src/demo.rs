@@ -101,7 +101,7 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
     let id = reply.study_id;
     outln!(
         "study {id}: three blocks (tiny), friction f1 x f2 on a {n} x {n} grid ({} points), \
-         each point warm-started from the nearest solved one",
+         each point warm-started from a linear fit of its solved neighbours",
         reply.points
     );
     let outcome = watch(&mut client, id).await?;

@@ -164,11 +164,11 @@ struct SubmitArgs {
     /// Iteration limit per point (default: the scene's).
     #[arg(long, value_name = "N")]
     max_iter: Option<u32>,
-    /// Where each point's iterations start.
-    #[arg(long, value_enum, default_value = "nearest")]
-    strategy: StrategyKind,
-    /// Neighbours a blend (or a linear extrapolation) combines.
-    #[arg(long, value_name = "K", default_value_t = 3)]
+    /// Where each point's iterations start (default: linear, a fit of the solved neighbours).
+    #[arg(long, value_enum)]
+    strategy: Option<StrategyKind>,
+    /// Neighbours a blend (or a linear fit) combines (default: 3 for blend, 8 for linear).
+    #[arg(long, value_name = "K", default_value_t = 0, hide_default_value = true)]
     k: u32,
     /// Which pending point goes to the next free pool.
     #[arg(long, value_enum, default_value = "greedy")]
@@ -370,12 +370,14 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
         grid: args.grid,
         points: Vec::new(),
         tolerance: args.tol,
+        // none named: the coordinator's default (core's StrategyKind::DEFAULT)
         strategy: match args.strategy {
-            StrategyKind::Cold => v1::InitStrategy::Cold,
-            StrategyKind::Previous => v1::InitStrategy::Previous,
-            StrategyKind::Nearest => v1::InitStrategy::Nearest,
-            StrategyKind::Blend => v1::InitStrategy::Blend,
-            StrategyKind::Linear => v1::InitStrategy::Linear,
+            None => v1::InitStrategy::Unspecified,
+            Some(StrategyKind::Cold) => v1::InitStrategy::Cold,
+            Some(StrategyKind::Previous) => v1::InitStrategy::Previous,
+            Some(StrategyKind::Nearest) => v1::InitStrategy::Nearest,
+            Some(StrategyKind::Blend) => v1::InitStrategy::Blend,
+            Some(StrategyKind::Linear) => v1::InitStrategy::Linear,
         }
         .into(),
         order: match args.order {

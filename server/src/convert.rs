@@ -14,7 +14,7 @@ use crate::coordinator::{
     Submission, Surface, SurfaceSource,
 };
 use glissade_core::study::order::OrderKind;
-use glissade_core::study::strategy::InitStrategy;
+use glissade_core::study::strategy::{InitStrategy, StrategyKind};
 
 use crate::records::{PointRecord, PointState, SolutionOrigin};
 use crate::store::StoreError;
@@ -78,24 +78,26 @@ fn parameters(what: &str, values: BTreeMap<String, f64>) -> Result<ParameterVect
     ParameterVector::try_from(values).map_err(|e| Invalid(format!("{what}: {e}")))
 }
 
-/// Neighbours a blend combines when the request says 0 (the study command's default).
-pub const DEFAULT_BLEND_NEIGHBOURS: u32 = 3;
+/// Neighbours a blend or a linear fit may combine.
+pub const MAX_NEIGHBOURS: u32 = 8;
 
+/// The request's strategy; unspecified: core's default. `blend_neighbours` 0: the strategy's
+/// default number of neighbours.
 fn strategy(value: i32, blend_neighbours: u32) -> Result<InitStrategy, Invalid> {
-    Ok(match v1::InitStrategy::try_from(value) {
-        Ok(v1::InitStrategy::Unspecified | v1::InitStrategy::Nearest) => InitStrategy::Nearest,
-        Ok(v1::InitStrategy::Cold) => InitStrategy::Cold,
-        Ok(v1::InitStrategy::Previous) => InitStrategy::Previous,
-        Ok(combined @ (v1::InitStrategy::Blend | v1::InitStrategy::Linear)) => {
-            let k = if blend_neighbours == 0 { DEFAULT_BLEND_NEIGHBOURS } else { blend_neighbours };
-            if k > 8 {
-                return Err(Invalid(format!("blend_neighbours {k}: at most 8")));
-            }
-            let k = k as usize;
-            if combined == v1::InitStrategy::Blend { InitStrategy::Blend { k } } else { InitStrategy::Linear { k } }
-        }
+    let kind = match v1::InitStrategy::try_from(value) {
+        Ok(v1::InitStrategy::Unspecified) => StrategyKind::DEFAULT,
+        Ok(v1::InitStrategy::Nearest) => StrategyKind::Nearest,
+        Ok(v1::InitStrategy::Cold) => StrategyKind::Cold,
+        Ok(v1::InitStrategy::Previous) => StrategyKind::Previous,
+        Ok(v1::InitStrategy::Blend) => StrategyKind::Blend,
+        Ok(v1::InitStrategy::Linear) => StrategyKind::Linear,
         Err(_) => return Err(Invalid(format!("strategy: unknown value {value}"))),
-    })
+    };
+    if blend_neighbours > MAX_NEIGHBOURS {
+        return Err(Invalid(format!("blend_neighbours {blend_neighbours}: at most {MAX_NEIGHBOURS}")));
+    }
+    let k = if blend_neighbours == 0 { kind.default_neighbours() } else { blend_neighbours as usize };
+    Ok(kind.with_neighbours(k))
 }
 
 fn order(value: i32) -> Result<OrderKind, Invalid> {
@@ -499,5 +501,22 @@ pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
                     .collect(),
             })
             .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_submission_without_a_strategy_gets_the_default_and_its_neighbours() {
+        let unspecified = v1::InitStrategy::Unspecified as i32;
+        assert_eq!(strategy(unspecified, 0).unwrap(), StrategyKind::DEFAULT.with_neighbours(8));
+        assert_eq!(strategy(unspecified, 0).unwrap(), InitStrategy::Linear { k: 8 });
+        assert_eq!(strategy(v1::InitStrategy::Blend as i32, 0).unwrap(), InitStrategy::Blend { k: 3 });
+        assert_eq!(strategy(v1::InitStrategy::Linear as i32, 5).unwrap(), InitStrategy::Linear { k: 5 });
+        assert_eq!(strategy(v1::InitStrategy::Nearest as i32, 0).unwrap(), InitStrategy::Nearest);
+        assert!(strategy(v1::InitStrategy::Linear as i32, 9).unwrap_err().0.contains("at most 8"));
+        assert!(strategy(99, 0).is_err());
     }
 }

@@ -41,12 +41,12 @@ pub struct StudyArgs {
     /// Parameter sweep NAME=SPEC (repeatable; see below)
     #[arg(long = "grid", value_name = "NAME=SPEC")]
     grid: Vec<String>,
-    /// Where each point's iterations start
-    #[arg(long, value_enum, default_value = "nearest")]
-    strategy: StrategyKind,
-    /// Neighbours combined by --strategy blend or linear
-    #[arg(long, value_name = "K", default_value_t = 3)]
-    k: usize,
+    /// Where each point's iterations start (default: linear, a fit of the solved neighbours)
+    #[arg(long, value_enum)]
+    strategy: Option<StrategyKind>,
+    /// Neighbours combined by --strategy blend or linear (default: 3 for blend, 8 for linear)
+    #[arg(long, value_name = "K")]
+    k: Option<usize>,
     /// Order of the points
     #[arg(long, value_enum, default_value = "greedy")]
     order: OrderKind,
@@ -81,14 +81,16 @@ pub fn study(args: StudyArgs) -> Result<bool> {
     if let Some(t) = args.tol {
         glissade_core::scene::check_tolerance("--tol", t)?;
     }
-    if args.k == 0 {
+    let kind = args.strategy.unwrap_or(StrategyKind::DEFAULT);
+    let k = args.k.unwrap_or_else(|| kind.default_neighbours());
+    if k == 0 {
         bail!("--k 0: blend needs at least 1 neighbour");
     }
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--out {}: cannot create the directory", dir.display()))?;
     }
-    let strategy = args.strategy.with_neighbours(args.k);
+    let strategy = kind.with_neighbours(k);
     let order = args.order;
     let options = StudyOptions { strategy, tolerance: args.tol, max_iterations: args.max_iter, scale: args.scale };
     let mut store = MemoryStore::new(space.clone())?;
