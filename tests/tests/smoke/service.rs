@@ -170,8 +170,13 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
     // A second study of the same scene starts from the first one's solutions: fewer iterations.
     let second_study = rt.block_on(async {
         let mut client = user(&url).await?;
-        let reply =
-            client.submit_study(grid_request(&["f1=0.125:0.175:2", "f2=0.125:0.175:2"], STUDY_TOL)).await?.into_inner();
+        // from the nearest solution alone (not the default linear fit of several), so that a
+        // direct `solve --init` from the recorded source reproduces a point below
+        let request = v1::SubmitStudyRequest {
+            strategy: v1::InitStrategy::Nearest.into(),
+            ..grid_request(&["f1=0.125:0.175:2", "f2=0.125:0.175:2"], STUDY_TOL)
+        };
+        let reply = client.submit_study(request).await?.into_inner();
         assert_eq!(reply.scene_hash, scene_hash);
         watch(&mut client, reply.study_id, |_| true).await?;
         study(&mut client, reply.study_id).await
