@@ -269,8 +269,11 @@ impl<const D: usize> Model<D> {
             return Err(invalid("solver.relaxation", "must be in (0, 1]"));
         }
         let tangential_factor = st.tangential_factor;
-        if !(tangential_factor > 0.0 && tangential_factor.is_finite()) {
-            return Err(invalid("solver.tangential_factor", "must be a positive number"));
+        // measured useful between 0.5 and 3 (docs/performance.md); far outside, the compliances
+        // overflow
+        if !(TANGENTIAL_FACTOR_RANGE.0..=TANGENTIAL_FACTOR_RANGE.1).contains(&tangential_factor) {
+            let (lo, hi) = TANGENTIAL_FACTOR_RANGE;
+            return Err(invalid("solver.tangential_factor", format!("must be a number in [{lo}, {hi}]")));
         }
         if !(st.warm_tolerance_ratio > 0.0 && st.warm_tolerance_ratio <= 1.0) {
             return Err(invalid("solver.warm_tolerance_ratio", "must be in (0, 1]"));
@@ -713,6 +716,9 @@ impl<const D: usize> Model<D> {
         })
     }
 }
+
+/// Accepted values of `[solver] tangential_factor`.
+pub const TANGENTIAL_FACTOR_RANGE: (f64, f64) = (0.01, 100.0);
 
 /// Bounds of the dynamic search direction relative to the impedance sqrt(rho E).
 pub const SEARCH_DIRECTION_BOUNDS: (f64, f64) = (1.0, 4.0);

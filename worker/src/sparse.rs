@@ -70,12 +70,6 @@ impl CsrMatrix {
         CsrMatrix::from_triplets(self.n, t)
     }
 
-    /// Adds `d[i]` to each diagonal entry (creating missing ones).
-    pub fn add_diagonal(&self, d: &[f64]) -> CsrMatrix {
-        let diag = CsrMatrix::from_triplets(self.n, d.iter().enumerate().map(|(i, &v)| (i, i, v)).collect());
-        self.combine(1.0, &diag, 1.0)
-    }
-
     /// This matrix plus the sum of the triplets (row, column, value).
     pub fn add_triplets(&self, t: Vec<(usize, usize, f64)>) -> CsrMatrix {
         let extra = CsrMatrix::from_triplets(self.n, t);

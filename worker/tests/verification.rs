@@ -1185,3 +1185,19 @@ fn prestress_gives_the_bar_force_and_holds_it() {
     let unloaded = solve(&build::<3>(PRESTRESSED_BARS, &[("s", 0.0)]), false);
     assert!(unloaded.qoi.iter().all(|q| q.values.iter().all(|&v| v == 0.0)), "a zero prestress loads nothing");
 }
+
+/// `[solver] tangential_factor` outside its range is refused naming the key, before anything is
+/// built: far from 1 the compliances overflow and the slips come out infinite.
+#[test]
+fn a_tangential_factor_out_of_range_is_refused() {
+    for value in ["1e-300", "0.001", "0", "-2", "200"] {
+        let text = format!("{}\n[solver]\ntangential_factor = {value}\n", fixtures::SLIDING_BLOCK_2D);
+        let scene = Scene::parse(&text).unwrap();
+        let values = scene.parameter_values(&[]).unwrap();
+        let err = Model::<2>::build(&scene, &values).unwrap_err().to_string();
+        assert!(err.contains("solver.tangential_factor") && err.contains("[0.01, 100]"), "{value}: {err}");
+    }
+    let text = format!("{}\n[solver]\ntangential_factor = 0.5\n", fixtures::SLIDING_BLOCK_2D);
+    let scene = Scene::parse(&text).unwrap();
+    assert!(Model::<2>::build(&scene, &scene.parameter_values(&[]).unwrap()).is_ok());
+}

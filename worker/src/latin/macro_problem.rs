@@ -138,6 +138,8 @@ pub struct MacroProblem {
     columns: Vec<Vec<Column>>,
     /// right-hand side, then solution W~, of the current step
     pub rhs: Vec<f64>,
+    /// F1 at the nodes of one interface side (work vector of `add_residual`)
+    f1: Vec<f64>,
 }
 
 /// Errors of the macro problem.
@@ -225,7 +227,7 @@ impl MacroProblem {
         // symmetrise away round-off before Cholesky
         let operator = Mat::<f64>::from_fn(n, n, |i, j| 0.5 * (operator[j * n + i] + operator[i * n + j]));
         let llt = if n > 0 { Some(operator.llt(Side::Lower).map_err(|e| MacroError(format!("{e:?}")))?) } else { None };
-        Ok(Self { offset, basis, n, llt, columns, rhs: vec![0.0; n] })
+        Ok(Self { offset, basis, n, llt, columns, rhs: vec![0.0; n], f1: Vec::new() })
     }
 
     pub fn n_dofs(&self) -> usize {
@@ -252,20 +254,16 @@ impl MacroProblem {
             let hat = &fields[i].hat[side];
             let m = sd.nodes.len();
             // F1 = F^ + k (W^ - N x) at every node of the side, then its projections
-            let f1: Vec<[f64; D]> = sd
-                .nodes
-                .iter()
-                .enumerate()
-                .map(|(j, &node)| {
-                    let at = (step * m + j) * D;
-                    let jump: [f64; D] = std::array::from_fn(|c| hat.velocity[at + c] - x[node * D + c]);
-                    let kj = k.apply(&itf.normal[j], &jump);
-                    std::array::from_fn(|c| hat.force[at + c] + kj[c])
-                })
-                .collect();
+            self.f1.clear();
+            for (j, &node) in sd.nodes.iter().enumerate() {
+                let at = (step * m + j) * D;
+                let jump: [f64; D] = std::array::from_fn(|c| hat.velocity[at + c] - x[node * D + c]);
+                let kj = k.apply(&itf.normal[j], &jump);
+                self.f1.extend((0..D).map(|c| hat.force[at + c] + kj[c]));
+            }
             for (mode, e) in self.basis[i].iter().enumerate() {
                 let mut proj = 0.0;
-                for (j, f) in f1.iter().enumerate() {
+                for (j, f) in self.f1.chunks(D).enumerate() {
                     for c in 0..D {
                         proj += itf.area[j] * e[j * D + c] * f[c];
                     }

@@ -37,6 +37,10 @@ pub enum SolverError {
         "{stage} stage, iteration {iteration}: error indicator is {eta} (the iterations diverged; try a smaller k0_factor or time step)"
     )]
     NonFinite { stage: &'static str, iteration: usize, eta: f64 },
+    #[error(
+        "{stage} stage, iteration {iteration}: quantity of interest '{qoi}' is not finite (the iterations diverged; try a k0_factor or tangential_factor nearer 1)"
+    )]
+    NonFiniteQoi { stage: &'static str, iteration: usize, qoi: String },
     #[error("cannot distribute the model: {0}")]
     Distribution(String),
     #[error("initial solution does not fit this model: {0}")]
@@ -540,6 +544,13 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             // stops on the QoIs' estimated error (stopping.rs).
             report.error_estimate = if dynamic {
                 let (series, scales) = self.qois_and_scales(fields, statics, body);
+                // a non-finite QoI would pass the estimate's comparisons (NaN changes): refuse it
+                // (a non-finite eta is reported below, as such)
+                if eta.is_finite()
+                    && let Some(q) = series.iter().find(|q| q.values.iter().any(|v| !v.is_finite()))
+                {
+                    return Err(SolverError::NonFiniteQoi { stage: stage_name, iteration, qoi: q.name.clone() });
+                }
                 let series: Vec<Vec<f64>> = series.into_iter().map(|q| q.values).collect();
                 let estimate = estimator.update(&series, &scales, eta);
                 if options.trace_qois {
