@@ -375,11 +375,8 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             println!("  fields written to {} (open {} in ParaView)", f.h5, f.xdmf);
         }
     }
-    if !s.converged {
-        eprintln!(
-            "error: not converged: eta = {:.3e} > tolerance {:.1e} after {} iterations",
-            s.error_indicator, s.tolerance, s.iterations
-        );
+    if let Some(why) = s.shortfall() {
+        eprintln!("error: not converged: {why}");
     }
     Ok(s.converged)
 }

@@ -55,6 +55,8 @@ pub struct SolveSummary {
     pub iterations: usize,
     /// final error indicator of the dynamic stage
     pub error_indicator: f64,
+    /// the dynamic stage's final estimate of the worst QoI's relative error (stopping.rs)
+    pub error_estimate: f64,
     /// eta per iteration of the dynamic stage
     pub history: Vec<f64>,
     pub static_stage: Option<StageReport>,
@@ -75,6 +77,30 @@ impl SolveSummary {
     pub fn work(&self) -> f64 {
         let statics = self.static_stage.as_ref().map_or(0, |s| s.iterations);
         self.history.len() as f64 + statics as f64 / self.time_steps.max(1) as f64
+    }
+
+    /// Why the solve did not converge, naming the stage that fell short and what it was held
+    /// to; `None` when it converged.
+    pub fn shortfall(&self) -> Option<String> {
+        if self.converged {
+            return None;
+        }
+        if let Some(st) = self.static_stage.as_ref().filter(|s| !s.converged) {
+            return Some(format!(
+                "the static stage did not converge: eta = {:.3e} > {:.1e} (the tolerance x {}) after {} iterations",
+                st.error_indicator,
+                self.tolerance * crate::latin::STATIC_TOLERANCE_RATIO,
+                crate::latin::STATIC_TOLERANCE_RATIO,
+                st.iterations
+            ));
+        }
+        Some(format!(
+            "the dynamic stage did not converge: eta = {:.3e}, estimated QoI error {:.3e}, tolerance {:.1e}, after {} iterations",
+            self.error_indicator,
+            self.error_estimate,
+            self.tolerance,
+            self.history.len()
+        ))
     }
 }
 
@@ -283,6 +309,7 @@ fn solve_dim<const D: usize>(
         converged: report.converged(),
         iterations: report.iterations(),
         error_indicator: report.dynamic.error_indicator,
+        error_estimate: report.dynamic.error_estimate,
         history: report.dynamic.history.clone(),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,

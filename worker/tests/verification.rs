@@ -1201,3 +1201,27 @@ fn a_tangential_factor_out_of_range_is_refused() {
     let scene = Scene::parse(&text).unwrap();
     assert!(Model::<2>::build(&scene, &scene.parameter_values(&[]).unwrap()).is_ok());
 }
+
+/// A solve that runs out of iterations says which stage fell short and what it was held to (a
+/// static stage stopped short used to be reported with the dynamic stage's eta, below the
+/// tolerance), and exits with status 2.
+#[test]
+fn a_solve_out_of_iterations_names_the_stage_that_fell_short() {
+    let scene = scene_path("three-blocks-tiny.toml");
+    for (limit, stage, held_to) in
+        [("5", "static stage", "2.0e-6 (the tolerance x 0.01)"), ("100", "dynamic stage", "tolerance 2.0e-4")]
+    {
+        let out = std::process::Command::new(worker_bin())
+            .args(["solve", &scene, "--max-iter", limit])
+            .output()
+            .expect("the worker runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "limit {limit}: {err}");
+        let line = err.lines().last().unwrap_or_default();
+        assert!(
+            line.starts_with(&format!("error: not converged: the {stage} did not converge")),
+            "limit {limit}: {line}"
+        );
+        assert!(line.contains(held_to), "limit {limit}: {line}");
+    }
+}
