@@ -4,6 +4,7 @@
 use std::collections::{BTreeMap, HashMap};
 use std::time::Duration;
 
+use glissade_core::study::{WorkMean, warm_against_cold};
 use glissade_proto::v1;
 
 use crate::names::{describe_parameters, point_state_name, study_state_name};
@@ -220,9 +221,10 @@ impl WatchState {
             watched.as_secs_f64()
         );
         if let (Some(c), Some(w)) = (self.cold.mean(), self.warm.mean()) {
+            let mean = |work: f64, stats: &WorkStats| WorkMean { work, points: stats.points as usize };
             s += &format!(
                 "\n{} (work: dynamic iterations + static iterations / time steps)",
-                glissade_core::study::warm_against_cold(c, w)
+                warm_against_cold(mean(c, &self.cold), mean(w, &self.warm))
             );
         }
         let mut failures: Vec<_> = self.failures.iter().collect();

@@ -172,28 +172,47 @@ pub struct StudySummary {
     pub cold_mean_work: Option<f64>,
     #[serde(default)]
     pub warm_mean_work: Option<f64>,
+    /// how many points each mean is over (0 in summaries written before they were kept)
+    #[serde(default)]
+    pub cold_points: usize,
+    #[serde(default)]
+    pub warm_points: usize,
 }
 
 impl StudySummary {
     /// How warm starts compared with cold ones in work, worded both ways.
     pub fn warm_against_cold(&self) -> Option<String> {
-        Some(warm_against_cold(self.cold_mean_work?, self.warm_mean_work?))
+        Some(warm_against_cold(
+            WorkMean { work: self.cold_mean_work?, points: self.cold_points },
+            WorkMean { work: self.warm_mean_work?, points: self.warm_points },
+        ))
     }
 }
 
-/// "warm starts cost 2.1x less work than cold ones" or, when they did not pay, "... 1.3x more".
-pub fn warm_against_cold(cold: f64, warm: f64) -> String {
-    if warm <= cold {
-        format!(
-            "warm starts cost {:.1}x less work than cold ones ({warm:.1} against {cold:.1} per point)",
-            cold / warm.max(1e-12)
-        )
-    } else {
-        format!(
-            "warm starts cost {:.1}x MORE work than cold ones ({warm:.1} against {cold:.1} per point)",
-            warm / cold.max(1e-12)
-        )
+/// The mean work of a set of points (`points` 0: not known).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WorkMean {
+    pub work: f64,
+    pub points: usize,
+}
+
+/// Below this many cold points, a study's cold mean is said to be a rough yardstick: cold solves
+/// of one scene differ by 2x from point to point (three-blocks-small: 163 or 320 work).
+const FEW_COLD_POINTS: usize = 3;
+
+/// "warm starts cost 2.1x less work than cold ones" or, when they did not pay, "... 1.3x more",
+/// with the counts behind the means.
+pub fn warm_against_cold(cold: WorkMean, warm: WorkMean) -> String {
+    let (c, w) = (cold.work, warm.work);
+    let (factor, how) = if w <= c { (c / w.max(1e-12), "less") } else { (w / c.max(1e-12), "MORE") };
+    let mut s = format!("warm starts cost {factor:.1}x {how} work than cold ones ({w:.1} against {c:.1} per point");
+    if cold.points > 0 && warm.points > 0 {
+        s += &format!("; {} warm, {} cold", warm.points, cold.points);
+        if cold.points < FEW_COLD_POINTS {
+            s += ": so few cold points make a rough yardstick";
+        }
     }
+    s + ")"
 }
 
 impl PointRecord {
@@ -217,15 +236,16 @@ pub struct StudyResult {
 impl StudyResult {
     fn summarise(records: &[PointRecord], steps: usize) -> StudySummary {
         let count = |s: PointStatus| records.iter().filter(|r| r.status == s).count();
-        let mean_work = |warm: bool| {
-            let w: Vec<f64> = records
+        let works = |warm: bool| -> Vec<f64> {
+            records
                 .iter()
                 .filter(|r| r.status != PointStatus::Reused && r.status != PointStatus::Failed)
                 .filter(|r| (r.start != StartKind::Cold) == warm && r.start != StartKind::Continued)
                 .map(|r| r.work(steps))
-                .collect();
-            (!w.is_empty()).then(|| w.iter().sum::<f64>() / w.len() as f64)
+                .collect()
         };
+        let (cold_works, warm_works) = (works(false), works(true));
+        let mean = |w: &[f64]| (!w.is_empty()).then(|| w.iter().sum::<f64>() / w.len() as f64);
         let total: usize = records.iter().map(|r| r.iterations).sum();
         let first = records.first().map_or(0, |r| r.iterations);
         StudySummary {
@@ -243,8 +263,10 @@ impl StudyResult {
             },
             wall_seconds: records.iter().map(|r| r.wall_seconds).sum(),
             work: records.iter().map(|r| r.work(steps)).sum(),
-            cold_mean_work: mean_work(false),
-            warm_mean_work: mean_work(true),
+            cold_mean_work: mean(&cold_works),
+            warm_mean_work: mean(&warm_works),
+            cold_points: cold_works.len(),
+            warm_points: warm_works.len(),
         }
     }
 
@@ -487,4 +509,30 @@ fn solve_point(
     }
     record.wall_seconds = start.elapsed().as_secs_f64();
     Ok(record)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The comparison says which way warm starts went, and how many points stand behind it.
+    #[test]
+    fn warm_against_cold_says_the_direction_and_the_counts() {
+        let cold = |points| WorkMean { work: 317.9, points };
+        let warm = |work, points| WorkMean { work, points };
+        assert_eq!(
+            warm_against_cold(cold(1), warm(133.2, 8)),
+            "warm starts cost 2.4x less work than cold ones (133.2 against 317.9 per point; 8 warm, 1 cold: \
+             so few cold points make a rough yardstick)"
+        );
+        assert_eq!(
+            warm_against_cold(cold(5), warm(400.0, 8)),
+            "warm starts cost 1.3x MORE work than cold ones (400.0 against 317.9 per point; 8 warm, 5 cold)"
+        );
+        // counts not known (summaries written before they were kept): the means alone
+        assert_eq!(
+            warm_against_cold(cold(0), warm(133.2, 0)),
+            "warm starts cost 2.4x less work than cold ones (133.2 against 317.9 per point)"
+        );
+    }
 }
