@@ -864,7 +864,8 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
             .filter(|x| x.state == v1::PointState::Done as i32 && !x.answered && x.started_from.is_some() == warm)
             .map(|x| x.work)
             .collect();
-        (!w.is_empty()).then(|| glissade_core::study::WorkMean { work: w.iter().sum::<f64>() / w.len() as f64, points: w.len() })
+        (!w.is_empty())
+            .then(|| glissade_core::study::WorkMean { work: w.iter().sum::<f64>() / w.len() as f64, points: w.len() })
     };
     if let (Some(cold), Some(warm)) = (mean(false), mean(true)) {
         outln!(
