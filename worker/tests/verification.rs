@@ -882,7 +882,7 @@ fn mesh_data_dir() -> std::path::PathBuf {
 /// The scene `text` with its mesh files found in worker/tests/data.
 fn meshed_scene(text: &str) -> Scene {
     let mut scene = Scene::parse(text).expect("test scene parses");
-    scene.directory = Some(mesh_data_dir());
+    scene.attach_meshes(&mesh_data_dir()).expect("the test meshes read");
     scene
 }
 
@@ -994,7 +994,8 @@ fn gmsh_bad_meshes_give_precise_errors() {
     let text = MESHED_BAR.replace("MESH", "bar-tet.msh");
     let scene = Scene::parse(&text).unwrap();
     let err = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).err().map(|e| e.to_string());
-    assert!(err.unwrap_or_default().starts_with("bodies[0].mesh: a mesh body needs its scene file"));
+    let err = err.unwrap_or_default();
+    assert!(err.starts_with("bodies[0].mesh.file: mesh file 'bar-tet.msh' is not attached to the scene"), "{err}");
     let err = build_meshed(&MESHED_BAR.replace("MESH", "nonconforming.msh")).err().unwrap_or_default();
     assert!(err.starts_with("interfaces[0]: interface faces do not match: the face of 'lower.joint' at [["), "{err}");
 }
