@@ -173,7 +173,8 @@ pub struct LoadSpec {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum QoiKind {
-    /// relative tangential displacement at an interface point (norm)
+    /// relative tangential displacement at an interface point: its norm, or with `component`
+    /// its signed component along an axis
     Slip,
     /// displacement component of a body point
     Displacement,

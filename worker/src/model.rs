@@ -131,9 +131,11 @@ impl<const D: usize> Substructure<D> {
 /// What a quantity of interest reads.
 #[derive(Debug, Clone)]
 pub enum QoiTarget {
+    /// the norm of the slip of side b relative to side a, or its `component` (signed)
     Slip {
         interface: usize,
         node: usize,
+        component: Option<usize>,
     },
     Displacement {
         substructure: usize,
@@ -650,7 +652,12 @@ impl<const D: usize> Model<D> {
                                 format!("{p:?} is not on interface '{name}' (nearest node {dist:.3e} away)"),
                             ));
                         }
-                        QoiTarget::Slip { interface: best.0, node: best.1 }
+                        // a component: the slip vector (tangential already) along an axis, signed
+                        let component = match q.component {
+                            Some(_) => Some(component(q)?),
+                            None => None,
+                        };
+                        QoiTarget::Slip { interface: best.0, node: best.1, component }
                     }
                 }
                 QoiKind::Displacement | QoiKind::Velocity => {

@@ -340,6 +340,59 @@ fn dot<const D: usize>(a: &[f64], b: &[f64; D]) -> f64 {
     (0..D).map(|c| a[c] * b[c]).sum()
 }
 
+/// A slip QoI's signed component (`component = "x"`): the block slides along +x on a fixed
+/// wall, so the slip of the wall (side b) relative to the block is along -x: its x component is
+/// minus the norm at every step, its z component stays zero, and it is minus the block's own
+/// x displacement at that floor node (a body QoI read from the linear stage: independent of
+/// the slip's integration of local-stage velocities).
+#[test]
+fn the_x_component_of_slip_is_the_signed_norm_and_the_block_displacement() {
+    let text = format!(
+        "{}{}",
+        fixtures::SLIDING_BLOCK_3D,
+        r#"
+[[qoi]]
+name = "slip_x"
+kind = "slip"
+interface = "floor"
+point = [0.01, 0, 0.005]
+component = "x"
+[[qoi]]
+name = "slip_z"
+kind = "slip"
+interface = "floor"
+point = [0.01, 0, 0.005]
+component = "z"
+[[qoi]]
+name = "ux_centre"
+kind = "displacement"
+body = "block"
+point = [0.01, 0, 0.005]
+component = "x"
+"#
+    );
+    let m = build::<3>(&text, &[]);
+    let r = solve(&m, false);
+    let series = |name: &str| r.qoi.iter().find(|q| q.name == name).unwrap().values.clone();
+    let (norm, x, z, ux) = (series("slip_centre"), series("slip_x"), series("slip_z"), series("ux_centre"));
+    let last = norm[m.steps];
+    assert!(last > 1e-6, "the block slides: {last}");
+    let (mut worst_sign, mut worst_z, mut worst_u) = (0.0f64, 0.0f64, 0.0f64);
+    for n in 0..=m.steps {
+        worst_sign = worst_sign.max((x[n] + norm[n]).abs());
+        worst_z = worst_z.max(z[n].abs());
+        worst_u = worst_u.max((x[n] + ux[n] - ux[0]).abs());
+    }
+    eprintln!(
+        "slip x vs -norm: {:.1e}, z: {:.1e}, x vs -u_x: {:.1e} (of a final slip {last:.3e})",
+        worst_sign / last,
+        worst_z / last,
+        worst_u / last
+    );
+    assert!(worst_sign < 1e-3 * last && worst_z < 1e-3 * last, "{worst_sign} {worst_z}");
+    assert!(worst_u < 1e-2 * last, "slip x against the block's displacement: {worst_u} of {last}");
+}
+
 /// Sliding block (docs/method.md 6): sticks while the push is below f N, slides beyond; Coulomb's
 /// inequality at every node and step, no penetration, non-negative frictional dissipation.
 #[test]
