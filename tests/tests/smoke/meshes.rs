@@ -104,6 +104,26 @@ fn a_meshed_scene_travels_with_its_files_and_survives_a_restart() -> anyhow::Res
         (first["qoi"]["top_uz"].as_f64().unwrap(), direct["qoi"]["top_uz"]["final"].as_f64().unwrap());
     assert!((service - local).abs() <= 1e-12 * local.abs(), "service {service}, direct {local}");
     assert!(service.abs() > 0.0);
+
+    // the fields of a point: the meshes come from the user's directory, checked by the hash
+    let h5 = dir.path().join("point.h5");
+    let h5_arg = h5.to_str().expect("utf-8 path");
+    let fields = |extra: &[&str]| {
+        let mut args = vec!["fields", &id, "--point", "p=6e7", "--out", h5_arg];
+        args.extend_from_slice(extra);
+        glissade(Some(&url), &args)
+    };
+    assert_one_line_error(&fields(&[]), "give --meshes DIR, where bar.msh are");
+    let other = dir.path().join("other");
+    std::fs::create_dir(&other)?;
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../worker/tests/data/bar-hex.msh"),
+        other.join("bar.msh"),
+    )?;
+    assert_one_line_error(&fields(&["--meshes", other.to_str().unwrap()]), "are not the study's");
+    let out = fields(&["--meshes", dir.path().to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(h5.exists());
     Ok(())
 }
 
