@@ -31,6 +31,10 @@ pub struct FieldsArgs {
     /// HDF5 file to write; the XDMF file ParaView opens goes beside it (OUT.xdmf).
     #[arg(long, value_name = "OUT.h5")]
     out: PathBuf,
+    /// Directory of the scene's mesh files, for a scene with mesh bodies (the coordinator does
+    /// not hand them to users): they must be the study's, checked by the scene hash.
+    #[arg(long, value_name = "DIR")]
+    meshes: Option<PathBuf>,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -79,7 +83,26 @@ pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
     }
     let study = get_study(client, "fields", args.study, true, true).await?;
     let target = parse_point("--point", &args.point, &study.parameters)?;
-    let scene = Scene::parse(&study.scene).context("the study's scene")?;
+    let mut scene = Scene::parse(&study.scene).context("the study's scene")?;
+    if !scene.mesh_files().is_empty() {
+        let dir = args.meshes.as_ref().ok_or_else(|| {
+            let files: Vec<&str> = scene.mesh_files().into_iter().collect();
+            anyhow!(
+                "study {}: its scene has mesh bodies: give --meshes DIR, where {} are",
+                args.study,
+                files.join(", ")
+            )
+        })?;
+        scene.attach_meshes(dir).with_context(|| format!("--meshes {}", dir.display()))?;
+        if scene.content_hash() != study.scene_hash {
+            bail!(
+                "--meshes {}: these mesh files are not the study's (scene hash {}, the study's {})",
+                dir.display(),
+                scene.content_hash(),
+                study.scene_hash
+            );
+        }
+    }
     let from = nearest_done(&scene, &study, &target)
         .ok_or_else(|| anyhow!("study {}: no point is done yet, nothing to start from", args.study))?;
     let key = v1::PointKey { study_id: study.study_id, point_id: from.point_id };

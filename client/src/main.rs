@@ -334,23 +334,21 @@ async fn get_study(client: &mut User, command: &str, id: u64, points: bool, scen
         .into_inner())
 }
 
-/// Reads a scene file and checks it, and the grid, as the coordinator will.
-fn read_submission(path: &Path, grid: &[String]) -> Result<(String, usize)> {
+/// Reads a scene file and the mesh files it names (next to it), as `glissade-worker solve` does.
+fn read_scene(path: &Path) -> Result<(String, Scene)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
-    let scene = Scene::parse(&text).with_context(|| format!("scene {}", path.display()))?;
-    let (_, points) = glissade_core::study::space::check_grid(&scene, grid).map_err(|e| anyhow!("--grid: {e}"))?;
-    Ok((text, points))
+    let mut scene = Scene::parse(&text).with_context(|| format!("scene {}", path.display()))?;
+    scene.attach_meshes(path.parent().unwrap_or(Path::new(""))).with_context(|| format!("scene {}", path.display()))?;
+    Ok((text, scene))
 }
 
 async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
     if let Some(t) = args.tol {
         check_tolerance("--tol", t)?;
     }
-    let scene = if let Some(budget) = args.adaptive {
-        // checked as the coordinator will, before connecting
-        let text = std::fs::read_to_string(&args.scene)
-            .with_context(|| format!("cannot read scene {}", args.scene.display()))?;
-        let parsed = Scene::parse(&text).with_context(|| format!("scene {}", args.scene.display()))?;
+    // checked as the coordinator will, before connecting
+    let (scene, parsed) = read_scene(&args.scene)?;
+    if let Some(budget) = args.adaptive {
         let space = glissade_core::study::space::ParameterSpace::from_scene(&parsed);
         glissade_core::study::adaptive::AdaptiveDesign::parse(
             &args.range,
@@ -359,12 +357,22 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
             glissade_core::study::space::DEFAULT_MAX_POINTS,
         )
         .map_err(|e| anyhow!("--range / --adaptive: {e}"))?;
-        text
     } else {
-        read_submission(&args.scene, &args.grid)?.0
-    };
+        glissade_core::study::space::check_grid(&parsed, &args.grid).map_err(|e| anyhow!("--grid: {e}"))?;
+    }
+    // the mesh files travel with the scene, each with its digest (the coordinator checks both)
+    let meshes = parsed
+        .meshes
+        .iter()
+        .map(|(file, bytes)| v1::MeshFile {
+            file: file.clone(),
+            data: bytes.to_vec(),
+            sha256: parsed.mesh_digests[file].clone(),
+        })
+        .collect();
     let request = v1::SubmitStudyRequest {
         scene,
+        meshes,
         ranges: args.range,
         adaptive_points: args.adaptive.unwrap_or(0),
         grid: args.grid,

@@ -9,6 +9,7 @@
 //! - [`text`]: bounded, single-line text for messages that quote user input.
 
 pub mod field;
+pub mod gmsh;
 pub mod io;
 pub mod scene;
 pub mod study;

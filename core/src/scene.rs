@@ -173,7 +173,8 @@ pub struct LoadSpec {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum QoiKind {
-    /// relative tangential displacement at an interface point (norm)
+    /// relative tangential displacement at an interface point: its norm, or with `component`
+    /// its signed component along an axis
     Slip,
     /// displacement component of a body point
     Displacement,
@@ -325,12 +326,13 @@ pub struct Scene {
     pub qoi: Vec<QoiSpec>,
     #[serde(default)]
     pub solver: SolverSpec,
-    /// directory of the scene file, where mesh files are found (set by [`Scene::read`]); a
-    /// scene without one (text from the service) cannot have mesh bodies
+    /// The mesh files' bytes by their `file` in the scene ([`Scene::attach_mesh_bytes`]): read
+    /// next to the scene file by [`Scene::read`], or carried by a submission; a scene without
+    /// them (text alone) cannot build its mesh bodies
     #[serde(skip)]
-    pub directory: Option<std::path::PathBuf>,
-    /// SHA-256 of each mesh file by its `file` in the scene, taken by [`Scene::read`]: the
-    /// content hash covers the meshes, not only their names
+    pub meshes: BTreeMap<String, std::sync::Arc<[u8]>>,
+    /// SHA-256 (hex) of each mesh file by its `file` in the scene: the content hash covers the
+    /// meshes, not only their names
     #[serde(skip)]
     pub mesh_digests: BTreeMap<String, String>,
 }
@@ -338,6 +340,36 @@ pub struct Scene {
 /// The largest mesh file read (bytes): parsed, a mesh takes a few times its file, so this keeps
 /// a hostile or mistaken file well under a gigabyte; 128 MiB of binary MSH is ~2 M tetrahedra.
 pub const MAX_MESH_FILE_BYTES: u64 = 128 << 20;
+/// The most mesh files a scene may name.
+pub const MAX_MESH_FILES: usize = 16;
+/// The most bytes of mesh files a scene may have in all: one file's bound, so that a
+/// submission carrying them is bounded by it too.
+pub const MAX_MESH_BYTES: u64 = MAX_MESH_FILE_BYTES;
+
+/// Errors of a scene's mesh files: what a submission or a pool is told.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshFileError {
+    #[error("mesh file '{0}' is named by the scene but was not given")]
+    Missing(String),
+    #[error("mesh file '{0}' was given but the scene names no such file")]
+    Unexpected(String),
+    #[error("mesh file '{0}' was given twice")]
+    Duplicate(String),
+    #[error("mesh file '{file}': {bytes} bytes, more than the {MAX_MESH_FILE_BYTES} allowed")]
+    TooLarge { file: String, bytes: u64 },
+    #[error("mesh files: {bytes} bytes in all, more than the {MAX_MESH_BYTES} allowed")]
+    TotalTooLarge { bytes: u64 },
+    #[error("{count} mesh files, more than the {MAX_MESH_FILES} allowed")]
+    TooMany { count: usize },
+    #[error("mesh file '{file}': its bytes have SHA-256 {actual}, {expected} was announced")]
+    DigestMismatch { file: String, expected: String, actual: String },
+}
+
+/// Hex SHA-256 of a mesh file: its name in the scene hash and in a coordinator's store.
+pub fn mesh_digest(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
 
 /// Reads a mesh file named by a scene, its size bounded before it is read.
 pub fn read_mesh_file(path: &std::path::Path) -> Result<Vec<u8>, String> {
@@ -391,7 +423,7 @@ impl Scene {
         }
     }
 
-    /// Reads and parses a scene file; its mesh files are found next to it and hashed.
+    /// Reads and parses a scene file; its mesh files are read next to it and hashed.
     pub fn read(path: &std::path::Path) -> Result<Self, SceneError> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| invalid("scene", format!("cannot read {}: {e}", path.display())))?;
@@ -400,30 +432,110 @@ impl Scene {
         Ok(scene)
     }
 
-    /// Takes `directory` as the scene file's: mesh files are found there, and hashed.
+    /// The mesh files the scene's bodies name (each once).
+    pub fn mesh_files(&self) -> std::collections::BTreeSet<&str> {
+        self.bodies.iter().filter_map(|b| b.mesh.as_ref()).map(|m| m.file.as_str()).collect()
+    }
+
+    /// Reads the mesh files from `directory` (the scene file's) and attaches them.
     pub fn attach_meshes(&mut self, directory: &std::path::Path) -> Result<(), SceneError> {
-        use sha2::{Digest, Sha256};
+        let mut files = BTreeMap::new();
         for (bi, b) in self.bodies.iter().enumerate() {
-            if let Some(m) = &b.mesh {
+            if let Some(m) = &b.mesh
+                && !files.contains_key(&m.file)
+            {
                 let bytes = read_mesh_file(&directory.join(&m.file))
                     .map_err(|e| invalid(format!("bodies[{bi}].mesh.file"), e))?;
-                let digest = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
-                self.mesh_digests.insert(m.file.clone(), digest);
+                files.insert(m.file.clone(), bytes);
             }
         }
-        self.directory = Some(directory.to_path_buf());
+        self.attach_mesh_bytes(files).map_err(|e| invalid("meshes", e.to_string()))
+    }
+
+    /// Attaches the mesh files' bytes by their `file` in the scene and hashes them: exactly the
+    /// files the scene names, within [`MAX_MESH_FILES`], [`MAX_MESH_FILE_BYTES`] each and
+    /// [`MAX_MESH_BYTES`] in all. The one path of every scene with meshes (read from disk or
+    /// submitted), so both hash the same.
+    pub fn attach_mesh_bytes<B: AsRef<[u8]> + Into<std::sync::Arc<[u8]>>>(
+        &mut self,
+        files: impl IntoIterator<Item = (String, B)>,
+    ) -> Result<(), MeshFileError> {
+        let mut meshes = BTreeMap::new();
+        let mut total = 0u64;
+        for (file, bytes) in files {
+            if meshes.len() == MAX_MESH_FILES {
+                return Err(MeshFileError::TooMany { count: MAX_MESH_FILES + 1 });
+            }
+            if meshes.contains_key(&file) {
+                return Err(MeshFileError::Duplicate(file));
+            }
+            // measured before the bytes are moved (or copied) into the scene
+            let len = bytes.as_ref().len() as u64;
+            if len > MAX_MESH_FILE_BYTES {
+                return Err(MeshFileError::TooLarge { file, bytes: len });
+            }
+            total += len;
+            if total > MAX_MESH_BYTES {
+                return Err(MeshFileError::TotalTooLarge { bytes: total });
+            }
+            meshes.insert(file, bytes.into());
+        }
+        let named = self.mesh_files();
+        if let Some(file) = named.iter().find(|f| !meshes.contains_key(**f)) {
+            return Err(MeshFileError::Missing(file.to_string()));
+        }
+        if let Some(file) = meshes.keys().find(|f| !named.contains(f.as_str())) {
+            return Err(MeshFileError::Unexpected(file.clone()));
+        }
+        self.mesh_digests = meshes.iter().map(|(f, b)| (f.clone(), mesh_digest(b))).collect();
+        self.meshes = meshes;
         Ok(())
     }
 
-    /// What solving this scene will take, from its text alone (nothing is built): the work of
-    /// refusing a scene too big for a coordinator or a pool before it allocates.
-    pub fn size(&self) -> SceneSize {
+    /// What solving this scene will take, from its text and its mesh files (nothing is built):
+    /// the work of refusing a scene too big for a coordinator or a pool before it allocates.
+    /// Fails only on a mesh body whose file is not attached or does not read as its volume.
+    pub fn size(&self) -> Result<SceneSize, SceneError> {
         let nodes = |e: &[usize]| e.iter().fold(1u64, |n, &k| n.saturating_mul(k as u64 + 1));
         let dim = self.dimension as u64;
         let mut dofs = 0u64;
         let mut interface_nodes = 0u64;
-        // Mesh bodies are sized by their file, which the text does not hold: they count here
-        // for nothing (the worker bounds the file it reads).
+        // Mesh bodies: each file parsed once; a volume's nodes and those of its named surfaces.
+        let mut parsed = BTreeMap::new();
+        for file in self.mesh_files() {
+            let bytes = self
+                .meshes
+                .get(file)
+                .ok_or_else(|| invalid("meshes", MeshFileError::Missing(file.to_string()).to_string()))?;
+            let msh = crate::gmsh::Msh::parse(bytes).map_err(|e| invalid("meshes", format!("{file}: {e}")))?;
+            parsed.insert(file, msh);
+        }
+        let mut mesh_faces: BTreeMap<&str, BTreeMap<String, u64>> = BTreeMap::new();
+        for (bi, b) in self.bodies.iter().enumerate() {
+            let Some(m) = &b.mesh else { continue };
+            let volume = parsed[m.file.as_str()]
+                .volume(&m.volume)
+                .map_err(|e| invalid(format!("bodies[{bi}].mesh"), format!("{}: {e}", m.file)))?;
+            let n = volume.nodes.len() as u64;
+            dofs = dofs.saturating_add(n.saturating_mul(dim));
+            // METIS cuts, not known before partitioning: k compact parts of a body of n nodes
+            // are cut by about 3 (k^(1/3) - 1) planes of n^(2/3) nodes, each held by both sides
+            // (the joint's dofs within 3 % on the tiny and the paper-size mesh, docs/performance.md)
+            let parts = match &b.substructures {
+                Some(Substructures::Count(p)) => *p as f64,
+                _ => 1.0,
+            };
+            let cut = (3.0 * (parts.cbrt() - 1.0) * (n as f64).powf(2.0 / 3.0)).ceil() as u64;
+            interface_nodes = interface_nodes.saturating_add(cut.saturating_mul(2));
+            dofs = dofs.saturating_add(cut.saturating_mul(dim));
+            let faces = volume.surfaces.iter().map(|(name, faces)| {
+                let mut distinct: Vec<usize> = faces.iter().flatten().copied().collect();
+                distinct.sort_unstable();
+                distinct.dedup();
+                (name.clone(), distinct.len() as u64)
+            });
+            mesh_faces.insert(b.name.as_str(), faces.collect());
+        }
         for b in &self.bodies {
             let Some(elements) = &b.elements else { continue };
             dofs = dofs.saturating_add(nodes(elements).saturating_mul(dim));
@@ -443,6 +555,10 @@ impl Scene {
         for itf in &self.interfaces {
             for side in [&itf.a, &itf.b] {
                 let Some((body, face)) = side.split_once('.') else { continue };
+                if let Some(&count) = mesh_faces.get(body).and_then(|faces| faces.get(face)) {
+                    interface_nodes = interface_nodes.saturating_add(count);
+                    continue;
+                }
                 let Some(elements) = self.bodies.iter().find(|b| b.name == body).and_then(|b| b.elements.as_ref())
                 else {
                     continue;
@@ -455,7 +571,7 @@ impl Scene {
                 }
             }
         }
-        SceneSize { dofs, interface_nodes, steps: self.time.steps as u64, dimension: dim }
+        Ok(SceneSize { dofs, interface_nodes, steps: self.time.steps as u64, dimension: dim })
     }
 
     /// Names are short and printable: they key records, label plots and come back in messages.
@@ -790,14 +906,55 @@ initial_velocity = ["v0"]
         assert!(err.to_string().contains("printable characters"), "{err}");
         // tiny: 3 blocks of 3 x 3 x 5 nodes, each cut once along z (9 nodes a side), two
         // interfaces of 9 + 9 nodes
-        let size = Scene::parse(tiny).unwrap().size();
+        let size = Scene::parse(tiny).unwrap().size().unwrap();
         assert_eq!(size.dofs, 3 * (45 + 9) * 3);
         assert_eq!(size.interface_nodes, 3 * 9 + 2 * 18);
         assert!(size.bytes() < 100 << 20);
         let poison = tiny.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
-        assert!(Scene::parse(&poison).unwrap().size().bytes() > 100 << 30);
+        assert!(Scene::parse(&poison).unwrap().size().unwrap().bytes() > 100 << 30);
         let overflow = tiny.replacen("elements = [2, 2, 4]", "elements = [9223372036854775807, 2, 4]", 1);
-        assert_eq!(Scene::parse(&overflow).unwrap().size().bytes(), u64::MAX);
+        assert_eq!(Scene::parse(&overflow).unwrap().size().unwrap().bytes(), u64::MAX);
+    }
+
+    /// A scene read from disk and the same text given its mesh bytes (a submission) hash the
+    /// same; the files must be exactly those named; the size counts the mesh's nodes.
+    #[test]
+    fn mesh_bytes_attach_hash_and_size_like_a_read_scene() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+        let read = Scene::read(&dir.join("bolted-joint-tiny.toml")).unwrap();
+        let text = std::fs::read_to_string(dir.join("bolted-joint-tiny.toml")).unwrap();
+        let bytes = std::fs::read(dir.join("bolted-joint-tiny.msh")).unwrap();
+        let mut sent = Scene::parse(&text).unwrap();
+        let bare_hash = sent.content_hash();
+        sent.attach_mesh_bytes([("bolted-joint-tiny.msh".to_string(), bytes.clone())]).unwrap();
+        assert_eq!(sent.content_hash(), read.content_hash());
+        assert_ne!(bare_hash, read.content_hash(), "the meshes' digests are in the hash");
+        let mut other = bytes.clone();
+        other.extend_from_slice(b"\n");
+        let mut changed = Scene::parse(&text).unwrap();
+        changed.attach_mesh_bytes([("bolted-joint-tiny.msh".to_string(), other)]).unwrap();
+        assert_ne!(changed.content_hash(), read.content_hash(), "a changed mesh changes the hash");
+
+        let mut s = Scene::parse(&text).unwrap();
+        let none: [(String, Vec<u8>); 0] = [];
+        let e = s.attach_mesh_bytes(none).unwrap_err().to_string();
+        assert_eq!(e, "mesh file 'bolted-joint-tiny.msh' is named by the scene but was not given");
+        let e = s
+            .attach_mesh_bytes([("bolted-joint-tiny.msh".to_string(), bytes.clone()), ("x.msh".into(), vec![])])
+            .unwrap_err()
+            .to_string();
+        assert_eq!(e, "mesh file 'x.msh' was given but the scene names no such file");
+        let many = (0..=MAX_MESH_FILES).map(|i| (format!("{i}.msh"), Vec::new()));
+        assert!(matches!(s.attach_mesh_bytes(many), Err(MeshFileError::TooMany { .. })));
+        assert!(s.meshes.is_empty() && s.mesh_digests.is_empty(), "a refused set attaches nothing");
+        let e = s.size().unwrap_err().to_string();
+        assert!(e.contains("not given"), "{e}");
+
+        // 3,204 dofs built (docs/scenes.md); the estimate counts the nodes of each volume and
+        // guesses the METIS cuts: 3,291 (the paper-size mesh: 546,006 for 534,945 built)
+        let size = read.size().unwrap();
+        assert!((3_204..=3_400).contains(&size.dofs), "{size:?}");
+        assert!(size.interface_nodes > 200, "{size:?}");
     }
 
     #[test]

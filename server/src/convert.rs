@@ -4,14 +4,15 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::scene::{MAX_MESH_BYTES, MAX_MESH_FILES};
 use glissade_core::text::{MAX_NAME_CHARS, excerpt, one_line};
 use glissade_proto::v1;
 use glissade_proto::{ParameterVector, PointId, StudyId};
 use tonic::{Code, Status};
 
 use crate::coordinator::{
-    Completion, CoordError, Event, EventKind, Failure, PoolInfo, Progress, SolutionSelector, StudyState, StudyView,
-    Submission, Surface, SurfaceSource,
+    Completion, CoordError, Event, EventKind, Failure, MeshUpload, PoolInfo, Progress, SolutionSelector, StudyState,
+    StudyView, Submission, Surface, SurfaceSource,
 };
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::{InitStrategy, StrategyKind};
@@ -21,6 +22,10 @@ use crate::store::StoreError;
 
 /// Largest scene text accepted (scenes are a few kilobytes; a mesh file would be another story).
 pub const MAX_SCENE_BYTES: usize = 1 << 20;
+/// The largest SubmitStudy message the coordinator decodes: the mesh files' bound
+/// ([`MAX_MESH_BYTES`]) and 4 MiB (gRPC's default, for the scene, grid and points). Every other
+/// message keeps gRPC's 4 MiB.
+pub const MAX_SUBMISSION_BYTES: usize = MAX_MESH_BYTES as usize + (4 << 20);
 
 /// An invalid message: becomes INVALID_ARGUMENT with this text.
 #[derive(Debug)]
@@ -39,7 +44,8 @@ pub fn status(e: CoordError) -> Status {
         CoordError::UnknownStudy(_)
         | CoordError::UnknownPoint { .. }
         | CoordError::UnknownPool(_)
-        | CoordError::UnknownSolution(_) => Code::NotFound,
+        | CoordError::UnknownSolution(_)
+        | CoordError::UnknownMesh(_) => Code::NotFound,
         CoordError::Precondition(_) => Code::FailedPrecondition,
         CoordError::Corrupt(_) => Code::DataLoss,
         CoordError::Store(StoreError::Full { .. }) => {
@@ -156,6 +162,16 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
         if m.label.len() > 1024 {
             return Err(Invalid("label: longer than 1024 bytes".into()));
         }
+        if m.meshes.len() > MAX_MESH_FILES {
+            return Err(Invalid(format!("meshes: {} files, more than the {MAX_MESH_FILES} allowed", m.meshes.len())));
+        }
+        if let Some(f) = m.meshes.iter().find(|f| f.file.len() > 1024 || f.sha256.len() > 64) {
+            return Err(Invalid(format!(
+                "meshes: a file name of {} bytes or a digest of {} (at most 1024 and 64)",
+                f.file.len(),
+                f.sha256.len()
+            )));
+        }
         Ok(Submission {
             scene_text: m.scene,
             grid: m.grid,
@@ -167,6 +183,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             label: m.label,
             audit_points: m.audit_points,
             adaptive,
+            meshes: m.meshes.into_iter().map(|f| MeshUpload { file: f.file, data: f.data, sha256: f.sha256 }).collect(),
         })
     }
 }

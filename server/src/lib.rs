@@ -153,8 +153,11 @@ pub async fn bind(
         let mut routes =
             tonic::service::Routes::new(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
                 .add_service(standard_health)
-                .add_service(UserServer::with_interceptor(
-                    user::UserService { coordinator: coordinator.clone() },
+                .add_service(InterceptedService::new(
+                    // SubmitStudy carries the scene's mesh files: raised from gRPC's 4 MiB to their
+                    // bound and 4 MiB (the token is checked on the headers, before the body is read)
+                    UserServer::new(user::UserService { coordinator: coordinator.clone() })
+                        .max_decoding_message_size(convert::MAX_SUBMISSION_BYTES),
                     auth::RequireToken::users(tokens.as_ref()),
                 ))
                 .add_service(InterceptedService::new(

@@ -110,6 +110,11 @@ impl Pool for PoolService {
             deadline_unix_ms: grant.deadline_unix_ms,
             init_from: grant.init.as_ref().map(|w| convert::origin(&w.origin)),
             init_bytes: bytes.len() as u64,
+            meshes: grant
+                .meshes
+                .into_iter()
+                .map(|m| v1::MeshRef { file: m.file, sha256: m.sha256, bytes: m.bytes })
+                .collect(),
         };
         let mut messages = vec![Ok(LeaseMessage { body: Some(Body::Lease(lease)) })];
         messages.extend(glissade_proto::chunks(&bytes).map(|c| Ok(LeaseMessage { body: Some(Body::InitChunk(c)) })));
@@ -181,5 +186,21 @@ impl Pool for PoolService {
         let (lease, study, point) = (r.lease_id, StudyId(r.study_id), PointId(r.point_id));
         let point = blocking(move || c.release(&pool, lease, study, point)).await?;
         Ok(Response::new(convert::point(&point)))
+    }
+
+    type FetchMeshStream = Pin<Box<dyn Stream<Item = Result<v1::SolutionChunk, Status>> + Send>>;
+
+    async fn fetch_mesh(
+        &self,
+        request: Request<v1::FetchMeshRequest>,
+    ) -> Result<Response<Self::FetchMeshStream>, Status> {
+        let sha256 = request.into_inner().sha256;
+        if sha256.len() != 64 || !sha256.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b)) {
+            return Err(Invalid("sha256: 64 lowercase hex digits".into()).into());
+        }
+        let c = self.coordinator.clone();
+        let bytes = blocking(move || c.mesh_bytes(&sha256)).await?;
+        let chunks: Vec<_> = glissade_proto::chunks(&bytes).map(Ok).collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
     }
 }

@@ -95,6 +95,17 @@ pub struct StudyRecord {
     /// An adaptive study: its box and budget (its points are chosen as pools ask for work).
     #[serde(default)]
     pub adaptive: Option<AdaptiveSpec>,
+    /// The scene's mesh files (their bytes in the `meshes` tree, by digest).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub meshes: Vec<MeshRef>,
+}
+
+/// A mesh file of a study's scene: its name in the scene, SHA-256 (hex) and size.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MeshRef {
+    pub file: String,
+    pub sha256: String,
+    pub bytes: u64,
 }
 
 /// The box and budget of an adaptive study.

@@ -32,14 +32,17 @@ pub enum Tree {
     /// Solution key -> zstd-compressed solution file; apart from the metadata so that loading
     /// the index at start reads kilobytes, not the fields.
     SolutionFields,
+    /// SHA-256 (hex) of a mesh file -> the file, zstd-compressed: content-addressed, so studies
+    /// of one mesh store it once.
+    Meshes,
     /// Counters (next study id, next lease id).
     Meta,
 }
 
 impl Tree {
     /// Every tree, in a fixed order.
-    pub const ALL: [Tree; 6] =
-        [Tree::Scenes, Tree::Studies, Tree::Points, Tree::Solutions, Tree::SolutionFields, Tree::Meta];
+    pub const ALL: [Tree; 7] =
+        [Tree::Scenes, Tree::Studies, Tree::Points, Tree::Solutions, Tree::SolutionFields, Tree::Meshes, Tree::Meta];
 
     /// Name of the tree on disk.
     pub fn name(self) -> &'static str {
@@ -49,6 +52,7 @@ impl Tree {
             Tree::Points => "points",
             Tree::Solutions => "solutions",
             Tree::SolutionFields => "solution_fields",
+            Tree::Meshes => "meshes",
             Tree::Meta => "meta",
         }
     }

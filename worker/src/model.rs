@@ -131,9 +131,11 @@ impl<const D: usize> Substructure<D> {
 /// What a quantity of interest reads.
 #[derive(Debug, Clone)]
 pub enum QoiTarget {
+    /// the norm of the slip of side b relative to side a, or its `component` (signed)
     Slip {
         interface: usize,
         node: usize,
+        component: Option<usize>,
     },
     Displacement {
         substructure: usize,
@@ -650,7 +652,12 @@ impl<const D: usize> Model<D> {
                                 format!("{p:?} is not on interface '{name}' (nearest node {dist:.3e} away)"),
                             ));
                         }
-                        QoiTarget::Slip { interface: best.0, node: best.1 }
+                        // a component: the slip vector (tangential already) along an axis, signed
+                        let component = match q.component {
+                            Some(_) => Some(component(q)?),
+                            None => None,
+                        };
+                        QoiTarget::Slip { interface: best.0, node: best.1, component }
                     }
                 }
                 QoiKind::Displacement | QoiKind::Velocity => {
@@ -761,17 +768,15 @@ fn body_mesh<const D: usize>(
         if D != 3 {
             return Err(invalid(format!("{key}.mesh"), format!("mesh bodies need dimension = 3, not {D}")));
         }
-        // A scene from the service is text alone: its mesh files did not travel with it, and a
-        // path from elsewhere must not open this machine's files.
-        let Some(directory) = &scene.directory else {
+        // The bytes attached to the scene (read next to its file, or carried by the service):
+        // a path from elsewhere never opens this machine's files.
+        let Some(bytes) = scene.meshes.get(&spec.file) else {
             return Err(invalid(
-                format!("{key}.mesh"),
-                "a mesh body needs its scene file (Scene::read); the service does not carry mesh files yet",
+                format!("{key}.mesh.file"),
+                format!("mesh file '{}' is not attached to the scene (Scene::read or attach_mesh_bytes)", spec.file),
             ));
         };
-        let path = directory.join(&spec.file);
-        let bytes = glissade_core::scene::read_mesh_file(&path).map_err(|e| invalid(format!("{key}.mesh.file"), e))?;
-        let mesh3 = crate::gmsh::parse_volume(&bytes, &spec.volume)
+        let mesh3 = crate::gmsh::parse_volume(bytes, &spec.volume)
             .map_err(|e| invalid(format!("{key}.mesh"), format!("{}: {e}", spec.file)))?;
         // D == 3, checked above: the same mesh with its points typed as [f64; D]
         let mesh = Mesh::<D> {

@@ -14,7 +14,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 
 use glissade_core::io::solution_file::{self, SolutionFileError, SolutionMeta};
-use glissade_core::scene::Scene;
+use glissade_core::scene::{MeshFileError, Scene, mesh_digest};
 use glissade_proto::{ParameterVector, PointId, StudyId};
 use tokio::sync::{Notify, broadcast};
 
@@ -24,7 +24,7 @@ use glissade_core::study::space::ParameterSpace;
 use glissade_core::study::strategy::InitStrategy;
 
 use crate::records::{
-    self, AdaptiveSpec, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin,
+    self, AdaptiveSpec, MeshRef, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin,
     SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, Tree};
@@ -299,21 +299,25 @@ impl Coordinator {
     // ---- users ----
 
     /// Stores a study and queues its points.
-    pub fn submit(&self, submission: Submission) -> Result<(StudyId, u32, String), CoordError> {
-        let scene = Scene::parse(&submission.scene_text)
+    pub fn submit(&self, mut submission: Submission) -> Result<(StudyId, u32, String), CoordError> {
+        let mut scene = Scene::parse(&submission.scene_text)
             .map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
-        // a submission is the scene's text: mesh files do not travel with it (yet), and pools
-        // refuse a mesh body without its file
-        if let Some(b) = scene.bodies.iter().find(|b| b.mesh.is_some()) {
-            return Err(CoordError::Invalid(format!(
-                "scene: body '{}' is meshed by Gmsh; the service does not carry mesh files yet: solve it with glissade-worker solve or study",
-                b.name
-            )));
+        // The mesh files: each as announced, exactly those named, bounded (core's one rule).
+        for m in &submission.meshes {
+            let actual = mesh_digest(&m.data);
+            if !m.sha256.is_empty() && m.sha256 != actual {
+                let e = MeshFileError::DigestMismatch { file: m.file.clone(), expected: m.sha256.clone(), actual };
+                return Err(CoordError::Invalid(format!("meshes: {}", one_line(&e.to_string()))));
+            }
         }
-        let size = scene.size();
+        let uploads = std::mem::take(&mut submission.meshes);
+        scene
+            .attach_mesh_bytes(uploads.into_iter().map(|m| (m.file, m.data)))
+            .map_err(|e| CoordError::Invalid(format!("meshes: {}", one_line(&e.to_string()))))?;
+        let size = scene.size().map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
         if size.bytes() > self.config.max_scene_bytes {
             return Err(CoordError::Invalid(format!(
-                "scene: a solve would need about {} MiB ({} dofs, {} steps, estimated from the text), more than the {} MiB accepted (glissade-server --max-scene-mib)",
+                "scene: a solve would need about {} MiB ({} dofs, {} steps, estimated from the text and meshes), more than the {} MiB accepted (glissade-server --max-scene-mib)",
                 size.bytes() >> 20,
                 size.dofs,
                 size.steps,
@@ -353,6 +357,17 @@ impl Coordinator {
             SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
                 .map_err(|e| CoordError::Invalid(format!("strategy {}: {e}", submission.strategy.name())))?;
         }
+        // Content-addressed: a mesh already stored (another study's) is not stored again (two
+        // submissions racing store the same bytes twice under one key: harmless). Compressed
+        // before the lock: it is the costly part.
+        let mut new_meshes = Vec::new();
+        for (file, digest) in &scene.mesh_digests {
+            if self.store.get(Tree::Meshes, digest.as_bytes())?.is_none() {
+                let compressed = records::encode_fields(&scene.meshes[file])
+                    .map_err(|e| CoordError::Invalid(format!("compressing mesh {file}: {e}")))?;
+                new_meshes.push((digest.clone(), compressed));
+            }
+        }
         let created = now_unix_ms();
         // (an adaptive study's points are not known yet: it has no audit)
         let audit_points = match submission.audit_points {
@@ -378,6 +393,15 @@ impl Coordinator {
             audit_of: None,
             audit: audit_id,
             adaptive,
+            meshes: scene
+                .meshes
+                .iter()
+                .map(|(file, bytes)| MeshRef {
+                    file: file.clone(),
+                    sha256: scene.mesh_digests[file].clone(),
+                    bytes: bytes.len() as u64,
+                })
+                .collect(),
         };
         let pending = |study: StudyId, points: Vec<ParameterVector>| -> Vec<PointRecord> {
             points
@@ -420,6 +444,9 @@ impl Coordinator {
         let mut batch = Batch::new();
         if self.store.get(Tree::Scenes, scene_hash.as_bytes())?.is_none() {
             batch.put(Tree::Scenes, scene_hash.as_bytes(), record.scene.as_bytes());
+        }
+        for (digest, compressed) in new_meshes {
+            batch.put(Tree::Meshes, digest.as_bytes(), compressed);
         }
         let mut studies = vec![(record, points)];
         studies.extend(audit);
@@ -644,6 +671,7 @@ impl Coordinator {
                     max_iterations: entry.record.max_iterations,
                     deadline_unix_ms: deadline,
                     init,
+                    meshes: entry.record.meshes.clone(),
                 };
                 self.commit(entry, vec![(point, Some(EventKind::Started))], None, Batch::new())?;
                 tracing::info!(study = %id, point = i, pool, lease_id, "leased");
@@ -724,6 +752,18 @@ impl Coordinator {
         tracing::info!(study = %id, point = i, "answered from a stored solution");
         state.next_finish_seq = seq + 1;
         Ok(())
+    }
+
+    /// A stored mesh file by its SHA-256 (hex), checked against it.
+    pub fn mesh_bytes(&self, sha256: &str) -> Result<Vec<u8>, CoordError> {
+        let stored =
+            self.store.get(Tree::Meshes, sha256.as_bytes())?.ok_or_else(|| CoordError::UnknownMesh(sha256.into()))?;
+        let bytes =
+            records::decode_fields(&stored).map_err(|e| CoordError::Corrupt(format!("stored mesh {sha256}: {e}")))?;
+        if mesh_digest(&bytes) != sha256 {
+            return Err(CoordError::Corrupt(format!("stored mesh {sha256}: its bytes do not match the digest")));
+        }
+        Ok(bytes)
     }
 
     /// The warm start's solution file bytes.

@@ -47,6 +47,7 @@ fn submit_audited(
         label: String::new(),
         audit_points,
         adaptive: None,
+        meshes: vec![],
     };
     c.submit(submission).unwrap().0
 }
@@ -63,6 +64,7 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         label: String::new(),
         audit_points: None,
         adaptive: None,
+        meshes: vec![],
     };
     match c.submit(submission) {
         Err(CoordError::Invalid(message)) => message,
@@ -108,11 +110,11 @@ fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
     let poison = TINY.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
     let message = refused(&c, &poison, &["f1=0.1"]);
     assert!(message.contains("MiB") && message.contains("--max-scene-mib"), "{message}");
-    // mesh bodies: their files are not in the submission (Scene::size cannot count them)
+    // a mesh body whose file is not in the submission
     let meshed =
         TINY.replacen("elements = [2, 2, 4]", "elements = [2, 2, 4]\nmesh = { file = \"a.msh\", volume = \"v\" }", 1);
     let message = refused(&c, &meshed, &["f1=0.1"]);
-    assert!(message.contains("is meshed by Gmsh; the service does not carry mesh files yet"), "{message}");
+    assert_eq!(message, "meshes: mesh file 'a.msh' is named by the scene but was not given");
     assert!(started.elapsed() < Duration::from_secs(2), "refusals must not build anything");
     // nothing was stored, and a proper study still goes through
     assert!(c.studies().is_empty());
@@ -391,6 +393,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         label: String::new(),
         audit_points: None,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
+        meshes: vec![],
     };
     let id = c.submit(submission).unwrap().0;
     let view = c.study(id, true).unwrap();
@@ -426,4 +429,97 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
     drop(c);
     let c = open(dir.path(), 60_000, 3);
     assert_eq!(c.study(id, false).unwrap().state, StudyState::Done);
+}
+
+const JOINT: &str = include_str!("../../../scenes/bolted-joint-tiny.toml");
+const JOINT_MESH: &[u8] = include_bytes!("../../../scenes/bolted-joint-tiny.msh");
+const JOINT_FILE: &str = "bolted-joint-tiny.msh";
+
+fn joint_submission(meshes: Vec<MeshUpload>) -> Submission {
+    Submission {
+        scene_text: JOINT.into(),
+        grid: vec!["f=0.2,0.3".into()],
+        points: vec![],
+        tolerance: None,
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        adaptive: None,
+        meshes,
+    }
+}
+
+fn joint_mesh(data: Vec<u8>, sha256: &str) -> MeshUpload {
+    MeshUpload { file: JOINT_FILE.into(), data, sha256: sha256.into() }
+}
+
+/// Mesh files travel with a submission: the scene hashes as `Scene::read` hashes it, the file is
+/// stored once by digest for every study of it, survives a restart and is handed to pools;
+/// wrong sets of files are refused by name and nothing is stored.
+#[test]
+fn mesh_files_are_checked_stored_once_by_digest_and_kept_across_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let digest = glissade_core::scene::mesh_digest(JOINT_MESH);
+    let local = Scene::read(&std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/bolted-joint-tiny.toml"))
+        .unwrap()
+        .content_hash();
+    {
+        let c = open(dir.path(), 60_000, 3);
+        let refusals = [
+            (vec![], format!("meshes: mesh file '{JOINT_FILE}' is named by the scene but was not given")),
+            (
+                vec![
+                    joint_mesh(JOINT_MESH.to_vec(), ""),
+                    MeshUpload { file: "b.msh".into(), data: vec![], sha256: "".into() },
+                ],
+                "meshes: mesh file 'b.msh' was given but the scene names no such file".into(),
+            ),
+            (
+                vec![joint_mesh(JOINT_MESH.to_vec(), &"0".repeat(64))],
+                format!(
+                    "meshes: mesh file '{JOINT_FILE}': its bytes have SHA-256 {digest}, {} was announced",
+                    "0".repeat(64)
+                ),
+            ),
+            (
+                // zeroed pages: the bound is checked on the length, nothing is read or copied
+                vec![joint_mesh(vec![0; (glissade_core::scene::MAX_MESH_FILE_BYTES + 1) as usize], "")],
+                format!("meshes: mesh file '{JOINT_FILE}': 134217729 bytes, more than the 134217728 allowed"),
+            ),
+            (
+                vec![joint_mesh(b"$MeshFormat\n4.1 0 8\n$EndMeshFormat\n".to_vec(), "")],
+                "scene: bodies[0].mesh: bolted-joint-tiny.msh: no physical volume 'sandwich_a' in the file".into(),
+            ),
+        ];
+        for (meshes, expected) in refusals {
+            match c.submit(joint_submission(meshes)) {
+                Err(CoordError::Invalid(m)) => assert!(m.starts_with(&expected), "expected {expected}, got {m}"),
+                other => panic!("must be refused: {:?}", other.map(|r| r.1)),
+            }
+        }
+        assert!(c.studies().is_empty());
+        assert_eq!(c.store.scan_prefix(Tree::Meshes, b"").unwrap().len(), 0);
+
+        let (_, points, hash) = c.submit(joint_submission(vec![joint_mesh(JOINT_MESH.to_vec(), &digest)])).unwrap();
+        assert_eq!((points, &hash), (2, &local), "the submitted scene hashes as the one read from disk");
+        // a second study of the same mesh (the digest not announced) stores nothing more
+        let (_, _, again) = c.submit(joint_submission(vec![joint_mesh(JOINT_MESH.to_vec(), "")])).unwrap();
+        assert_eq!(again, local);
+        assert_eq!(c.store.scan_prefix(Tree::Meshes, b"").unwrap().len(), 1);
+    }
+    // restarted on the same directory: the lease names the mesh and its bytes are there
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let grant = c.lease("p").unwrap().unwrap();
+    let expected =
+        crate::records::MeshRef { file: JOINT_FILE.into(), sha256: digest.clone(), bytes: JOINT_MESH.len() as u64 };
+    assert_eq!(grant.meshes, vec![expected]);
+    assert_eq!(c.mesh_bytes(&digest).unwrap(), JOINT_MESH);
+    assert!(matches!(c.mesh_bytes(&"1".repeat(64)), Err(CoordError::UnknownMesh(_))));
+    // what the pool builds from the lease hashes as the coordinator's scene
+    let mut scene = Scene::parse(&grant.scene_text).unwrap();
+    scene.attach_mesh_bytes([(JOINT_FILE.to_string(), c.mesh_bytes(&digest).unwrap())]).unwrap();
+    assert_eq!(scene.content_hash(), grant.scene_hash);
 }

@@ -47,6 +47,8 @@ pub enum CoordError {
     UnknownPool(String),
     #[error("no stored solution {0}")]
     UnknownSolution(String),
+    #[error("no stored mesh file of SHA-256 {0}")]
+    UnknownMesh(String),
     /// A valid request the current state forbids (FAILED_PRECONDITION).
     #[error("{0}")]
     Precondition(String),
@@ -142,6 +144,18 @@ pub struct Submission {
     pub audit_points: Option<u32>,
     /// An adaptive study instead of `grid` / `points`: `NAME=LOW:HIGH` ranges and the budget.
     pub adaptive: Option<(Vec<String>, u32)>,
+    /// The mesh files the scene names.
+    pub meshes: Vec<MeshUpload>,
+}
+
+/// A mesh file carried by a submission.
+#[derive(Debug, Clone)]
+pub struct MeshUpload {
+    /// the scene's `file`
+    pub file: String,
+    pub data: Vec<u8>,
+    /// SHA-256 (hex) the sender announced; empty: not checked
+    pub sha256: String,
 }
 
 /// The audit's tolerance, relative to the study's.
@@ -180,6 +194,8 @@ pub struct LeaseGrant {
     pub deadline_unix_ms: i64,
     /// The warm start, if any.
     pub init: Option<WarmStart>,
+    /// The scene's mesh files (fetched by digest).
+    pub meshes: Vec<crate::records::MeshRef>,
 }
 
 /// What a pool reports with a solved point (the solution file's bytes come apart).

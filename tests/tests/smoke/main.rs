@@ -8,6 +8,7 @@ mod browser;
 mod cli;
 mod common;
 mod engine;
+mod meshes;
 mod resilience;
 mod security;
 mod service;

@@ -728,9 +728,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut blocks: Vec<f64> = Vec::new();
         for (q, qoi) in m.qois.iter().enumerate() {
             match qoi.target {
-                QoiTarget::Slip { interface, node } => {
+                QoiTarget::Slip { interface, node, component } => {
                     if self.dist.owns_interface(interface) {
-                        blocks.extend(slip_history(m, &fields[interface], interface, node));
+                        blocks.extend(slip_history(m, &fields[interface], interface, node, component));
                     } else {
                         blocks.extend(std::iter::repeat_n(0.0, len));
                     }
@@ -835,9 +835,16 @@ impl BodyQois {
     }
 }
 
-/// Slip at an interface node: norm of the tangential relative displacement accumulated during
-/// the dynamics, integrated from the local-stage velocities with the trapezoidal rule.
-fn slip_history<const D: usize>(m: &Model<D>, f: &InterfaceField, interface: usize, node: usize) -> Vec<f64> {
+/// Slip at an interface node: the tangential relative displacement (side b's less side a's)
+/// accumulated during the dynamics, integrated from the local-stage velocities with the
+/// trapezoidal rule; its norm, or its `component` along an axis, with its sign.
+fn slip_history<const D: usize>(
+    m: &Model<D>,
+    f: &InterfaceField,
+    interface: usize,
+    node: usize,
+    component: Option<usize>,
+) -> Vec<f64> {
     let itf = &m.interfaces[interface];
     let n = itf.n_nodes();
     let nrm = itf.normal[node];
@@ -871,7 +878,10 @@ fn slip_history<const D: usize>(m: &Model<D>, f: &InterfaceField, interface: usi
         for c in 0..D {
             slip[c] += 0.5 * m.dt * (prev[c] + cur[c]);
         }
-        out.push(slip.iter().map(|x| x * x).sum::<f64>().sqrt());
+        out.push(match component {
+            Some(c) => slip[c],
+            None => slip.iter().map(|x| x * x).sum::<f64>().sqrt(),
+        });
         prev = cur;
     }
     out

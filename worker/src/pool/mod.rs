@@ -31,7 +31,7 @@ use crate::comm::Serial;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
-use glissade_core::scene::Scene;
+use glissade_core::scene::{MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, Scene, mesh_digest};
 use glissade_core::study::engine::solve_or_retry_cold;
 
 pub mod delivery;
@@ -437,7 +437,7 @@ async fn serve(
             r = receive_lease(&mut session.client, request) => r,
             _ = stop.changed() => return Break::Stop,
         };
-        let (lease, init_bytes) = match leased {
+        let (lease, init_bytes, meshes) = match leased {
             Ok(Some(l)) => {
                 *progressed = true;
                 l
@@ -469,7 +469,7 @@ async fn serve(
             release(&mut session, &lease).await;
             return Break::Stop;
         }
-        let job = match prepare(&lease, init_bytes, options.memory_budget.or_else(available_memory)) {
+        let job = match prepare(&lease, init_bytes, meshes, options.memory_budget.or_else(available_memory)) {
             Ok(job) => job,
             Err(e) => {
                 *pending =
@@ -513,11 +513,12 @@ async fn serve(
     }
 }
 
-/// LeasePoint: the lease, then the warm start's chunks. None when there was no work.
-async fn receive_lease(
-    client: &mut Pool,
-    request: v1::LeasePointRequest,
-) -> Result<Option<(v1::Lease, Vec<u8>)>, Status> {
+/// A lease, its warm start's bytes and its scene's mesh files (name, bytes).
+type Leased = (v1::Lease, Vec<u8>, Vec<(String, Vec<u8>)>);
+
+/// LeasePoint: the lease, then the warm start's chunks; then each mesh file the lease names
+/// (FetchMesh; the pool keeps none between leases). None when there was no work.
+async fn receive_lease(client: &mut Pool, request: v1::LeasePointRequest) -> Result<Option<Leased>, Status> {
     let mut stream = client.lease_point(request).await?.into_inner();
     let lease = match stream.message().await? {
         Some(v1::LeaseMessage { body: Some(lease_message::Body::Lease(lease)) }) => lease,
@@ -535,7 +536,23 @@ async fn receive_lease(
         }
     }
     let bytes = assembler.finish().map_err(|e| Status::internal(format!("warm start: {e}")))?;
-    Ok(Some((lease, bytes)))
+    if lease.meshes.len() > MAX_MESH_FILES {
+        return Err(Status::internal(format!(
+            "the lease names {} mesh files, more than {MAX_MESH_FILES}",
+            lease.meshes.len()
+        )));
+    }
+    let mut meshes = Vec::with_capacity(lease.meshes.len());
+    for mesh in &lease.meshes {
+        let what = |e: &dyn std::fmt::Display| Status::internal(format!("mesh file '{}': {e}", mesh.file));
+        let mut stream = client.fetch_mesh(v1::FetchMeshRequest { sha256: mesh.sha256.clone() }).await?.into_inner();
+        let mut assembler = Assembler::new(mesh.bytes, MAX_MESH_FILE_BYTES).map_err(|e| what(&e))?;
+        while let Some(chunk) = stream.message().await? {
+            assembler.push(chunk).map_err(|e| what(&e))?;
+        }
+        meshes.push((mesh.file.clone(), assembler.finish().map_err(|e| what(&e))?));
+    }
+    Ok(Some((lease, bytes, meshes)))
 }
 
 /// Bytes the system can give a new process now (`MemAvailable` of /proc/meminfo), if known.
@@ -548,12 +565,24 @@ pub fn available_memory() -> Option<u64> {
 
 /// The job of a lease: the scene parsed and its size checked against `memory` (bytes), the
 /// request built, the warm start read and checked.
-fn prepare(lease: &v1::Lease, init_bytes: Vec<u8>, memory: Option<u64>) -> Result<PointJob> {
-    let scene = Scene::parse(&lease.scene).context("scene")?;
-    if scene.content_hash() != lease.scene_hash {
-        bail!("the lease's scene text has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
+fn prepare(
+    lease: &v1::Lease,
+    init_bytes: Vec<u8>,
+    meshes: Vec<(String, Vec<u8>)>,
+    memory: Option<u64>,
+) -> Result<PointJob> {
+    let mut scene = Scene::parse(&lease.scene).context("scene")?;
+    for ((file, bytes), announced) in meshes.iter().zip(&lease.meshes) {
+        let actual = mesh_digest(bytes);
+        if actual != announced.sha256 {
+            bail!(MeshFileError::DigestMismatch { file: file.clone(), expected: announced.sha256.clone(), actual });
+        }
     }
-    let size = scene.size();
+    scene.attach_mesh_bytes(meshes).context("meshes")?;
+    if scene.content_hash() != lease.scene_hash {
+        bail!("the lease's scene has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
+    }
+    let size = scene.size().context("scene")?;
     if let Some(memory) = memory
         && size.bytes() > memory
     {

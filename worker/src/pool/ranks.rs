@@ -26,7 +26,13 @@ const PROBE_PAUSE: Duration = Duration::from_millis(5);
 /// What rank 0 sends to the other ranks.
 #[derive(Debug)]
 enum Message {
-    Job { scene_text: String, request: SolveRequest, init_bytes: Vec<u8> },
+    /// `meshes`: the scene's mesh files (name, bytes), attached again on each rank
+    Job {
+        scene_text: String,
+        meshes: Vec<(String, Vec<u8>)>,
+        request: SolveRequest,
+        init_bytes: Vec<u8>,
+    },
     Stop,
 }
 
@@ -36,6 +42,8 @@ pub enum RanksError {
     Malformed(&'static str),
     #[error("job message from rank 0: {0}")]
     Scene(#[from] glissade_core::scene::SceneError),
+    #[error("job message from rank 0: {0}")]
+    Meshes(#[from] glissade_core::scene::MeshFileError),
     #[error("job message from rank 0: warm start: {0}")]
     WarmStart(#[from] solution_file::SolutionFileError),
 }
@@ -69,6 +77,7 @@ impl PoolSolver for RootSolver<'_> {
     fn solve(&mut self, job: &PointJob) -> Result<SolveOutcome, RunError> {
         self.send_to_all(&Message::Job {
             scene_text: job.scene_text.clone(),
+            meshes: job.scene.meshes.iter().map(|(f, b)| (f.clone(), b.to_vec())).collect(),
             request: job.request.clone(),
             init_bytes: job.init_bytes.clone(),
         });
@@ -90,8 +99,9 @@ pub fn follow_root(comm: &Mpi) -> Result<(), RanksError> {
         let (bytes, _) = root.receive_vec_with_tag::<u8>(JOB_TAG);
         match decode(&bytes)? {
             Message::Stop => return Ok(()),
-            Message::Job { scene_text, request, init_bytes } => {
-                let scene = Scene::parse(&scene_text)?;
+            Message::Job { scene_text, meshes, request, init_bytes } => {
+                let mut scene = Scene::parse(&scene_text)?;
+                scene.attach_mesh_bytes(meshes)?;
                 let init =
                     if init_bytes.is_empty() { None } else { Some(solution_file::read_from(&init_bytes[..])?.1) };
                 // Rank 0 reports the outcome; an error here is the same error as rank 0's (same
@@ -122,12 +132,17 @@ fn encode(message: &Message) -> Vec<u8> {
     let mut out = Vec::new();
     match message {
         Message::Stop => out.push(0),
-        Message::Job { scene_text, request, init_bytes } => {
+        Message::Job { scene_text, meshes, request, init_bytes } => {
             // progress is counted on each rank for itself
             let SolveRequest { set, tolerance, max_iterations, scale, record_fields, progress: _, init_parameters } =
                 request;
             out.push(1);
             put_bytes(&mut out, scene_text.as_bytes());
+            out.extend((meshes.len() as u64).to_le_bytes());
+            for (file, bytes) in meshes {
+                put_bytes(&mut out, file.as_bytes());
+                put_bytes(&mut out, bytes);
+            }
             put_pairs(&mut out, set.iter().map(|(k, v)| (k.as_str(), *v)));
             put_option(&mut out, tolerance.map(f64::to_bits));
             put_option(&mut out, max_iterations.map(|n| n as u64));
@@ -157,6 +172,13 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
         0 => Ok(Message::Stop),
         1 => {
             let scene_text = reader.string()?;
+            let count = reader.u64()? as usize;
+            let mut meshes = Vec::with_capacity(count.min(glissade_core::scene::MAX_MESH_FILES));
+            for _ in 0..count {
+                let file = reader.string()?;
+                let n = reader.u64()? as usize;
+                meshes.push((file, reader.take(n)?.to_vec()));
+            }
             let set = reader.pairs()?;
             let tolerance = reader.option()?.map(f64::from_bits);
             let max_iterations = reader.option()?.map(|n| n as usize);
@@ -178,7 +200,7 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
             };
             let request =
                 SolveRequest { set, tolerance, max_iterations, scale, record_fields, progress: None, init_parameters };
-            Ok(Message::Job { scene_text, request, init_bytes: reader.0.to_vec() })
+            Ok(Message::Job { scene_text, meshes, request, init_bytes: reader.0.to_vec() })
         }
         _ => Err(RanksError::Malformed("unknown message kind")),
     }
@@ -260,11 +282,19 @@ mod tests {
             progress: Some(Default::default()),
             init_parameters: Some([("f1".to_owned(), 0.1), ("f2".to_owned(), 1.0 / 3.0)].into()),
         };
-        let message = Message::Job { scene_text: "dimension = 2\n".into(), request, init_bytes: vec![9, 8, 7] };
-        let Message::Job { scene_text, request, init_bytes } = decode(&encode(&message)).unwrap() else {
+        let meshes = vec![("a.msh".to_string(), vec![1, 2, 3]), ("b.msh".to_string(), vec![])];
+        let message = Message::Job {
+            scene_text: "dimension = 2\n".into(),
+            meshes: meshes.clone(),
+            request,
+            init_bytes: vec![9, 8, 7],
+        };
+        let Message::Job { scene_text, meshes: decoded, request, init_bytes } = decode(&encode(&message)).unwrap()
+        else {
             panic!("not a job")
         };
         assert_eq!(scene_text, "dimension = 2\n");
+        assert_eq!(decoded, meshes);
         assert_eq!(request.set[0].1.to_bits(), (0.1f64 + 0.2).to_bits());
         assert_eq!(request.set[1], ("prestress".into(), -1e-300));
         assert_eq!((request.tolerance, request.max_iterations), (Some(2e-4), Some(77)));
@@ -275,6 +305,7 @@ mod tests {
         for scale in [None, Some(Scale::Single)] {
             let message = Message::Job {
                 scene_text: String::new(),
+                meshes: Vec::new(),
                 request: SolveRequest { scale, ..SolveRequest::default() },
                 init_bytes: Vec::new(),
             };
@@ -289,6 +320,7 @@ mod tests {
     fn a_truncated_job_is_an_error_not_a_panic() {
         let bytes = encode(&Message::Job {
             scene_text: "x".repeat(40),
+            meshes: vec![("m".into(), vec![0; 5])],
             request: SolveRequest::default(),
             init_bytes: Vec::new(),
         });
