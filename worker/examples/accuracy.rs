@@ -94,7 +94,7 @@ fn solve(args: &Args, scene_path: &Path, tol: f64, warm: bool) -> Sample {
     {
         return s;
     }
-    let scene = Scene::parse(&std::fs::read_to_string(scene_path).expect("scene file")).expect("scene");
+    let scene = Scene::read(scene_path).expect("scene");
     let space = ParameterSpace::from_scene(&scene);
     let (p, q) = (parse_point(&args.point), parse_point(&args.neighbour));
     let mut store = MemoryStore::new(space).expect("store");

@@ -25,7 +25,7 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let (scene_path, reference_path) = (&args[0], &args[1]);
     let budget: usize = args.get(2).map_or(25, |b| b.parse().expect("BUDGET: a number"));
-    let scene = Scene::parse(&std::fs::read_to_string(scene_path).expect("read the scene")).expect("a scene");
+    let scene = Scene::read(std::path::Path::new(scene_path)).expect("a scene");
     let reference: StudyResult =
         serde_json::from_str(&std::fs::read_to_string(reference_path).expect("read the reference")).expect("a result");
     let space = ParameterSpace::from_scene(&scene);

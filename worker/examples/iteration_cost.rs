@@ -65,7 +65,7 @@ fn main() {
     let mut args = std::env::args().skip(1);
     let path = args.next().expect("usage: iteration_cost SCENE.toml [ITERATIONS]");
     let iterations: usize = args.next().map_or(5, |s| s.parse().expect("ITERATIONS is a number"));
-    let scene = Scene::parse(&std::fs::read_to_string(&path).expect("read scene")).expect("parse scene");
+    let scene = Scene::read(std::path::Path::new(&path)).expect("scene");
     println!("{path}: {iterations} iterations per stage");
     match scene.dimension {
         1 => run::<1>(&scene, iterations),

@@ -106,7 +106,7 @@ fn main() {
         eprintln!("usage: qoi_trace SCENE P [Q] [K0_FACTOR]");
         std::process::exit(1);
     }
-    let scene = Scene::parse(&std::fs::read_to_string(&args[1]).expect("read the scene")).expect("scene");
+    let scene = Scene::read(std::path::Path::new(&args[1])).expect("scene");
     let p = parse_point(&args[2]);
     let q = args.get(3).filter(|s| !s.is_empty()).map(|s| parse_point(s));
     let k0 = args.get(4).map(|s| s.parse().expect("a number"));

@@ -110,8 +110,8 @@ fn accuracy(result: &StudyResult, reference: &StudyResult, space: &ParameterSpac
 
 fn main() {
     let args = Args::parse();
-    let text = std::fs::read_to_string(&args.scene).expect("scene file");
-    let scene = Scene::parse(&text).expect("scene");
+    // read with its mesh files (mesh bodies), hashed as the service hashes it
+    let scene = Scene::read(&args.scene).expect("scene");
     let space = ParameterSpace::from_scene(&scene);
     std::fs::create_dir_all(&args.out).expect("out dir");
     let pts = points(&scene, &args.grid);

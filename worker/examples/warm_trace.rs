@@ -15,7 +15,7 @@ fn main() {
         eprintln!("usage: warm_trace SCENE Q_F1 Q_F2 P_F1 P_F2 QOI [MAX_ITERATIONS]");
         std::process::exit(1);
     }
-    let scene = Scene::parse(&std::fs::read_to_string(&args[1]).expect("read the scene")).expect("scene");
+    let scene = Scene::read(std::path::Path::new(&args[1])).expect("scene");
     let number = |i: usize| -> f64 { args[i].parse().expect("a number") };
     let (q, p, qoi) = ((number(2), number(3)), (number(4), number(5)), args[6].as_str());
     let max: usize = args.get(7).map_or(160, |s| s.parse().expect("an iteration count"));
