@@ -1328,3 +1328,32 @@ fn bolted_joint_without_prestress_is_unloaded() {
     let r = solve(&m, false);
     assert!(r.qoi.iter().all(|q| q.values.iter().all(|&v| v == 0.0)), "{:?}", r.qoi);
 }
+
+/// A warm start from a point with another preload: its dynamic fields hold the source's static
+/// forces at every step, moved by the change of the static stage's (docs/method.md 4). The
+/// joint at rest (no pull, 2 steps) then starts on its answer: the middle bolt's force matches a
+/// cold solve's within the tolerance and the dynamic stage stops as soon as the stopping test
+/// can (two windows). Measured: 19 dynamic iterations (a cold solve 12), the bolt force 5.0e-5 off
+/// a cold solve's; without the move 532 dynamic iterations.
+#[test]
+fn a_warm_start_from_another_preload_begins_at_the_new_static_forces() {
+    let scene = bolted_joint_at_rest(|t| t);
+    let build =
+        |p: f64| Model::<3>::build(&scene, &scene.parameter_values(&[("prestress".into(), p)]).unwrap()).unwrap();
+    let (source, target) = (build(2.8e-5), build(3e-5));
+    let from = solve(&source, false).solution;
+    let cold = solve(&target, false);
+    let mut solver = LatinSolver::serial(&target).unwrap();
+    let warm = solver.solve(Some(&from), &SolveOptions::default()).unwrap();
+    assert!(warm.converged());
+    let force = |r: &SolveReport| r.qoi.iter().find(|q| q.name == "bolt_force").unwrap().values.clone();
+    let (fc, fw) = (force(&cold), force(&warm));
+    let off = fc.iter().zip(&fw).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)
+        / fc.iter().map(|a| a.abs()).fold(0.0, f64::max);
+    eprintln!(
+        "warm: {} dynamic iterations (cold {}), bolt force off by {off:.2e}",
+        warm.dynamic.iterations, cold.dynamic.iterations
+    );
+    assert!(off < target.settings.tolerance, "bolt force {fw:?} against {fc:?}");
+    assert!(warm.dynamic.iterations <= 25, "{} dynamic iterations", warm.dynamic.iterations);
+}

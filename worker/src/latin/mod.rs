@@ -410,6 +410,30 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 }
             }
         }
+        if let (Some(i), Some(st)) = (init, &static_solution)
+            && let Some(old) = &i.static_stage
+        {
+            // A warm start's dynamic fields hold its source's static forces at every step; the
+            // static stage just re-solved gives this point's: move every step's forces by the
+            // difference (a change of preload otherwise takes hundreds of iterations to cross
+            // the interval: bolted joint, prestress 0.028 -> 0.030 mm, 251 -> 57 dynamic
+            // iterations at 2e-4, docs/performance.md "Bolted joint").
+            for ((f, new), old) in dynamic.interfaces.iter_mut().zip(&st.interfaces).zip(&old.interfaces) {
+                let per_step = new.len();
+                if per_step == 0 || f.is_empty() || old.len() != per_step {
+                    continue;
+                }
+                for (sides, new_sides, old_sides) in [(&mut f.s, &new.s, &old.s), (&mut f.hat, &new.hat, &old.hat)] {
+                    for ((side, n), o) in sides.iter_mut().zip(new_sides).zip(old_sides) {
+                        for chunk in side.force.chunks_mut(per_step) {
+                            for ((x, a), b) in chunk.iter_mut().zip(&n.force).zip(&o.force) {
+                                *x += a - b;
+                            }
+                        }
+                    }
+                }
+            }
+        }
         let (gap_start, vn_start) = self.dynamic_initial_gaps(static_solution.as_ref());
         // A warm start begins near in eta but not as near in the solution: it converges tighter
         // (warm_tolerance_ratio, docs/scenes.md; measured in docs/performance.md).
