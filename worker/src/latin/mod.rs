@@ -391,45 +391,18 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             None => self.zero_stage(m.steps),
         };
-        if init.is_none()
-            && let Some(st) = &static_solution
-        {
-            // Start the dynamics from the prestressed interface forces held over the whole
-            // interval (velocities zero): the state the assembly is in before loading.
-            for (f, sf) in dynamic.interfaces.iter_mut().zip(&st.interfaces) {
-                let per_step = sf.len();
-                if per_step == 0 || f.is_empty() {
-                    continue;
-                }
-                for (sides, static_sides) in [(&mut f.s, &sf.s), (&mut f.hat, &sf.hat)] {
-                    for (side, static_side) in sides.iter_mut().zip(static_sides) {
-                        for chunk in side.force.chunks_mut(per_step) {
-                            chunk.copy_from_slice(&static_side.force);
-                        }
-                    }
-                }
-            }
-        }
-        if let (Some(i), Some(st)) = (init, &static_solution)
-            && let Some(old) = &i.static_stage
-        {
-            // A warm start's dynamic fields hold its source's static forces at every step; the
-            // static stage just re-solved gives this point's: move every step's forces by the
-            // difference (a change of preload otherwise takes hundreds of iterations to cross
-            // the interval: bolted joint, prestress 0.028 -> 0.030 mm, 251 -> 57 dynamic
+        if let Some(st) = &static_solution {
+            // A cold start holds the prestressed interface forces over the whole interval
+            // (velocities zero): the state the assembly is in before loading. A warm start's
+            // fields hold its source's static forces at every step: they move by the change of
+            // the static stage's (a change of preload otherwise takes hundreds of iterations to
+            // cross the interval: bolted joint, prestress 0.028 -> 0.030 mm, 251 -> 57 dynamic
             // iterations at 2e-4, docs/performance.md "Bolted joint").
-            for ((f, new), old) in dynamic.interfaces.iter_mut().zip(&st.interfaces).zip(&old.interfaces) {
-                let per_step = new.len();
-                if per_step == 0 || f.is_empty() || old.len() != per_step {
-                    continue;
-                }
-                for (sides, new_sides, old_sides) in [(&mut f.s, &new.s, &old.s), (&mut f.hat, &new.hat, &old.hat)] {
-                    for ((side, n), o) in sides.iter_mut().zip(new_sides).zip(old_sides) {
-                        for chunk in side.force.chunks_mut(per_step) {
-                            for ((x, a), b) in chunk.iter_mut().zip(&n.force).zip(&o.force) {
-                                *x += a - b;
-                            }
-                        }
+            match init {
+                None => add_static_change(&mut dynamic.interfaces, st, None),
+                Some(i) => {
+                    if let Some(old) = &i.static_stage {
+                        add_static_change(&mut dynamic.interfaces, st, Some(old));
                     }
                 }
             }
@@ -948,4 +921,30 @@ fn error_indicator_from_parts(parts: &[f64]) -> f64 {
         return if num == 0.0 { 0.0 } else { f64::INFINITY };
     }
     (num / den).sqrt()
+}
+
+/// Adds `new - old` static interface forces (`old` none: zero) to every step of the dynamic
+/// fields, on both LATIN spaces; interfaces with no static fields (or another size) are left.
+fn add_static_change(dynamic: &mut [InterfaceField], new: &StageSolution, old: Option<&StageSolution>) {
+    for (k, (f, n)) in dynamic.iter_mut().zip(&new.interfaces).enumerate() {
+        let o = match old.map(|o| o.interfaces.get(k)) {
+            Some(None) => continue,
+            Some(Some(o)) => Some(o),
+            None => None,
+        };
+        let per_step = n.len();
+        if per_step == 0 || f.is_empty() || o.is_some_and(|o| o.len() != per_step) {
+            continue;
+        }
+        for (space, (sides, new_sides)) in [(&mut f.s, &n.s), (&mut f.hat, &n.hat)].into_iter().enumerate() {
+            for (side_index, (side, ns)) in sides.iter_mut().zip(new_sides).enumerate() {
+                let os = o.map(|o| if space == 0 { &o.s[side_index] } else { &o.hat[side_index] });
+                for chunk in side.force.chunks_mut(per_step) {
+                    for (j, x) in chunk.iter_mut().enumerate() {
+                        *x += ns.force[j] - os.map_or(0.0, |os| os.force[j]);
+                    }
+                }
+            }
+        }
+    }
 }
