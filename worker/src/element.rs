@@ -3,8 +3,9 @@
 //! linear simplices (the 4-node tetrahedra of Gmsh meshes).
 //!
 //! Tensor elements' local nodes are in tensor order: bit `d` of the local index is the node's
-//! side along reference axis `d` (0 -> xi_d = -1, 1 -> xi_d = +1). Full 2-point Gauss
-//! integration (docs/method.md 2). Simplices are integrated exactly (constant strain).
+//! side along reference axis `d` (0 -> xi_d = -1, 1 -> xi_d = +1). 2-point Gauss integration,
+//! the volumetric part of the stiffness at one point (docs/method.md 2). Simplices are
+//! integrated exactly (constant strain).
 
 /// The element family of a mesh.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -139,8 +140,46 @@ fn det_inv<const D: usize>(j: &[[f64; D]; D]) -> (f64, [[f64; D]; D]) {
     (det, inv)
 }
 
+/// Shape functions, physical gradients `g[a][i]` and Jacobian determinant of the multilinear
+/// element with node coordinates `x` at reference point `xi`; the determinant is the error when
+/// not positive.
+fn shape_gradients<const D: usize>(x: &[[f64; D]], xi: &[f64]) -> Result<(Vec<f64>, Vec<[f64; D]>, f64), f64> {
+    let nn = nodes_per_element(D);
+    let (n, dn) = shape(xi);
+    // J[i][d] = dx_i / dxi_d
+    let mut jac = [[0.0; D]; D];
+    for a in 0..nn {
+        for i in 0..D {
+            for d in 0..D {
+                jac[i][d] += x[a][i] * dn[a][d];
+            }
+        }
+    }
+    let (det, inv) = det_inv(&jac);
+    if det <= 0.0 || !det.is_finite() {
+        return Err(det);
+    }
+    // physical gradients g[a][i] = sum_d dn[a][d] * (J^-1)[d][i]
+    let g = (0..nn)
+        .map(|a| {
+            let mut gi = [0.0; D];
+            for (i, gii) in gi.iter_mut().enumerate() {
+                for d in 0..D {
+                    *gii += dn[a][d] * inv[d][i];
+                }
+            }
+            gi
+        })
+        .collect();
+    Ok((n, g, det))
+}
+
 /// Consistent stiffness and mass matrices of one element (dense, `(a*D + i, b*D + j)` order),
-/// from its node coordinates in tensor order.
+/// from its node coordinates in tensor order. Selective reduced integration: the shear part
+/// (mu) at the 2^D Gauss points, the volumetric part (lambda) at the centre, so that the element
+/// does not lock as nu approaches 1/2 (fully integrated, three-blocks-tiny at nu = 0.499 took
+/// 4718 iterations, 233 with this; docs/performance.md, "Locking"). Exact on affine elements'
+/// constant-strain states, so the patch test holds.
 pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Result<(Vec<f64>, Vec<f64>), f64> {
     let nn = nodes_per_element(D);
     let nd = nn * D;
@@ -148,34 +187,9 @@ pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Resul
     let mut k = vec![0.0; nd * nd];
     let mut m = vec![0.0; nd * nd];
     for (xi, w) in gauss_points(D) {
-        let (n, dn) = shape(&xi);
-        // J[i][d] = dx_i / dxi_d
-        let mut jac = [[0.0; D]; D];
-        for a in 0..nn {
-            for i in 0..D {
-                for d in 0..D {
-                    jac[i][d] += x[a][i] * dn[a][d];
-                }
-            }
-        }
-        let (det, inv) = det_inv(&jac);
-        if det <= 0.0 || !det.is_finite() {
-            return Err(det);
-        }
-        // physical gradients g[a][i] = sum_d dn[a][d] * (J^-1)[d][i]
-        let g: Vec<[f64; D]> = (0..nn)
-            .map(|a| {
-                let mut gi = [0.0; D];
-                for (i, gii) in gi.iter_mut().enumerate() {
-                    for d in 0..D {
-                        *gii += dn[a][d] * inv[d][i];
-                    }
-                }
-                gi
-            })
-            .collect();
+        let (n, g, det) = shape_gradients(x, &xi)?;
         let wd = w * det;
-        add_stiffness(&mut k, &g, wd, lambda, mu);
+        add_stiffness(&mut k, &g, wd, 0.0, mu);
         for a in 0..nn {
             for b in 0..nn {
                 for i in 0..D {
@@ -184,6 +198,9 @@ pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Resul
             }
         }
     }
+    // one point of weight 2^D, the reference cube's volume
+    let (_, g, det) = shape_gradients(x, &[0.0; D])?;
+    add_stiffness(&mut k, &g, nn as f64 * det, lambda, 0.0);
     Ok((k, m))
 }
 
@@ -404,6 +421,42 @@ mod tests {
         let energy: f64 = 0.5 * (0..24).map(|r| (0..24).map(|c| u[r] * k[r * 24 + c] * u[c]).sum::<f64>()).sum::<f64>();
         let exact = 0.5 * mat.young * e * e * h.iter().product::<f64>();
         assert!((energy - exact).abs() < 1e-13, "{energy} vs {exact}");
+    }
+
+    fn energy(k: &[f64], u: &[f64]) -> f64 {
+        let nd = u.len();
+        0.5 * (0..nd).map(|r| (0..nd).map(|c| u[r] * k[r * nd + c] * u[c]).sum::<f64>()).sum::<f64>()
+    }
+
+    /// Selective reduced integration: a uniform dilatation e (every normal strain e) stores the
+    /// exact energy 1/2 (D lambda + 2 mu) D e^2 V, while the bending mode u_x = x y (about the
+    /// centre) stores an energy that stays finite as nu -> 1/2 (fully integrated, its volumetric
+    /// part grows with lambda: the element locks).
+    #[test]
+    fn dilatation_is_exact_and_bending_does_not_lock() {
+        let h = [0.3, 0.2, 0.1];
+        let x = unit_box(h);
+        let vol: f64 = h.iter().product();
+        let e = 1e-3;
+        let dilatation: Vec<f64> = (0..24).map(|r| e * x[r / 3][r % 3]).collect();
+        // about the centre: (x - h_x / 2)(y - h_y / 2), no uniform strain in it
+        let bending: Vec<f64> = (0..24)
+            .map(|r| if r % 3 == 0 { (x[r / 3][0] - 0.5 * h[0]) * (x[r / 3][1] - 0.5 * h[1]) } else { 0.0 })
+            .collect();
+        let mut bending_energy = Vec::new();
+        for nu in [0.3, 0.49, 0.4999] {
+            let mat = Material { young: 2.0e11, poisson: nu, density: 7800.0 };
+            let (k, _) = element_matrices(&x, &mat).unwrap();
+            let (lambda, mu) = mat.lame(3);
+            let exact = 0.5 * (3.0 * lambda + 2.0 * mu) * 3.0 * e * e * vol;
+            let got = energy(&k, &dilatation);
+            assert!((got - exact).abs() < 1e-12 * exact, "nu {nu}: dilatation energy {got} vs {exact}");
+            bending_energy.push(energy(&k, &bending));
+        }
+        // lambda grows 1 / (1 - 2 nu): x 36 from 0.49 to 0.4999; mu falls by 13 %
+        let growth = bending_energy[2] / bending_energy[1];
+        assert!(growth < 1.0, "bending energy grows {growth} x from nu = 0.49 to 0.4999: the element locks");
+        assert!(bending_energy[2] > 0.5 * bending_energy[0], "bending keeps its shear stiffness");
     }
 
     /// A tetrahedron: mass rho V, no force from rigid translations, the uniaxial strain
