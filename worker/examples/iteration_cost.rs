@@ -33,7 +33,7 @@ fn run<const D: usize>(scene: &Scene, iterations: usize) {
     );
     for scale in [Scale::Single, Scale::Multi] {
         let mut model = Model::<D>::build(scene, &values).expect("model");
-        model.set_scale(scale);
+        model.settings.scale = scale;
         model.settings.max_iterations = iterations;
         model.settings.tolerance = 1e-30; // run exactly `iterations` iterations per stage
         let t = Instant::now();

@@ -228,10 +228,6 @@ pub struct Model<const D: usize> {
     pub qois: Vec<Qoi>,
     pub settings: SolverSettings,
     pub parameters: ParameterValues,
-    /// the largest extent of the assembly, L of the static search direction
-    pub assembly_size: f64,
-    /// `[solver] k0_factor`, resolved
-    pub k0_factor: f64,
 }
 
 impl<const D: usize> Model<D> {
@@ -244,23 +240,6 @@ impl<const D: usize> Model<D> {
             .interfaces
             .iter()
             .any(|i| matches!(i.law, InterfaceLaw::Prestress { shortening } if shortening != 0.0))
-    }
-
-    /// Switches single- / multiscale: the static search directions depend on it.
-    pub fn set_scale(&mut self, scale: Scale) {
-        self.settings.scale = scale;
-        self.set_static_directions();
-    }
-
-    fn set_static_directions(&mut self) {
-        for itf in self.interfaces.iter_mut() {
-            let h = itf.mesh_size();
-            for side in itf.sides.iter_mut() {
-                let young = self.substructures[side.substructure].material.young;
-                let k = static_search_direction(young, self.assembly_size, h, self.settings.scale);
-                side.k_static = SearchDirection::isotropic(self.k0_factor * k);
-            }
-        }
     }
 
     pub fn n_dofs(&self) -> usize {
@@ -383,13 +362,12 @@ impl<const D: usize> Model<D> {
         // body node -> local node, per substructure
         let local_of: Vec<HashMap<usize, usize>> =
             substructures.iter().map(|s| s.nodes.iter().enumerate().map(|(l, &g)| (g, l)).collect()).collect();
+        // the search directions are set below, once the interfaces' geometry is known
         let side = |s: usize, body_nodes: &[usize]| -> InterfaceSide {
-            let sub = &substructures[s];
             InterfaceSide {
                 substructure: s,
                 nodes: body_nodes.iter().map(|g| local_of[s][g]).collect(),
-                k_dynamic: SearchDirection::isotropic(k0_factor * sub.material.impedance()),
-                // set with the scale (set_static_directions)
+                k_dynamic: SearchDirection::isotropic(1.0),
                 k_static: SearchDirection::isotropic(1.0),
             }
         };
@@ -729,7 +707,11 @@ impl<const D: usize> Model<D> {
         let dt = duration / scene.time.steps as f64;
         for itf in interfaces.iter_mut() {
             let normal = itf.mean_normal();
+            let h = itf.mesh_size();
             for side in itf.sides.iter_mut() {
+                let young = substructures[side.substructure].material.young;
+                side.k_static =
+                    SearchDirection::isotropic(k0_factor * static_search_direction(young, assembly_size, h));
                 let k = k0_factor * dynamic_search_direction(&substructures[side.substructure], &normal, dt);
                 // a contact's slip history converges at a rate set by k_t (docs/performance.md)
                 let tangential = match itf.law {
@@ -740,7 +722,7 @@ impl<const D: usize> Model<D> {
             }
         }
 
-        let mut model = Model {
+        Ok(Model {
             bodies,
             substructures,
             interfaces,
@@ -750,27 +732,22 @@ impl<const D: usize> Model<D> {
             qois,
             settings,
             parameters: values.clone(),
-            assembly_size,
-            k0_factor,
-        };
-        model.set_static_directions();
-        Ok(model)
+        })
     }
 }
 
-/// The static search direction of one side. Single-scale, E / L with L the assembly's largest
-/// extent (Ladevèze's usual choice): the iterations themselves must carry the smooth, global part
-/// of the interface fields from substructure to substructure, and a stiffer direction slows that
-/// (a cantilever plate cut 16 x 2: 2139 static iterations, none converged in 5000 with the
-/// multiscale choice). Multiscale, the macro problem carries that part, and the direction aims at
-/// the rest of the range between E / L and the stiffness E / h opposed to a displacement that
-/// changes from node to node (h the interface's mesh size): its geometric mean E / sqrt(L h)
-/// minimises the largest contraction factor |s - k| / (s + k) over the range. Measured
-/// (docs/performance.md, "Static search direction"): 2-10 x fewer static iterations on every
-/// scene, and elements of aspect ratio 100 at an interface converge (none in 5000 with E / L).
-pub fn static_search_direction(young: f64, assembly_size: f64, mesh_size: Option<f64>, scale: Scale) -> f64 {
+/// The static search direction of one side: E / sqrt(L h). The static stage is multiscale
+/// (latin::LatinSolver::new): its macro problem carries the smooth part of the interface fields,
+/// and the direction aims at the rest of the range of stiffnesses a substructure opposes, from
+/// E / L (L the assembly's largest extent) for a smooth interface displacement to E / h for one
+/// that changes from node to node (h the interface's mesh size); the geometric mean of the
+/// range's ends minimises the largest contraction factor |s - k| / (s + k) over it. Measured
+/// (docs/performance.md, "Static search direction"): 2-10 x fewer static iterations than E / L on
+/// every scene, and elements of aspect ratio 100 at an interface converge (none in 5000 with
+/// E / L).
+pub fn static_search_direction(young: f64, assembly_size: f64, mesh_size: Option<f64>) -> f64 {
     match mesh_size {
-        Some(h) if scale == Scale::Multi && h > 0.0 && h < assembly_size => young / (assembly_size * h).sqrt(),
+        Some(h) if h > 0.0 && h < assembly_size => young / (assembly_size * h).sqrt(),
         _ => young / assembly_size,
     }
 }

@@ -61,7 +61,6 @@ pub struct SolveSummary {
     pub history: Vec<f64>,
     pub static_stage: Option<StageReport>,
     pub tolerance: f64,
-    pub scale: Scale,
     pub wall_seconds: f64,
     pub dofs: usize,
     pub substructures: usize,
@@ -87,16 +86,8 @@ impl SolveSummary {
             return None;
         }
         if let Some(st) = self.static_stage.as_ref().filter(|s| !s.converged) {
-            // single-scale, the static direction E / L is slow where the interfaces are finely
-            // or flatly meshed (model::static_search_direction)
-            let hint = match self.scale {
-                Scale::Single => {
-                    "; multiscale static stages take a direction that suits fine or flat elements at the interfaces: try --scale multi"
-                }
-                Scale::Multi => "",
-            };
             return Some(format!(
-                "the static stage did not converge: eta = {:.3e} > {:.1e} (the tolerance x {}) after {} iterations{hint}",
+                "the static stage did not converge: eta = {:.3e} > {:.1e} (the tolerance x {}) after {} iterations",
                 st.error_indicator,
                 self.tolerance * crate::latin::STATIC_TOLERANCE_RATIO,
                 crate::latin::STATIC_TOLERANCE_RATIO,
@@ -240,7 +231,7 @@ fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &
         model.settings.max_iterations = n;
     }
     if let Some(s) = request.scale {
-        model.set_scale(s);
+        model.settings.scale = s;
     }
     Ok(())
 }
@@ -322,7 +313,6 @@ fn solve_dim<const D: usize>(
         history: report.dynamic.history.clone(),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,
-        scale: model.settings.scale,
         wall_seconds: start.elapsed().as_secs_f64(),
         dofs: model.n_dofs(),
         substructures: model.substructures.len(),

@@ -140,7 +140,7 @@ history = [[0, 0], [5e-6, 1], [1e-5, 0]]
 fn check_against_monolithic<const D: usize>(text: &str) {
     for scale in [Scale::Single, Scale::Multi] {
         let mut m = build::<D>(text, &[]);
-        m.set_scale(scale);
+        m.settings.scale = scale;
         let (err, it) = latin_vs_monolithic(&m);
         eprintln!(
             "{D}D {scale:?}: relative L2 error {err:.2e} after {it} iterations (tolerance {:.0e})",
@@ -234,12 +234,12 @@ fn every_qoi_history_is_within_ten_times_the_tolerance_of_the_monolithic_solve()
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     for scale in [Scale::Single, Scale::Multi] {
         let mut near = build::<3>(BOX_PULSE_3D, &[("pressure", 4.5e7)]);
-        near.set_scale(scale);
+        near.settings.scale = scale;
         near.settings.tolerance = 1e-3;
         let neighbour = solve(&near, false).solution;
         for tol in [1e-3, 1e-5] {
             let mut m = build::<3>(BOX_PULSE_3D, &[]);
-            m.set_scale(scale);
+            m.settings.scale = scale;
             m.settings.tolerance = tol;
             let reference = monolithic::solve(&m).expect("monolithic");
             let mut solver = LatinSolver::serial(&m).expect("factorisation");
@@ -579,8 +579,8 @@ fn warm_start_from_own_solution_converges_within_the_stopping_windows() {
 const PLATE_SCALING: &str = r#"
 dimension = 2
 [time]
-duration = 4e-5
-steps = 40
+duration = 4e-4
+steps = 5
 [materials.steel]
 E = 200e9
 nu = 0.3
@@ -600,29 +600,32 @@ traction = [0, -5e6]
 [[loads]]
 face = "plate.y+"
 pressure = 2e7
-history = [[0, 0], [5e-6, 1], [1e-5, 0]]
+history = [[0, 0], [4e-4, 1]]
 "#;
 
-/// Iterations (static, dynamic) of the plate cut into `subs` substructures.
-fn plate_iterations(subs: &str, scale: Scale) -> (usize, usize) {
+/// Dynamic iterations of the cantilever plate (tip load held from the static stage on) under a
+/// pressure ramped slowly over its top: quasi-static bending, which single-scale iterations must
+/// carry from substructure to substructure. The plate cut into `subs` substructures. (The
+/// static stage is multiscale at either scale.)
+fn plate_iterations(subs: &str, scale: Scale) -> usize {
     let mut m = build::<2>(&PLATE_SCALING.replace("SUBS", subs), &[]);
-    m.set_scale(scale);
+    m.settings.scale = scale;
     m.settings.max_iterations = 5000;
     let r = solve(&m, false);
-    (r.static_stage.as_ref().unwrap().iterations, r.dynamic.iterations)
+    r.dynamic.iterations
 }
 
-/// With the macro problem, twice as many substructures cost less than 20 % more iterations;
-/// single-scale visibly grows (docs/method.md 3, "Multiscale"). Both reach the same QoIs (checked
-/// against the monolithic reference above).
+/// With the macro problem, twice as many substructures cost less than 20 % more dynamic
+/// iterations (measured 124 -> 138); single-scale visibly grows (1092 -> 1818; docs/method.md 3,
+/// "Multiscale"). Both reach the same QoIs (checked against the monolithic reference above).
 #[test]
 fn macro_problem_makes_iterations_nearly_independent_of_substructures() {
     let mut total = std::collections::BTreeMap::new();
     for scale in [Scale::Single, Scale::Multi] {
         for subs in ["[8, 2]", "[16, 2]"] {
-            let (st, dy) = plate_iterations(subs, scale);
-            eprintln!("{scale:?} {subs}: {st} static + {dy} dynamic iterations");
-            total.insert((format!("{scale:?}"), subs), (st + dy) as f64);
+            let dy = plate_iterations(subs, scale);
+            eprintln!("{scale:?} {subs}: {dy} dynamic iterations");
+            total.insert((format!("{scale:?}"), subs), dy as f64);
         }
     }
     let growth = |scale: &str| total[&(scale.to_string(), "[16, 2]")] / total[&(scale.to_string(), "[8, 2]")] - 1.0;
@@ -878,9 +881,9 @@ fn refined_sliding_block_and_fine_time_steps_converge_within_the_default_limit()
 /// promise of 10 x tol (docs/performance.md, "Cases that hit the iteration limit"): the box
 /// nearly incompressible (nu = 0.499) against its monolithic solve, every QoI; three-blocks-tiny
 /// at nu = 0.499 (4718 iterations before the elements integrated their volumetric part at one
-/// point; now about 180); the sliding block with elements of aspect ratio 100 at the floor,
-/// multiscale (its static stage took more than 5000 iterations with the static direction E / L;
-/// about 800 with E / sqrt(L h)), which still obeys Coulomb's law.
+/// point; now about 170); the sliding block with elements of aspect ratio 100 at the floor (its
+/// static stage took more than 5000 iterations single-scale with the static direction E / L;
+/// about 800 multiscale with E / sqrt(L h)), which still obeys Coulomb's law.
 #[test]
 fn nearly_incompressible_and_flat_elements_converge_within_the_default_limit() {
     let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
@@ -907,8 +910,7 @@ fn nearly_incompressible_and_flat_elements_converge_within_the_default_limit() {
 
     let flat = fixtures::SLIDING_BLOCK_2D.replace("elements = [8, 4]", "elements = [2, 100]");
     assert_ne!(flat, fixtures::SLIDING_BLOCK_2D);
-    let mut m = build::<2>(&flat, &[]);
-    m.set_scale(Scale::Multi);
+    let m = build::<2>(&flat, &[]);
     let r = solve(&m, false);
     let statics = r.static_stage.as_ref().map_or(0, |s| s.iterations);
     eprintln!("sliding block, aspect ratio 100: {statics} static, {} dynamic iterations", r.dynamic.iterations);
@@ -1010,7 +1012,7 @@ fn check_gmsh_bar_against_monolithic(file: &str, kind: ElementKind) {
     for scale in [Scale::Single, Scale::Multi] {
         for tol in [model.settings.tolerance, 1e-5] {
             let mut m = model.clone();
-            m.set_scale(scale);
+            m.settings.scale = scale;
             m.settings.tolerance = tol;
             let r = solve(&m, true);
             let fields = r.fields.as_ref().expect("fields recorded");
