@@ -140,10 +140,19 @@ fn det_inv<const D: usize>(j: &[[f64; D]; D]) -> (f64, [[f64; D]; D]) {
     (det, inv)
 }
 
-/// Shape functions, physical gradients `g[a][i]` and Jacobian determinant of the multilinear
-/// element with node coordinates `x` at reference point `xi`; the determinant is the error when
-/// not positive.
-fn shape_gradients<const D: usize>(x: &[[f64; D]], xi: &[f64]) -> Result<(Vec<f64>, Vec<[f64; D]>, f64), f64> {
+/// A multilinear element at one reference point.
+struct PointValues<const D: usize> {
+    /// shape functions
+    n: Vec<f64>,
+    /// physical gradients `g[a][i]`
+    g: Vec<[f64; D]>,
+    /// Jacobian determinant
+    det: f64,
+}
+
+/// The element with node coordinates `x` at reference point `xi`; the determinant is the error
+/// when not positive.
+fn shape_gradients<const D: usize>(x: &[[f64; D]], xi: &[f64]) -> Result<PointValues<D>, f64> {
     let nn = nodes_per_element(D);
     let (n, dn) = shape(xi);
     // J[i][d] = dx_i / dxi_d
@@ -171,7 +180,7 @@ fn shape_gradients<const D: usize>(x: &[[f64; D]], xi: &[f64]) -> Result<(Vec<f6
             gi
         })
         .collect();
-    Ok((n, g, det))
+    Ok(PointValues { n, g, det })
 }
 
 /// Consistent stiffness and mass matrices of one element (dense, `(a*D + i, b*D + j)` order),
@@ -187,7 +196,7 @@ pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Resul
     let mut k = vec![0.0; nd * nd];
     let mut m = vec![0.0; nd * nd];
     for (xi, w) in gauss_points(D) {
-        let (n, g, det) = shape_gradients(x, &xi)?;
+        let PointValues { n, g, det } = shape_gradients(x, &xi)?;
         let wd = w * det;
         add_stiffness(&mut k, &g, wd, 0.0, mu);
         for a in 0..nn {
@@ -199,7 +208,7 @@ pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Resul
         }
     }
     // one point of weight 2^D, the reference cube's volume
-    let (_, g, det) = shape_gradients(x, &[0.0; D])?;
+    let PointValues { g, det, .. } = shape_gradients(x, &[0.0; D])?;
     add_stiffness(&mut k, &g, nn as f64 * det, lambda, 0.0);
     Ok((k, m))
 }
