@@ -187,9 +187,9 @@ fn shape_gradients<const D: usize>(x: &[[f64; D]], xi: &[f64]) -> Result<PointVa
 /// from its node coordinates in tensor order. Selective reduced integration: the shear part
 /// (mu) at the 2^D Gauss points, the volumetric part (lambda) at the centre, so that the element
 /// does not lock as nu approaches 1/2 (fully integrated, three-blocks-tiny at nu = 0.499 took
-/// 4718 iterations, 169 with this; docs/performance.md, "Locking"). Constant strains are exact on
-/// quadrilaterals and parallelepipeds; on a distorted hexahedron the centre point approximates
-/// the mean dilatation.
+/// 4718 iterations, 169 with this; docs/performance.md, "Locking, and the static search
+/// direction"). Constant strains are exact on quadrilaterals and parallelepipeds; on a
+/// distorted hexahedron the centre point approximates the mean dilatation.
 pub fn element_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Result<(Vec<f64>, Vec<f64>), f64> {
     let nn = nodes_per_element(D);
     let nd = nn * D;

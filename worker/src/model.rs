@@ -153,7 +153,6 @@ pub enum QoiTarget {
 }
 
 impl<const D: usize> Interface<D> {
-    /// The area-weighted mean unit normal (the normal of a flat interface).
     /// The interface's mesh size: the side of a node's share of its measure (none in 1D, where
     /// an interface is a point).
     pub fn mesh_size(&self) -> Option<f64> {
@@ -164,6 +163,7 @@ impl<const D: usize> Interface<D> {
         Some(mean.powf(1.0 / (D - 1) as f64))
     }
 
+    /// The area-weighted mean unit normal (the normal of a flat interface).
     pub fn mean_normal(&self) -> [f64; D] {
         let mut n = [0.0; D];
         for (a, nj) in self.area.iter().zip(&self.normal) {
@@ -742,7 +742,7 @@ impl<const D: usize> Model<D> {
 /// E / L (L the assembly's largest extent) for a smooth interface displacement to E / h for one
 /// that changes from node to node (h the interface's mesh size); the geometric mean of the
 /// range's ends minimises the largest contraction factor |s - k| / (s + k) over it. Measured
-/// (docs/performance.md, "Static search direction"): 2-10 x fewer static iterations than E / L on
+/// (docs/performance.md, "Locking, and the static search direction"): 2-10 x fewer static iterations than E / L on
 /// every scene, and elements of aspect ratio 100 at an interface converge (none in 5000 with
 /// E / L).
 pub fn static_search_direction(young: f64, assembly_size: f64, mesh_size: Option<f64>) -> f64 {

@@ -214,7 +214,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // The static stage is multiscale at either scale: one step, so its macro problem costs
         // little, and without it the iterations alone carry the assembly's global deformation
         // from substructure to substructure (a cantilever plate cut 16 x 2: 2139 static
-        // iterations single-scale, 20 multiscale; docs/performance.md, "Static search direction").
+        // iterations single-scale, 20 multiscale; docs/performance.md, "Locking, and the static
+        // search direction").
         let macro_static = if with_static { Some(build(&mut ops, Stage::Static)?) } else { None };
         let macro_dynamic =
             if model.settings.scale == Scale::Multi { Some(build(&mut ops, Stage::Dynamic)?) } else { None };
