@@ -225,13 +225,30 @@ fn monolithic_qoi<const D: usize>(reference: &monolithic::MonolithicHistory, tar
     steps.iter().map(|u| u[g]).collect()
 }
 
+/// Relative L2 error over time of every QoI history of `r` against the monolithic solve.
+fn qoi_errors_against_monolithic(
+    m: &Model<3>,
+    r: &SolveReport,
+    reference: &monolithic::MonolithicHistory,
+) -> Vec<(String, f64)> {
+    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    m.qois
+        .iter()
+        .zip(&r.qoi)
+        .map(|(q, series)| {
+            let expected = monolithic_qoi::<3>(reference, &q.target);
+            let d: Vec<f64> = series.values.iter().zip(&expected).map(|(a, b)| a - b).collect();
+            (q.name.clone(), norm(&d) / norm(&expected))
+        })
+        .collect()
+}
+
 /// The stopping test's promise, against the monolithic solve: when LATIN reports convergence
 /// at tolerance tol, every QoI history (velocity included) is within 10 x tol in relative L2
 /// over time, single- and multiscale, cold and warm-started from a neighbouring load, at two
 /// tolerances. (With eta <= tol as the test, the velocity was 40-60 x tol off.)
 #[test]
 fn every_qoi_history_is_within_ten_times_the_tolerance_of_the_monolithic_solve() {
-    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
     for scale in [Scale::Single, Scale::Multi] {
         let mut near = build::<3>(BOX_PULSE_3D, &[("pressure", 4.5e7)]);
         near.settings.scale = scale;
@@ -246,17 +263,13 @@ fn every_qoi_history_is_within_ten_times_the_tolerance_of_the_monolithic_solve()
             for (start, init) in [("cold", None), ("warm", Some(&neighbour))] {
                 let r = solver.solve(init, &SolveOptions::default()).expect("solve");
                 assert!(r.converged(), "{scale:?} {start} at {tol:e}: not converged");
-                for (q, series) in m.qois.iter().zip(&r.qoi) {
-                    let expected = monolithic_qoi::<3>(&reference, &q.target);
-                    let d: Vec<f64> = series.values.iter().zip(&expected).map(|(a, b)| a - b).collect();
-                    let err = norm(&d) / norm(&expected);
+                for (name, err) in qoi_errors_against_monolithic(&m, &r, &reference) {
                     eprintln!(
-                        "{scale:?} {start} tol {tol:.0e}: {} error {err:.2e} ({:.2} x tol), {} iterations",
-                        q.name,
+                        "{scale:?} {start} tol {tol:.0e}: {name} error {err:.2e} ({:.2} x tol), {} iterations",
                         err / tol,
                         r.iterations()
                     );
-                    assert!(err <= 10.0 * tol, "{scale:?} {start} at {tol:e}: {} off by {err:.2e}", q.name);
+                    assert!(err <= 10.0 * tol, "{scale:?} {start} at {tol:e}: {name} off by {err:.2e}");
                 }
             }
         }
@@ -850,6 +863,17 @@ fn mpi_fields_are_gathered_on_rank_zero() {
     assert_eq!(v1, v2);
 }
 
+/// The 2D sliding block (variants of `sliding-block-2d`) obeys Coulomb's law at every step and,
+/// pushed past f N, slides.
+fn assert_block_obeys_coulomb_and_slides(m: &Model<2>, r: &SolveReport) {
+    let q = |name: &str| &r.qoi.iter().find(|q| q.name == name).expect("QoI").values;
+    let f = m.parameters["f"];
+    for (t, n) in q("friction_force").iter().zip(q("normal_force")) {
+        assert!(t.abs() <= f * n.abs() * (1.0 + 1e-6) + 1e-9, "friction {t} above f x normal {n}");
+    }
+    assert!(*q("slip_centre").last().unwrap() > 0.0, "pushed past f N, the block slides");
+}
+
 /// Cases that hit the old iteration limit (1000) or did not converge at all converge within the
 /// default limit now (docs/performance.md, "Search direction"): the sliding block refined to
 /// 16 x 8 quads cut 4 x 2 (eta stalled between 4e-3 and 3e-2 for 1100 iterations; now about 240
@@ -864,12 +888,7 @@ fn refined_sliding_block_and_fine_time_steps_converge_within_the_default_limit()
     let r = solve(&m, false);
     eprintln!("refined sliding block: {} iterations ({} dynamic)", r.iterations(), r.dynamic.iterations);
     assert!(r.dynamic.iterations < m.settings.max_iterations);
-    let q = |name: &str| &r.qoi.iter().find(|q| q.name == name).expect("QoI").values;
-    let f = m.parameters["f"];
-    for (t, n) in q("friction_force").iter().zip(q("normal_force")) {
-        assert!(t.abs() <= f * n.abs() * (1.0 + 1e-6) + 1e-9, "friction {t} above f x normal {n}");
-    }
-    assert!(*q("slip_centre").last().unwrap() > 0.0, "pushed past f N, the block slides");
+    assert_block_obeys_coulomb_and_slides(&m, &r);
 
     let bar = fixtures::BAR_IMPACT_1D.replace("steps = 400", "steps = 800");
     let m = build::<1>(&bar, &[]);
@@ -886,19 +905,15 @@ fn refined_sliding_block_and_fine_time_steps_converge_within_the_default_limit()
 /// about 800 multiscale with E / sqrt(L h)), which still obeys Coulomb's law.
 #[test]
 fn nearly_incompressible_and_flat_elements_converge_within_the_default_limit() {
-    let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    // solve() asserts convergence within the model's (default) iteration limit
     let tol = 1e-4;
     let mut m = build::<3>(&BOX_PULSE_3D.replace("nu = 0.3", "nu = 0.499"), &[]);
     m.settings.tolerance = tol;
     let r = solve(&m, false);
-    assert!(r.converged(), "box at nu = 0.499: not converged in {}", r.iterations());
     let reference = monolithic::solve(&m).expect("monolithic");
-    for (q, series) in m.qois.iter().zip(&r.qoi) {
-        let expected = monolithic_qoi::<3>(&reference, &q.target);
-        let d: Vec<f64> = series.values.iter().zip(&expected).map(|(a, b)| a - b).collect();
-        let err = norm(&d) / norm(&expected);
-        eprintln!("box, nu = 0.499, tol {tol:.0e}: {} error {err:.2e}, {} iterations", q.name, r.iterations());
-        assert!(err <= 10.0 * tol, "box at nu = 0.499: {} off by {err:.2e}", q.name);
+    for (name, err) in qoi_errors_against_monolithic(&m, &r, &reference) {
+        eprintln!("box, nu = 0.499, tol {tol:.0e}: {name} error {err:.2e}, {} iterations", r.iterations());
+        assert!(err <= 10.0 * tol, "box at nu = 0.499: {name} off by {err:.2e}");
     }
 
     let tiny = fixtures::THREE_BLOCKS_TINY.replace("nu = 0.3", "nu = 0.499").replace("nu = 0.45", "nu = 0.499");
@@ -906,7 +921,6 @@ fn nearly_incompressible_and_flat_elements_converge_within_the_default_limit() {
     let m = build::<3>(&tiny, &[]);
     let r = solve(&m, false);
     eprintln!("three-blocks-tiny, nu = 0.499: {} iterations ({} dynamic)", r.iterations(), r.dynamic.iterations);
-    assert!(r.converged(), "three-blocks-tiny at nu = 0.499: not converged");
 
     let flat = fixtures::SLIDING_BLOCK_2D.replace("elements = [8, 4]", "elements = [2, 100]");
     assert_ne!(flat, fixtures::SLIDING_BLOCK_2D);
@@ -914,13 +928,7 @@ fn nearly_incompressible_and_flat_elements_converge_within_the_default_limit() {
     let r = solve(&m, false);
     let statics = r.static_stage.as_ref().map_or(0, |s| s.iterations);
     eprintln!("sliding block, aspect ratio 100: {statics} static, {} dynamic iterations", r.dynamic.iterations);
-    assert!(r.converged(), "sliding block with flat elements: not converged");
-    let q = |name: &str| &r.qoi.iter().find(|q| q.name == name).expect("QoI").values;
-    let f = m.parameters["f"];
-    for (t, n) in q("friction_force").iter().zip(q("normal_force")) {
-        assert!(t.abs() <= f * n.abs() * (1.0 + 1e-6) + 1e-9, "friction {t} above f x normal {n}");
-    }
-    assert!(*q("slip_centre").last().unwrap() > 0.0, "pushed past f N, the block slides");
+    assert_block_obeys_coulomb_and_slides(&m, &r);
 }
 
 /// Two stacked blocks meshed by Gmsh (worker/tests/data/bar.geo, one mesh, two physical
