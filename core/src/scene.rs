@@ -59,6 +59,21 @@ pub struct ParameterSpec {
 pub struct TimeSpec {
     pub duration: Scalar,
     pub steps: usize,
+    /// the mass matrix of the elements (docs/scenes.md, `[time]`)
+    #[serde(default)]
+    pub mass: MassMatrix,
+}
+
+/// How the elements' mass is discretised.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum MassMatrix {
+    /// the integral of the shape functions' products: exact kinetic energy of the element
+    #[default]
+    Consistent,
+    /// each row's sum on the diagonal: every node an independent mass, so that a node that hits
+    /// a wall stops alone (docs/verification.md 4d)
+    Lumped,
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]

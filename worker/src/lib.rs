@@ -7,6 +7,7 @@
 
 pub mod comm;
 pub mod element;
+pub mod explicit;
 pub mod gmsh;
 pub mod io;
 pub mod latin;

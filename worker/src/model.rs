@@ -8,8 +8,8 @@ use crate::latin::search_direction::SearchDirection;
 use crate::mesh::{Face, Mesh};
 use crate::sparse::CsrMatrix;
 use glissade_core::scene::{
-    BodySpec, History, LawSpec, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError, Substructures,
-    component_index, invalid,
+    BodySpec, History, LawSpec, MassMatrix, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError,
+    Substructures, component_index, invalid,
 };
 
 /// Interface behaviour (docs/method.md 1).
@@ -341,9 +341,11 @@ impl<const D: usize> Model<D> {
             let n_sub = parts.iter().max().map_or(0, |m| m + 1);
             for s in 0..n_sub {
                 let elements: Vec<usize> = (0..partition.len()).filter(|&e| partition[e] == offset + s).collect();
-                substructures.push(assemble_substructure(bi, &mesh, &elements, material, v0).map_err(|det| {
-                    invalid(key.to_string(), format!("element with non-positive Jacobian determinant {det}"))
-                })?);
+                substructures.push(
+                    assemble_substructure(bi, &mesh, &elements, material, v0, scene.time.mass).map_err(|det| {
+                        invalid(key.to_string(), format!("element with non-positive Jacobian determinant {det}"))
+                    })?,
+                );
             }
             body_material.push(material);
             bodies.push(Body { name: b.name.clone(), mesh, partition });
@@ -998,13 +1000,14 @@ fn face_group_geometry<const D: usize>(mesh: &Mesh<D>, faces: &[Face]) -> (Vec<u
     )
 }
 
-/// Assembles the stiffness and consistent mass of the elements of one substructure.
+/// Assembles the stiffness and mass (consistent or lumped) of the elements of one substructure.
 fn assemble_substructure<const D: usize>(
     body: usize,
     mesh: &Mesh<D>,
     elements: &[usize],
     material: Material,
     initial_velocity: [f64; D],
+    mass: MassMatrix,
 ) -> Result<Substructure<D>, f64> {
     let mut nodes: Vec<usize> = elements.iter().flat_map(|&e| mesh.element(e).iter().copied()).collect();
     nodes.sort_unstable();
@@ -1028,7 +1031,8 @@ fn assemble_substructure<const D: usize>(
                     kt.push((dofs[r], dofs[c], ke[r * nd + c]));
                 }
                 if me[r * nd + c] != 0.0 {
-                    mt.push((dofs[r], dofs[c], me[r * nd + c]));
+                    let column = if mass == MassMatrix::Lumped { dofs[r] } else { dofs[c] };
+                    mt.push((dofs[r], column, me[r * nd + c]));
                 }
             }
         }

@@ -60,6 +60,9 @@ pub struct SolveSummary {
     /// eta per iteration of the dynamic stage
     pub history: Vec<f64>,
     pub static_stage: Option<StageReport>,
+    /// where the dynamic stage left off and how it went (`StageReport::diagnosis`), when it did
+    /// not converge
+    pub dynamic_diagnosis: Option<String>,
     pub tolerance: f64,
     pub wall_seconds: f64,
     pub dofs: usize,
@@ -86,20 +89,23 @@ impl SolveSummary {
             return None;
         }
         if let Some(st) = self.static_stage.as_ref().filter(|s| !s.converged) {
+            let tol = self.tolerance * crate::latin::STATIC_TOLERANCE_RATIO;
             return Some(format!(
-                "the static stage did not converge: eta = {:.3e} > {:.1e} (the tolerance x {}) after {} iterations",
+                "the static stage did not converge: eta = {:.3e} > {:.1e} (the tolerance x {}) after {} iterations; {}",
                 st.error_indicator,
-                self.tolerance * crate::latin::STATIC_TOLERANCE_RATIO,
+                tol,
                 crate::latin::STATIC_TOLERANCE_RATIO,
-                st.iterations
+                st.iterations,
+                st.diagnosis(tol)
             ));
         }
         Some(format!(
-            "the dynamic stage did not converge: eta = {:.3e}, estimated QoI error {:.3e}, tolerance {:.1e}, after {} iterations",
+            "the dynamic stage did not converge: eta = {:.3e}, estimated QoI error {:.3e}, tolerance {:.1e}, after {} iterations; {}",
             self.error_indicator,
             self.error_estimate,
             self.tolerance,
-            self.history.len()
+            self.history.len(),
+            self.dynamic_diagnosis.as_deref().unwrap_or("")
         ))
     }
 }
@@ -311,6 +317,7 @@ fn solve_dim<const D: usize>(
         error_indicator: report.dynamic.error_indicator,
         error_estimate: report.dynamic.error_estimate,
         history: report.dynamic.history.clone(),
+        dynamic_diagnosis: (!report.dynamic.converged).then(|| report.dynamic.diagnosis(model.settings.tolerance)),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,
         wall_seconds: start.elapsed().as_secs_f64(),

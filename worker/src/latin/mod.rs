@@ -5,6 +5,7 @@ pub mod distribution;
 pub mod linear_stage;
 pub mod local_stage;
 pub mod macro_problem;
+pub mod relaxation;
 pub mod search_direction;
 pub mod stopping;
 
@@ -22,6 +23,7 @@ use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSo
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};
+use relaxation::Relaxation;
 use search_direction::SearchDirection;
 use stopping::{ErrorEstimator, UnitScales};
 
@@ -64,6 +66,48 @@ pub struct StageReport {
     /// [`SolveOptions::trace_qois`] asks for it
     #[serde(skip)]
     pub qoi_trace: Vec<Vec<Vec<f64>>>,
+    /// the interface with the largest share of eta at the last iteration
+    pub worst_interface: Option<String>,
+    /// the relaxation coefficient at the last iteration (lowered where the iterates oscillated)
+    pub relaxation: f64,
+}
+
+impl StageReport {
+    /// How the iterations went, for a stage that did not converge: the mode and what to change.
+    pub fn diagnosis(&self, tolerance: f64) -> String {
+        let h = &self.history;
+        if h.is_empty() {
+            return "no iteration ran".into();
+        }
+        let window = (h.len() / 5).clamp(1, 100);
+        let mean = |s: &[f64]| s.iter().sum::<f64>() / s.len().max(1) as f64;
+        let last = mean(&h[h.len().saturating_sub(window)..]);
+        let before = mean(&h[h.len().saturating_sub(2 * window)..h.len().saturating_sub(window)]);
+        let best = h.iter().copied().fold(f64::INFINITY, f64::min);
+        let place =
+            self.worst_interface.as_ref().map_or(String::new(), |i| format!(", largest residual on interface '{i}'"));
+        let advice = if last > 2.0 * best.max(f64::MIN_POSITIVE) && last > before {
+            format!(
+                "growing: eta {last:.2e} over the last {window} iterations, {best:.2e} at best; lower solver.relaxation                  (0.5) or change solver.k0_factor (0.5 or 2)"
+            )
+        } else if self.relaxation > 0.0 && self.relaxation < 0.5 {
+            format!(
+                "oscillating: the QoIs went back and forth between iterations, the relaxation was lowered to {:.2};                  try solver.scale = \"multi\" or another solver.k0_factor",
+                self.relaxation
+            )
+        } else if last > 0.8 * before {
+            format!(
+                "stalled: eta {before:.2e} -> {last:.2e} over the last {window} iterations; try solver.scale = \"multi\", \
+                 solver.k0_factor (0.5 or 2) or a coarser time step"
+            )
+        } else {
+            // geometric rate over the last window: iterations still needed to reach the tolerance
+            let rate = (last / before).powf(1.0 / window as f64);
+            let more = ((tolerance / h.last().copied().unwrap_or(last)).ln() / rate.ln()).ceil().max(0.0);
+            format!("still converging (eta x {rate:.4} per iteration): about {more} more iterations; raise --max-iter")
+        };
+        format!("{advice}{place}")
+    }
 }
 
 /// A quantity of interest as a time series over t_0 .. t_N.
@@ -496,6 +540,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
         let stage_name = stage.name();
         let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect());
+        let mut relaxation = Relaxation::new(settings.relaxation, m.qois.iter().map(|q| q.target.unit()).collect());
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
             for (f, p) in fields.iter().zip(previous.iter_mut()) {
@@ -511,7 +556,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
                         if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
                             let mut relaxed = old.clone();
-                            relaxed.relax_towards(side, settings.relaxation);
+                            relaxed.relax_towards(side, relaxation.mu());
                             *side = relaxed;
                         }
                     }
@@ -532,6 +577,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let c = Instant::now();
             self.comm.sum_in_place(&mut partial);
             let eta = error_indicator_from_parts(&partial);
+            report.worst_interface = (0..m.interfaces.len())
+                .max_by(|&a, &b| partial[2 * a].total_cmp(&partial[2 * b]))
+                .map(|i| m.interfaces[i].name.clone());
+            report.relaxation = relaxation.mu();
             self.dist.send_hats_to_sides(self.comm, m, fields);
             timings.communication += c.elapsed().as_secs_f64();
             timings.local_stage += t.elapsed().as_secs_f64();
@@ -551,6 +600,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 }
                 let series: Vec<Vec<f64>> = series.into_iter().map(|q| q.values).collect();
                 let estimate = estimator.update(&series, &scales, eta);
+                relaxation.update(&series, &scales);
                 if options.trace_qois {
                     report.qoi_trace.push(series);
                 }

@@ -49,7 +49,7 @@ impl UnitScales {
         }
     }
 
-    fn of(&self, unit: QoiUnit) -> f64 {
+    pub fn of(&self, unit: QoiUnit) -> f64 {
         match unit {
             QoiUnit::Length => self.length,
             QoiUnit::Velocity => self.velocity,

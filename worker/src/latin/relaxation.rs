@@ -1,0 +1,98 @@
+//! Relaxation of the linear stage's fields, s = mu s_new + (1 - mu) s_old (docs/method.md 3),
+//! with mu lowered when the iterates oscillate.
+//!
+//! Where the interface law switches a node between stick and slip from one iteration to the next
+//! (a high friction coefficient), the raw iteration can settle into a two-cycle: every QoI moves
+//! back and forth by the same amount and eta stands still (a contraction factor of -1). With
+//! mu = 0.8 the cycle survives; lowering mu damps it (mu = 0.5 takes a factor -1 to 0).
+
+use super::stopping::{NORM_FLOOR, QoiUnit, UnitScales};
+
+/// mu is multiplied by this when the iterates oscillate...
+const DECREASE: f64 = 0.75;
+/// ...but not below this
+const FLOOR: f64 = 0.3;
+/// successive QoI changes pointing this much against each other (cosine) count as a flip
+const FLIP_COSINE: f64 = -0.5;
+/// flips in a row that lower mu
+const FLIPS: usize = 3;
+
+/// The relaxation coefficient of the dynamic stage and what it follows.
+#[derive(Debug, Clone)]
+pub struct Relaxation {
+    mu: f64,
+    units: Vec<QoiUnit>,
+    previous: Option<Vec<Vec<f64>>>,
+    last_change: Option<Vec<f64>>,
+    flips: usize,
+}
+
+impl Relaxation {
+    pub fn new(mu: f64, units: Vec<QoiUnit>) -> Self {
+        Self { mu, units, previous: None, last_change: None, flips: 0 }
+    }
+
+    /// The coefficient for the next relaxation.
+    pub fn mu(&self) -> f64 {
+        self.mu
+    }
+
+    /// Takes the iterate's QoI histories (`[qoi][step]`): when their changes between iterations
+    /// flip direction `FLIPS` times in a row, mu is lowered.
+    pub fn update(&mut self, series: &[Vec<f64>], scales: &UnitScales) {
+        let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let change: Option<Vec<f64>> = self.previous.as_ref().map(|prev| {
+            let mut c = Vec::new();
+            for ((now, before), unit) in series.iter().zip(prev).zip(&self.units) {
+                // each QoI relative to its norm, a near-zero one to a floor of its unit's scale
+                let scale = norm(now).max(NORM_FLOOR * scales.of(*unit));
+                if scale > 0.0 {
+                    c.extend(now.iter().zip(before).map(|(a, b)| (a - b) / scale));
+                }
+            }
+            c
+        });
+        if let (Some(c), Some(last)) = (&change, &self.last_change) {
+            let (nc, nl) = (norm(c), norm(last));
+            let cosine = if nc > 0.0 && nl > 0.0 {
+                c.iter().zip(last).map(|(a, b)| a * b).sum::<f64>() / (nc * nl)
+            } else {
+                0.0
+            };
+            self.flips = if cosine < FLIP_COSINE { self.flips + 1 } else { 0 };
+            if self.flips >= FLIPS && self.mu > FLOOR {
+                self.mu = (self.mu * DECREASE).max(FLOOR);
+                self.flips = 0;
+                tracing::debug!(mu = self.mu, "iterates oscillate: relaxation lowered");
+            }
+        }
+        self.last_change = change;
+        self.previous = Some(series.to_vec());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scales() -> UnitScales {
+        UnitScales { length: 1.0, velocity: 1.0, force: 1.0 }
+    }
+
+    #[test]
+    fn a_two_cycle_lowers_mu_and_a_monotone_approach_does_not() {
+        let mut r = Relaxation::new(0.8, vec![QoiUnit::Length]);
+        for i in 0..20 {
+            let x = 1.0 + if i % 2 == 0 { 0.1 } else { -0.1 };
+            r.update(&[vec![0.0, x]], &scales());
+        }
+        assert!(r.mu() < 0.8 * DECREASE + 1e-12, "mu {}", r.mu());
+        assert!(r.mu() >= FLOOR);
+
+        let mut r = Relaxation::new(0.8, vec![QoiUnit::Length]);
+        for i in 0..20 {
+            r.update(&[vec![0.0, 1.0 + 0.5f64.powi(i)]], &scales());
+        }
+        assert_eq!(r.mu(), 0.8);
+    }
+}
