@@ -16,5 +16,6 @@ pub mod model;
 pub mod monolithic;
 pub mod newmark;
 pub mod pool;
+pub mod refine;
 pub mod run;
 pub mod sparse;

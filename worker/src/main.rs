@@ -47,6 +47,9 @@ enum Command {
     /// Serve a glissade coordinator: lease design points, solve them, send the solutions back.
     #[command(after_help = POOL_EXAMPLES)]
     Pool(PoolArgs),
+    /// Measure one design point's discretisation error: solve it with dt, dt/2, dt/4 (and h, h/2).
+    #[command(after_help = REFINE_EXAMPLES)]
+    Refine(RefineArgs),
     /// Solve a parametric study (a grid of design points) in this process, with warm starts.
     #[command(after_help = study_cli::STUDY_EXAMPLES)]
     Study(study_cli::StudyArgs),
@@ -64,6 +67,121 @@ point together (the substructures are shared out among them).
 Runs until SIGTERM or Ctrl-C: a pool waiting for work stops at once, a pool solving finishes and
 delivers its point first. Reconnects by itself (with back-off) when the coordinator goes away.
 Logs to stderr (RUST_LOG=glissade_worker=debug for more).";
+
+const REFINE_EXAMPLES: &str = "\
+Examples:
+  glissade-worker refine scenes/three-blocks-tiny.toml --tol 1e-6
+  glissade-worker refine scenes/sliding-block-2d.toml --set f=0.2 --dt 1,2,4,8 --h 1,2 --json
+
+Each level is solved cold, at the same design point and tolerance; per QoI it prints the final
+value at every level, the order observed over the last three levels, Richardson's extrapolation
+and the estimated error of the scene's own step (and of the finest). 'erratic' means the changes
+switch sign or fall at an order outside [0.5, 4]: something moves with the step (a contact
+event, a slip onset) and the estimate is the last change. Use a tolerance well below the
+discretisation error (1e-6). Exit status: 0, or 2 when a level did not converge.";
+
+#[derive(Args)]
+struct RefineArgs {
+    /// Scene file (TOML, see docs/scenes.md)
+    scene: PathBuf,
+    /// Parameter value, NAME=VALUE (repeatable)
+    #[arg(long = "set", value_name = "NAME=VALUE")]
+    set: Vec<String>,
+    /// Error-indicator tolerance of every level (default: the scene's, else 2e-4)
+    #[arg(long, value_name = "T")]
+    tol: Option<f64>,
+    /// Iteration limit of every level (default: the scene's, else 1000)
+    #[arg(long, value_name = "N")]
+    max_iter: Option<usize>,
+    /// Time-step ladder: the scene's steps times each factor
+    #[arg(long, value_name = "1,2,4", value_delimiter = ',', default_value = "1,2,4")]
+    dt: Vec<usize>,
+    /// Mesh ladder (box bodies): the scene's elements times each factor along every axis
+    #[arg(long, value_name = "1,2", value_delimiter = ',')]
+    h: Vec<usize>,
+    /// Print one JSON object instead of the tables
+    #[arg(long)]
+    json: bool,
+}
+
+/// The refinement ladders of one design point, on this process.
+fn refine(args: RefineArgs) -> Result<bool> {
+    use glissade_worker::refine::{Refinement, check_factors, run_ladder};
+    let text =
+        std::fs::read_to_string(&args.scene).with_context(|| format!("cannot read scene {}", args.scene.display()))?;
+    let scene = parse_scene(&text, &args.scene)?;
+    let request = SolveRequest {
+        set: args.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
+        tolerance: args.tol,
+        max_iterations: args.max_iter,
+        ..SolveRequest::default()
+    };
+    let mut ladders = vec![(Refinement::Time, args.dt.clone())];
+    if !args.h.is_empty() {
+        ladders.push((Refinement::Mesh, args.h.clone()));
+    }
+    // every ladder's factors checked before the first solve
+    for (_, factors) in &ladders {
+        check_factors(factors)?;
+    }
+    let comm = glissade_worker::comm::Serial;
+    let mut results = Vec::new();
+    for (refinement, factors) in ladders {
+        let what = match refinement {
+            Refinement::Time => "dt",
+            Refinement::Mesh => "h",
+        };
+        let json = args.json;
+        let ladder = run_ladder(&comm, &scene, &request, refinement, &factors, |l| {
+            if !json {
+                eprintln!(
+                    "  {what} / {}: {} steps, {} after {} iterations, {:.2} s",
+                    l.factor,
+                    l.steps,
+                    if l.converged { "converged" } else { "NOT converged" },
+                    l.iterations,
+                    l.wall_seconds
+                );
+            }
+        })?;
+        if !json {
+            println!(
+                "{} ladder ({what} / {}):",
+                args.scene.display(),
+                factors.iter().map(|f| f.to_string()).collect::<Vec<_>>().join(", ")
+            );
+            for q in &ladder.qois {
+                let finals: Vec<String> = q.finals.iter().map(|v| format!("{v:.6e}")).collect();
+                let order = q.observed_order.map_or("-".to_string(), |p| format!("{p:.2}"));
+                let extrapolated = q.extrapolated.map_or("-".to_string(), |x| format!("{x:.6e}"));
+                println!(
+                    "  {:<20} {}  order {order}  extrapolated {extrapolated}  error at {what}: {:.2} %, at {what} / {}: {:.2} %{}",
+                    q.name,
+                    finals.join("  "),
+                    100.0 * q.error_first,
+                    factors[factors.len() - 1],
+                    100.0 * q.error_finest,
+                    if q.erratic {
+                        "  ERRATIC (an event moves with the step)"
+                    } else if q.below_tolerance {
+                        "  (changes within the iteration tolerance)"
+                    } else {
+                        ""
+                    }
+                );
+            }
+        }
+        results.push(ladder);
+    }
+    let converged = results.iter().all(|l| l.levels.iter().all(|v| v.converged));
+    if args.json {
+        println!("{}", serde_json::to_string(&results)?);
+    }
+    if !converged {
+        eprintln!("error: not converged: a level ran out of iterations; its estimates are not to be trusted");
+    }
+    Ok(converged)
+}
 
 #[derive(Args)]
 struct PoolArgs {
@@ -418,6 +536,7 @@ fn main() -> ExitCode {
             result
         }
         Command::Pool(args) => pool(args),
+        Command::Refine(args) => refine(args),
         Command::Study(args) => study_cli::study(args),
     };
     match result {
