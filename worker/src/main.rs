@@ -106,7 +106,7 @@ struct RefineArgs {
 
 /// The refinement ladders of one design point, on this process.
 fn refine(args: RefineArgs) -> Result<bool> {
-    use glissade_worker::refine::{Refinement, check_factors, run_ladder};
+    use glissade_worker::refine::{Refinement, check_factors, refined_scene, run_ladder};
     let text =
         std::fs::read_to_string(&args.scene).with_context(|| format!("cannot read scene {}", args.scene.display()))?;
     let scene = parse_scene(&text, &args.scene)?;
@@ -120,9 +120,12 @@ fn refine(args: RefineArgs) -> Result<bool> {
     if !args.h.is_empty() {
         ladders.push((Refinement::Mesh, args.h.clone()));
     }
-    // every ladder's factors checked before the first solve
-    for (_, factors) in &ladders {
+    // every ladder's factors and scenes checked before the first solve
+    for (refinement, factors) in &ladders {
         check_factors(factors)?;
+        for &factor in factors {
+            refined_scene(&scene, *refinement, factor)?;
+        }
     }
     let comm = glissade_worker::comm::Serial;
     let mut results = Vec::new();

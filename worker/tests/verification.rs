@@ -1624,3 +1624,31 @@ fn refinement_ladder_finds_second_order_on_an_elastic_bar() {
         );
     }
 }
+
+/// `refine` refuses a ladder it cannot extrapolate, and h on a mesh body, before any solve.
+#[test]
+fn refine_refuses_bad_ladders_at_once() {
+    let scene = scene_path("bar-impact-1d.toml");
+    for (args, says) in [
+        (vec!["--dt", "1,3,4"], "refinement factors must be"),
+        (vec!["--dt", "2,4"], "refinement factors must be"),
+        (vec!["--dt", "1,2", "--h", "1"], "refinement factors must be"),
+        (vec!["--dt", "1,100000000"], "more than the 200000 steps"),
+    ] {
+        let out = std::process::Command::new(worker_bin())
+            .args(["refine", &scene])
+            .args(&args)
+            .output()
+            .expect("the worker runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+    }
+    let out = std::process::Command::new(worker_bin())
+        .args(["refine", &scene_path("bolted-joint-tiny.toml"), "--dt", "1,2", "--h", "1,2"])
+        .output()
+        .expect("the worker runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("read from a mesh file"), "{err}");
+}
