@@ -88,17 +88,19 @@ impl StageReport {
             self.worst_interface.as_ref().map_or(String::new(), |i| format!(", largest residual on interface '{i}'"));
         let advice = if last > 2.0 * best.max(f64::MIN_POSITIVE) && last > before {
             format!(
-                "growing: eta {last:.2e} over the last {window} iterations, {best:.2e} at best; lower solver.relaxation                  (0.5) or change solver.k0_factor (0.5 or 2)"
+                "growing: eta {last:.2e} over the last {window} iterations, {best:.2e} at best; lower solver.relaxation (0.5) \
+                 or change solver.k0_factor (0.5 or 2)"
             )
         } else if self.relaxation > 0.0 && self.relaxation < 0.5 {
             format!(
-                "oscillating: the QoIs went back and forth between iterations, the relaxation was lowered to {:.2};                  try solver.scale = \"multi\" or another solver.k0_factor",
+                "oscillating: the QoIs went back and forth between iterations, the relaxation was lowered to {:.2}; \
+                 try the other solver.scale (single or multi) or another solver.k0_factor",
                 self.relaxation
             )
         } else if last > 0.8 * before {
             format!(
-                "stalled: eta {before:.2e} -> {last:.2e} over the last {window} iterations; try solver.scale = \"multi\", \
-                 solver.k0_factor (0.5 or 2) or a coarser time step"
+                "stalled: eta {before:.2e} -> {last:.2e} over the last {window} iterations; try the other solver.scale \
+                 (single or multi), solver.k0_factor (0.5 or 2) or a coarser time step"
             )
         } else {
             // geometric rate over the last window: iterations still needed to reach the tolerance
