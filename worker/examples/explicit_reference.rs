@@ -44,10 +44,14 @@ fn run<const D: usize>(scene: &Scene, set: &[(String, f64)], substeps: usize, ex
         let l2 = (series.values.iter().zip(&e).map(|(x, y)| (x - y).powi(2)).sum::<f64>()
             / e.iter().map(|y| y * y).sum::<f64>().max(f64::MIN_POSITIVE))
         .sqrt();
+        if scale == 0.0 {
+            println!("{:<20} LATIN final {a:.6e}  explicit 0 at every step", q.name);
+            continue;
+        }
         println!(
             "{:<20} LATIN final {a:.6e}  explicit {b:.6e}  difference {:+.3} % of the largest |explicit|, history L2 {:.3} %",
             q.name,
-            100.0 * (a - b) / scale.max(f64::MIN_POSITIVE),
+            100.0 * (a - b) / scale,
             100.0 * l2
         );
     }
