@@ -19,6 +19,8 @@ fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator 
         max_solution_bytes: 1 << 30,
         max_points: glissade_core::study::space::DEFAULT_MAX_POINTS,
         max_scene_bytes: crate::DEFAULT_MAX_SCENE_MIB << 20,
+        max_pending: crate::DEFAULT_MAX_PENDING,
+        point_budget: Duration::from_secs(86400),
         solver_version: VERSION.into(),
     };
     Coordinator::open(store, config).unwrap()
