@@ -1,0 +1,143 @@
+//! What a hostile or careless user can no longer do (issue 28): hold a pool for ever with a
+//! tolerance or iteration limit out of reach, keep a solve running after a cancel, outlast the
+//! per-point budget, keep a pool busy through two signals, leave sockets open, fill the
+//! coordinator with pending points.
+
+use crate::common::*;
+
+/// The tiny scene relaxed 100 times more than it should be: at the tightest tolerance it takes
+/// minutes of 3 ms iterations, a point that holds its pool until something stops it.
+fn slow_scene() -> String {
+    tiny_scene() + "\n[solver]\nrelaxation = 0.01\n"
+}
+
+fn slow_request() -> v1::SubmitStudyRequest {
+    v1::SubmitStudyRequest {
+        scene: slow_scene(),
+        grid: vec!["f1=0.15".into()],
+        tolerance: Some(glissade_core::scene::MIN_TOLERANCE),
+        max_iterations: Some(glissade_core::scene::MAX_ITERATIONS as u32),
+        audit_points: Some(0),
+        ..Default::default()
+    }
+}
+
+/// A one-process pool (signals reach it directly), logging to `log`.
+fn single_pool(url: &str, log: &Path) -> ServerGuard {
+    let token = child_token();
+    let child = command(&workspace_bin("glissade-worker"))
+        .args(["pool", "--coordinator", url, "--pool-id", "single"])
+        .env("RUST_LOG", "glissade_worker::pool=debug")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(File::create(log).expect("create pool log"))
+        .spawn()
+        .expect("start glissade-worker pool");
+    ServerGuard(child, token)
+}
+
+/// Polls study `id` until `done` holds for its only point, or panics after `within`.
+async fn wait_point(
+    client: &mut UserClient<Channel>,
+    id: u64,
+    within: Duration,
+    what: &str,
+    done: impl Fn(&v1::PointStatus) -> bool,
+) -> anyhow::Result<v1::PointStatus> {
+    let start = std::time::Instant::now();
+    loop {
+        let s = study(client, id).await?;
+        if let Some(p) = s.points.first().filter(|p| done(p)) {
+            return Ok(p.clone());
+        }
+        anyhow::ensure!(start.elapsed() < within, "study {id}: not {what} within {within:?}: {s:?}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+fn leased(p: &v1::PointStatus) -> bool {
+    p.state == v1::PointState::Leased as i32
+}
+
+#[test]
+fn out_of_reach_tolerances_and_iteration_limits_are_refused_at_submit() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    // the probe's values: each used to be accepted and held a pool for ever
+    for (tolerance, max_iterations, needle) in [
+        (1e-30, None, "tolerance: must be a number from 1e-10 to 1"),
+        (5e-324, None, "tolerance: must be a number from 1e-10 to 1"),
+        (1e-3, Some(u32::MAX), "max_iterations: must be from 1 to 100000"),
+        (1e-3, Some(0), "max_iterations: must be from 1 to 100000"),
+    ] {
+        let mut request = grid_request(&["f1=0.15"], tolerance);
+        request.max_iterations = max_iterations;
+        let s = rt.block_on(async { user(&url).await?.submit_study(request).await.map_err(anyhow::Error::from) });
+        let status = s.expect_err("refused").downcast::<tonic::Status>()?;
+        assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+        assert!(status.message().contains(needle), "{tolerance} {max_iterations:?}: {status:?}");
+    }
+    // a scene's own limit too
+    let scene = dir.path().join("greedy.toml");
+    std::fs::write(&scene, tiny_scene() + "\n[solver]\nmax_iterations = 4294967295\n")?;
+    let out = glissade(Some(&url), &["submit", scene.to_str().unwrap(), "--grid", "f1=0.15"]);
+    assert_one_line_error(&out, "solver.max_iterations: must be from 1 to 100000");
+    let out = glissade(Some(&url), &["submit", &tiny_path(), "--grid", "f1=0.15", "--tol", "1e-30"]);
+    assert_one_line_error(&out, "--tol: must be a number from 1e-10 to 1");
+    Ok(())
+}
+
+/// A cancel stops the solve that holds the point at its next iteration; a point held longer
+/// than the coordinator's budget fails and its solve stops; a second SIGTERM stops a solving
+/// pool at once. On main the pool kept solving through all three.
+#[test]
+fn a_cancel_the_budget_and_a_second_signal_stop_a_running_solve() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let pool_log = dir.path().join("pool.log");
+    let (_server, addr) = start_server_with(
+        &dir.path().join("db"),
+        &dir.path().join("server.log"),
+        "127.0.0.1:0",
+        &["--point-seconds", "3"],
+    );
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let mut pool = single_pool(&url, &pool_log);
+    rt.block_on(async {
+        let mut client = user(&url).await?;
+        // Cancelled while it iterates: given back within a second or two, the pool free again.
+        let first = client.submit_study(slow_request()).await?.into_inner().study_id;
+        wait_point(&mut client, first, LIMIT, "leased", leased).await?;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        client.cancel_study(v1::CancelStudyRequest { study_id: first }).await?;
+        let cancelled = |p: &v1::PointStatus| p.state == v1::PointState::Cancelled as i32;
+        wait_point(&mut client, first, Duration::from_secs(2), "cancelled", cancelled).await?;
+
+        // Left alone: failed after the 3 s budget, whatever its heartbeats; the pool stops it.
+        let second = client.submit_study(slow_request()).await?.into_inner().study_id;
+        wait_point(&mut client, second, Duration::from_secs(10), "leased", leased).await?;
+        let failed = |p: &v1::PointStatus| p.state == v1::PointState::Failed as i32;
+        let p = wait_point(&mut client, second, Duration::from_secs(6), "failed", failed).await?;
+        assert!(p.error.contains("--point-seconds"), "{p:?}");
+
+        // The pool is free: it leases the next one at once.
+        let third = client.submit_study(slow_request()).await?.into_inner().study_id;
+        wait_point(&mut client, third, Duration::from_secs(3), "leased", leased).await?;
+        anyhow::Ok(())
+    })?;
+    let log = log_of(&pool_log);
+    assert_eq!(log.matches("solve stopped").count(), 2, "{log}");
+
+    // Two SIGTERMs while it solves: the pool stops now, not after its point.
+    let pid = pool.0.id().to_string();
+    for _ in 0..2 {
+        let kill = run_with_timeout(Command::new("kill").args(["-TERM", &pid]), LIMIT);
+        assert!(kill.status.success());
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let status = wait_with_timeout(&mut pool.0, Duration::from_secs(4));
+    assert!(status.is_some(), "the pool kept running after a second SIGTERM: {}", log_of(&pool_log));
+    Ok(())
+}
