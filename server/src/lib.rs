@@ -158,10 +158,9 @@ pub async fn bind(
     let tokens = options.tokens.clone();
     let tls = options.tls.is_some();
     let (idle, max_connections) = (options.idle, options.max_connections);
-    // Pings keep a live HTTP/2 client's connection busy (conn.rs closes a silent one); a client
-    // that does not answer one within a quarter of the idle time is gone.
-    let mut builder =
-        Server::builder().http2_keepalive_interval(Some(idle / 4)).http2_keepalive_timeout(Some(idle / 4));
+    // Pings keep a live HTTP/2 client's connection busy (conn.rs closes a silent one); one that
+    // leaves a ping unanswered for the idle time is gone.
+    let mut builder = Server::builder().http2_keepalive_interval(Some(idle / 4)).http2_keepalive_timeout(Some(idle));
     if let Some((cert, key)) = &options.tls {
         let identity = tonic::transport::Identity::from_pem(cert, key);
         builder = builder

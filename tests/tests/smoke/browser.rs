@@ -141,7 +141,8 @@ fn a_study_of_hostile_names_renders_inert_in_a_browser() -> anyhow::Result<()> {
     // Even a string that escaped the templates could not run: no inline script is allowed.
     let (status, head, _) = http_request(&addr, &format!("GET /studies/{id} HTTP/1.1\r\n"), "");
     assert_eq!(status, 200);
-    let csp = head.lines().find_map(|l| l.to_ascii_lowercase().strip_prefix("content-security-policy:").map(str::to_owned));
+    let csp =
+        head.lines().find_map(|l| l.to_ascii_lowercase().strip_prefix("content-security-policy:").map(str::to_owned));
     assert!(csp.as_deref().is_some_and(|p| p.contains("script-src 'self'") && !p.contains("unsafe-inline")), "{head}");
     Ok(())
 }

@@ -141,3 +141,118 @@ fn a_cancel_the_budget_and_a_second_signal_stop_a_running_solve() -> anyhow::Res
     assert!(status.is_some(), "the pool kept running after a second SIGTERM: {}", log_of(&pool_log));
     Ok(())
 }
+
+/// Whether the server closed `stream` within `within` (EOF or reset; still open: a timeout).
+fn closed_within(stream: &mut std::net::TcpStream, within: Duration) -> bool {
+    use std::io::Read;
+    stream.set_read_timeout(Some(within)).expect("timeout");
+    let mut buf = [0u8; 4096];
+    loop {
+        match stream.read(&mut buf) {
+            Ok(0) => return true,
+            // an HTTP answer first: read on to the close
+            Ok(_) => continue,
+            Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {
+                return false;
+            }
+            Err(_) => return true,
+        }
+    }
+}
+
+/// Silent sockets are closed after the idle time, those past the connection limit at once, and
+/// a live HTTP/2 stream outlasts the idle time (keepalive pings). On main none was ever closed.
+#[test]
+fn idle_connections_are_closed_and_their_number_is_bounded() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let args = ["--idle-seconds", "1", "--max-connections", "6"];
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &args);
+    let url = format!("http://{addr}");
+    // a runtime whose thread answers the server's pings while this one waits on sockets
+    let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
+    // A watcher of a study that nothing happens to, for longer than the idle time.
+    let (id, mut events) = rt.block_on(async {
+        let mut client = user(&url).await?;
+        let id = client.submit_study(grid_request(&["f1=0.1"], STUDY_TOL)).await?.into_inner().study_id;
+        let events = client.watch_study(v1::WatchStudyRequest { study_id: id }).await?.into_inner();
+        anyhow::Ok((id, events))
+    })?;
+
+    // Five more connections fill the limit (the watcher holds one); the next are closed at once.
+    let mut silent: Vec<std::net::TcpStream> =
+        (0..5).map(|_| std::net::TcpStream::connect(addr)).collect::<Result<_, _>>()?;
+    std::thread::sleep(Duration::from_millis(200));
+    for _ in 0..3 {
+        let mut extra = std::net::TcpStream::connect(addr)?;
+        assert!(closed_within(&mut extra, Duration::from_millis(500)), "a connection past the limit stayed open");
+    }
+    // An HTTP/1.1 keep-alive connection, once answered, is as idle as the silent ones.
+    {
+        use std::io::Write;
+        write!(silent[0], "GET /api/studies HTTP/1.1\r\nHost: {addr}\r\n\r\n")?;
+    }
+    let start = std::time::Instant::now();
+    for s in &mut silent {
+        assert!(closed_within(s, Duration::from_secs(3)), "a silent connection was not closed");
+    }
+    let waited = start.elapsed();
+    assert!(waited >= Duration::from_millis(500), "closed before the idle time: {waited:?}");
+
+    // The room is back for new clients; the watcher's stream, open all along, still reports.
+    let health = glissade(Some(&url), &["health"]);
+    assert!(health.status.success(), "{}", text(&health.stderr));
+    rt.block_on(async {
+        user(&url).await?.cancel_study(v1::CancelStudyRequest { study_id: id }).await?;
+        loop {
+            let e = tokio::time::timeout(LIMIT, events.message()).await??.expect("the stream is open");
+            if kind(&e) == v1::EventKind::StudyEnded {
+                break;
+            }
+        }
+        anyhow::Ok(())
+    })?;
+    Ok(())
+}
+
+#[test]
+fn pending_points_are_bounded_across_studies_and_a_cancel_frees_its_share() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server_with(
+        &dir.path().join("db"),
+        &dir.path().join("server.log"),
+        "127.0.0.1:0",
+        &["--max-pending", "5"],
+    );
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    rt.block_on(async {
+        let mut client = user(&url).await?;
+        let three = || {
+            let mut r = grid_request(&["f1=0.1,0.15,0.2"], STUDY_TOL);
+            r.audit_points = Some(0);
+            r
+        };
+        let first = client.submit_study(three()).await?.into_inner().study_id;
+        let s = client.submit_study(three()).await.expect_err("past the limit");
+        assert_eq!(s.code(), Code::ResourceExhausted, "{s:?}");
+        assert!(s.message().contains("3 points to the 3 pending") && s.message().contains("--max-pending"), "{s:?}");
+        client.cancel_study(v1::CancelStudyRequest { study_id: first }).await?;
+        client.submit_study(three()).await?;
+        anyhow::Ok(())
+    })?;
+    // a limit of 0 would refuse everything: refused at start, as are 0 points and 0 connections
+    for flag in ["--max-pending", "--max-points", "--max-connections"] {
+        let out = run_with_timeout(
+            command(&workspace_bin("glissade-server"))
+                .args(["--listen", "127.0.0.1:0", flag, "0", "--data"])
+                .arg(dir.path().join("zero")),
+            LIMIT,
+        );
+        assert_eq!(out.status.code(), Some(1), "{flag}");
+        assert!(text(&out.stderr).contains(&format!("{flag} 0: give at least 1")), "{}", text(&out.stderr));
+    }
+    // unknown pages are 404, not a gRPC answer in HTTP 200
+    assert_eq!(http_get(&addr, "/no/such/page").0, 404);
+    Ok(())
+}
