@@ -15,7 +15,7 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
 use glissade_core::io::solution_file::{self, SolutionFileError, SolutionMeta};
-use glissade_core::scene::{MeshFileError, Scene, mesh_digest};
+use glissade_core::scene::{MeshFileError, Scene, SceneError, mesh_digest};
 use glissade_proto::{ParameterVector, PointId, StudyId};
 use tokio::sync::{Notify, broadcast};
 
@@ -339,6 +339,9 @@ impl Coordinator {
             // (the scene's was checked as it parsed)
             None => scene.solver.max_iterations as u32,
         };
+        // What a pool checks before it solves, checked now (core::check): its message, at once.
+        let refused = |e: SceneError| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string())));
+        scene.check_meshes().map_err(refused)?;
         let (names, points, adaptive) = match &submission.adaptive {
             None => {
                 let (names, points) =
@@ -357,6 +360,27 @@ impl Coordinator {
                 (names, Vec::new(), Some(AdaptiveSpec { ranges: design.ranges, budget: *budget }))
             }
         };
+        for (i, point) in points.iter().enumerate() {
+            let set: Vec<(String, f64)> = point.iter().map(|(n, v)| (n.to_owned(), v)).collect();
+            let values = scene.parameter_values(&set).map_err(refused)?;
+            scene.check_point(&values).map_err(|e| {
+                let at = set.iter().map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(" ");
+                CoordError::Invalid(format!("scene at point {i} ({at}): {}", one_line(&e.to_string())))
+            })?;
+        }
+        if let Some(a) = &adaptive {
+            // an adaptive study's points are not known yet: every corner of its box
+            for corner in 0..1usize << a.ranges.len().min(12) {
+                let set: Vec<(String, f64)> = a
+                    .ranges
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (n, lo, hi))| (n.clone(), if (corner >> k) & 1 == 1 { *hi } else { *lo }))
+                    .collect();
+                let values = scene.parameter_values(&set).map_err(refused)?;
+                scene.check_point(&values).map_err(refused)?;
+            }
+        }
         if submission.strategy != InitStrategy::Cold {
             // The index refuses scenes of too many parameters: say so now, not at the first lease.
             SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())

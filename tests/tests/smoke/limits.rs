@@ -256,3 +256,37 @@ fn pending_points_are_bounded_across_studies_and_a_cancel_frees_its_share() -> a
     assert_eq!(http_get(&addr, "/no/such/page").0, 404);
     Ok(())
 }
+
+/// A scene that a pool would refuse is refused at submit, with the pool's own message (the
+/// same rules, core::check); on main each was accepted and every point failed on a pool later.
+#[test]
+fn scenes_a_pool_would_refuse_are_refused_at_submit_with_its_message() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
+    let url = format!("http://{addr}");
+    let cases = [
+        ("E = 200e9", "E = 0", "materials.outer.E: must be > 0, got 0"),
+        ("nu = 0.3", "nu = 0.5", "materials.outer.nu: must be in (-1, 0.5), got 0.5"),
+        ("steps = 50", "steps = 0", "time.steps: must be >= 1"),
+        ("substructures = [1, 1, 2]", "substructures = [3, 1, 2]", "3 substructures along axis 0 but only 2 elements"),
+        ("friction = \"f2\"", "friction = \"f9\"", "parameter 'f9' is used but not declared"),
+    ];
+    for (k, (from, to, message)) in cases.into_iter().enumerate() {
+        let scene = dir.path().join(format!("bad{k}.toml"));
+        std::fs::write(&scene, tiny_scene().replacen(from, to, 1))?;
+        let out = glissade(Some(&url), &["submit", scene.to_str().unwrap(), "--grid", "f1=0.15"]);
+        assert_one_line_error(&out, message);
+        let solved = worker_solve(dir.path(), &[scene.as_os_str(), os("--set"), os("f1=0.15")]);
+        assert_eq!(solved.status.code(), Some(1), "{to}");
+        assert!(text(&solved.stderr).contains(message), "the pool's message: {}", text(&solved.stderr));
+    }
+    // a parameter's value out of the law's range at one point of the grid: that point named
+    let scene = dir.path().join("negative.toml");
+    std::fs::write(
+        &scene,
+        tiny_scene().replace("f1 = { default = 0.1, min = 0.1,", "f1 = { default = 0.1, min = -1,"),
+    )?;
+    let out = glissade(Some(&url), &["submit", scene.to_str().unwrap(), "--grid", "f1=-0.1,0.1"]);
+    assert_one_line_error(&out, "scene at point 0 (f1=-0.1): interfaces[0].friction: must be >= 0, got -0.1");
+    Ok(())
+}

@@ -617,6 +617,10 @@ fn prepare(
     if scene.content_hash() != lease.scene_hash {
         bail!("the lease's scene has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
     }
+    // the coordinator's checks at submit (core::check), again: a scene from an older
+    // coordinator, or one whose rules changed since
+    let set: Vec<(String, f64)> = lease.parameters.iter().map(|(k, v)| (k.clone(), *v)).collect();
+    scene.check_meshes().and_then(|()| scene.check_point(&scene.parameter_values(&set)?)).context("scene")?;
     let size = scene.size().context("scene")?;
     if let Some(memory) = memory
         && size.bytes() > memory
