@@ -227,7 +227,7 @@ impl Scene {
             for element in volume.connectivity.chunks(per) {
                 let x: Vec<[f64; 3]> = element.iter().map(|&n| volume.nodes[n]).collect();
                 let det = if volume.hexahedra { hexahedron_centre_det(&x) } else { tetrahedron_det(&x) };
-                if !(det > 0.0) {
+                if det.is_nan() || det <= 0.0 {
                     return Err(invalid(key, format!("element with non-positive Jacobian determinant {det}")));
                 }
             }
@@ -323,7 +323,7 @@ mod tests {
         let flat = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
         assert!(tetrahedron_det(&flat) <= 0.0);
         let nan = [[0.0, 0.0, 0.0], [f64::NAN, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-        assert!(!(tetrahedron_det(&nan) > 0.0));
+        assert!(tetrahedron_det(&nan).is_nan());
         let cube: Vec<[f64; 3]> =
             (0..8).map(|n| [f64::from(n & 1), f64::from((n >> 1) & 1), f64::from((n >> 2) & 1)]).collect();
         assert!((hexahedron_centre_det(&cube) - 0.125).abs() < 1e-15, "(1/2)^3");

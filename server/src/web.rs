@@ -508,7 +508,7 @@ fn surface_content(
         grid[j * xs.len() + i] = Some(*v);
     }
     let centre = |i: usize, j: usize| (px(xs[i]) + cw / 2.0, py(ys[j]) + ch / 2.0);
-    let contours: Vec<(usize, f64, Vec<(Vertex, Vertex)>)> = (1..=4)
+    let contours: Vec<(usize, f64, Vec<Segment>)> = (1..=4)
         .map(|k| {
             let level = vlo + (vhi - vlo) * k as f64 / 5.0;
             (k, level, contour(&grid, xs.len(), level, centre))
@@ -537,11 +537,12 @@ fn surface_content(
 }
 
 type Vertex = (f64, f64);
+type Segment = (Vertex, Vertex);
 
 /// Marching squares: the segments of the line where the value is `level`, over a grid of `nx`
 /// columns (row-major, None where no point is done) whose node (i, j) is drawn at `at(i, j)`.
 /// Each square's crossings are linear along its edges; a saddle is split by the square's mean.
-fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize) -> Vertex) -> Vec<(Vertex, Vertex)> {
+fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize) -> Vertex) -> Vec<Segment> {
     let mut segments = Vec::new();
     let ny = grid.len().checked_div(nx).unwrap_or(0);
     for j in 0..ny.saturating_sub(1) {
