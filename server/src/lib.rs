@@ -206,7 +206,9 @@ pub async fn bind(
                 .add_service(reflection_v1alpha);
         // the web page and its JSON API on the same port, over HTTP/1.1
         // (tonic's own fallback answers any path with a gRPC status in HTTP 200: ours says 404)
-        let grpc = std::mem::take(routes.axum_router_mut()).fallback(web::not_found);
+        let grpc = std::mem::take(routes.axum_router_mut())
+            .fallback(web::not_found)
+            .layer(axum::middleware::map_response(undecodable_is_invalid_argument));
         *routes.axum_router_mut() = grpc.merge(web::router(coordinator.clone(), tokens.as_ref(), tls));
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
             conn::Incoming::new(listener, max_connections, idle),
@@ -247,6 +249,21 @@ pub async fn bind(
         Ok(())
     };
     Ok((addr, serve))
+}
+
+/// tonic answers a request whose body is not the method's protobuf message with INTERNAL (its
+/// codec's rule, for either side); a server that receives one was sent bad input:
+/// INVALID_ARGUMENT. (Such an answer is trailers-only: the status is in the headers.)
+async fn undecodable_is_invalid_argument(mut response: axum::response::Response) -> axum::response::Response {
+    let headers = response.headers_mut();
+    let undecodable = headers.get("grpc-status").is_some_and(|s| s == "13")
+        && headers
+            .get("grpc-message")
+            .is_some_and(|m| m.as_bytes().starts_with(b"failed%20to%20decode%20Protobuf%20message"));
+    if undecodable {
+        headers.insert("grpc-status", axum::http::HeaderValue::from_static("3"));
+    }
+    response
 }
 
 /// How long a coordinator whose database cannot write keeps answering (Health NOT_SERVING,

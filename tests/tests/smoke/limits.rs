@@ -290,3 +290,30 @@ fn scenes_a_pool_would_refuse_are_refused_at_submit_with_its_message() -> anyhow
     assert_one_line_error(&out, "scene at point 0 (f1=-0.1): interfaces[0].friction: must be >= 0, got -0.1");
     Ok(())
 }
+
+/// Field 1 of SubmitStudyRequest is the scene, a string: these bytes are not UTF-8.
+#[derive(Clone, PartialEq, prost::Message)]
+struct NotUtf8 {
+    #[prost(bytes = "vec", tag = "1")]
+    scene: Vec<u8>,
+}
+
+/// A body that does not decode as the method's message is the caller's fault: INVALID_ARGUMENT
+/// (tonic's codec says INTERNAL, as on main).
+#[test]
+fn an_undecodable_request_is_invalid_argument() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
+    let status = runtime().block_on(async {
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{addr}"))?.connect().await?;
+        let mut grpc = tonic::client::Grpc::new(channel);
+        grpc.ready().await?;
+        let codec = tonic_prost::ProstCodec::<NotUtf8, v1::SubmitStudyReply>::default();
+        let path = tonic::codegen::http::uri::PathAndQuery::from_static("/glissade.v1.User/SubmitStudy");
+        let sent = grpc.unary(tonic::Request::new(NotUtf8 { scene: vec![0xff, 0xfe, 0xfd] }), path, codec).await;
+        anyhow::Ok(sent.expect_err("undecodable"))
+    })?;
+    assert_eq!(status.code(), Code::InvalidArgument, "{status:?}");
+    assert!(status.message().contains("failed to decode Protobuf message"), "{status:?}");
+    Ok(())
+}
