@@ -618,18 +618,39 @@ impl Coordinator {
         Ok(Self::view(&state, entry, false))
     }
 
-    pub fn retry_failed(&self, id: StudyId) -> Result<(u32, StudyView), CoordError> {
+    /// Requeues the study's failed points, except those whose scene is invalid at their
+    /// parameters (core::check, the pool's check before solving): they would fail again. Returns
+    /// the number requeued, the number kept and why (the first kept point's reason).
+    pub fn retry_failed(&self, id: StudyId) -> Result<(u32, (u32, String), StudyView), CoordError> {
         let mut state = self.lock();
         let entry = state.studies.get_mut(&id).ok_or(CoordError::UnknownStudy(id))?;
         if entry.record.cancelled {
             return Err(CoordError::Precondition(format!("study {id} is cancelled: its points are not retried")));
         }
-        let changes: Vec<_> = entry
-            .points
-            .iter()
-            .filter(|p| p.state == PointState::Failed)
-            .map(|p| Ok((apply(p, Transition::Retry)?, None)))
-            .collect::<Result<_, CoordError>>()?;
+        // (parsed when the study was submitted; stored meshes are attached to a lease, not here:
+        // only the per-point check runs)
+        let scene = Scene::parse(&entry.record.scene).ok();
+        let bad_input = |i: usize| -> Option<String> {
+            let scene = scene.as_ref()?;
+            let set: Vec<(String, f64)> = entry.full_parameters(i).iter().map(|(n, v)| (n.to_owned(), v)).collect();
+            let values = scene.parameter_values(&set);
+            values
+                .and_then(|v| scene.check_point(&v))
+                .err()
+                .map(|e| format!("point {i}: {}: retrying cannot help", one_line(&e.to_string())))
+        };
+        let mut kept = (0, String::new());
+        let mut changes = Vec::new();
+        for (i, p) in entry.points.iter().enumerate().filter(|(_, p)| p.state == PointState::Failed) {
+            if let Some(why) = bad_input(i) {
+                if kept.0 == 0 {
+                    kept.1 = why;
+                }
+                kept.0 += 1;
+                continue;
+            }
+            changes.push((apply(p, Transition::Retry)?, None));
+        }
         let requeued = changes.len() as u32;
         self.commit(entry, changes, None, Batch::new())?;
         if requeued > 0 {
@@ -639,7 +660,7 @@ impl Coordinator {
         let view = Self::view(&state, &state.studies[&id], false);
         drop(state);
         self.work.notify_waiters();
-        Ok((requeued, view))
+        Ok((requeued, kept, view))
     }
 
     // ---- pools ----
