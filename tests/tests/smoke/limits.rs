@@ -100,31 +100,32 @@ fn a_cancel_the_budget_and_a_second_signal_stop_a_running_solve() -> anyhow::Res
         &dir.path().join("db"),
         &dir.path().join("server.log"),
         "127.0.0.1:0",
-        &["--point-seconds", "3"],
+        // heartbeats every 0.5 s: the stop reaches the pool quickly
+        &["--point-seconds", "3", "--lease-seconds", "2"],
     );
     let url = format!("http://{addr}");
     let rt = runtime();
     let mut pool = single_pool(&url, &pool_log);
     rt.block_on(async {
         let mut client = user(&url).await?;
-        // Cancelled while it iterates: given back within a second or two, the pool free again.
+        // Cancelled while it iterates: given back at the next heartbeat, the pool free again.
         let first = client.submit_study(slow_request()).await?.into_inner().study_id;
         wait_point(&mut client, first, LIMIT, "leased", leased).await?;
         tokio::time::sleep(Duration::from_millis(500)).await;
         client.cancel_study(v1::CancelStudyRequest { study_id: first }).await?;
         let cancelled = |p: &v1::PointStatus| p.state == v1::PointState::Cancelled as i32;
-        wait_point(&mut client, first, Duration::from_secs(2), "cancelled", cancelled).await?;
+        wait_point(&mut client, first, Duration::from_secs(8), "cancelled", cancelled).await?;
 
         // Left alone: failed after the 3 s budget, whatever its heartbeats; the pool stops it.
         let second = client.submit_study(slow_request()).await?.into_inner().study_id;
         wait_point(&mut client, second, Duration::from_secs(10), "leased", leased).await?;
         let failed = |p: &v1::PointStatus| p.state == v1::PointState::Failed as i32;
-        let p = wait_point(&mut client, second, Duration::from_secs(6), "failed", failed).await?;
+        let p = wait_point(&mut client, second, Duration::from_secs(10), "failed", failed).await?;
         assert!(p.error.contains("--point-seconds"), "{p:?}");
 
         // The pool is free: it leases the next one at once.
         let third = client.submit_study(slow_request()).await?.into_inner().study_id;
-        wait_point(&mut client, third, Duration::from_secs(3), "leased", leased).await?;
+        wait_point(&mut client, third, Duration::from_secs(10), "leased", leased).await?;
         anyhow::Ok(())
     })?;
     let log = log_of(&pool_log);
@@ -137,7 +138,8 @@ fn a_cancel_the_budget_and_a_second_signal_stop_a_running_solve() -> anyhow::Res
         assert!(kill.status.success());
         std::thread::sleep(Duration::from_millis(200));
     }
-    let status = wait_with_timeout(&mut pool.0, Duration::from_secs(4));
+    // (minutes of solving left otherwise; a pool still busy 5 s after the second signal exits)
+    let status = wait_with_timeout(&mut pool.0, Duration::from_secs(8));
     assert!(status.is_some(), "the pool kept running after a second SIGTERM: {}", log_of(&pool_log));
     Ok(())
 }
@@ -165,7 +167,7 @@ fn closed_within(stream: &mut std::net::TcpStream, within: Duration) -> bool {
 #[test]
 fn idle_connections_are_closed_and_their_number_is_bounded() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
-    let args = ["--idle-seconds", "1", "--max-connections", "6"];
+    let args = ["--idle-seconds", "2", "--max-connections", "6"];
     let (_server, addr) =
         start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &args);
     let url = format!("http://{addr}");
@@ -180,24 +182,25 @@ fn idle_connections_are_closed_and_their_number_is_bounded() -> anyhow::Result<(
     })?;
 
     // Five more connections fill the limit (the watcher holds one); the next are closed at once.
+    let opened = std::time::Instant::now();
     let mut silent: Vec<std::net::TcpStream> =
         (0..5).map(|_| std::net::TcpStream::connect(addr)).collect::<Result<_, _>>()?;
     std::thread::sleep(Duration::from_millis(200));
     for _ in 0..3 {
         let mut extra = std::net::TcpStream::connect(addr)?;
-        assert!(closed_within(&mut extra, Duration::from_millis(500)), "a connection past the limit stayed open");
+        // (accepted, it would live the 2 s of the idle time)
+        assert!(closed_within(&mut extra, Duration::from_millis(1500)), "a connection past the limit stayed open");
     }
     // An HTTP/1.1 keep-alive connection, once answered, is as idle as the silent ones.
     {
         use std::io::Write;
         write!(silent[0], "GET /api/studies HTTP/1.1\r\nHost: {addr}\r\n\r\n")?;
     }
-    let start = std::time::Instant::now();
     for s in &mut silent {
-        assert!(closed_within(s, Duration::from_secs(3)), "a silent connection was not closed");
+        assert!(closed_within(s, Duration::from_secs(5)), "a silent connection was not closed");
     }
-    let waited = start.elapsed();
-    assert!(waited >= Duration::from_millis(500), "closed before the idle time: {waited:?}");
+    let waited = opened.elapsed();
+    assert!(waited >= Duration::from_millis(1900), "closed before the idle time: {waited:?}");
 
     // The room is back for new clients; the watcher's stream, open all along, still reports.
     let health = glissade(Some(&url), &["health"]);
