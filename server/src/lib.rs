@@ -68,9 +68,9 @@ pub struct ServerOptions {
 /// bolted joint, 450,000 dofs, is estimated at about 4.5 GB).
 pub const DEFAULT_MAX_SCENE_MIB: u64 = 64 << 10;
 
-/// Default of `--max-pending`: ten studies of the default `--max-points`; each pending point
-/// costs the coordinator a few kB (docs/performance.md).
-pub const DEFAULT_MAX_PENDING: usize = 10 * DEFAULT_MAX_POINTS;
+/// Default of `--max-pending`: five studies of the default `--max-points`, the probe's 1.3 GB
+/// (a pending point costs the coordinator a few kB: docs/performance.md).
+pub const DEFAULT_MAX_PENDING: usize = 5 * DEFAULT_MAX_POINTS;
 
 /// Default of `--max-connections`: below the usual file limit of 1024, with room for the
 /// database's files.
@@ -208,7 +208,7 @@ pub async fn bind(
         // (tonic's own fallback answers any path with a gRPC status in HTTP 200: ours says 404)
         let grpc = std::mem::take(routes.axum_router_mut())
             .fallback(web::not_found)
-            .layer(axum::middleware::map_response(undecodable_is_invalid_argument));
+            .layer(axum::middleware::from_fn(grpc_only));
         *routes.axum_router_mut() = grpc.merge(web::router(coordinator.clone(), tokens.as_ref(), tls));
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
             conn::Incoming::new(listener, max_connections, idle),
@@ -251,10 +251,21 @@ pub async fn bind(
     Ok((addr, serve))
 }
 
-/// tonic answers a request whose body is not the method's protobuf message with INTERNAL (its
-/// codec's rule, for either side); a server that receives one was sent bad input:
+/// The gRPC routes answer gRPC requests only: anything else (a browser's GET of a method's path)
+/// gets the web page's 404, not a gRPC status inside HTTP 200.
+///
+/// And tonic answers a request whose body is not the method's protobuf message with INTERNAL
+/// (its codec's rule, for either side); a server that receives one was sent bad input:
 /// INVALID_ARGUMENT. (Such an answer is trailers-only: the status is in the headers.)
-async fn undecodable_is_invalid_argument(mut response: axum::response::Response) -> axum::response::Response {
+async fn grpc_only(request: axum::extract::Request, next: axum::middleware::Next) -> axum::response::Response {
+    let grpc = request
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/grpc"));
+    if !grpc {
+        return web::not_found(request).await;
+    }
+    let mut response = next.run(request).await;
     let headers = response.headers_mut();
     let undecodable = headers.get("grpc-status").is_some_and(|s| s == "13")
         && headers

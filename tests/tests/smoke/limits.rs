@@ -257,6 +257,8 @@ fn pending_points_are_bounded_across_studies_and_a_cancel_frees_its_share() -> a
     }
     // unknown pages are 404, not a gRPC answer in HTTP 200
     assert_eq!(http_get(&addr, "/no/such/page").0, 404);
+    assert_eq!(http_get(&addr, "/glissade.v1.User/NoSuchMethod").0, 404);
+    assert_eq!(http_get(&addr, "/glissade.v1.User/ListStudies").0, 404, "a browser gets no gRPC answer");
     Ok(())
 }
 
