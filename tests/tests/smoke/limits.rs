@@ -322,3 +322,40 @@ fn an_undecodable_request_is_invalid_argument() -> anyhow::Result<()> {
     assert!(status.message().contains("failed to decode Protobuf message"), "{status:?}");
     Ok(())
 }
+
+/// On a pool of two MPI ranks a cancel stops both ranks at the same iteration (the stop travels
+/// in the error indicator's reduction): the pool then solves the next study as if nothing
+/// happened. A rank left iterating alone would hang the next point's collectives.
+#[test]
+fn a_cancel_stops_every_rank_of_an_mpi_pool_together() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let pool_log = dir.path().join("pool.log");
+    let (_server, addr) = start_server_with(
+        &dir.path().join("db"),
+        &dir.path().join("server.log"),
+        "127.0.0.1:0",
+        &["--lease-seconds", "2"],
+    );
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    let mut pool = start_pool(&url, "two-ranks", &pool_log);
+    rt.block_on(async {
+        let mut client = user(&url).await?;
+        let slow = client.submit_study(slow_request()).await?.into_inner().study_id;
+        wait_point(&mut client, slow, LIMIT, "leased", leased).await?;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        client.cancel_study(v1::CancelStudyRequest { study_id: slow }).await?;
+        let cancelled = |p: &v1::PointStatus| p.state == v1::PointState::Cancelled as i32;
+        wait_point(&mut client, slow, Duration::from_secs(8), "cancelled", cancelled).await?;
+        let mut quick = grid_request(&["f1=0.15"], STUDY_TOL);
+        quick.audit_points = Some(0);
+        let quick = client.submit_study(quick).await?.into_inner().study_id;
+        let done = |p: &v1::PointStatus| p.state == v1::PointState::Done as i32;
+        wait_point(&mut client, quick, LIMIT, "done", done).await?;
+        anyhow::Ok(())
+    })
+    .map_err(|e| anyhow::anyhow!("{e:#}\n{}", log_of(&pool_log)))?;
+    assert!(log_of(&pool_log).contains("solve stopped"), "{}", log_of(&pool_log));
+    assert!(terminate(&mut pool.0).success());
+    Ok(())
+}
