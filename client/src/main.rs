@@ -644,6 +644,9 @@ async fn retry(server: &Server, id: u64) -> Result<()> {
         .map_err(|s| refused(&format!("retry {id}"), s))?
         .into_inner();
     outln!("study {id}: {} failed points back in the queue", r.requeued);
+    if r.kept > 0 {
+        outln!("{} failed points kept: their failure can only repeat ({})", r.kept, r.kept_because);
+    }
     Ok(())
 }
 

@@ -8,6 +8,7 @@
 //!   warm starts, ordering) and the study engine that both the local study and the coordinator run;
 //! - [`text`]: bounded, single-line text for messages that quote user input.
 
+pub mod check;
 pub mod field;
 pub mod gmsh;
 pub mod io;

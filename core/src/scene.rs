@@ -27,13 +27,33 @@ pub fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError
     SceneError::Invalid { key: key.into(), message: message.into() }
 }
 
+/// The tightest tolerance accepted. eta is relative and computed in double precision: a
+/// tighter one is never reached, and a solve asked for it would hold its pool until the
+/// iteration limit (README, Service: limits).
+pub const MIN_TOLERANCE: f64 = 1e-10;
+/// The loosest: eta is relative, and 1 is no accuracy at all.
+pub const MAX_TOLERANCE: f64 = 1.0;
+/// The most LATIN iterations a stage of a solve may be given (the shipped scenes converge in at
+/// most a few thousand).
+pub const MAX_ITERATIONS: usize = 100_000;
+
 /// The one rule for an error-indicator tolerance, wherever it comes from (a scene's
-/// `solver.tolerance`, `--tol`, a submission): a positive, finite number. `key` names the source.
+/// `solver.tolerance`, `--tol`, a submission): a number in [[`MIN_TOLERANCE`],
+/// [`MAX_TOLERANCE`]]. `key` names the source.
 pub fn check_tolerance(key: &str, tolerance: f64) -> Result<f64, SceneError> {
-    if tolerance > 0.0 && tolerance.is_finite() {
+    if (MIN_TOLERANCE..=MAX_TOLERANCE).contains(&tolerance) {
         Ok(tolerance)
     } else {
-        Err(invalid(key, format!("must be a positive number, got {tolerance}")))
+        Err(invalid(key, format!("must be a number from {MIN_TOLERANCE:e} to {MAX_TOLERANCE}, got {tolerance:e}")))
+    }
+}
+
+/// The one rule for an iteration limit (a scene's `solver.max_iterations`, `--max-iter`, a
+/// submission): 1 to [`MAX_ITERATIONS`].
+pub fn check_max_iterations(key: &str, n: u64) -> Result<usize, SceneError> {
+    match usize::try_from(n) {
+        Ok(n) if (1..=MAX_ITERATIONS).contains(&n) => Ok(n),
+        _ => Err(invalid(key, format!("must be from 1 to {MAX_ITERATIONS}, got {n}"))),
     }
 }
 
@@ -416,6 +436,8 @@ impl Scene {
             return Err(invalid("dimension", format!("must be 1, 2 or 3, got {}", scene.dimension)));
         }
         scene.check_names()?;
+        check_tolerance("solver.tolerance", scene.solver.tolerance)?;
+        check_max_iterations("solver.max_iterations", scene.solver.max_iterations as u64)?;
         for (name, p) in &scene.parameters {
             let key = format!("parameters.{name}");
             if !p.default.is_finite() {

@@ -48,6 +48,7 @@ pub fn status(e: CoordError) -> Status {
         | CoordError::UnknownMesh(_) => Code::NotFound,
         CoordError::Precondition(_) => Code::FailedPrecondition,
         CoordError::Corrupt(_) => Code::DataLoss,
+        CoordError::Exhausted(_) => Code::ResourceExhausted,
         CoordError::Store(StoreError::Full { .. }) => {
             tracing::error!(error = %e, "storage full");
             Code::ResourceExhausted
@@ -156,8 +157,9 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
         if let Some(t) = m.tolerance {
             glissade_core::scene::check_tolerance("tolerance", t).map_err(|e| Invalid(e.to_string()))?;
         }
-        if m.max_iterations == Some(0) {
-            return Err(Invalid("max_iterations must be at least 1".into()));
+        if let Some(n) = m.max_iterations {
+            glissade_core::scene::check_max_iterations("max_iterations", n.into())
+                .map_err(|e| Invalid(e.to_string()))?;
         }
         if m.label.len() > 1024 {
             return Err(Invalid("label: longer than 1024 bytes".into()));

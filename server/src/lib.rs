@@ -3,6 +3,7 @@
 //! binary around it; `glissade demo` embeds it on a temporary directory.
 
 pub mod auth;
+mod conn;
 mod convert;
 mod coordinator;
 mod health;
@@ -27,7 +28,6 @@ use glissade_proto::v1::user_server::UserServer;
 use store::SledStore;
 use tonic::service::interceptor::InterceptedService;
 use tonic::transport::Server;
-use tonic::transport::server::TcpIncoming;
 
 /// How long a stopping coordinator waits for open connections to finish their calls.
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
@@ -47,6 +47,14 @@ pub struct ServerOptions {
     pub max_points: usize,
     /// Largest estimated memory of one solve of a submitted scene, bytes.
     pub max_scene_bytes: u64,
+    /// Most points pending over all studies.
+    pub max_pending: usize,
+    /// Longest a point may stay leased.
+    pub point_budget: Duration,
+    /// A connection silent for this long is closed.
+    pub idle: Duration,
+    /// Most connections open at once.
+    pub max_connections: usize,
     /// The user and pool tokens; None: no authentication, which is allowed on loopback only
     /// unless `open` says otherwise.
     pub tokens: Option<auth::Tokens>,
@@ -60,6 +68,14 @@ pub struct ServerOptions {
 /// bolted joint, 450,000 dofs, is estimated at about 4.5 GB).
 pub const DEFAULT_MAX_SCENE_MIB: u64 = 64 << 10;
 
+/// Default of `--max-pending`: five studies of the default `--max-points`, the probe's 1.3 GB
+/// (a pending point costs the coordinator a few kB: docs/performance.md).
+pub const DEFAULT_MAX_PENDING: usize = 5 * DEFAULT_MAX_POINTS;
+
+/// Default of `--max-connections`: below the usual file limit of 1024, with room for the
+/// database's files.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 768;
+
 impl ServerOptions {
     /// The defaults of `glissade-server` for a database in `data`.
     pub fn new(data: impl Into<PathBuf>) -> Self {
@@ -70,6 +86,10 @@ impl ServerOptions {
             max_solution_bytes: 4 << 30,
             max_points: DEFAULT_MAX_POINTS,
             max_scene_bytes: DEFAULT_MAX_SCENE_MIB << 20,
+            max_pending: DEFAULT_MAX_PENDING,
+            point_budget: Duration::from_secs(86400),
+            idle: Duration::from_secs(60),
+            max_connections: DEFAULT_MAX_CONNECTIONS,
             tokens: None,
             open: false,
             tls: None,
@@ -92,6 +112,15 @@ pub async fn bind(
     if options.max_attempts == 0 {
         anyhow::bail!("max attempts 0: give at least 1");
     }
+    for (name, value) in [
+        ("--max-points", options.max_points),
+        ("--max-pending", options.max_pending),
+        ("--max-connections", options.max_connections),
+    ] {
+        if value == 0 {
+            anyhow::bail!("{name} 0: give at least 1");
+        }
+    }
     if options.tokens.is_none() && !listen.ip().is_loopback() && !options.open {
         anyhow::bail!(
             "listening on {listen} without tokens would let anyone who reaches it submit, cancel or falsify results: give --user-token-file and --pool-token-file (README, Service), listen on 127.0.0.1, or pass --open on a network where every host is trusted"
@@ -104,6 +133,8 @@ pub async fn bind(
         max_solution_bytes: options.max_solution_bytes,
         max_points: options.max_points,
         max_scene_bytes: options.max_scene_bytes,
+        max_pending: options.max_pending,
+        point_budget: options.point_budget,
         solver_version: env!("CARGO_PKG_VERSION").to_owned(),
     };
     let coordinator = Arc::new(Coordinator::open(Arc::new(store), config).context("loading the database")?);
@@ -125,7 +156,11 @@ pub async fn bind(
         health_reporter.set_service_status(service, tonic_health::ServingStatus::Serving).await;
     }
     let tokens = options.tokens.clone();
-    let mut builder = Server::builder();
+    let tls = options.tls.is_some();
+    let (idle, max_connections) = (options.idle, options.max_connections);
+    // Pings keep a live HTTP/2 client's connection busy (conn.rs closes a silent one); one that
+    // leaves a ping unanswered for the idle time is gone.
+    let mut builder = Server::builder().http2_keepalive_interval(Some(idle / 4)).http2_keepalive_timeout(Some(idle));
     if let Some((cert, key)) = &options.tls {
         let identity = tonic::transport::Identity::from_pem(cert, key);
         builder = builder
@@ -170,13 +205,14 @@ pub async fn bind(
                 .add_service(reflection_v1)
                 .add_service(reflection_v1alpha);
         // the web page and its JSON API on the same port, over HTTP/1.1
-        let grpc = std::mem::take(routes.axum_router_mut());
-        *routes.axum_router_mut() = grpc.merge(web::router(coordinator.clone(), tokens.as_ref()));
-        let serve = builder
-            .accept_http1(true)
-            .add_routes(routes)
-            // No Nagle: a lease is several small messages, and delayed ACKs would add 40 ms to each.
-            .serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), {
+        // (tonic's own fallback answers any path with a gRPC status in HTTP 200: ours says 404)
+        let grpc = std::mem::take(routes.axum_router_mut())
+            .fallback(web::not_found)
+            .layer(axum::middleware::from_fn(grpc_only));
+        *routes.axum_router_mut() = grpc.merge(web::router(coordinator.clone(), tokens.as_ref(), tls));
+        let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
+            conn::Incoming::new(listener, max_connections, idle),
+            {
                 let c = coordinator.clone();
                 async move {
                     tokio::select! {
@@ -187,7 +223,8 @@ pub async fn bind(
                     c.stop();
                     let _ = stopping_tx.send(());
                 }
-            });
+            },
+        );
         tokio::pin!(serve);
         tokio::select! {
             served = &mut serve => served.context("serving gRPC")?,
@@ -212,6 +249,32 @@ pub async fn bind(
         Ok(())
     };
     Ok((addr, serve))
+}
+
+/// The gRPC routes answer gRPC requests only: anything else (a browser's GET of a method's path)
+/// gets the web page's 404, not a gRPC status inside HTTP 200.
+///
+/// And tonic answers a request whose body is not the method's protobuf message with INTERNAL
+/// (its codec's rule, for either side); a server that receives one was sent bad input:
+/// INVALID_ARGUMENT. (Such an answer is trailers-only: the status is in the headers.)
+async fn grpc_only(request: axum::extract::Request, next: axum::middleware::Next) -> axum::response::Response {
+    let grpc = request
+        .headers()
+        .get(axum::http::header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/grpc"));
+    if !grpc {
+        return web::not_found(request).await;
+    }
+    let mut response = next.run(request).await;
+    let headers = response.headers_mut();
+    let undecodable = headers.get("grpc-status").is_some_and(|s| s == "13")
+        && headers
+            .get("grpc-message")
+            .is_some_and(|m| m.as_bytes().starts_with(b"failed%20to%20decode%20Protobuf%20message"));
+    if undecodable {
+        headers.insert("grpc-status", axum::http::HeaderValue::from_static("3"));
+    }
+    response
 }
 
 /// How long a coordinator whose database cannot write keeps answering (Health NOT_SERVING,

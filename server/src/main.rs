@@ -44,6 +44,22 @@ struct Args {
     /// costs the coordinator about 6 kB of memory and 0.5 kB on disk (docs/performance.md).
     #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_POINTS, env = "GLISSADE_MAX_POINTS")]
     max_points: usize,
+    /// Most design points pending over all studies (and per user token: there is one); a
+    /// submission that would pass it is refused. Cancelling a study frees its share.
+    #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_PENDING, env = "GLISSADE_MAX_PENDING")]
+    max_pending: usize,
+    /// Longest a point may be held by pools, counted from its lease whatever the heartbeats
+    /// say; then it fails (retry requeues it) and its pool is told to stop.
+    #[arg(long, value_name = "SECONDS", default_value_t = 86400.0, env = "GLISSADE_POINT_SECONDS")]
+    point_seconds: f64,
+    /// A connection that sends nothing for this long is closed (HTTP/2 clients answer the
+    /// keepalive pings sent every quarter of it, so open streams and long polls stay up).
+    #[arg(long, value_name = "SECONDS", default_value_t = 60.0, env = "GLISSADE_IDLE_SECONDS")]
+    idle_seconds: f64,
+    /// Most connections open at once; more are closed as they arrive. Keep it below the
+    /// process's file limit (`ulimit -n`).
+    #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_CONNECTIONS, env = "GLISSADE_MAX_CONNECTIONS")]
+    max_connections: usize,
     /// Largest estimated memory of one solve of a submitted scene, MiB (estimated from the
     /// scene's text: dofs and interface size; docs/performance.md, "Memory of a solve").
     #[arg(long, value_name = "MIB", default_value_t = glissade_server::DEFAULT_MAX_SCENE_MIB, env = "GLISSADE_MAX_SCENE_MIB")]
@@ -93,7 +109,18 @@ async fn run(args: Args) -> Result<()> {
     if args.max_attempts == 0 {
         anyhow::bail!("--max-attempts 0: give at least 1");
     }
+    let seconds = |name: &str, value: f64, least: f64| {
+        if value.is_finite() && value >= least && value <= 1e9 {
+            Ok(Duration::from_secs_f64(value))
+        } else {
+            Err(anyhow::anyhow!("{name} {value}: give {least} to 1e9 seconds"))
+        }
+    };
     let options = ServerOptions {
+        point_budget: seconds("--point-seconds", args.point_seconds, 1.0)?,
+        idle: seconds("--idle-seconds", args.idle_seconds, 0.1)?,
+        max_connections: args.max_connections,
+        max_pending: args.max_pending,
         data: args.data,
         lease: Duration::from_secs_f64(args.lease_seconds),
         max_attempts: args.max_attempts,

@@ -131,7 +131,12 @@ impl Pool for PoolService {
             .lease_ids
             .iter()
             .zip(deadlines)
-            .map(|(&lease_id, d)| v1::LeaseStatus { lease_id, valid: d.is_some(), deadline_unix_ms: d.unwrap_or(0) })
+            .map(|(&lease_id, d)| v1::LeaseStatus {
+                lease_id,
+                valid: d.is_some(),
+                deadline_unix_ms: d.map_or(0, |d| d.0),
+                stop: d.is_some_and(|d| d.1),
+            })
             .collect();
         Ok(Response::new(v1::HeartbeatReply { leases }))
     }

@@ -91,8 +91,8 @@ impl User for UserService {
     ) -> Result<Response<v1::RetryFailedReply>, Status> {
         let id = StudyId(request.into_inner().study_id);
         let c = self.coordinator.clone();
-        let (requeued, view) = blocking(move || c.retry_failed(id)).await?;
-        Ok(Response::new(v1::RetryFailedReply { requeued, study: Some(convert::study(&view)) }))
+        let (requeued, (kept, kept_because), view) = blocking(move || c.retry_failed(id)).await?;
+        Ok(Response::new(v1::RetryFailedReply { requeued, study: Some(convert::study(&view)), kept, kept_because }))
     }
 
     async fn query_surface(

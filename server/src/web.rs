@@ -2,26 +2,30 @@
 //! HTTP/2): the studies, each study with its progress and running points (updated while it runs),
 //! its measured accuracy, a response surface per QoI drawn on the server as SVG (a colour map with
 //! contour lines over two parameters, a curve over one; the value under the pointer; axes named
-//! with the scene's units), its points, and downloads. Nothing is fetched from elsewhere: the
-//! page's only script is inline and asks this server's `/api/studies/ID` for progress.
+//! with the scene's units), its points, and downloads. Nothing is fetched from elsewhere.
+//!
+//! Every string a user gave (labels, parameter, QoI and unit names) reaches the page through
+//! maud, which escapes by construction; the page's script and style are files of this server
+//! (`/static/...`), and a Content-Security-Policy forbids any other, inline ones included.
 //!
 //! When the coordinator has tokens, every request needs the user token: `Authorization: Bearer
-//! TOKEN`, or `?token=TOKEN` for a browser.
+//! TOKEN`, or for a browser the HttpOnly cookie that the form at `/login` sets. A token never goes
+//! in a URL (histories and logs keep URLs): `?token=` is refused.
 //!
 //! JSON: `/api/studies`, `/api/studies/ID` (with points, and the running points with the
 //! iterations and eta their pools last reported), `/api/studies/ID/surface` (every QoI of every
-//! point); CSV: `/api/studies/ID/surface.csv`.
+//! point); CSV: `/api/studies/ID/surface.csv`. Any other path is 404.
 
 use std::collections::{BTreeMap, HashMap};
-use std::fmt::Write as _;
 use std::sync::Arc;
 
-use axum::extract::{Path, Query, State};
-use axum::http::{HeaderMap, StatusCode, header};
-use axum::response::{Html, IntoResponse, Response};
+use axum::extract::{Form, Path, Query, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
 use glissade_proto::auth::Token;
 use glissade_proto::{ParameterVector, StudyId};
+use maud::{DOCTYPE, Markup, html};
 use serde_json::json;
 
 use crate::auth::Tokens;
@@ -32,19 +36,52 @@ use crate::records::{PointRecord, PointState};
 struct Web {
     coordinator: Arc<Coordinator>,
     token: Option<Token>,
+    /// the login cookie is `Secure` (sent over https only) when the coordinator serves TLS
+    secure_cookie: bool,
 }
 
-/// The routes of the page and the API.
-pub fn router(coordinator: Arc<Coordinator>, tokens: Option<&Tokens>) -> axum::Router {
-    let web = Web { coordinator, token: tokens.map(|t| t.user.clone()) };
+/// The cookie that carries the user token (hex-encoded: any printable token fits a cookie).
+const COOKIE: &str = "glissade_token";
+
+/// No script, style, image, frame or form target but this server's own: an injected inline
+/// script would not run even if a string escaped the templates.
+const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; connect-src 'self'; \
+                   form-action 'self'; frame-ancestors 'none'; base-uri 'none'";
+
+/// The routes of the page and the API; every answer carries [`CSP`], and any other path is 404.
+pub fn router(coordinator: Arc<Coordinator>, tokens: Option<&Tokens>, secure_cookie: bool) -> axum::Router {
+    let web = Web { coordinator, token: tokens.map(|t| t.user.clone()), secure_cookie };
     axum::Router::new()
         .route("/", get(index))
+        .route("/login", get(login_form).post(login))
+        .route("/static/study.js", get(|| async { ([(header::CONTENT_TYPE, "text/javascript")], STUDY_JS) }))
+        .route("/static/style.css", get(|| async { ([(header::CONTENT_TYPE, "text/css")], STYLE) }))
         .route("/studies/{id}", get(study_page))
         .route("/api/studies", get(api_studies))
         .route("/api/studies/{id}", get(api_study))
         .route("/api/studies/{id}/surface", get(api_surface))
         .route("/api/studies/{id}/surface.csv", get(api_surface_csv))
         .with_state(web)
+        .layer(axum::middleware::map_response(|mut r: Response| async move {
+            let h = r.headers_mut();
+            h.insert(header::CONTENT_SECURITY_POLICY, HeaderValue::from_static(CSP));
+            h.insert(header::X_CONTENT_TYPE_OPTIONS, HeaderValue::from_static("nosniff"));
+            r
+        }))
+}
+
+/// What a path the gRPC services and the web page do not know answers (tonic's default is a
+/// gRPC UNIMPLEMENTED inside HTTP 200): 404 for a browser or curl, UNIMPLEMENTED for gRPC.
+pub async fn not_found(request: axum::extract::Request) -> Response {
+    let grpc = request
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.starts_with("application/grpc"));
+    if grpc {
+        return tonic::Status::unimplemented(format!("no gRPC method {}", request.uri().path())).into_http();
+    }
+    refuse(StatusCode::NOT_FOUND, "no such page (try /)").into_response()
 }
 
 type Params = Query<HashMap<String, String>>;
@@ -62,21 +99,92 @@ fn refuse(status: StatusCode, message: &str) -> Refusal {
     Refusal(status, message.to_owned())
 }
 
-/// The user token, when the coordinator asks for one.
+/// The value of cookie `name` in the request's `Cookie` headers.
+fn cookie<'h>(headers: &'h HeaderMap, name: &str) -> Option<&'h str> {
+    headers
+        .get_all(header::COOKIE)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(';'))
+        .find_map(|pair| pair.trim().strip_prefix(name)?.strip_prefix('='))
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn unhex(text: &str) -> Option<String> {
+    let bytes: Option<Vec<u8>> =
+        (0..text.len()).step_by(2).map(|i| text.get(i..i + 2).and_then(|b| u8::from_str_radix(b, 16).ok())).collect();
+    String::from_utf8(bytes?).ok()
+}
+
+/// The user token, when the coordinator asks for one: from `Authorization: Bearer` or the login
+/// cookie. A token in the URL is refused whether or not it is right.
 fn check(web: &Web, headers: &HeaderMap, params: &HashMap<String, String>) -> Result<(), Refusal> {
+    if params.contains_key("token") {
+        return Err(refuse(
+            StatusCode::BAD_REQUEST,
+            "a token does not go in a URL (browsers and proxies keep URLs): log in at /login, or send Authorization: Bearer ...",
+        ));
+    }
     let Some(token) = &web.token else { return Ok(()) };
-    let presented = headers
+    let bearer = headers
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.strip_prefix("Bearer "))
-        .or(params.get("token").map(String::as_str));
-    match presented {
-        Some(p) if token.matches(p) => Ok(()),
-        Some(_) => Err(refuse(StatusCode::UNAUTHORIZED, "wrong user token")),
+        .map(str::to_owned);
+    match bearer.or_else(|| cookie(headers, COOKIE).and_then(unhex)) {
+        Some(p) if token.matches(&p) => Ok(()),
+        Some(_) => Err(refuse(StatusCode::UNAUTHORIZED, "wrong user token (log in again at /login)")),
         None => Err(refuse(
             StatusCode::UNAUTHORIZED,
-            "this coordinator needs the user token (?token=... or Authorization: Bearer ...)",
+            "this coordinator needs the user token: log in at /login, or send Authorization: Bearer ...",
         )),
+    }
+}
+
+/// A page's refusal: the login form when the token is missing or wrong, else the text.
+fn page_refusal(r: Refusal) -> Response {
+    if r.0 == StatusCode::UNAUTHORIZED {
+        return (r.0, login_page(Some(&r.1))).into_response();
+    }
+    r.into_response()
+}
+
+fn login_page(message: Option<&str>) -> Markup {
+    page(
+        "glissade: log in",
+        html! {
+            @if let Some(m) = message { p #message { (m) } }
+            form method="post" action="/login" {
+                label { "user token " input type="password" name="token" autocomplete="current-password"; }
+                " " button type="submit" { "log in" }
+            }
+            p { "The token is kept in a cookie that scripts cannot read, for this browser session." }
+        },
+    )
+}
+
+async fn login_form() -> Markup {
+    login_page(None)
+}
+
+#[derive(serde::Deserialize)]
+struct Login {
+    token: String,
+}
+
+/// The login form's answer: the cookie and a redirect to the studies, or the form again.
+async fn login(State(web): State<Web>, Form(login): Form<Login>) -> Response {
+    if web.token.as_ref().is_some_and(|t| !t.matches(&login.token)) {
+        return (StatusCode::UNAUTHORIZED, login_page(Some("wrong user token"))).into_response();
+    }
+    let secure = if web.secure_cookie { "; Secure" } else { "" };
+    let cookie = format!("{COOKIE}={}; HttpOnly; SameSite=Strict; Path=/{secure}", hex(login.token.as_bytes()));
+    match HeaderValue::from_str(&cookie) {
+        Ok(value) => ([(header::SET_COOKIE, value)], Redirect::to("/")).into_response(),
+        Err(_) => refuse(StatusCode::BAD_REQUEST, "a token is printable characters").into_response(),
     }
 }
 
@@ -204,70 +312,93 @@ fn surface(web: &Web, id: &str) -> Result<crate::coordinator::Surface, Refusal> 
     web.coordinator.surface(SurfaceSource::Study(v.record.id), &ParameterVector::default(), &[], &[]).map_err(failed)
 }
 
-fn escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
-}
-
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse}\
 td,th{padding:2px 8px;border-bottom:1px solid #ddd;text-align:right}th{cursor:pointer}\
 .surface{display:inline-block;margin:0 2em 2em 0}.cell:hover{stroke:#000}";
 
-fn page(title: &str, body: &str) -> Html<String> {
-    Html(format!(
-        "<!doctype html><html><head><meta charset=\"utf-8\"><title>{t}</title><style>{STYLE}</style></head>\
-         <body><h1>{t}</h1>{body}</body></html>",
-        t = escape(title)
-    ))
+/// The study page's script: progress without reloading while the study runs (from the JSON at
+/// `data-api`, written with `textContent` only), and a sortable points table.
+const STUDY_JS: &str = "\
+async function poll() {
+  const p = document.getElementById('progress');
+  if (!p || p.dataset.state !== 'active') return;
+  try {
+    const s = await (await fetch(p.dataset.api)).json(); const g = s.progress;
+    p.textContent = s.state + ': ' + g.done + ' of ' + g.total + ' done, ' + g.leased + ' running, ' + g.pending + ' pending, ' + g.failed + ' failed';
+    const t = document.getElementById('running');
+    if (t) {
+      [...t.rows].slice(1).forEach(r => r.remove());
+      s.running.forEach(r => { const row = t.insertRow();
+        [r.point_id, ...s.parameters.map(n => r.parameters[n]), r.pool, r.iterations ?? '', r.eta == null ? '' : r.eta.toExponential(2)]
+          .forEach(x => row.insertCell().textContent = x); });
+    }
+    if (s.state !== 'active') location.reload(); else p.dataset.polled = (Number(p.dataset.polled || 0) + 1).toString();
+  } catch (e) {}
+  setTimeout(poll, 1000);
+}
+poll();
+document.querySelectorAll('#points th').forEach((th, k) => th.onclick = () => {
+  const t = document.getElementById('points'); const rows = [...t.rows].slice(1);
+  const key = r => { const x = r.cells[k].textContent; const n = parseFloat(x); return isNaN(n) ? x : n; };
+  rows.sort((a, b) => key(a) < key(b) ? -1 : key(a) > key(b) ? 1 : 0).forEach(r => t.appendChild(r));
+});
+";
+
+fn page(title: &str, body: Markup) -> Markup {
+    html! {
+        (DOCTYPE)
+        html {
+            head { meta charset="utf-8"; title { (title) } link rel="stylesheet" href="/static/style.css"; }
+            body { h1 { (title) } (body) }
+        }
+    }
 }
 
-fn with_token(path: &str, q: &HashMap<String, String>) -> String {
-    match q.get("token") {
-        Some(t) => format!("{path}?token={}", escape(t)),
-        None => path.to_owned(),
-    }
+/// `path?fix=NAME=VALUE`, the query percent-encoded (a parameter's name may hold any character).
+fn slice_link(path: &str, name: &str, value: f64) -> String {
+    let query: String =
+        form_urlencoded::Serializer::new(String::new()).append_pair("fix", &format!("{name}={value}")).finish();
+    format!("{path}?{query}")
 }
 
 async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> Response {
     if let Err(r) = check(&web, &headers, &q) {
-        return r.into_response();
+        return page_refusal(r);
     }
-    let mut rows = String::new();
-    for v in web.coordinator.studies() {
-        let p = v.progress;
-        // mean work of the points solved cold and warm (answered ones aside)
-        let full = web.coordinator.study(v.record.id, true).map(|f| f.points).unwrap_or_default();
-        let mean = |warm: bool| {
-            let w: Vec<f64> = full
-                .iter()
-                .filter_map(|p| p.result.as_ref())
-                .filter(|r| !r.answered && r.converged && r.started_from.is_some() == warm)
-                .map(|r| r.work)
-                .collect();
-            if w.is_empty() { "-".to_owned() } else { format!("{:.1}", w.iter().sum::<f64>() / w.len() as f64) }
-        };
-        let _ = write!(
-            rows,
-            "<tr><td><a href=\"{}\">{}</a></td><td>{}</td><td>{}</td><td>{} / {}</td><td>{}</td><td>{}</td><td>{:.1e}</td><td>{}</td><td>{}</td></tr>",
-            with_token(&format!("/studies/{}", v.record.id.0), &q),
-            v.record.id.0,
-            escape(&v.record.label),
-            state_word(v.state),
-            p.done,
-            p.total,
-            p.leased,
-            p.pending,
-            v.record.tolerance,
-            mean(false),
-            mean(true)
-        );
-    }
-    let body = format!(
-        "<table id=\"studies\"><tr><th>study</th><th>label</th><th>state</th><th>done</th><th>running</th><th>pending</th><th>tolerance</th><th>work cold</th><th>work warm</th></tr>{rows}</table>\
-         <p>work: dynamic iterations + static iterations / time steps, mean per point solved</p>\
-         <p>JSON: <a href=\"{}\">/api/studies</a></p>",
-        with_token("/api/studies", &q)
-    );
-    page("glissade studies", &body).into_response()
+    let studies = web.coordinator.studies();
+    // mean work of the points solved cold and warm (answered ones aside)
+    let mean = |id: StudyId, warm: bool| {
+        let full = web.coordinator.study(id, true).map(|f| f.points).unwrap_or_default();
+        let w: Vec<f64> = full
+            .iter()
+            .filter_map(|p| p.result.as_ref())
+            .filter(|r| !r.answered && r.converged && r.started_from.is_some() == warm)
+            .map(|r| r.work)
+            .collect();
+        if w.is_empty() { "-".to_owned() } else { format!("{:.1}", w.iter().sum::<f64>() / w.len() as f64) }
+    };
+    let body = html! {
+        table #studies {
+            tr { th { "study" } th { "label" } th { "state" } th { "done" } th { "running" } th { "pending" }
+                 th { "tolerance" } th { "work cold" } th { "work warm" } }
+            @for v in &studies {
+                tr {
+                    td { a href=(format!("/studies/{}", v.record.id.0)) { (v.record.id.0) } }
+                    td { (v.record.label) }
+                    td { (state_word(v.state)) }
+                    td { (v.progress.done) " / " (v.progress.total) }
+                    td { (v.progress.leased) }
+                    td { (v.progress.pending) }
+                    td { (format!("{:.1e}", v.record.tolerance)) }
+                    td { (mean(v.record.id, false)) }
+                    td { (mean(v.record.id, true)) }
+                }
+            }
+        }
+        p { "work: dynamic iterations + static iterations / time steps, mean per point solved" }
+        p { "JSON: " a href="/api/studies" { "/api/studies" } }
+    };
+    page("glissade studies", body).into_response()
 }
 
 /// A colour on a blue-to-yellow scale for `t` in [0, 1].
@@ -284,6 +415,11 @@ fn named(name: &str, units: &BTreeMap<String, String>) -> String {
     }
 }
 
+/// One decimal: SVG coordinates.
+fn d1(x: f64) -> String {
+    format!("{x:.1}")
+}
+
 /// The SVG of one QoI over the done points: a colour map of cells over two parameters with
 /// labelled contour lines, a curve over one. Each cell or dot carries its value (the tooltip
 /// under the pointer). `units` (the scene's, by name) label the axes.
@@ -292,15 +428,26 @@ pub fn surface_svg(
     qoi: &str,
     points: &[(Vec<f64>, f64)],
     units: &BTreeMap<String, String>,
-) -> String {
+) -> Markup {
     let (w, h, m) = (420.0, 320.0, 40.0);
-    let mut svg = format!(
-        "<svg class=\"surface\" data-qoi=\"{q}\" width=\"{w}\" height=\"{h}\" xmlns=\"http://www.w3.org/2000/svg\"><text x=\"{m}\" y=\"16\">{t}</text>",
-        q = escape(qoi),
-        t = escape(&named(qoi, units))
-    );
+    let inner = surface_content(parameters, qoi, points, units, (w, h, m));
+    html! {
+        svg class="surface" data-qoi=(qoi) width=(w) height=(h) xmlns="http://www.w3.org/2000/svg" {
+            text x=(m) y="16" { (named(qoi, units)) }
+            (inner)
+        }
+    }
+}
+
+fn surface_content(
+    parameters: &[String],
+    qoi: &str,
+    points: &[(Vec<f64>, f64)],
+    units: &BTreeMap<String, String>,
+    (w, h, m): (f64, f64, f64),
+) -> Markup {
     if points.is_empty() {
-        return svg + "<text x=\"40\" y=\"60\">no point done yet</text></svg>";
+        return html! { text x="40" y="60" { "no point done yet" } };
     }
     let range = |k: usize| {
         let lo = points.iter().map(|p| p.0[k]).fold(f64::INFINITY, f64::min);
@@ -313,64 +460,8 @@ pub fn surface_svg(
         (lo, if hi > lo { hi } else { lo + 1.0 })
     };
     let label = |x: &[f64]| parameters.iter().zip(x).map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(" ");
-    if parameters.len() >= 2 {
-        let ((x0, x1), (y0, y1)) = (range(0), range(1));
-        let distinct = |k: usize| {
-            let mut v: Vec<f64> = points.iter().map(|p| p.0[k]).collect();
-            v.sort_by(f64::total_cmp);
-            v.dedup();
-            v
-        };
-        let (xs, ys) = (distinct(0), distinct(1));
-        let (cw, ch) = ((w - 2.0 * m) / xs.len() as f64, (h - 2.0 * m) / ys.len() as f64);
-        // the top left corner of a cell
-        let px = |x: f64| m + (x - x0) / (x1 - x0) * (w - 2.0 * m - cw);
-        let py = |y: f64| h - m - ch - (y - y0) / (y1 - y0) * (h - 2.0 * m - ch);
-        for (x, v) in points {
-            let _ = write!(
-                svg,
-                "<rect class=\"cell\" x=\"{:.1}\" y=\"{:.1}\" width=\"{cw:.1}\" height=\"{ch:.1}\" fill=\"{}\" data-value=\"{v:e}\"><title>{} {qoi} = {v:.4e}</title></rect>",
-                px(x[0]),
-                py(x[1]),
-                colour((v - vlo) / (vhi - vlo)),
-                label(x),
-                qoi = escape(qoi)
-            );
-        }
-        // contours through the cells' centres, at 4 levels evenly between the extremes
-        let mut grid = vec![None; xs.len() * ys.len()];
-        for (x, v) in points {
-            let (i, j) = (xs.partition_point(|a| *a < x[0]), ys.partition_point(|b| *b < x[1]));
-            grid[j * xs.len() + i] = Some(*v);
-        }
-        let centre = |i: usize, j: usize| (px(xs[i]) + cw / 2.0, py(ys[j]) + ch / 2.0);
-        for k in 1..=4 {
-            let level = vlo + (vhi - vlo) * k as f64 / 5.0;
-            let segments = contour(&grid, xs.len(), level, centre);
-            if segments.is_empty() {
-                continue;
-            }
-            // neighbouring levels labelled on different segments: close lines' labels do not overlap
-            let ((ax, ay), (bx, by)) = segments[(segments.len() / 2 + k) % segments.len()];
-            let d: String =
-                segments.iter().map(|((ax, ay), (bx, by))| format!("M{ax:.1} {ay:.1}L{bx:.1} {by:.1}")).collect();
-            let _ = write!(
-                svg,
-                "<path class=\"contour\" data-level=\"{level:e}\" d=\"{d}\" fill=\"none\" stroke=\"#000\" stroke-width=\"0.8\" pointer-events=\"none\"/>\
-                 <text class=\"contour-label\" x=\"{:.1}\" y=\"{:.1}\" font-size=\"10\" stroke=\"#fff\" stroke-width=\"2\" paint-order=\"stroke\" pointer-events=\"none\">{level:.2e}</text>",
-                (ax + bx) / 2.0,
-                (ay + by) / 2.0
-            );
-        }
-        let _ = write!(
-            svg,
-            "<text x=\"{m}\" y=\"{}\">{} →</text><text x=\"4\" y=\"{}\">↑ {}</text>",
-            h - 8.0,
-            escape(&named(&parameters[0], units)),
-            m - 4.0,
-            escape(&named(&parameters[1], units))
-        );
-    } else {
+    let extremes = html! { text x=(w - 200.0) y="16" { (format!("{vlo:.3e} … {vhi:.3e}")) } };
+    if parameters.len() < 2 {
         let (x0, x1) = range(0);
         let mut sorted: Vec<&(Vec<f64>, f64)> = points.iter().collect();
         sorted.sort_by(|a, b| a.0[0].total_cmp(&b.0[0]));
@@ -384,30 +475,74 @@ pub fn surface_svg(
                 format!("{px:.1},{py:.1}")
             })
             .collect();
-        let _ = write!(svg, "<polyline fill=\"none\" stroke=\"#36c\" points=\"{}\"/>", line.join(" "));
-        for (x, v) in sorted {
-            let (px, py) = xy(x[0], *v);
-            let _ = write!(
-                svg,
-                "<circle class=\"cell\" cx=\"{px:.1}\" cy=\"{py:.1}\" r=\"4\" fill=\"#36c\" data-value=\"{v:e}\"><title>{} {qoi} = {v:.4e}</title></circle>",
-                label(x),
-                qoi = escape(qoi)
-            );
-        }
-        if let Some(p) = parameters.first() {
-            let _ = write!(svg, "<text x=\"{m}\" y=\"{}\">{} →</text>", h - 8.0, escape(&named(p, units)));
-        }
+        return html! {
+            polyline fill="none" stroke="#36c" points=(line.join(" ")) {}
+            @for (x, v) in &sorted {
+                @let (px, py) = xy(x[0], *v);
+                circle class="cell" cx=(d1(px)) cy=(d1(py)) r="4" fill="#36c" data-value=(format!("{v:e}")) {
+                    title { (label(x)) " " (qoi) " = " (format!("{v:.4e}")) }
+                }
+            }
+            @if let Some(p) = parameters.first() {
+                text x=(m) y=(h - 8.0) { (named(p, units)) " →" }
+            }
+            (extremes)
+        };
     }
-    let _ = write!(svg, "<text x=\"{}\" y=\"16\">{vlo:.3e} … {vhi:.3e}</text></svg>", w - 200.0);
-    svg
+    let ((x0, x1), (y0, y1)) = (range(0), range(1));
+    let distinct = |k: usize| {
+        let mut v: Vec<f64> = points.iter().map(|p| p.0[k]).collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup();
+        v
+    };
+    let (xs, ys) = (distinct(0), distinct(1));
+    let (cw, ch) = ((w - 2.0 * m) / xs.len() as f64, (h - 2.0 * m) / ys.len() as f64);
+    // the top left corner of a cell
+    let px = |x: f64| m + (x - x0) / (x1 - x0) * (w - 2.0 * m - cw);
+    let py = |y: f64| h - m - ch - (y - y0) / (y1 - y0) * (h - 2.0 * m - ch);
+    // contours through the cells' centres, at 4 levels evenly between the extremes
+    let mut grid = vec![None; xs.len() * ys.len()];
+    for (x, v) in points {
+        let (i, j) = (xs.partition_point(|a| *a < x[0]), ys.partition_point(|b| *b < x[1]));
+        grid[j * xs.len() + i] = Some(*v);
+    }
+    let centre = |i: usize, j: usize| (px(xs[i]) + cw / 2.0, py(ys[j]) + ch / 2.0);
+    let contours: Vec<(usize, f64, Vec<Segment>)> = (1..=4)
+        .map(|k| {
+            let level = vlo + (vhi - vlo) * k as f64 / 5.0;
+            (k, level, contour(&grid, xs.len(), level, centre))
+        })
+        .filter(|(_, _, segments)| !segments.is_empty())
+        .collect();
+    html! {
+        @for (x, v) in points {
+            rect class="cell" x=(d1(px(x[0]))) y=(d1(py(x[1]))) width=(d1(cw)) height=(d1(ch))
+                fill=(colour((v - vlo) / (vhi - vlo))) data-value=(format!("{v:e}")) {
+                title { (label(x)) " " (qoi) " = " (format!("{v:.4e}")) }
+            }
+        }
+        @for (k, level, segments) in &contours {
+            // neighbouring levels labelled on different segments: close lines' labels do not overlap
+            @let ((ax, ay), (bx, by)) = segments[(segments.len() / 2 + k) % segments.len()];
+            @let d: String = segments.iter().map(|((ax, ay), (bx, by))| format!("M{ax:.1} {ay:.1}L{bx:.1} {by:.1}")).collect();
+            path class="contour" data-level=(format!("{level:e}")) d=(d) fill="none" stroke="#000" stroke-width="0.8" pointer-events="none" {}
+            text class="contour-label" x=(d1((ax + bx) / 2.0)) y=(d1((ay + by) / 2.0)) font-size="10" stroke="#fff"
+                stroke-width="2" paint-order="stroke" pointer-events="none" { (format!("{level:.2e}")) }
+        }
+        text x=(m) y=(h - 8.0) { (named(&parameters[0], units)) " →" }
+        text x="4" y=(m - 4.0) { "↑ " (named(&parameters[1], units)) }
+        (extremes)
+    }
 }
 
 type Vertex = (f64, f64);
+type Segment = (Vertex, Vertex);
 
 /// Marching squares: the segments of the line where the value is `level`, over a grid of `nx`
 /// columns (row-major, None where no point is done) whose node (i, j) is drawn at `at(i, j)`.
 /// Each square's crossings are linear along its edges; a saddle is split by the square's mean.
-fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize) -> Vertex) -> Vec<(Vertex, Vertex)> {
+fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize) -> Vertex) -> Vec<Segment> {
     let mut segments = Vec::new();
     let ny = grid.len().checked_div(nx).unwrap_or(0);
     for j in 0..ny.saturating_sub(1) {
@@ -439,47 +574,47 @@ fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize
 }
 
 /// Eta against the iterations of every point solved (log scale), as the paper's Figures 7 and 8.
-pub fn convergence_svg(histories: &[Vec<f64>]) -> String {
+pub fn convergence_svg(histories: &[Vec<f64>]) -> Markup {
     let (w, h, m) = (420.0, 320.0, 40.0);
-    let mut svg = format!(
-        "<svg class=\"convergence\" width=\"{w}\" height=\"{h}\" xmlns=\"http://www.w3.org/2000/svg\"><text x=\"{m}\" y=\"16\">eta against iterations</text>"
-    );
     let values = histories.iter().flatten().filter(|v| **v > 0.0 && v.is_finite());
     let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v.log10()), b.max(v.log10())));
     let longest = histories.iter().map(Vec::len).max().unwrap_or(0);
-    if longest < 2 || lo >= hi {
-        return svg + "<text x=\"40\" y=\"60\">no history yet</text></svg>";
-    }
-    for history in histories.iter().filter(|h| h.len() >= 2) {
-        let line: Vec<String> = history
-            .iter()
-            .enumerate()
-            .filter(|(_, v)| **v > 0.0 && v.is_finite())
-            .map(|(k, v)| {
-                let x = m + k as f64 / (longest - 1) as f64 * (w - 2.0 * m);
-                let y = h - m - (v.log10() - lo) / (hi - lo) * (h - 2.0 * m);
-                format!("{x:.1},{y:.1}")
-            })
-            .collect();
-        let _ = write!(
-            svg,
-            "<polyline class=\"history\" fill=\"none\" stroke=\"#36c\" stroke-opacity=\"0.5\" points=\"{}\"/>",
+    let lines: Vec<String> = histories
+        .iter()
+        .filter(|h| h.len() >= 2)
+        .map(|history| {
+            let line: Vec<String> = history
+                .iter()
+                .enumerate()
+                .filter(|(_, v)| **v > 0.0 && v.is_finite())
+                .map(|(k, v)| {
+                    let x = m + k as f64 / (longest - 1) as f64 * (w - 2.0 * m);
+                    let y = h - m - (v.log10() - lo) / (hi - lo) * (h - 2.0 * m);
+                    format!("{x:.1},{y:.1}")
+                })
+                .collect();
             line.join(" ")
-        );
+        })
+        .collect();
+    html! {
+        svg class="convergence" width=(w) height=(h) xmlns="http://www.w3.org/2000/svg" {
+            text x=(m) y="16" { "eta against iterations" }
+            @if longest < 2 || lo >= hi {
+                text x="40" y="60" { "no history yet" }
+            } @else {
+                @for line in &lines {
+                    polyline class="history" fill="none" stroke="#36c" stroke-opacity="0.5" points=(line) {}
+                }
+                text x=(m) y=(h - 8.0) { (format!("iterations (0 … {}) →", longest - 1)) }
+                text x=(w - 140.0) y="16" { (format!("1e{lo:.0} … 1e{hi:.0}")) }
+            }
+        }
     }
-    let _ = write!(
-        svg,
-        "<text x=\"{m}\" y=\"{}\">iterations (0 … {}) →</text><text x=\"{}\" y=\"16\">1e{lo:.0} … 1e{hi:.0}</text></svg>",
-        h - 8.0,
-        longest - 1,
-        w - 140.0
-    );
-    svg
 }
 
 async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
     if let Err(r) = check(&web, &headers, &q) {
-        return r.into_response();
+        return page_refusal(r);
     }
     let v = match study(&web, &id, true) {
         Ok(v) => v,
@@ -499,157 +634,111 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
         .chain(&s.qoi)
         .filter_map(|n| Some((n.clone(), scene.as_ref()?.unit(n)?.to_owned())))
         .collect();
-    let mut body = format!(
-        "<p id=\"progress\" data-state=\"{}\">{}: {} of {} done, {} running, {} pending, {} failed</p>\
-         <p>tolerance {:.1e}, strategy {}, parameters {}</p>",
-        state_word(v.state),
-        state_word(v.state),
-        p.done,
-        p.total,
-        p.leased,
-        p.pending,
-        p.failed,
-        r.tolerance,
-        r.strategy.name(),
-        escape(&r.parameters.join(", "))
-    );
-    if let Some(a) = &v.accuracy {
-        let errors: Vec<String> =
-            a.qoi.iter().map(|(q, (l, m))| format!("{} largest {l:.1e} mean {m:.1e}", escape(q))).collect();
-        let _ = write!(
-            body,
-            "<p id=\"accuracy\">measured accuracy: {} of {} points re-solved cold at {:.0e}: {}</p>",
-            a.audited,
-            a.planned,
-            a.tolerance,
-            errors.join(", ")
-        );
-    }
     // a slice: `?fix=NAME=VALUE` keeps the points at that value and draws the others' curve
     let fixed =
         q.get("fix").and_then(|f| f.split_once('=')).and_then(|(n, v)| Some((n.to_owned(), v.parse::<f64>().ok()?)));
     let free: Vec<String> =
         s.parameters.iter().filter(|n| fixed.as_ref().is_none_or(|(f, _)| f != *n)).cloned().collect();
-    if let Some((name, value)) = &fixed {
-        let _ = write!(
-            body,
-            "<p id=\"slice\">slice at {} = {value} (<a href=\"{}\">whole surface</a>)</p>",
-            escape(name),
-            with_token(&format!("/studies/{}", r.id.0), &q)
-        );
-    } else if let Some(last) = s.parameters.last().filter(|_| s.parameters.len() >= 2) {
-        let first = s.rows.iter().find_map(|row| row.parameters.get(last));
-        if let Some(v) = first {
-            let mut link = with_token(&format!("/studies/{}", r.id.0), &q);
-            link += if link.contains('?') { "&" } else { "?" };
-            let _ = write!(
-                body,
-                "<p>slices: <a id=\"slice-link\" href=\"{link}fix={}={v}\">{} = {v}</a></p>",
-                escape(last),
-                escape(last)
-            );
-        }
-    }
-    for qoi in &s.qoi {
-        let points: Vec<(Vec<f64>, f64)> = s
-            .rows
-            .iter()
-            .filter(|row| {
-                fixed.as_ref().is_none_or(|(n, v)| {
-                    row.parameters.get(n).is_some_and(|x| (x - v).abs() <= 1e-9 * v.abs().max(1e-300))
+    let here = format!("/studies/{}", r.id.0);
+    // the first value of the last parameter: a slice the page offers
+    let offered = s
+        .parameters
+        .last()
+        .filter(|_| s.parameters.len() >= 2 && fixed.is_none())
+        .and_then(|last| Some((last, s.rows.iter().find_map(|row| row.parameters.get(last))?)));
+    let surfaces: Vec<Markup> = s
+        .qoi
+        .iter()
+        .map(|qoi| {
+            let points: Vec<(Vec<f64>, f64)> = s
+                .rows
+                .iter()
+                .filter(|row| {
+                    fixed.as_ref().is_none_or(|(n, v)| {
+                        row.parameters.get(n).is_some_and(|x| (x - v).abs() <= 1e-9 * v.abs().max(1e-300))
+                    })
                 })
-            })
-            .filter_map(|row| {
-                let x: Option<Vec<f64>> = free.iter().map(|n| row.parameters.get(n)).collect();
-                Some((x?, *row.qoi.get(qoi)?))
-            })
-            .collect();
-        body += &surface_svg(&free, qoi, &points, &units);
-    }
-    // the running points: the script fills this table from the JSON while the study runs
-    if v.state == StudyState::Active {
-        body += "<table id=\"running\"><caption>running points</caption><tr><th>point</th>";
-        for n in &r.parameters {
-            let _ = write!(body, "<th>{}</th>", escape(&named(n, &units)));
-        }
-        body += "<th>pool</th><th>iterations</th><th>eta</th></tr></table>";
-    }
+                .filter_map(|row| {
+                    let x: Option<Vec<f64>> = free.iter().map(|n| row.parameters.get(n)).collect();
+                    Some((x?, *row.qoi.get(qoi)?))
+                })
+                .collect();
+            surface_svg(&free, qoi, &points, &units)
+        })
+        .collect();
     let histories: Vec<Vec<f64>> =
         v.points.iter().filter_map(|p| p.result.as_ref().map(|r| r.eta_history.clone())).collect();
-    body += &convergence_svg(&histories);
-    let _ = write!(
-        body,
-        "<p>download: <a href=\"{}\">surface.csv</a>, <a href=\"{}\">study JSON</a></p>",
-        with_token(&format!("/api/studies/{}/surface.csv", r.id.0), &q),
-        with_token(&format!("/api/studies/{}", r.id.0), &q)
-    );
-    body += "<table id=\"points\"><tr><th>point</th>";
-    for n in &r.parameters {
-        let _ = write!(body, "<th>{}</th>", escape(&named(n, &units)));
-    }
-    body += "<th>state</th><th>iterations</th><th>eta</th>";
-    for qoi in &s.qoi {
-        let _ = write!(body, "<th>{}</th>", escape(&named(qoi, &units)));
-    }
-    body += "</tr>";
-    for point in &v.points {
-        let res = point.result.as_ref();
-        let _ = write!(body, "<tr><td>{}</td>", point.id.0);
-        for n in &r.parameters {
-            let _ = write!(body, "<td>{}</td>", point.parameters.get(n).map_or(String::new(), |x| x.to_string()));
+    let state = state_word(v.state);
+    let body = html! {
+        p #progress data-state=(state) data-api=(format!("/api/studies/{}", r.id.0)) {
+            (format!("{state}: {} of {} done, {} running, {} pending, {} failed", p.done, p.total, p.leased, p.pending, p.failed))
         }
-        let _ = write!(
-            body,
-            "<td>{}</td><td>{}</td><td>{}</td>",
-            point_state_word(&point.state),
-            res.map_or(String::new(), |r| r.iterations.to_string()),
-            res.map_or(String::new(), |r| format!("{:.2e}", r.error_indicator))
-        );
-        for qoi in &s.qoi {
-            let _ = write!(
-                body,
-                "<td>{}</td>",
-                res.and_then(|r| r.qoi.get(qoi)).map_or(String::new(), |x| format!("{x:.4e}"))
-            );
+        p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
+        @if let Some(a) = &v.accuracy {
+            p #accuracy {
+                (format!("measured accuracy: {} of {} points re-solved cold at {:.0e}: ", a.audited, a.planned, a.tolerance))
+                @for (k, (q, (l, m))) in a.qoi.iter().enumerate() {
+                    @if k > 0 { ", " }
+                    (q) (format!(" largest {l:.1e} mean {m:.1e}"))
+                }
+            }
         }
-        body += "</tr>";
-    }
-    body += "</table>";
-    // progress without reloading while the study runs; a sortable points table
-    let _ = write!(
-        body,
-        "<script>\
-         const api = {api:?};\
-         async function poll() {{\
-           const p = document.getElementById('progress');\
-           if (p.dataset.state !== 'active') return;\
-           try {{ const s = await (await fetch(api)).json(); const g = s.progress;\
-             p.textContent = s.state + ': ' + g.done + ' of ' + g.total + ' done, ' + g.leased + ' running, ' + g.pending + ' pending, ' + g.failed + ' failed';\
-             const t = document.getElementById('running');\
-             if (t) {{ [...t.rows].slice(1).forEach(r => r.remove());\
-               s.running.forEach(r => {{ const row = t.insertRow();\
-                 [r.point_id, ...s.parameters.map(n => r.parameters[n]), r.pool, r.iterations ?? '', r.eta == null ? '' : r.eta.toExponential(2)]\
-                   .forEach(x => row.insertCell().textContent = x); }}); }}\
-             if (s.state !== 'active') location.reload(); else p.dataset.polled = (Number(p.dataset.polled || 0) + 1).toString();\
-           }} catch (e) {{}}\
-           setTimeout(poll, 1000);\
-         }}\
-         poll();\
-         document.querySelectorAll('#points th').forEach((th, k) => th.onclick = () => {{\
-           const t = document.getElementById('points'); const rows = [...t.rows].slice(1);\
-           const key = r => {{ const x = r.cells[k].textContent; const n = parseFloat(x); return isNaN(n) ? x : n; }};\
-           rows.sort((a, b) => key(a) < key(b) ? -1 : key(a) > key(b) ? 1 : 0).forEach(r => t.appendChild(r));\
-         }});\
-         </script>",
-        api = with_token(&format!("/api/studies/{}", r.id.0), &q)
-    );
+        @if let Some((name, value)) = &fixed {
+            p #slice { "slice at " (name) (format!(" = {value} (")) a href=(here) { "whole surface" } ")" }
+        } @else if let Some((last, value)) = offered {
+            p { "slices: " a #slice-link href=(slice_link(&here, last, value)) { (last) (format!(" = {value}")) } }
+        }
+        @for svg in &surfaces { (svg) }
+        // the running points: the script fills this table from the JSON while the study runs
+        @if v.state == StudyState::Active {
+            table #running {
+                caption { "running points" }
+                tr { th { "point" } @for n in &r.parameters { th { (named(n, &units)) } } th { "pool" } th { "iterations" } th { "eta" } }
+            }
+        }
+        (convergence_svg(&histories))
+        p {
+            "download: " a href=(format!("/api/studies/{}/surface.csv", r.id.0)) { "surface.csv" } ", "
+            a href=(format!("/api/studies/{}", r.id.0)) { "study JSON" }
+        }
+        table #points {
+            tr {
+                th { "point" }
+                @for n in &r.parameters { th { (named(n, &units)) } }
+                th { "state" } th { "iterations" } th { "eta" }
+                @for qoi in &s.qoi { th { (named(qoi, &units)) } }
+            }
+            @for point in &v.points {
+                @let res = point.result.as_ref();
+                tr {
+                    td { (point.id.0) }
+                    @for n in &r.parameters { td { @if let Some(x) = point.parameters.get(n) { (x) } } }
+                    td { (point_state_word(&point.state)) }
+                    td { @if let Some(r) = res { (r.iterations) } }
+                    td { @if let Some(r) = res { (format!("{:.2e}", r.error_indicator)) } }
+                    @for qoi in &s.qoi {
+                        td { @if let Some(x) = res.and_then(|r| r.qoi.get(qoi)) { (format!("{x:.4e}")) } }
+                    }
+                }
+            }
+        }
+        script src="/static/study.js" {}
+    };
     let title = if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
-    page(&title, &body).into_response()
+    page(&title, body).into_response()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    // the pictures as text, to search in
+    fn surface_svg(p: &[String], q: &str, points: &[(Vec<f64>, f64)], u: &BTreeMap<String, String>) -> String {
+        super::surface_svg(p, q, points, u).into_string()
+    }
+    fn convergence_svg(histories: &[Vec<f64>]) -> String {
+        super::convergence_svg(histories).into_string()
+    }
 
     #[test]
     fn an_11_by_11_study_draws_121_cells_and_one_parameter_a_curve() {

@@ -234,7 +234,7 @@ fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &
         model.settings.tolerance = glissade_core::scene::check_tolerance("--tol", t)?;
     }
     if let Some(n) = request.max_iterations {
-        model.settings.max_iterations = n;
+        model.settings.max_iterations = glissade_core::scene::check_max_iterations("--max-iter", n as u64)?;
     }
     if let Some(s) = request.scale {
         model.settings.scale = s;

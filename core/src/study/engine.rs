@@ -205,7 +205,8 @@ mod tests {
     #[test]
     fn the_tolerance_is_checked_once_here() {
         let scene = Scene::parse(SCENE).unwrap();
-        for t in [0.0, -1e-3, f64::NAN, f64::INFINITY] {
+        // beyond the floor and the ceiling too: 1e-30 and 5e-324 held a pool for ever (issue 28)
+        for t in [0.0, -1e-3, f64::NAN, f64::INFINITY, 1e-30, 5e-324, 2.0] {
             assert!(matches!(StudyEngine::new(&scene, InitStrategy::Nearest, Some(t)), Err(StudyError::Tolerance(_))));
         }
         assert_eq!(StudyEngine::new(&scene, InitStrategy::Nearest, None).unwrap().tolerance(), scene.solver.tolerance);

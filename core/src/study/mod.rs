@@ -44,7 +44,7 @@ pub enum StudyError {
     Space(#[from] SpaceError),
     #[error(transparent)]
     Store(#[from] StoreError),
-    #[error("--tol: must be a positive number, got {0}")]
+    #[error("--tol: must be a number from {min:e} to {max}, got {0:e}", min = crate::scene::MIN_TOLERANCE, max = crate::scene::MAX_TOLERANCE)]
     Tolerance(f64),
     #[error("ordering policy chose point {index} of {pending} pending")]
     Policy { index: usize, pending: usize },

@@ -45,6 +45,10 @@ pub enum SurrogateError {
     UnknownParameter(String),
     #[error("give a value of `{0}` (a parameter of the surface)")]
     MissingParameter(String),
+    #[error(
+        "`{name}` = {value:?} is outside the box the surface covers, [{lo:?}, {hi:?}]: it predicts between its points, not beyond"
+    )]
+    OutsideBox { name: String, value: f64, lo: f64, hi: f64 },
 }
 
 /// A fitted Gaussian process.
@@ -178,6 +182,8 @@ pub struct ResponseSurface {
     names: Vec<String>,
     origins: Vec<f64>,
     scales: Vec<f64>,
+    /// (lowest, highest) of each parameter where the surface predicts
+    bounds: Vec<(f64, f64)>,
     process: Surrogate,
 }
 
@@ -199,7 +205,17 @@ impl ResponseSurface {
         let points: Vec<Vec<f64>> = samples.iter().map(|(x, _)| scaled(x)).collect();
         let values: Vec<f64> = samples.iter().map(|(_, v)| *v).collect();
         let process = Surrogate::fit(&points, &values)?;
-        Ok(Self { names: names.to_vec(), origins, scales, process })
+        // the box: the scene's range, widened to the points (a parameter without a range in
+        // the scene has only its default)
+        let bounds = names
+            .iter()
+            .enumerate()
+            .map(|(k, name)| {
+                let range = space.range(name).expect("checked above");
+                samples.iter().fold((range.min, range.max), |(lo, hi), (x, _)| (lo.min(x[k]), hi.max(x[k])))
+            })
+            .collect();
+        Ok(Self { names: names.to_vec(), origins, scales, bounds, process })
     }
 
     pub fn names(&self) -> &[String] {
@@ -213,6 +229,17 @@ impl ResponseSurface {
 
     pub fn is_empty(&self) -> bool {
         self.process.is_empty()
+    }
+
+    /// The prediction at `point` for someone who asked for it: refused outside the box of the
+    /// scene's ranges and the fitted points, where the mean is a guess (and at 1e300 was NaN).
+    pub fn predict_within(&self, point: &DesignPoint) -> Result<Prediction, SurrogateError> {
+        for (name, &(lo, hi)) in self.names.iter().zip(&self.bounds) {
+            if let Some(v) = point.get(name).filter(|v| !(lo..=hi).contains(v)) {
+                return Err(SurrogateError::OutsideBox { name: name.clone(), value: v, lo, hi });
+            }
+        }
+        self.predict(point)
     }
 
     /// The prediction at `point`, which must give every parameter of the surface.
@@ -391,6 +418,24 @@ mod tests {
         let line: Vec<f64> = points.iter().map(|p| 1.0 + 2.0 * p[0]).collect();
         let s = Surrogate::fit(&points, &line).unwrap();
         assert!((s.predict(&[0.5]).mean - 2.0).abs() < 1e-3);
+    }
+
+    /// `--at f1=1e300` answered `NaN +- 0`: a point outside the box is refused, naming it.
+    #[test]
+    fn a_prediction_outside_the_box_is_refused() {
+        let scene = crate::scene::Scene::parse(include_str!("../../../scenes/three-blocks-tiny.toml")).unwrap();
+        let space = ParameterSpace::from_scene(&scene);
+        let names = vec!["f1".to_owned()];
+        let samples: Vec<(Vec<f64>, f64)> = (0..5).map(|i| (vec![0.1 + 0.025 * i as f64], i as f64)).collect();
+        let surface = ResponseSurface::fit(&space, &names, &samples).unwrap();
+        let at = |v: f64| surface.predict_within(&DesignPoint::from_pairs([("f1", v)]));
+        assert!(at(0.2).unwrap().mean.is_finite() && at(0.1).unwrap().std.is_finite());
+        for v in [1e300, 0.2 + 1e-9, -1.0] {
+            match at(v) {
+                Err(SurrogateError::OutsideBox { lo, hi, .. }) => assert_eq!((lo, hi), (0.1, 0.2)),
+                other => panic!("{v}: {other:?}"),
+            }
+        }
     }
 
     #[test]

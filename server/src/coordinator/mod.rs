@@ -12,9 +12,10 @@ use glissade_core::text::one_line;
 pub use glissade_proto::now_unix_ms;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::Instant;
 
 use glissade_core::io::solution_file::{self, SolutionFileError, SolutionMeta};
-use glissade_core::scene::{MeshFileError, Scene, mesh_digest};
+use glissade_core::scene::{MeshFileError, Scene, SceneError, mesh_digest};
 use glissade_proto::{ParameterVector, PointId, StudyId};
 use tokio::sync::{Notify, broadcast};
 
@@ -110,6 +111,8 @@ struct State {
     /// Lease id -> the last progress its pool reported (iterations, eta): what is known of a
     /// point whose pool then vanished.
     lease_progress: HashMap<u64, (u64, f64)>,
+    /// Lease id -> when it was granted (or found at start): the per-point budget runs from it.
+    lease_since: HashMap<u64, Instant>,
     pools: HashMap<String, PoolInfo>,
     next_study: u64,
     next_finish_seq: u64,
@@ -159,6 +162,7 @@ impl Coordinator {
                 if let PointState::Leased { lease_id, deadline_unix_ms, .. } = &mut point.state {
                     *deadline_unix_ms = (*deadline_unix_ms).max(deadline);
                     state.leases.insert(*lease_id, (point.study, point.id));
+                    state.lease_since.insert(*lease_id, Instant::now());
                     batch.put(Tree::Points, pkey.clone(), encode(&point));
                 }
                 if let Some(seq) = point.finished_seq {
@@ -330,10 +334,14 @@ impl Coordinator {
             .map_err(|e| CoordError::Invalid(e.to_string()))?
             .tolerance();
         let max_iterations = match submission.max_iterations {
-            Some(0) => return Err(CoordError::Invalid("max_iterations must be at least 1".into())),
-            Some(n) => n,
-            None => u32::try_from(scene.solver.max_iterations).unwrap_or(u32::MAX),
+            Some(n) => glissade_core::scene::check_max_iterations("max_iterations", n.into())
+                .map_err(|e| CoordError::Invalid(e.to_string()))? as u32,
+            // (the scene's was checked as it parsed)
+            None => scene.solver.max_iterations as u32,
         };
+        // What a pool checks before it solves, checked now (core::check): its message, at once.
+        let refused = |e: SceneError| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string())));
+        scene.check_meshes().map_err(refused)?;
         let (names, points, adaptive) = match &submission.adaptive {
             None => {
                 let (names, points) =
@@ -352,6 +360,27 @@ impl Coordinator {
                 (names, Vec::new(), Some(AdaptiveSpec { ranges: design.ranges, budget: *budget }))
             }
         };
+        for (i, point) in points.iter().enumerate() {
+            let set: Vec<(String, f64)> = point.iter().map(|(n, v)| (n.to_owned(), v)).collect();
+            let values = scene.parameter_values(&set).map_err(refused)?;
+            scene.check_point(&values).map_err(|e| {
+                let at = set.iter().map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(" ");
+                CoordError::Invalid(format!("scene at point {i} ({at}): {}", one_line(&e.to_string())))
+            })?;
+        }
+        if let Some(a) = &adaptive {
+            // an adaptive study's points are not known yet: every corner of its box
+            for corner in 0..1usize << a.ranges.len().min(12) {
+                let set: Vec<(String, f64)> = a
+                    .ranges
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (n, lo, hi))| (n.clone(), if (corner >> k) & 1 == 1 { *hi } else { *lo }))
+                    .collect();
+                let values = scene.parameter_values(&set).map_err(refused)?;
+                scene.check_point(&values).map_err(refused)?;
+            }
+        }
         if submission.strategy != InitStrategy::Cold {
             // The index refuses scenes of too many parameters: say so now, not at the first lease.
             SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
@@ -376,6 +405,15 @@ impl Coordinator {
         };
 
         let mut state = self.lock();
+        // every user's pending points together (there is one user token) stay bounded
+        let pending: usize = state.studies.values().map(|e| e.progress().pending as usize).sum();
+        let adding = points.len() + audit_points + adaptive.as_ref().map_or(0, |a| a.budget as usize);
+        if pending + adding > self.config.max_pending {
+            return Err(CoordError::Exhausted(format!(
+                "this study would add {adding} points to the {pending} pending, more than the {} the coordinator holds (glissade-server --max-pending): wait for studies to finish, or cancel some",
+                self.config.max_pending
+            )));
+        }
         let id = StudyId(state.next_study);
         let audit_id = (audit_points > 0).then_some(StudyId(id.0 + 1));
         let record = StudyRecord {
@@ -429,8 +467,11 @@ impl Coordinator {
             let audit = StudyRecord {
                 id: audit_id,
                 label: format!("audit of study {id}"),
-                tolerance: tolerance * AUDIT_TOLERANCE_RATIO,
-                max_iterations: max_iterations.saturating_mul(AUDIT_ITERATION_FACTOR),
+                // within the bounds every solve obeys
+                tolerance: (tolerance * AUDIT_TOLERANCE_RATIO).max(glissade_core::scene::MIN_TOLERANCE),
+                max_iterations: max_iterations
+                    .saturating_mul(AUDIT_ITERATION_FACTOR)
+                    .min(glissade_core::scene::MAX_ITERATIONS as u32),
                 strategy: InitStrategy::Cold,
                 order: OrderKind::Asc,
                 audit_of: Some(id),
@@ -577,18 +618,39 @@ impl Coordinator {
         Ok(Self::view(&state, entry, false))
     }
 
-    pub fn retry_failed(&self, id: StudyId) -> Result<(u32, StudyView), CoordError> {
+    /// Requeues the study's failed points, except those whose scene is invalid at their
+    /// parameters (core::check, the pool's check before solving): they would fail again. Returns
+    /// the number requeued, the number kept and why (the first kept point's reason).
+    pub fn retry_failed(&self, id: StudyId) -> Result<(u32, (u32, String), StudyView), CoordError> {
         let mut state = self.lock();
         let entry = state.studies.get_mut(&id).ok_or(CoordError::UnknownStudy(id))?;
         if entry.record.cancelled {
             return Err(CoordError::Precondition(format!("study {id} is cancelled: its points are not retried")));
         }
-        let changes: Vec<_> = entry
-            .points
-            .iter()
-            .filter(|p| p.state == PointState::Failed)
-            .map(|p| Ok((apply(p, Transition::Retry)?, None)))
-            .collect::<Result<_, CoordError>>()?;
+        // (parsed when the study was submitted; stored meshes are attached to a lease, not here:
+        // only the per-point check runs)
+        let scene = Scene::parse(&entry.record.scene).ok();
+        let bad_input = |i: usize| -> Option<String> {
+            let scene = scene.as_ref()?;
+            let set: Vec<(String, f64)> = entry.full_parameters(i).iter().map(|(n, v)| (n.to_owned(), v)).collect();
+            let values = scene.parameter_values(&set);
+            values
+                .and_then(|v| scene.check_point(&v))
+                .err()
+                .map(|e| format!("point {i}: {}: retrying cannot help", one_line(&e.to_string())))
+        };
+        let mut kept = (0, String::new());
+        let mut changes = Vec::new();
+        for (i, p) in entry.points.iter().enumerate().filter(|(_, p)| p.state == PointState::Failed) {
+            if let Some(why) = bad_input(i) {
+                if kept.0 == 0 {
+                    kept.1 = why;
+                }
+                kept.0 += 1;
+                continue;
+            }
+            changes.push((apply(p, Transition::Retry)?, None));
+        }
         let requeued = changes.len() as u32;
         self.commit(entry, changes, None, Batch::new())?;
         if requeued > 0 {
@@ -598,7 +660,7 @@ impl Coordinator {
         let view = Self::view(&state, &state.studies[&id], false);
         drop(state);
         self.work.notify_waiters();
-        Ok((requeued, view))
+        Ok((requeued, kept, view))
     }
 
     // ---- pools ----
@@ -676,6 +738,7 @@ impl Coordinator {
                 self.commit(entry, vec![(point, Some(EventKind::Started))], None, Batch::new())?;
                 tracing::info!(study = %id, point = i, pool, lease_id, "leased");
                 state.leases.insert(lease_id, (id, PointId(i as u64)));
+                state.lease_since.insert(lease_id, Instant::now());
                 return Ok(Some(grant));
             }
         }
@@ -958,25 +1021,26 @@ impl Coordinator {
         Ok(p)
     }
 
-    /// Extends the pool's valid leases; returns for each its new deadline, or None if no longer
-    /// the pool's.
-    /// Extends the pool's leases (None for a lease no longer its own) and forwards the progress
-    /// it reports for them, (lease, iterations, eta), to the studies' watchers.
-    pub fn heartbeat(&self, pool: &str, lease_ids: &[u64], progress: &[(u64, u64, f64)]) -> Vec<Option<i64>> {
+    /// Extends the pool's leases and forwards the progress it reports for them, (lease,
+    /// iterations, eta), to the studies' watchers. For each lease: its new deadline and whether
+    /// its solve should stop (its study was cancelled), or None when it is no longer the pool's.
+    pub fn heartbeat(&self, pool: &str, lease_ids: &[u64], progress: &[(u64, u64, f64)]) -> Vec<Option<(i64, bool)>> {
         let mut state = self.lock();
         let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
         let State { studies, leases, lease_progress, .. } = &mut *state;
-        let deadlines: Vec<Option<i64>> = lease_ids
+        let deadlines: Vec<Option<(i64, bool)>> = lease_ids
             .iter()
             .map(|lease_id| {
                 let (study, point) = leases.get(lease_id)?;
-                let p = studies.get_mut(study)?.points.get_mut(point.0 as usize)?;
+                let entry = studies.get_mut(study)?;
+                let cancelled = entry.record.cancelled;
+                let p = entry.points.get_mut(point.0 as usize)?;
                 match &mut p.state {
                     PointState::Leased { pool: holder, lease_id: l, deadline_unix_ms, .. }
                         if holder == pool && l == lease_id =>
                     {
                         *deadline_unix_ms = deadline;
-                        Some(deadline)
+                        Some((deadline, cancelled))
                     }
                     _ => None,
                 }
@@ -993,31 +1057,39 @@ impl Coordinator {
         deadlines
     }
 
-    /// Requeues (or fails, after `max_attempts`) every point whose lease deadline passed.
+    /// Requeues (or fails, after `max_attempts`) every point whose lease deadline passed, and
+    /// fails every point leased for longer than the per-point budget.
     pub fn expire_leases(&self) -> Result<usize, CoordError> {
         let now = now_unix_ms();
         let mut state = self.lock();
-        let State { studies, leases, lease_progress, .. } = &mut *state;
+        let State { studies, leases, lease_progress, lease_since, .. } = &mut *state;
+        lease_since.retain(|id, _| leases.contains_key(id));
         let mut expired = 0;
         for entry in studies.values_mut() {
             let mut changes = Vec::new();
             let mut lost = Vec::new();
             for (i, p) in entry.points.iter().enumerate() {
                 let PointState::Leased { pool, lease_id, deadline_unix_ms, .. } = &p.state else { continue };
-                if *deadline_unix_ms > now {
+                let held = lease_since.get(lease_id).map(Instant::elapsed).unwrap_or_default();
+                let over_budget = held > self.config.point_budget;
+                if *deadline_unix_ms > now && !over_budget {
                     continue;
                 }
                 let last = match lease_progress.get(lease_id) {
                     Some((iterations, eta)) => format!("last heard solving at iteration {iterations}, eta {eta:.2e}"),
                     None => "it never reported progress: the pool may have died building the model (memory?)".into(),
                 };
-                let expire = Transition::Expire {
-                    study_cancelled: entry.record.cancelled,
-                    max_attempts: self.config.max_attempts,
-                    last,
+                let expire = if over_budget && !entry.record.cancelled {
+                    Transition::OverBudget { seconds: self.config.point_budget.as_secs_f64(), last }
+                } else {
+                    Transition::Expire {
+                        study_cancelled: entry.record.cancelled,
+                        max_attempts: self.config.max_attempts,
+                        last,
+                    }
                 };
                 let q = apply(p, expire)?;
-                tracing::warn!(study = %p.study, point = i, pool = %pool, lease_id, "lease expired");
+                tracing::warn!(study = %p.study, point = i, pool = %pool, lease_id, over_budget, "lease expired");
                 let kind = if q.state == PointState::Failed { EventKind::Failed } else { EventKind::Requeued };
                 changes.push((q, Some(kind)));
                 lost.push(*lease_id);

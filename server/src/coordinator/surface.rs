@@ -40,7 +40,7 @@ fn predict(
             let p = DesignPoint::from(point.clone());
             let predicted = surfaces
                 .iter()
-                .map(|s| s.predict(&p).map(|v| (v, s.len())))
+                .map(|s| s.predict_within(&p).map(|v| (v, s.len())))
                 .collect::<Result<Vec<_>, _>>()
                 .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
             Ok(PointPrediction { at: point.clone(), qoi: predicted })

@@ -19,6 +19,8 @@ fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator 
         max_solution_bytes: 1 << 30,
         max_points: glissade_core::study::space::DEFAULT_MAX_POINTS,
         max_scene_bytes: crate::DEFAULT_MAX_SCENE_MIB << 20,
+        max_pending: crate::DEFAULT_MAX_PENDING,
+        point_budget: Duration::from_secs(86400),
         solver_version: VERSION.into(),
     };
     Coordinator::open(store, config).unwrap()
@@ -267,8 +269,8 @@ fn lost_leases_requeue_then_fail_and_retry_requeues() {
     assert_eq!(c.study(id, false).unwrap().state, StudyState::Failed);
     assert!(c.lease("p").unwrap().is_none());
 
-    let (requeued, view) = c.retry_failed(id).unwrap();
-    assert_eq!((requeued, view.state), (1, StudyState::Active));
+    let (requeued, kept, view) = c.retry_failed(id).unwrap();
+    assert_eq!((requeued, kept.0, view.state), (1, 0, StudyState::Active));
     let p = state_of(&c, id, 0);
     assert_eq!((p.state, p.attempts), (PointState::Pending, 0));
     // a released point is pending again without an attempt counted
@@ -522,4 +524,32 @@ fn mesh_files_are_checked_stored_once_by_digest_and_kept_across_a_restart() {
     let mut scene = Scene::parse(&grant.scene_text).unwrap();
     scene.attach_mesh_bytes([(JOINT_FILE.to_string(), c.mesh_bytes(&digest).unwrap())]).unwrap();
     assert_eq!(scene.content_hash(), grant.scene_hash);
+}
+
+#[test]
+fn retry_keeps_failed_points_whose_scene_is_invalid_at_their_parameters() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let id = submit(&c, &["f1=0.1,0.15"], 1e-3, InitStrategy::Cold);
+    for _ in 0..2 {
+        let g = c.lease("p").unwrap().unwrap();
+        let (study, point, lease_id) = (g.study, g.point, g.lease_id);
+        let failure = Failure {
+            pool: "p".into(),
+            lease_id,
+            study,
+            point,
+            error: "interfaces[0].friction: must be >= 0".into(),
+            error_indicator: None,
+            iterations: 0,
+        };
+        c.fail(failure).unwrap();
+    }
+    // a study stored before scenes were checked at submit: its friction is -f1 at every point
+    c.lock().studies.get_mut(&id).unwrap().record.scene = TINY.replace("friction = \"f1\"", "friction = \"-f1\"");
+    let (requeued, (kept, why), _) = c.retry_failed(id).unwrap();
+    assert_eq!((requeued, kept), (0, 2));
+    assert!(why.contains("interfaces[0].friction: must be >= 0, got -0.1: retrying cannot help"), "{why}");
+    assert_eq!(state_of(&c, id, 1).state, PointState::Failed);
 }

@@ -8,7 +8,7 @@
 //!   PENDING --lease--> LEASED --complete (converged)--> DONE
 //!      |                 |  \--complete (not converged), fail--> FAILED --retry--> PENDING
 //!      |                 |--release, expire--> PENDING (CANCELLED if the study is)
-//!      |                 \--expire (max attempts)--> FAILED
+//!      |                 \--expire (max attempts), past the per-point budget--> FAILED
 //!      |--answer (a stored solution)--> DONE
 //!      \--cancel--> CANCELLED
 //! ```
@@ -35,6 +35,8 @@ pub enum Transition {
     /// LEASED past its deadline -> PENDING, FAILED once `max_attempts` leases were granted,
     /// CANCELLED when the study is; `last` says what was last heard of the solve.
     Expire { study_cancelled: bool, max_attempts: u32, last: String },
+    /// LEASED for longer than the per-point budget of `seconds` -> FAILED (retryable).
+    OverBudget { seconds: f64, last: String },
     /// PENDING -> CANCELLED.
     Cancel,
     /// FAILED -> PENDING, attempts counted afresh.
@@ -50,6 +52,7 @@ impl Transition {
             Transition::Fail { .. } => "be failed",
             Transition::Release { .. } => "be released",
             Transition::Expire { .. } => "expire",
+            Transition::OverBudget { .. } => "run past its budget",
             Transition::Cancel => "be cancelled",
             Transition::Retry => "be retried",
         }
@@ -122,6 +125,12 @@ pub fn apply(point: &PointRecord, transition: Transition) -> Result<PointRecord,
                 p.state = PointState::Pending;
                 p.error = Some(format!("a lease of pool `{pool}` expired; {last}"));
             }
+        }
+        (PointState::Leased { pool, .. }, Transition::OverBudget { seconds, last }) => {
+            p.state = PointState::Failed;
+            p.error = Some(format!(
+                "held by pool `{pool}` for more than the {seconds} s a point may take (glissade-server --point-seconds); {last}"
+            ));
         }
         (PointState::Pending, Transition::Cancel) => p.state = PointState::Cancelled,
         (PointState::Failed, Transition::Retry) => {

@@ -30,6 +30,10 @@ pub struct Config {
     pub max_scene_bytes: u64,
     /// The solver version the coordinator was built with (the pools' normally).
     pub solver_version: String,
+    /// Most points pending over all studies (a submission that would pass it is refused).
+    pub max_pending: usize,
+    /// Longest a point may stay leased (from its lease, whatever its heartbeats): then it fails.
+    pub point_budget: Duration,
 }
 
 /// Errors of the domain layer; each names the object concerned. `convert::status` maps each variant
@@ -52,6 +56,9 @@ pub enum CoordError {
     /// A valid request the current state forbids (FAILED_PRECONDITION).
     #[error("{0}")]
     Precondition(String),
+    /// A limit of the coordinator reached; may succeed later (RESOURCE_EXHAUSTED).
+    #[error("{0}")]
+    Exhausted(String),
     /// Bytes that do not match their checksum (DATA_LOSS).
     #[error("{0}")]
     Corrupt(String),

@@ -82,3 +82,67 @@ fn a_browser_draws_the_study_page_and_follows_its_progress() -> anyhow::Result<(
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }
+
+/// Strings a user controls, each of which would run script if written into the page as HTML
+/// (each sets its own mark on the body, which the test looks for).
+const HOSTILE_PARAMETER: &str = r#"<img src=x onerror="document.body.dataset.p1=1">"#;
+const HOSTILE_QOI: &str = r#"<svg onload="document.body.dataset.p2=1">"#;
+const HOSTILE_UNIT: &str = r#"</title><img src=x onerror="document.body.dataset.p3=1">"#;
+const HOSTILE_LABEL: &str = r#"</script><script>document.body.dataset.p4=1</script>"#;
+
+#[test]
+fn a_study_of_hostile_names_renders_inert_in_a_browser() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (server_log, pool_log) = (dir.path().join("server.log"), dir.path().join("pool.log"));
+    let (_server, addr) = start_server(&dir.path().join("db"), &server_log);
+    let url = format!("http://{addr}");
+    // the tiny scene, its f1 and slip_A renamed and f1 given a unit (TOML literal strings: the
+    // double quotes stay)
+    let scene = tiny_scene()
+        .replace(
+            "f1 = { default = 0.1, min = 0.1, max = 0.2 }",
+            &format!("'{HOSTILE_PARAMETER}' = {{ default = 0.1, min = 0.1, max = 0.2, unit = '{HOSTILE_UNIT}' }}"),
+        )
+        .replace("friction = \"f1\"", &format!("friction = '{HOSTILE_PARAMETER}'"))
+        .replace("name = \"slip_A\"", &format!("name = '{HOSTILE_QOI}'"));
+    assert!(scene.contains(HOSTILE_UNIT) && scene.contains(HOSTILE_QOI), "the scene changed: {scene}");
+    let rt = runtime();
+    let id = rt.block_on(async {
+        let request = v1::SubmitStudyRequest {
+            scene,
+            // a list, not a grid: the grid's syntax has no room for `=` in a name
+            points: [0.1, 0.2]
+                .iter()
+                .map(|&v| v1::ParameterVector { values: [(HOSTILE_PARAMETER.to_owned(), v)].into() })
+                .collect(),
+            tolerance: Some(STUDY_TOL),
+            label: HOSTILE_LABEL.into(),
+            audit_points: Some(0),
+            ..Default::default()
+        };
+        anyhow::Ok(user(&url).await?.submit_study(request).await?.into_inner().study_id)
+    })?;
+    let mut pool = start_pool(&url, "hostile-pool", &pool_log);
+    rt.block_on(async { watch(&mut user(&url).await?, id, |_| true).await })?;
+    assert!(terminate(&mut pool.0).success());
+
+    for path in ["/".to_owned(), format!("/studies/{id}")] {
+        let dom = rendered(&format!("{url}{path}"));
+        assert!(!dom.contains("data-p"), "a hostile string ran as script on {path}: {dom}");
+        // shown as text, as given
+        assert!(dom.contains("&lt;/script&gt;&lt;script&gt;document.body.dataset.p4=1"), "{path}: {dom}");
+        if path != "/" {
+            assert!(dom.contains("done: 2 of 2 done"), "{dom}\n{}", log_of(&pool_log));
+            assert!(dom.contains("&lt;img src=x onerror=\"document.body.dataset.p1=1\"&gt;=0.1"), "{dom}");
+            assert!(dom.contains("&lt;svg onload=\"document.body.dataset.p2=1\"&gt;"), "{dom}");
+            assert!(dom.contains("&lt;/title&gt;&lt;img src=x"), "{dom}");
+        }
+    }
+    // Even a string that escaped the templates could not run: no inline script is allowed.
+    let (status, head, _) = http_request(&addr, &format!("GET /studies/{id} HTTP/1.1\r\n"), "");
+    assert_eq!(status, 200);
+    let csp =
+        head.lines().find_map(|l| l.to_ascii_lowercase().strip_prefix("content-security-policy:").map(str::to_owned));
+    assert!(csp.as_deref().is_some_and(|p| p.contains("script-src 'self'") && !p.contains("unsafe-inline")), "{head}");
+    Ok(())
+}

@@ -125,6 +125,11 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A", "--at", "f1=0.15,f2=0.15"]);
     assert!(text(&out.stdout).starts_with("f1=0.15 f2=0.15  slip_A = "), "{}", text(&out.stdout));
     assert_one_line_error(&glissade(Some(&url), &["surface", "1", "--at", "f1=0.15"]), "give every swept parameter");
+    // outside the box: refused, not `NaN +- 0`
+    assert_one_line_error(
+        &glissade(Some(&url), &["surface", "1", "--qoi", "slip_A", "--at", "f1=1e300,f2=0.15"]),
+        "`f1` = 1e300 is outside the box the surface covers, [0.1, 0.2]",
+    );
 
     // pictures of the stated size: a colour map, a curve (one free parameter), the convergence
     for (args, size) in [

@@ -444,6 +444,22 @@ pub fn tiny_path() -> String {
     shipped_scene("three-blocks-tiny.toml").display().to_string()
 }
 
+/// An HTTP/1.1 request on `addr`, `head` its request line and headers (each line ending in
+/// CRLF) and `body` sent after them: (status, the response's head, body).
+pub fn http_request(addr: &SocketAddr, head: &str, body: &str) -> (u16, String, String) {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(addr).expect("connect");
+    stream.set_read_timeout(Some(LIMIT)).expect("timeout");
+    write!(stream, "{head}Host: {addr}\r\nConnection: close\r\nContent-Length: {}\r\n\r\n{body}", body.len())
+        .expect("request");
+    let mut raw = Vec::new();
+    stream.read_to_end(&mut raw).expect("response");
+    let raw = String::from_utf8_lossy(&raw).into_owned();
+    let (head, body) = raw.split_once("\r\n\r\n").unwrap_or((&raw, ""));
+    let status = head.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0);
+    (status, head.to_owned(), body.to_owned())
+}
+
 /// An HTTP/1.1 GET of `path` on `addr`: (status, content type, body).
 pub fn http_get(addr: &SocketAddr, path: &str) -> (u16, String, String) {
     use std::io::{Read, Write};

@@ -8,6 +8,7 @@ mod browser;
 mod cli;
 mod common;
 mod engine;
+mod limits;
 mod meshes;
 mod resilience;
 mod security;

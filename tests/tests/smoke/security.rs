@@ -50,9 +50,30 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
     // The web page obeys the tokens: nothing without the user token, the page with it.
     assert_eq!(http_get(&addr, "/api/studies").0, 401);
-    assert_eq!(http_get(&addr, &format!("/api/studies?token={}", "p".repeat(40))).0, 401);
+    let bearer = |t: &str| format!("GET /api/studies HTTP/1.1\r\nAuthorization: Bearer {t}\r\n");
+    assert_eq!(http_request(&addr, &bearer(&pool_token), "").0, 401);
+    assert_eq!(http_request(&addr, &bearer(&user_token), "").0, 200);
+    // A token never goes in a URL (histories and logs keep them), not even the right one.
     let (status, _, body) = http_get(&addr, &format!("/?token={user_token}"));
-    assert_eq!(status, 200, "{body}");
+    assert_eq!(status, 400, "{body}");
+    assert!(body.contains("log in at /login"), "{body}");
+    // A browser without the cookie gets the login form; the form sets an HttpOnly cookie.
+    let (status, _, body) = http_get(&addr, "/");
+    assert!(status == 401 && body.contains("<form method=\"post\" action=\"/login\">"), "{status} {body}");
+    let form = "POST /login HTTP/1.1\r\nContent-Type: application/x-www-form-urlencoded\r\n";
+    let (status, _, body) = http_request(&addr, form, &format!("token={}", "w".repeat(40)));
+    assert!(status == 401 && body.contains("wrong user token"), "{status} {body}");
+    let (status, head, _) = http_request(&addr, form, &format!("token={user_token}"));
+    assert_eq!(status, 303, "{head}");
+    let cookie = head
+        .lines()
+        .find_map(|l| l.strip_prefix("set-cookie: ").or_else(|| l.strip_prefix("Set-Cookie: ")))
+        .unwrap_or_default();
+    assert!(cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"), "{head}");
+    assert!(!cookie.contains(&user_token), "the cookie does not show the token as is: {cookie}");
+    let with_cookie = format!("GET / HTTP/1.1\r\nCookie: {}\r\n", cookie.split(';').next().unwrap_or_default());
+    let (status, _, body) = http_request(&addr, &with_cookie, "");
+    assert!(status == 200 && body.contains("glissade studies"), "{status} {body}");
     // Health stays open for monitoring, ours and the standard one.
     let out = glissade(Some(&url), &["health"]);
     assert!(out.status.success(), "{}", text(&out.stderr));

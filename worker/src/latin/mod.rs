@@ -49,6 +49,10 @@ pub enum SolverError {
     IncompatibleInit(String),
     #[error("{stage} stage: {source}")]
     Macro { stage: &'static str, source: MacroError },
+    /// [`SolveProgress::stop`] was called: the point's study was cancelled, its lease lost, or
+    /// its pool stopping now.
+    #[error("{stage} stage, iteration {iteration}: stopped on request")]
+    Stopped { stage: &'static str, iteration: usize },
 }
 
 /// Iteration record of one stage.
@@ -185,6 +189,7 @@ pub struct SolveOptions {
 pub struct SolveProgress {
     iterations: std::sync::atomic::AtomicU64,
     eta_bits: std::sync::atomic::AtomicU64,
+    stop: std::sync::atomic::AtomicBool,
 }
 
 impl SolveProgress {
@@ -198,6 +203,15 @@ impl SolveProgress {
     pub fn get(&self) -> (u64, f64) {
         use std::sync::atomic::Ordering::Relaxed;
         (self.iterations.load(Relaxed), f64::from_bits(self.eta_bits.load(Relaxed)))
+    }
+
+    /// Asks the solve to stop at the end of its current iteration ([`SolverError::Stopped`]).
+    pub fn stop(&self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    pub fn stop_asked(&self) -> bool {
+        self.stop.load(std::sync::atomic::Ordering::Relaxed)
     }
 }
 
@@ -570,14 +584,19 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
             self.local_stage(stage, fields, gap_start, vn_start);
-            let mut partial = vec![0.0; 2 * m.interfaces.len()];
+            // the last entry: a stop asked of any rank, summed with the errors so that all stop together
+            let mut partial = vec![0.0; 2 * m.interfaces.len() + 1];
             for i in (0..m.interfaces.len()).filter(|&i| self.dist.owns_interface(i)) {
                 let (num, den) = interface_error(m, stage, i, &fields[i]);
                 partial[2 * i] = num;
                 partial[2 * i + 1] = den;
             }
+            partial[2 * m.interfaces.len()] = if progress.is_some_and(SolveProgress::stop_asked) { 1.0 } else { 0.0 };
             let c = Instant::now();
             self.comm.sum_in_place(&mut partial);
+            if partial.pop().is_some_and(|stop| stop > 0.0) {
+                return Err(SolverError::Stopped { stage: stage_name, iteration });
+            }
             let eta = error_indicator_from_parts(&partial);
             report.worst_interface = (0..m.interfaces.len())
                 .max_by(|&a, &b| partial[2 * a].total_cmp(&partial[2 * b]))

@@ -10,8 +10,10 @@
 //! coordinator.
 //!
 //! SIGTERM or SIGINT: a pool waiting for work stops at once; a pool solving finishes the point,
-//! delivers it, then stops (a pool cannot be stopped mid-solve; a point it holds but has not
-//! started is released).
+//! delivers it, then stops (a point it holds but has not started is released). A second signal
+//! stops the solve at its next iteration, gives the point back and stops; a pool still busy 5 s
+//! later exits. A solve also stops at its next iteration when the coordinator's heartbeat answer
+//! says its lease is lost or its study cancelled.
 
 use glissade_core::text::one_line;
 use glissade_proto::auth::{Token, WithToken};
@@ -193,10 +195,13 @@ pub fn run_pool(options: PoolOptions, solver: &mut dyn PoolSolver) -> Result<()>
                     Err(format!("the solver panicked: {}", what.unwrap_or_else(|| "(no message)".into())))
                 }
             };
-        // the study engine's rule: a failed warm start is solved again from cold
+        // the study engine's rule: a failed warm start is solved again from cold (not a stopped one)
+        let stopped = || job.request.progress.as_ref().is_some_and(|p| p.stop_asked());
+        let mut unless_stopped =
+            |job: &PointJob| if stopped() { Err("stopped on request".to_owned()) } else { attempt(job) };
         let cold = job.cold();
         let (outcome, retried) =
-            solve_or_retry_cold(job.init.as_ref(), |init| attempt(if init.is_some() { &job } else { &cold }));
+            solve_or_retry_cold(job.init.as_ref(), |init| unless_stopped(if init.is_some() { &job } else { &cold }));
         let _ = reply.send(outcome.map(|o| (o, retried || job.warm_start_dropped)));
     }
     runtime.block_on(talker).context("pool task panicked")?
@@ -220,6 +225,11 @@ async fn install_signal_handlers(stop: watch::Sender<bool>) -> Result<()> {
         tracing::warn!("second signal: stopping now");
         URGENT.store(true, std::sync::atomic::Ordering::Relaxed);
         let _ = stop.send(true);
+        // The solve stops at its next iteration and the result is spooled; a pool still busy
+        // after this (a long factorisation, an unreachable coordinator) exits anyway.
+        tokio::time::sleep(URGENT_EXIT).await;
+        tracing::error!(after = ?URGENT_EXIT, "second signal: still busy, exiting");
+        std::process::exit(1);
     });
     Ok(())
 }
@@ -307,6 +317,9 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
         }
     }
 }
+
+/// How long a pool given a second signal may take to stop before it exits.
+const URGENT_EXIT: Duration = Duration::from_secs(5);
 
 /// Set by a second SIGTERM or SIGINT: stop now, spooling what is not delivered.
 static URGENT: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
@@ -484,19 +497,41 @@ async fn serve(
         if work.send((job, reply_tx)).is_err() {
             return Break::Stop;
         }
-        // Heartbeat while the point is solved on the main thread.
+        // Heartbeat while the point is solved on the main thread. The solve stops at its next
+        // iteration when the coordinator says so (the study cancelled, the lease lost or past its
+        // budget) or at a second signal.
         let mut ticker = tokio::time::interval(session.heartbeat);
         ticker.tick().await;
+        let stop_solve = || {
+            if let Some(p) = &progress {
+                p.stop();
+            }
+        };
         let outcome = loop {
             tokio::select! {
                 r = &mut reply_rx => break r,
                 _ = ticker.tick() => {
                     let solving = progress.as_ref().map(|p| p.get()).filter(|&(iterations, _)| iterations > 0);
-                    heartbeat(&mut session, lease.lease_id, solving).await
+                    if !heartbeat(&mut session, lease.lease_id, solving).await {
+                        stop_solve();
+                    }
+                }
+                Ok(()) = stop.changed() => {
+                    if URGENT.load(std::sync::atomic::Ordering::Relaxed) {
+                        stop_solve();
+                    }
                 }
             }
         };
         let Ok(outcome) = outcome else { return Break::Stop };
+        if progress.as_ref().is_some_and(|p| p.stop_asked()) {
+            // Not the point's fault: given back (a cancelled study's point becomes cancelled; a
+            // lost lease's release is refused, and its point is already elsewhere).
+            tracing::info!(study = lease.study_id, point = lease.point_id, "solve stopped");
+            release(&mut session, &lease).await;
+            last_solved = Some(Instant::now());
+            continue;
+        }
         // What the pool spent between two solves: delivering the last point, leasing this one
         // with its warm start (docs/performance.md, Service).
         let gap = solve_started - last_solved.unwrap_or(asked).min(solve_started);
@@ -582,6 +617,10 @@ fn prepare(
     if scene.content_hash() != lease.scene_hash {
         bail!("the lease's scene has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
     }
+    // the coordinator's checks at submit (core::check), again: a scene from an older
+    // coordinator, or one whose rules changed since
+    let set: Vec<(String, f64)> = lease.parameters.iter().map(|(k, v)| (k.clone(), *v)).collect();
+    scene.check_meshes().and_then(|()| scene.check_point(&scene.parameter_values(&set)?)).context("scene")?;
     let size = scene.size().context("scene")?;
     if let Some(memory) = memory
         && size.bytes() > memory
@@ -627,8 +666,9 @@ fn prepare(
     Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init, warm_start_dropped })
 }
 
-/// Extends the lease, reporting how far its solve got: (iterations, eta).
-async fn heartbeat(session: &mut Session, lease_id: u64, solving: Option<(u64, f64)>) {
+/// Extends the lease, reporting how far its solve got: (iterations, eta). False when the solve
+/// should stop: the coordinator says the lease is no longer ours, or asks to stop it.
+async fn heartbeat(session: &mut Session, lease_id: u64, solving: Option<(u64, f64)>) -> bool {
     let request = v1::HeartbeatRequest {
         pool_id: session.pool_id.clone(),
         lease_ids: vec![lease_id],
@@ -639,12 +679,22 @@ async fn heartbeat(session: &mut Session, lease_id: u64, solving: Option<(u64, f
     };
     match session.client.heartbeat(request).await {
         Ok(reply) => {
-            for lease in reply.into_inner().leases.iter().filter(|l| !l.valid) {
-                tracing::warn!(lease = lease.lease_id, "the coordinator says this lease is no longer ours");
+            let mut go_on = true;
+            for lease in reply.into_inner().leases {
+                if !lease.valid {
+                    tracing::warn!(lease = lease.lease_id, "the coordinator says this lease is no longer ours");
+                } else if lease.stop {
+                    tracing::info!(lease = lease.lease_id, "the coordinator asks to stop this solve (study cancelled)");
+                }
+                go_on &= lease.valid && !lease.stop;
             }
+            go_on
         }
         // The coordinator may be restarting; the result is kept and delivered after reconnecting.
-        Err(status) => tracing::debug!(error = status.message(), "heartbeat failed"),
+        Err(status) => {
+            tracing::debug!(error = status.message(), "heartbeat failed");
+            true
+        }
     }
 }
 
