@@ -263,33 +263,13 @@ impl<const D: usize> Model<D> {
     /// Builds the model of `scene` at the design point `values` (dimension must equal `D`).
     pub fn build(scene: &Scene, values: &ParameterValues) -> Result<Self, SceneError> {
         assert_eq!(scene.dimension, D, "scene dimension must match the model's");
+        // the rules on the scene's numbers, in the one place the coordinator runs them too
+        scene.check_point(values)?;
         let r = Resolver { values };
         let duration = r.get("time.duration", &scene.time.duration)?;
-        if duration <= 0.0 {
-            return Err(invalid("time.duration", "must be > 0"));
-        }
-        if scene.time.steps == 0 {
-            return Err(invalid("time.steps", "must be >= 1"));
-        }
         let k0_factor = r.get("solver.k0_factor", &scene.solver.k0_factor)?;
-        if k0_factor <= 0.0 {
-            return Err(invalid("solver.k0_factor", "must be > 0"));
-        }
         let st = &scene.solver;
-        glissade_core::scene::check_tolerance("solver.tolerance", st.tolerance)?;
-        if !(st.relaxation > 0.0 && st.relaxation <= 1.0) {
-            return Err(invalid("solver.relaxation", "must be in (0, 1]"));
-        }
         let tangential_factor = st.tangential_factor;
-        // measured useful between 0.5 and 3 (docs/performance.md); far outside, the compliances
-        // overflow
-        if !(TANGENTIAL_FACTOR_RANGE.0..=TANGENTIAL_FACTOR_RANGE.1).contains(&tangential_factor) {
-            let (lo, hi) = TANGENTIAL_FACTOR_RANGE;
-            return Err(invalid("solver.tangential_factor", format!("must be a number in [{lo}, {hi}]")));
-        }
-        if !(st.warm_tolerance_ratio > 0.0 && st.warm_tolerance_ratio <= 1.0) {
-            return Err(invalid("solver.warm_tolerance_ratio", "must be in (0, 1]"));
-        }
         let settings = SolverSettings {
             tolerance: st.tolerance,
             max_iterations: st.max_iterations,
@@ -754,8 +734,8 @@ pub fn static_search_direction(young: f64, assembly_size: f64, mesh_size: Option
     }
 }
 
-/// Accepted values of `[solver] tangential_factor`.
-pub const TANGENTIAL_FACTOR_RANGE: (f64, f64) = (0.01, 100.0);
+/// Accepted values of `[solver] tangential_factor` (checked by `Scene::check_point`).
+pub use glissade_core::check::TANGENTIAL_FACTOR_RANGE;
 
 /// Bounds of the dynamic search direction relative to the impedance sqrt(rho E).
 pub const SEARCH_DIRECTION_BOUNDS: (f64, f64) = (1.0, 4.0);
