@@ -82,17 +82,8 @@ discretisation error (1e-6). Exit status: 0, or 2 when a level did not converge.
 
 #[derive(Args)]
 struct RefineArgs {
-    /// Scene file (TOML, see docs/scenes.md)
-    scene: PathBuf,
-    /// Parameter value, NAME=VALUE (repeatable)
-    #[arg(long = "set", value_name = "NAME=VALUE")]
-    set: Vec<String>,
-    /// Error-indicator tolerance of every level (default: the scene's, else 2e-4)
-    #[arg(long, value_name = "T")]
-    tol: Option<f64>,
-    /// Iteration limit of every level (default: the scene's, else 1000)
-    #[arg(long, value_name = "N")]
-    max_iter: Option<usize>,
+    #[command(flatten)]
+    point: PointArgs,
     /// Time-step ladder: the scene's steps times each factor
     #[arg(long, value_name = "1,2,4", value_delimiter = ',', default_value = "1,2,4")]
     dt: Vec<usize>,
@@ -107,15 +98,7 @@ struct RefineArgs {
 /// The refinement ladders of one design point, on this process.
 fn refine(args: RefineArgs) -> Result<bool> {
     use glissade_worker::refine::{Refinement, check_factors, refined_scene, run_ladder};
-    let text =
-        std::fs::read_to_string(&args.scene).with_context(|| format!("cannot read scene {}", args.scene.display()))?;
-    let scene = parse_scene(&text, &args.scene)?;
-    let request = SolveRequest {
-        set: args.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
-        tolerance: args.tol,
-        max_iterations: args.max_iter,
-        ..SolveRequest::default()
-    };
+    let (scene, request) = args.point.read()?;
     let mut ladders = vec![(Refinement::Time, args.dt.clone())];
     if !args.h.is_empty() {
         ladders.push((Refinement::Mesh, args.h.clone()));
@@ -150,7 +133,7 @@ fn refine(args: RefineArgs) -> Result<bool> {
         if !json {
             println!(
                 "{} ladder ({what} / {}):",
-                args.scene.display(),
+                args.point.scene.display(),
                 factors.iter().map(|f| f.to_string()).collect::<Vec<_>>().join(", ")
             );
             for q in &ladder.qois {
@@ -289,8 +272,9 @@ fn abort_all_ranks_on_panic() {
     }));
 }
 
+/// A design point of a scene and the iterations' settings (`solve`, `refine`).
 #[derive(Args)]
-struct SolveArgs {
+struct PointArgs {
     /// Scene file (TOML, see docs/scenes.md)
     scene: PathBuf,
     /// Parameter value, NAME=VALUE (repeatable)
@@ -302,6 +286,28 @@ struct SolveArgs {
     /// Iteration limit (default: the scene's, else 1000)
     #[arg(long, value_name = "N")]
     max_iter: Option<usize>,
+}
+
+impl PointArgs {
+    /// The scene, read and parsed, and the request of its design point.
+    fn read(&self) -> Result<(Scene, SolveRequest)> {
+        let text = std::fs::read_to_string(&self.scene)
+            .with_context(|| format!("cannot read scene {}", self.scene.display()))?;
+        let scene = parse_scene(&text, &self.scene)?;
+        let request = SolveRequest {
+            set: self.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
+            tolerance: self.tol,
+            max_iterations: self.max_iter,
+            ..SolveRequest::default()
+        };
+        Ok((scene, request))
+    }
+}
+
+#[derive(Args)]
+struct SolveArgs {
+    #[command(flatten)]
+    point: PointArgs,
     /// Single-scale or multiscale (macro problem) iterations
     #[arg(long, value_enum)]
     scale: Option<Scale>,
@@ -394,19 +400,11 @@ fn check_output(flag: &str, path: &Path) -> Result<()> {
 
 /// One solve; under `mpiexec.mpich -n P` every rank runs it and rank 0 writes the files and prints.
 fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
-    let scene_path = &args.scene;
-    let text =
-        std::fs::read_to_string(scene_path).with_context(|| format!("cannot read scene {}", scene_path.display()))?;
-    let scene = parse_scene(&text, scene_path)?;
+    let scene_path = &args.point.scene;
+    let (scene, mut request) = args.point.read()?;
     let scene_hash = scene.content_hash();
-    let mut request = SolveRequest {
-        set: args.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
-        tolerance: args.tol,
-        max_iterations: args.max_iter,
-        scale: args.scale,
-        record_fields: args.fields.is_some(),
-        ..SolveRequest::default()
-    };
+    request.scale = args.scale;
+    request.record_fields = args.fields.is_some();
     if let Some(p) = &args.save {
         check_output("--save", p)?;
     }

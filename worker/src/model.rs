@@ -284,15 +284,7 @@ impl<const D: usize> Model<D> {
             let young = r.get(&format!("{key}.E"), &m.E)?;
             let poisson = r.get(&format!("{key}.nu"), &m.nu)?;
             let density = r.get(&format!("{key}.rho"), &m.rho)?;
-            if young <= 0.0 {
-                return Err(invalid(format!("{key}.E"), format!("must be > 0, got {young}")));
-            }
-            if density <= 0.0 {
-                return Err(invalid(format!("{key}.rho"), format!("must be > 0, got {density}")));
-            }
-            if !(-1.0 < poisson && poisson < 0.5) {
-                return Err(invalid(format!("{key}.nu"), format!("must be in (-1, 0.5), got {poisson}")));
-            }
+            // ranges checked by check_point above
             materials.insert(name.clone(), Material { young, poisson, density });
         }
 
