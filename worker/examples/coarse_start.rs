@@ -62,7 +62,12 @@ fn run<const D: usize>(scene: &Scene, set: &[(String, f64)], ratio: usize) -> Re
         work(c.dynamic.iterations, coarse.steps) + warm.dynamic.iterations as f64
     );
     for (a, b) in cold.qoi.iter().zip(&warm.qoi) {
-        println!("  {:<20} cold {:.6e}  coarse start {:.6e}", a.name, a.values.last().unwrap(), b.values.last().unwrap());
+        println!(
+            "  {:<20} cold {:.6e}  coarse start {:.6e}",
+            a.name,
+            a.values.last().unwrap(),
+            b.values.last().unwrap()
+        );
     }
     Ok(())
 }
