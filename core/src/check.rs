@@ -9,12 +9,54 @@
 
 use crate::gmsh::Msh;
 use crate::scene::{
-    BodySpec, LawSpec, ParameterValues, Resolver, Scene, SceneError, Substructures, check_tolerance, invalid,
+    BodySpec, InterfaceSpec, LawSpec, ParameterValues, Resolver, Scene, SceneError, Substructures, check_tolerance,
+    invalid,
 };
 
 /// The useful range of `solver.tangential_factor`: far outside it, the compliances overflow
 /// (docs/performance.md).
 pub const TANGENTIAL_FACTOR_RANGE: (f64, f64) = (0.01, 100.0);
+
+/// An interface law with its numbers at a design point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LawValues {
+    Perfect,
+    Contact,
+    /// the friction coefficient, >= 0
+    Friction(f64),
+    /// the shortening (m)
+    Prestress(f64),
+}
+
+/// The law of interface `spec` (at `key`) with its numbers, checked: the one rule the submit
+/// check and the model's build both follow.
+pub fn law_values(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<LawValues, SceneError> {
+    if spec.prestress.is_some() && spec.law != LawSpec::Prestress {
+        return Err(invalid(format!("{key}.prestress"), "only law 'prestress' takes a prestress"));
+    }
+    Ok(match spec.law {
+        LawSpec::Perfect => LawValues::Perfect,
+        LawSpec::Contact => LawValues::Contact,
+        LawSpec::Friction => {
+            let f = spec
+                .friction
+                .as_ref()
+                .ok_or_else(|| invalid(format!("{key}.friction"), "law 'friction' needs a coefficient"))?;
+            let f = r.get(&format!("{key}.friction"), f)?;
+            if f < 0.0 {
+                return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
+            }
+            LawValues::Friction(f)
+        }
+        LawSpec::Prestress => {
+            let s = spec
+                .prestress
+                .as_ref()
+                .ok_or_else(|| invalid(format!("{key}.prestress"), "law 'prestress' needs a shortening (m)"))?;
+            LawValues::Prestress(r.get(&format!("{key}.prestress"), s)?)
+        }
+    })
+}
 
 impl Scene {
     /// Every rule on the scene's numbers at the design point `values` (all parameters, as
@@ -76,29 +118,7 @@ impl Scene {
         }
         for (ii, spec) in self.interfaces.iter().enumerate() {
             let key = format!("interfaces[{ii}]");
-            if spec.prestress.is_some() && spec.law != LawSpec::Prestress {
-                return Err(invalid(format!("{key}.prestress"), "only law 'prestress' takes a prestress"));
-            }
-            match spec.law {
-                LawSpec::Perfect | LawSpec::Contact => {}
-                LawSpec::Friction => {
-                    let f = spec
-                        .friction
-                        .as_ref()
-                        .ok_or_else(|| invalid(format!("{key}.friction"), "law 'friction' needs a coefficient"))?;
-                    let f = r.get(&format!("{key}.friction"), f)?;
-                    if f < 0.0 {
-                        return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
-                    }
-                }
-                LawSpec::Prestress => {
-                    let s = spec
-                        .prestress
-                        .as_ref()
-                        .ok_or_else(|| invalid(format!("{key}.prestress"), "law 'prestress' needs a shortening (m)"))?;
-                    r.get(&format!("{key}.prestress"), s)?;
-                }
-            }
+            law_values(&r, &key, spec)?;
             // (a gap is read for a wall only)
             if spec.b == "wall"
                 && let Some(g) = &spec.gap

@@ -8,8 +8,8 @@ use crate::latin::search_direction::SearchDirection;
 use crate::mesh::{Face, Mesh};
 use crate::sparse::CsrMatrix;
 use glissade_core::scene::{
-    BodySpec, History, LawSpec, MassMatrix, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError,
-    Substructures, component_index, invalid,
+    BodySpec, History, MassMatrix, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError, Substructures,
+    component_index, invalid,
 };
 
 /// Interface behaviour (docs/method.md 1).
@@ -830,36 +830,18 @@ fn body_mesh<const D: usize>(
     Ok((Mesh::structured_box(origin, size, counts), Mesh::<D>::box_partition(counts, parts)))
 }
 
-/// The law of a declared interface at a design point.
+/// The interface law at the design point (`glissade_core::check::law_values` holds the rules).
 fn resolve_law(
     r: &Resolver,
     key: &str,
     spec: &glissade_core::scene::InterfaceSpec,
 ) -> Result<InterfaceLaw, SceneError> {
-    if spec.prestress.is_some() && spec.law != LawSpec::Prestress {
-        return Err(invalid(format!("{key}.prestress"), "only law 'prestress' takes a prestress"));
-    }
-    Ok(match spec.law {
-        LawSpec::Perfect => InterfaceLaw::Perfect,
-        LawSpec::Contact => InterfaceLaw::Contact,
-        LawSpec::Friction => {
-            let f = spec
-                .friction
-                .as_ref()
-                .ok_or_else(|| invalid(format!("{key}.friction"), "law 'friction' needs a coefficient"))?;
-            let f = r.get(&format!("{key}.friction"), f)?;
-            if f < 0.0 {
-                return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
-            }
-            InterfaceLaw::Friction { coefficient: f }
-        }
-        LawSpec::Prestress => {
-            let s = spec
-                .prestress
-                .as_ref()
-                .ok_or_else(|| invalid(format!("{key}.prestress"), "law 'prestress' needs a shortening (m)"))?;
-            InterfaceLaw::Prestress { shortening: r.get(&format!("{key}.prestress"), s)? }
-        }
+    use glissade_core::check::{LawValues, law_values};
+    Ok(match law_values(r, key, spec)? {
+        LawValues::Perfect => InterfaceLaw::Perfect,
+        LawValues::Contact => InterfaceLaw::Contact,
+        LawValues::Friction(coefficient) => InterfaceLaw::Friction { coefficient },
+        LawValues::Prestress(shortening) => InterfaceLaw::Prestress { shortening },
     })
 }
 

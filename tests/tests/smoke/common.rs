@@ -134,10 +134,19 @@ pub const STUDY_TOL: f64 = 1e-3;
 /// Starts a pool of two MPI ranks, `mpiexec -n 2 glissade-worker pool`, against `url`, logging to
 /// `log`. Killing mpiexec (SIGKILL) ends its ranks too; SIGTERM reaches all of them.
 pub fn start_pool(url: &str, id: &str, log: &Path) -> ServerGuard {
+    let mut cmd = command(Path::new("mpiexec.mpich"));
+    cmd.args(["-n", "2"]).arg(workspace_bin("glissade-worker"));
+    spawn_pool(cmd, url, id, log)
+}
+
+/// Starts a pool of one process (signals reach it directly), as `start_pool` otherwise.
+pub fn start_single_pool(url: &str, id: &str, log: &Path) -> ServerGuard {
+    spawn_pool(command(&workspace_bin("glissade-worker")), url, id, log)
+}
+
+fn spawn_pool(mut cmd: Command, url: &str, id: &str, log: &Path) -> ServerGuard {
     let token = child_token();
-    let child = command(Path::new("mpiexec.mpich"))
-        .args(["-n", "2"])
-        .arg(workspace_bin("glissade-worker"))
+    let child = cmd
         .args(["pool", "--coordinator", url, "--pool-id", id])
         .env("RUST_LOG", "glissade_worker::pool=debug")
         .stdin(Stdio::null())

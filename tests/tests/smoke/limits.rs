@@ -22,20 +22,6 @@ fn slow_request() -> v1::SubmitStudyRequest {
     }
 }
 
-/// A one-process pool (signals reach it directly), logging to `log`.
-fn single_pool(url: &str, log: &Path) -> ServerGuard {
-    let token = child_token();
-    let child = command(&workspace_bin("glissade-worker"))
-        .args(["pool", "--coordinator", url, "--pool-id", "single"])
-        .env("RUST_LOG", "glissade_worker::pool=debug")
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(File::create(log).expect("create pool log"))
-        .spawn()
-        .expect("start glissade-worker pool");
-    ServerGuard(child, token)
-}
-
 /// Polls study `id` until `done` holds for its only point, or panics after `within`.
 async fn wait_point(
     client: &mut UserClient<Channel>,
@@ -105,7 +91,7 @@ fn a_cancel_the_budget_and_a_second_signal_stop_a_running_solve() -> anyhow::Res
     );
     let url = format!("http://{addr}");
     let rt = runtime();
-    let mut pool = single_pool(&url, &pool_log);
+    let mut pool = start_single_pool(&url, "single", &pool_log);
     rt.block_on(async {
         let mut client = user(&url).await?;
         // Cancelled while it iterates: given back at the next heartbeat, the pool free again.

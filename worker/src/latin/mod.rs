@@ -556,6 +556,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
         let stage_name = stage.name();
         let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect());
+        // the interface with the largest share of eta at the last iteration
+        let mut worst = None;
         let mut relaxation = Relaxation::new(settings.relaxation, m.qois.iter().map(|q| q.target.unit()).collect());
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
@@ -598,10 +600,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 return Err(SolverError::Stopped { stage: stage_name, iteration });
             }
             let eta = error_indicator_from_parts(&partial);
-            report.worst_interface = (0..m.interfaces.len())
-                .max_by(|&a, &b| partial[2 * a].total_cmp(&partial[2 * b]))
-                .map(|i| m.interfaces[i].name.clone());
-            report.relaxation = relaxation.mu();
+            worst = (0..m.interfaces.len()).max_by(|&a, &b| partial[2 * a].total_cmp(&partial[2 * b]));
             self.dist.send_hats_to_sides(self.comm, m, fields);
             timings.communication += c.elapsed().as_secs_f64();
             timings.local_stage += t.elapsed().as_secs_f64();
@@ -641,6 +640,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 break;
             }
         }
+        report.worst_interface = worst.map(|i| m.interfaces[i].name.clone());
+        report.relaxation = relaxation.mu();
         Ok(report)
     }
 
