@@ -273,6 +273,10 @@ pub struct SolverSpec {
     /// a warm-started solve stops at `tolerance` times this (see docs/scenes.md)
     #[serde(default = "default_warm_tolerance_ratio")]
     pub warm_tolerance_ratio: f64,
+    /// steps per time window of the dynamic stage; 0: the whole interval at once
+    /// (docs/method.md, "Time windows")
+    #[serde(default)]
+    pub time_window: usize,
 }
 
 fn default_tolerance() -> f64 {
@@ -307,6 +311,7 @@ impl Default for SolverSpec {
             relaxation: default_relaxation(),
             scale: Scale::Single,
             warm_tolerance_ratio: default_warm_tolerance_ratio(),
+            time_window: 0,
         }
     }
 }

@@ -214,6 +214,8 @@ pub struct SolverSettings {
     pub scale: Scale,
     /// the dynamic stage of a warm-started solve stops at tolerance x this
     pub warm_tolerance_ratio: f64,
+    /// steps per time window of the dynamic stage (0: the whole interval)
+    pub time_window: usize,
 }
 
 /// The whole decomposed problem of one design point.
@@ -276,6 +278,7 @@ impl<const D: usize> Model<D> {
             relaxation: st.relaxation,
             scale: st.scale,
             warm_tolerance_ratio: st.warm_tolerance_ratio,
+            time_window: st.time_window,
         };
 
         let mut materials = BTreeMap::new();

@@ -135,6 +135,16 @@ impl SubstructureOperators {
         st.a.fill(0.0);
     }
 
+    /// The Newmark state, to start a later time window from (docs/method.md, "Time windows").
+    pub fn save(&self) -> NewmarkState {
+        self.state.clone()
+    }
+
+    /// Starts from a state saved by [`Self::save`] instead of the initial one.
+    pub fn restore(&mut self, state: &NewmarkState) {
+        self.state.clone_from(state);
+    }
+
     /// Current (u, v) of the substructure.
     pub fn state(&self) -> (&[f64], &[f64]) {
         (&self.state.u, &self.state.v)
