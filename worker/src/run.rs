@@ -215,6 +215,7 @@ impl SolvePoint for PointSolver {
             converged: s.converged,
             iterations: s.iterations,
             static_iterations: s.static_stage.as_ref().map_or(0, |st| st.iterations),
+            dynamic_sweeps: s.dynamic_sweeps,
             eta: s.error_indicator,
             qoi: s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect(),
             solution: o.solution,

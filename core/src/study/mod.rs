@@ -110,6 +110,10 @@ pub struct PointRecord {
     /// LATIN iterations, static + dynamic (0 when reused)
     pub iterations: usize,
     pub static_iterations: usize,
+    /// the dynamic iterations' work in sweeps of the whole interval, where time windows made it
+    /// less than their number (absent: one sweep each)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dynamic_sweeps: Option<f64>,
     /// final error indicator of the dynamic stage (null when failed)
     pub eta: Option<f64>,
     pub tolerance: f64,
@@ -216,9 +220,11 @@ pub fn warm_against_cold(cold: WorkMean, warm: WorkMean) -> String {
 }
 
 impl PointRecord {
-    /// Dynamic iterations + static iterations / steps.
+    /// Sweeps of the whole interval: dynamic iterations (or their windows' share) + static
+    /// iterations / steps.
     pub fn work(&self, steps: usize) -> f64 {
-        (self.iterations - self.static_iterations) as f64 + self.static_iterations as f64 / steps.max(1) as f64
+        let dynamic = self.dynamic_sweeps.unwrap_or((self.iterations - self.static_iterations) as f64);
+        dynamic + self.static_iterations as f64 / steps.max(1) as f64
     }
 }
 
@@ -354,6 +360,8 @@ pub struct PointSolved {
     /// static + dynamic
     pub iterations: usize,
     pub static_iterations: usize,
+    /// the dynamic iterations in sweeps of the whole interval (their number without time windows)
+    pub dynamic_sweeps: f64,
     /// final error indicator of the dynamic stage
     pub eta: f64,
     /// final value of every QoI
@@ -443,6 +451,7 @@ fn solve_point(
         converged: false,
         iterations: 0,
         static_iterations: 0,
+        dynamic_sweeps: None,
         eta: None,
         tolerance,
         wall_seconds: 0.0,
@@ -488,6 +497,8 @@ fn solve_point(
             record.status = if o.converged { PointStatus::Converged } else { PointStatus::NotConverged };
             record.iterations = o.iterations;
             record.static_iterations = o.static_iterations;
+            let dynamic = (o.iterations - o.static_iterations) as f64;
+            record.dynamic_sweeps = (o.dynamic_sweeps != dynamic).then_some(o.dynamic_sweeps);
             record.eta = Some(o.eta);
             record.qoi = o.qoi;
             if o.converged {
