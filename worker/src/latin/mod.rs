@@ -687,9 +687,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
                     for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
                         if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
-                            let mut relaxed = old.clone();
-                            relaxed.relax_towards(side, relaxation.mu());
-                            *side = relaxed;
+                            side.relax_from(old, relaxation.mu());
                         }
                     }
                 }
