@@ -329,7 +329,7 @@ pub struct SceneSize {
 
 impl SceneSize {
     /// Bytes per degree of freedom: operators and their factors, measured at 6-8 kB on 3D boxes
-    /// of 375-2187-dof substructures (docs/performance.md, "Memory of a solve").
+    /// of 375-2187-dof substructures (docs/performance.md, "Memory per design point, and of one solve").
     pub const BYTES_PER_DOF: u64 = 10_000;
     /// Bytes per interface node, step and dimension: F and W of both stages' copies.
     pub const BYTES_PER_INTERFACE_VALUE: u64 = 100;

@@ -1,5 +1,5 @@
 //! The stopping test: an estimate of how far each QoI history still is from the converged one
-//! (docs/method.md, "Stopping test").
+//! (docs/method.md, "Relaxation, error indicator, stopping test").
 //!
 //! eta measures the gap between the two LATIN spaces over every interface and step; it says
 //! little about one velocity or one slip (measured: velocity histories 40x eta, slips at 2e-4
