@@ -606,12 +606,18 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         };
         let mut report = StageReport::default();
         // Each window's error is carried to the end of the interval and adds to the later
-        // windows' (a slip is a sum): the tolerance is shared out between the windows (a share
-        // by the square root of their number let the brass block's histories at dt / 10 end
-        // 1.3 x the tolerance off: docs/performance.md, "Time windows").
+        // windows' (a slip is a sum): the QoI estimate's tolerance is shared out between the
+        // windows (a share by the square root of their number let the brass block's histories
+        // at dt / 10 end 1.3 x the tolerance off); eta, a guard, is held to a tenth of it (its
+        // share too kept the 3D block's first window from converging at 1e-5):
+        // docs/performance.md, "Time windows".
         let windows = steps.div_ceil(length);
-        let window_tolerance = WINDOW_TOLERANCE_RATIO * tolerance / windows as f64;
-        let window_tolerance = if windows > 1 { (window_tolerance, window_tolerance) } else { (tolerance, tolerance) };
+        let window_tolerance = if windows > 1 {
+            let share = WINDOW_TOLERANCE_RATIO * tolerance;
+            (share, share / windows as f64)
+        } else {
+            (tolerance, tolerance)
+        };
         loop {
             let (part, bases) =
                 self.iterate_window(stage, window_tolerance, fields, u0, timings, options, statics, &window)?;
@@ -642,6 +648,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// error indicator is below the tolerance; returns the report and the gap rule's bases at
     /// the window's end.
     #[allow(clippy::too_many_arguments)] // the stage's start data; a struct would be used once
+    /// `tolerances`: eta's and the QoI estimate's.
     fn iterate_window(
         &mut self,
         stage: Stage,
