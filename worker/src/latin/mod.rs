@@ -113,6 +113,12 @@ impl StageReport {
         let last = mean(&h[h.len().saturating_sub(window)..]);
         let before = mean(&h[h.len().saturating_sub(2 * window)..h.len().saturating_sub(window)]);
         let best = h.iter().copied().fold(f64::INFINITY, f64::min);
+        // iterations over time windows sweep less than the interval each
+        let windows = if self.sweeps < self.iterations as f64 {
+            "another solver.time_window (twice or half this one)"
+        } else {
+            "time windows (solver.time_window = 30 steps or more)"
+        };
         let place =
             self.worst_interface.as_ref().map_or(String::new(), |i| format!(", largest residual on interface '{i}'"));
         let advice = if last > 2.0 * best.max(f64::MIN_POSITIVE) && last > before {
@@ -129,8 +135,7 @@ impl StageReport {
         } else if last > 0.8 * before {
             format!(
                 "stalled: eta {before:.2e} -> {last:.2e} over the last {window} iterations; try the other solver.scale \
-                 (single or multi), solver.k0_factor (0.5 or 2), time windows (solver.time_window = 30 steps or \
-                 more) or a coarser time step"
+                 (single or multi), solver.k0_factor (0.5 or 2), {windows} or a coarser time step"
             )
         } else {
             // geometric rate over the last window: iterations still needed to reach the tolerance
@@ -138,7 +143,7 @@ impl StageReport {
             let more = ((tolerance / h.last().copied().unwrap_or(last)).ln() / rate.ln()).ceil().max(0.0);
             format!(
                 "still converging (eta x {rate:.4} per iteration): about {more} more iterations; raise --max-iter, \
-                 or iterate in time windows (solver.time_window = 30 steps or more)"
+                 or try {windows}"
             )
         };
         format!("{advice}{place}")
