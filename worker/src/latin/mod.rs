@@ -461,18 +461,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
             // The static stage's error is carried by every step of the dynamics, and its
             // iterations cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
-            let report = self.iterate(
-                Stage::Static,
-                m.settings.tolerance * STATIC_TOLERANCE_RATIO,
-                &mut st.interfaces,
-                &start,
-                &[],
-                &u0,
-                &mut timings,
-                options,
-                None,
-                init.is_none(),
-            )?;
+            let begin = StageStart {
+                stage: Stage::Static,
+                tolerance: m.settings.tolerance * STATIC_TOLERANCE_RATIO,
+                gaps: (&start, &[]),
+                u0: &u0,
+                statics: None,
+                cold: init.is_none(),
+            };
+            let report = self.iterate(&begin, &mut st.interfaces, &mut timings, options)?;
             // the initial state of the dynamics: displacements of the converged static solution
             let t = Instant::now();
             let mut scratch = st.interfaces.clone();
@@ -517,18 +514,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // (warm_tolerance_ratio, docs/scenes.md; measured in docs/performance.md).
         let from_neighbour = init.is_some() && !options.init_at_this_point;
         let ratio = if from_neighbour { m.settings.warm_tolerance_ratio } else { 1.0 };
-        let report = self.iterate(
-            Stage::Dynamic,
-            m.settings.tolerance * ratio,
-            &mut dynamic.interfaces,
-            &gap_start,
-            &vn_start,
-            &u0,
-            &mut timings,
-            options,
-            static_solution.as_ref(),
-            init.is_none(),
-        )?;
+        let begin = StageStart {
+            stage: Stage::Dynamic,
+            tolerance: m.settings.tolerance * ratio,
+            gaps: (&gap_start, &vn_start),
+            u0: &u0,
+            statics: static_solution.as_ref(),
+            cold: init.is_none(),
+        };
+        let report = self.iterate(&begin, &mut dynamic.interfaces, &mut timings, options)?;
 
         // Post-processing sweep on the converged local-stage fields.
         let t = Instant::now();
@@ -583,21 +577,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// LATIN iterations of one stage until the error indicator is below the tolerance: over the
     /// whole time interval at once (the paper's way), or window after window when the scene asks
     /// for time windows (docs/method.md, "Time windows").
-    #[allow(clippy::too_many_arguments)] // the stage's start data; a struct would be used once
     fn iterate(
         &mut self,
-        stage: Stage,
-        tolerance: f64,
+        begin: &StageStart,
         fields: &mut [InterfaceField],
-        gap_start: &[Vec<f64>],
-        vn_start: &[Vec<f64>],
-        u0: &[Option<Vec<f64>>],
         timings: &mut Timings,
         options: &SolveOptions,
-        statics: Option<&StageSolution>,
-        cold: bool,
     ) -> Result<StageReport, SolverError> {
         let m = self.model;
+        let StageStart { stage, tolerance, gaps: (gap_start, vn_start), u0, cold, .. } = *begin;
         let steps = stage.steps(m);
         let length = match (stage, m.settings.time_window) {
             (Stage::Dynamic, w) if w > 0 => w.min(steps),
@@ -624,8 +612,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             (tolerance, tolerance)
         };
         loop {
-            let (part, bases) =
-                self.iterate_window(stage, window_tolerance, fields, u0, timings, options, statics, &window)?;
+            let (part, bases) = self.iterate_window(begin, window_tolerance, fields, timings, options, &window)?;
             report.append(part, window.steps.len() as f64 / steps as f64);
             if !report.converged || window.steps.end == steps {
                 return Ok(report);
@@ -652,20 +639,18 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// LATIN iterations of one stage over one time window (or the whole interval) until the
     /// error indicator is below the tolerance; returns the report and the gap rule's bases at
     /// the window's end.
-    #[allow(clippy::too_many_arguments)] // the stage's start data; a struct would be used once
-    /// `tolerances`: eta's and the QoI estimate's.
+    /// The tolerances: eta's and the QoI estimate's.
     fn iterate_window(
         &mut self,
-        stage: Stage,
+        begin: &StageStart,
         (tolerance, estimate_tolerance): (f64, f64),
         fields: &mut [InterfaceField],
-        u0: &[Option<Vec<f64>>],
         timings: &mut Timings,
         options: &SolveOptions,
-        statics: Option<&StageSolution>,
         window: &Window,
     ) -> Result<(StageReport, Vec<Vec<f64>>), SolverError> {
         let m = self.model;
+        let StageStart { stage, u0, statics, .. } = *begin;
         let settings = &m.settings;
         let progress = options.progress.as_deref();
         let mut report = StageReport::default();
@@ -1023,6 +1008,21 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
 
 /// A time window of a stage: its steps, and at its first one the substructures' states (`None`:
 /// the stage's initial state) and the gap rule's bases; the body QoIs recorded before it.
+/// What a stage starts from, and the tolerance it is held to.
+#[derive(Clone, Copy)]
+struct StageStart<'a> {
+    stage: Stage,
+    tolerance: f64,
+    /// the gap and the relative normal velocity at t_0 of every interface node
+    gaps: (&'a [Vec<f64>], &'a [Vec<f64>]),
+    /// each substructure's initial displacements (the prestressed state), where there are
+    u0: &'a [Option<Vec<f64>>],
+    /// the static stage's solution (the force QoIs' values at t_0)
+    statics: Option<&'a StageSolution>,
+    /// no initial solution was given: a later time window starts from the last converged step
+    cold: bool,
+}
+
 #[derive(Clone)]
 struct Window {
     steps: Range<usize>,
