@@ -21,4 +21,5 @@ pub mod newmark;
 pub mod pool;
 pub mod refine;
 pub mod run;
+pub mod search_direction;
 pub mod sparse;

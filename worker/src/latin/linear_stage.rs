@@ -6,9 +6,9 @@
 //! the two micro problems: `predict` (micro problem 1), then optionally `correct` (micro problem 2,
 //! a combination of precomputed responses to the macro basis), then `finish`.
 
-use super::search_direction::SearchDirection;
 use crate::model::{Interface, InterfaceSide, Model, PrescribedDof, Substructure};
 use crate::newmark::{NewmarkState, step_operator};
+use crate::search_direction::SearchDirection;
 use crate::sparse::{FactorisedOperator, SparseError};
 use glissade_core::scene::History;
 

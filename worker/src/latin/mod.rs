@@ -6,7 +6,6 @@ pub mod linear_stage;
 pub mod local_stage;
 pub mod macro_problem;
 pub mod relaxation;
-pub mod search_direction;
 pub mod stopping;
 
 use std::ops::Range;
@@ -20,13 +19,13 @@ use crate::sparse::SparseError;
 use glissade_core::scene::Scale;
 
 use crate::newmark::NewmarkState;
+use crate::search_direction::SearchDirection;
 use distribution::Distribution;
 use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};
 use relaxation::Relaxation;
-use search_direction::SearchDirection;
 use stopping::{ErrorEstimator, UnitScales};
 
 /// Tolerance of each time window relative to the asked one (docs/method.md, "Time windows").

@@ -11,6 +11,8 @@
 //! it with the largest of the window before, or the last half window with the one before it
 //! when that is slower (a slow mode under a transient that dies fast).
 
+pub use crate::model::QoiUnit;
+
 /// Iterations per window; rho is measured over two windows.
 pub const WINDOW: usize = 10;
 /// Slowest contraction the estimate trusts: beyond it (or before two windows exist, or while
@@ -56,14 +58,6 @@ impl UnitScales {
             QoiUnit::Force => self.force,
         }
     }
-}
-
-/// The physical unit of a QoI: norms are compared within a unit only.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum QoiUnit {
-    Length,
-    Velocity,
-    Force,
 }
 
 /// Follows the QoI histories of successive iterates and estimates their remaining error.
