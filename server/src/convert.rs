@@ -460,6 +460,9 @@ pub fn study(v: &StudyView) -> v1::Study {
             work_cap: a.work_cap,
         }),
         audit_of: r.audit_of.map_or(0, |s| s.0),
+        kind: v.kind.to_owned(),
+        scene_title: v.scene_title.clone(),
+        finished_unix_ms: v.finished_unix_ms.unwrap_or(0),
     }
 }
 

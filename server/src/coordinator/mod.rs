@@ -282,6 +282,13 @@ impl Coordinator {
         if let Some(record) = &record {
             batch.put(Tree::Studies, study_key(record.id), encode(record));
         }
+        // when each point ended (the study's finish time and wall time come from them)
+        let now = now_unix_ms();
+        let mut changes = changes;
+        for (p, _) in &mut changes {
+            let ended = matches!(p.state, PointState::Done | PointState::Failed | PointState::Cancelled);
+            p.finished_unix_ms = ended.then(|| p.finished_unix_ms.unwrap_or(now));
+        }
         for (p, _) in &changes {
             batch.put(Tree::Points, point_key(p.study, p.id), encode(p));
         }
@@ -431,6 +438,7 @@ impl Coordinator {
             audit_of: None,
             audit: audit_id,
             adaptive,
+            listed: !submission.points.is_empty(),
             meshes: scene
                 .meshes
                 .iter()
@@ -454,6 +462,7 @@ impl Coordinator {
                     result: None,
                     error: None,
                     finished_seq: None,
+                    finished_unix_ms: None,
                 })
                 .collect()
         };
@@ -534,10 +543,23 @@ impl Coordinator {
                 _ => None,
             })
             .collect();
+        let state = entry.state();
+        let r = &entry.record;
+        let kind = match (r.audit_of, &r.adaptive, r.listed) {
+            (Some(_), ..) => "audit",
+            (_, Some(_), _) => "adaptive",
+            (_, _, true) => "list",
+            _ => "grid",
+        };
         StudyView {
             solving,
+            kind,
+            scene_title: Scene::parse(&r.scene).ok().and_then(|s| s.title).unwrap_or_default(),
+            finished_unix_ms: (state != StudyState::Active)
+                .then(|| entry.points.iter().filter_map(|p| p.finished_unix_ms).max())
+                .flatten(),
             record: entry.record.clone(),
-            state: entry.state(),
+            state,
             progress: entry.progress(),
             points: if with_points { entry.points.clone() } else { Vec::new() },
             accuracy: entry.record.audit.and_then(|a| studies.get(&a)).map(|audit| accuracy(entry, audit)),
@@ -818,6 +840,7 @@ impl Coordinator {
                     result: None,
                     error: None,
                     finished_seq: None,
+                    finished_unix_ms: None,
                 };
                 batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
                 self.store.commit(batch)?;

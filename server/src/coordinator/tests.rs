@@ -308,6 +308,45 @@ fn an_audit_stops_at_its_cost_cap() {
     assert_eq!((accuracy.audited, accuracy.planned, accuracy.work, accuracy.work_cap), (2, 3, 20.0, 20.0));
 }
 
+/// What the studies page and `glissade studies` show of a study at a glance (issue 25).
+#[test]
+fn a_study_says_its_kind_its_scene_and_when_it_finished() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let id = submit_audited(&c, &["f1=0.1:0.2:2"], 1e-3, InitStrategy::Cold, Some(1));
+    let v = c.study(id, false).unwrap();
+    assert_eq!((v.kind, v.finished_unix_ms), ("grid", None));
+    assert!(v.scene_title.starts_with("three blocks (tiny)"), "{}", v.scene_title);
+    let audit = c.study(v.record.audit.unwrap(), false).unwrap();
+    assert_eq!(audit.kind, "audit");
+    for _ in 0..2 {
+        let g = c.lease("p").unwrap().unwrap();
+        let (done, file) = solution_file(&g, 5e-4, true);
+        c.complete(done, file).unwrap();
+    }
+    let v = c.study(id, true).unwrap();
+    let finished = v.finished_unix_ms.expect("ended");
+    assert!(finished >= v.record.created_unix_ms && finished <= now_unix_ms());
+    assert_eq!(Some(finished), v.points.iter().filter_map(|p| p.finished_unix_ms).max());
+    // an explicit list of points
+    let listed = Submission {
+        scene_text: TINY.into(),
+        grid: vec![],
+        points: vec![ParameterVector::try_from(BTreeMap::from([("f1".to_string(), 0.12)])).unwrap()],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        adaptive: None,
+        meshes: vec![],
+    };
+    let (listed, ..) = c.submit(listed).unwrap();
+    assert_eq!(c.study(listed, false).unwrap().kind, "list");
+}
+
 #[test]
 fn lost_leases_requeue_then_fail_and_retry_requeues() {
     let dir = tempfile::tempdir().unwrap();

@@ -134,6 +134,12 @@ pub struct StudyView {
     pub accuracy: Option<Accuracy>,
     /// Iterations and eta its pool last reported, per leased point that reported (not stored).
     pub solving: BTreeMap<PointId, (u64, f64)>,
+    /// `grid`, `list`, `adaptive` or `audit`.
+    pub kind: &'static str,
+    /// The scene's `title` (empty: none).
+    pub scene_title: String,
+    /// When its last point ended, once it has ended (Unix ms).
+    pub finished_unix_ms: Option<i64>,
 }
 
 /// A submission, validated by the service layer's conversions.
