@@ -8,6 +8,7 @@ mod browser;
 mod cli;
 mod common;
 mod engine;
+mod first_use;
 mod limits;
 mod meshes;
 mod resilience;

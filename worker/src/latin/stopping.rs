@@ -22,7 +22,7 @@ pub const RHO_MAX: f64 = 0.99;
 /// A QoI's history norm is floored at this share of the largest norm among the QoIs of the same
 /// unit and of the interface fields' scale of that unit ([`UnitScales`]): a slip that sticks
 /// (1e-22 m) is measured against the displacements beside it, not against its own noise.
-pub const NORM_FLOOR: f64 = 1e-3;
+pub const NORM_FLOOR: f64 = glissade_core::study::QOI_FLOOR;
 
 /// What the interface fields say a QoI history of each unit is worth, as an L2 norm over the
 /// steps: the area-weighted RMS of the local-stage velocities, of the tractions times the mean
