@@ -17,13 +17,14 @@ impl SideField {
         Self { force: vec![0.0; len], velocity: vec![0.0; len] }
     }
 
-    /// self <- mu * self + (1 - mu) * old: the relaxation of docs/method.md 3, in place on the
-    /// new field
-    pub fn relax_from(&mut self, old: &SideField, mu: f64) {
-        for (a, b) in self.force.iter_mut().zip(&old.force) {
+    /// self <- mu * self + (1 - mu) * old on the values `at` (a time window's, or all): the
+    /// relaxation of docs/method.md 3, in place on the new field. Values outside are left as they
+    /// are (mu x + (1 - mu) x is not always x in floating point).
+    pub fn relax_from(&mut self, old: &SideField, mu: f64, at: std::ops::Range<usize>) {
+        for (a, b) in self.force[at.clone()].iter_mut().zip(&old.force[at.clone()]) {
             *a = mu * *a + (1.0 - mu) * b;
         }
-        for (a, b) in self.velocity.iter_mut().zip(&old.velocity) {
+        for (a, b) in self.velocity[at.clone()].iter_mut().zip(&old.velocity[at]) {
             *a = mu * *a + (1.0 - mu) * b;
         }
     }

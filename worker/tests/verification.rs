@@ -735,17 +735,23 @@ fn scene_path(name: &str) -> String {
 #[test]
 fn mpi_ranks_give_bitwise_identical_solutions() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = scene_path("three-blocks-tiny.toml");
-    for scale in ["single", "multi"] {
+    let whole = scene_path("three-blocks-tiny.toml");
+    // in time windows too: only the window's steps move between ranks (latin/distribution.rs)
+    let windowed = dir.path().join("windowed.toml");
+    let text = std::fs::read_to_string(&whole).unwrap();
+    assert!(!text.contains("[solver]"), "the shipped scene sets no solver options");
+    std::fs::write(&windowed, format!("{text}\n[solver]\ntime_window = 10\n")).unwrap();
+    let windowed = windowed.to_str().unwrap().to_owned();
+    for (scene, scale) in [(&whole, "single"), (&whole, "multi"), (&windowed, "single")] {
         let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
         for np in ["1", "2", "3"] {
-            let save = dir.path().join(format!("{scale}-{np}.sol"));
+            let save = dir.path().join(format!("{scale}-{}-{np}.sol", scene.len()));
             let out = mpiexec(&[
                 "-n",
                 np,
                 worker_bin(),
                 "solve",
-                &scene,
+                scene,
                 "--scale",
                 scale,
                 "--tol",

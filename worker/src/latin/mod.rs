@@ -683,7 +683,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
                     for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
                         if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
-                            side.relax_from(old, relaxation.mu());
+                            let per_step = m.interfaces[i].n_nodes() * D;
+                            let at = window.steps.start * per_step..window.steps.end * per_step;
+                            side.relax_from(old, relaxation.mu(), at);
                         }
                     }
                 }
