@@ -98,6 +98,21 @@ pub struct StudyRecord {
     /// The scene's mesh files (their bytes in the `meshes` tree, by digest).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub meshes: Vec<MeshRef>,
+    /// The studies of its discretisation audit, one per refined level, finest last.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub refined_by: Vec<StudyId>,
+    /// The study this one refines: some of its points re-solved on a refined scene (its own
+    /// `scene`, written by core::refine) at the same tolerance.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refines: Option<Refines>,
+}
+
+/// What a discretisation audit level refines, and by how much.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Refines {
+    pub study: StudyId,
+    pub refinement: glissade_core::refine::Refinement,
+    pub factor: u32,
 }
 
 /// A mesh file of a study's scene: its name in the scene, SHA-256 (hex) and size.
