@@ -168,7 +168,9 @@ pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisat
         };
         let mut orders = Vec::new();
         for f in &finals {
-            let e = richardson(f, RATIO as usize, noise);
+            // the iterations' noise is relative to the QoI's scale, not to this point's: a QoI
+            // near zero here (a slip that sticks, 1e-21) is noise at every level, not erratic
+            let e = richardson(f, RATIO as usize, noise * scale / largest(f).max(f64::MIN_POSITIVE));
             q.change = q.change.max((f[1] - f[0]).abs() / scale);
             // richardson's errors are relative to this point's largest final: to the QoI's
             q.error = q.error.max(e.error_first * largest(f) / scale);
@@ -176,8 +178,9 @@ pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisat
             q.below_tolerance &= e.below_tolerance;
             orders.push(e.order);
         }
-        let observed: Option<Vec<f64>> = orders.iter().copied().collect();
-        q.order = observed.filter(|o| !o.is_empty()).map(|o| o.iter().sum::<f64>() / o.len() as f64);
+        // the mean over the points that observed one (not erratic, not within the noise)
+        let observed: Vec<f64> = orders.iter().flatten().copied().collect();
+        q.order = (!observed.is_empty()).then(|| observed.iter().sum::<f64>() / observed.len() as f64);
         qoi.insert(name.clone(), q);
     }
     Discretisation {

@@ -449,7 +449,15 @@ fn a_discretisation_audit_measures_the_time_step_error_a_study_got() {
         let h = 50.0 / steps;
         let slip_b =
             if f > 0.15 { [1.0, 1.2, 1.1][((steps / 100.0) as usize).min(2)] * 1e-6 } else { 1e-6 * (1.0 + h * h) };
-        let qoi = [("slip_A".to_string(), f * 1e-5 * (1.0 + 0.5 * h * h)), ("slip_B".to_string(), slip_b)].into();
+        // stuck: a slip that does not happen at f1 = 0.2, its value the iterations' noise
+        let stuck =
+            if f > 0.15 { [1.0, 0.5, 2.0][((steps / 100.0) as usize).min(2)] * 1e-21 } else { 1e-6 * (1.0 + h * h) };
+        let qoi = [
+            ("slip_A".to_string(), f * 1e-5 * (1.0 + 0.5 * h * h)),
+            ("slip_B".to_string(), slip_b),
+            ("stuck".to_string(), stuck),
+        ]
+        .into();
         let (done, file) = solution_file_with_qoi(&grant, grant.tolerance / 2.0, true, &qoi);
         c.complete(done, file).unwrap();
     }
@@ -464,9 +472,13 @@ fn a_discretisation_audit_measures_the_time_step_error_a_study_got() {
     assert!((a.change - 0.75e-6 / 3e-6).abs() < 1e-9, "{a:?}");
     assert!((a.error - 1e-6 / 3e-6).abs() < 1e-9, "{a:?}");
     assert!((a.order.unwrap() - 2.0).abs() < 1e-9 && !a.order_assumed && a.erratic == 0 && !a.below_tolerance, "{a:?}");
-    // slip_B: erratic at one point, no order
+    // slip_B: erratic at one point; the order is the other's
     let b = &measured.qoi["slip_B"];
-    assert_eq!((b.erratic, b.order), (1, None), "{b:?}");
+    assert!(b.erratic == 1 && (b.order.unwrap() - 2.0).abs() < 1e-9, "{b:?}");
+    // stuck: noise where it is 1e-21 (relative to the QoI's scale, 2e-6), second order elsewhere
+    let stuck = &measured.qoi["stuck"];
+    assert_eq!(stuck.erratic, 0, "{stuck:?}");
+    assert!((stuck.order.unwrap() - 2.0).abs() < 1e-9 && !stuck.below_tolerance, "{stuck:?}");
     // the same after a restart (the refined scenes are stored with their studies)
     drop(c);
     let c = open(dir.path(), 60_000, 3);

@@ -210,7 +210,7 @@ pub struct QoiDiscretisation {
     pub change: f64,
     /// largest estimated error of the study's values (core::refine::richardson's `error_first`)
     pub error: f64,
-    /// observed order, mean over the points (None: 2 levels, or erratic)
+    /// observed order, mean over the points that observed one (None: 2 levels, or none did)
     pub order: Option<f64>,
     /// 2 levels: the scheme's order was assumed
     pub order_assumed: bool,
