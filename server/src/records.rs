@@ -86,7 +86,8 @@ pub struct StudyRecord {
     pub order: OrderKind,
     pub created_unix_ms: i64,
     pub cancelled: bool,
-    /// The study this one audits (re-solves some of its points cold at a tighter tolerance).
+    /// The study this one audits (re-solves some of its points cold at a tighter tolerance, or,
+    /// with `refines`, on a refined scene): leased when nothing else is pending.
     #[serde(default)]
     pub audit_of: Option<StudyId>,
     /// The study auditing this one.
