@@ -67,7 +67,8 @@ def main():
     parser.add_argument("--grid", action="append", required=True, metavar="NAME=SPEC",
                         help="swept parameter, e.g. f1=0.1:0.2:3 (repeatable)")
     parser.add_argument("--tol", type=float, help="tolerance on the error indicator (default: the scene's)")
-    parser.add_argument("--strategy", choices=["cold", "previous", "nearest", "blend", "linear"], default="nearest")
+    parser.add_argument("--strategy", choices=["cold", "previous", "nearest", "blend", "linear"],
+                        help="where each point starts (default: the coordinator's, linear with 8 neighbours)")
     parser.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
     parser.add_argument("--proto", default=DEFAULT_PROTO, help="path of glissade.proto")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of CSV")
@@ -92,7 +93,7 @@ def main():
         request = pb.SubmitStudyRequest(
             scene=scene,
             grid=args.grid,
-            strategy=pb.InitStrategy.Value("INIT_STRATEGY_" + args.strategy.upper()),
+            strategy=pb.InitStrategy.Value("INIT_STRATEGY_" + (args.strategy or "unspecified").upper()),
         )
         if args.tol is not None:
             request.tolerance = args.tol

@@ -130,7 +130,7 @@ enum Command {
     /// The displacement and velocity fields of one design point as HDF5 + XDMF (ParaView):
     /// re-solved here from the nearest stored solution of the study (a few iterations).
     #[command(after_help = "Examples:\n  \
-        glissade fields 3 --point f1=0.15,f2=0.15 --out p.h5          # a point of the study: 1 iteration\n  \
+        glissade fields 3 --point f1=0.15,f2=0.15 --out p.h5          # a point of the study: 1 iteration a stage\n  \
         glissade fields 3 --point f1=0.123,f2=0.187 --out q.h5        # any point: from its nearest neighbour\n\n\
         Then open p.xdmf in ParaView (displacement and velocity at every time step).")]
     Fields(fields::FieldsArgs),
@@ -149,7 +149,7 @@ struct SubmitArgs {
     scene: PathBuf,
     /// A swept parameter, NAME=START:STOP:COUNT, NAME=V1,V2,... or NAME=lhs:N:SEED (repeatable;
     /// the study is the product of the grids).
-    #[arg(long, value_name = "NAME=SPEC", required_unless_present = "adaptive", conflicts_with = "adaptive")]
+    #[arg(long, value_name = "NAME=SPEC", required_unless_present_any = ["adaptive", "range"], conflicts_with = "adaptive")]
     grid: Vec<String>,
     /// An adaptive study of N points instead of a grid: the first spread over the --range box,
     /// then each where the response surface is least sure (docs/surrogate.md)
@@ -261,8 +261,38 @@ enum Outcome {
     StudyFailed,
 }
 
+/// A parser error as every other error: one line on stderr, exit status 1 (clap's own is 2); its
+/// usage without the options every command takes (`--server <URL>` read as required there).
+fn argument_error(e: &clap::Error) -> String {
+    let text = e.render().to_string();
+    let usage = |line: &str| {
+        ["--server <URL>", "--token-file <FILE>", "--ca-cert <FILE>"]
+            .iter()
+            .fold(line.to_owned(), |l, option| l.replace(&format!(" {option}"), ""))
+    };
+    let lines: Vec<String> =
+        text.lines().map(|l| if l.trim_start().starts_with("Usage:") { usage(l) } else { l.to_owned() }).collect();
+    one_line(&lines.join("\n"))
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        // --help and --version: on stdout, success
+        Err(e) if !e.use_stderr() => {
+            let _ = e.print();
+            return ExitCode::SUCCESS;
+        }
+        // no command at all: the help, as a failure
+        Err(e) if e.kind() == clap::error::ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand => {
+            let _ = e.print();
+            return ExitCode::FAILURE;
+        }
+        Err(e) => {
+            eprintln!("{}", argument_error(&e));
+            return ExitCode::FAILURE;
+        }
+    };
     tracing_subscriber::fmt()
         .with_env_filter(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("warn")))
         .with_writer(std::io::stderr)
@@ -495,7 +525,8 @@ async fn watch(client: &mut User, id: u64) -> Result<Outcome> {
                 }
             }
         }
-        if state.ended() {
+        // (not at the snapshot of a finished study: its points' replay comes after it)
+        if state.ended() && event.kind == v1::EventKind::StudyEnded as i32 {
             break;
         }
     }
@@ -561,25 +592,38 @@ async fn studies(server: &Server, json: bool) -> Result<()> {
         return Ok(());
     }
     outln!(
-        "{:>5}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8}  label",
+        "{:>5}  {:<8}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8}  {:<20}  {:>8}  scene / label",
         "id",
+        "kind",
         "state",
         "done/total",
         "strategy",
         "parameters",
-        "tol"
+        "tol",
+        "submitted",
+        "wall"
     );
     for s in &list {
         let p = s.progress.unwrap_or_default();
+        let wall = if s.finished_unix_ms > 0 {
+            glissade_core::text::wall_time((s.finished_unix_ms - s.created_unix_ms) as f64 / 1e3)
+        } else {
+            "-".to_owned()
+        };
+        let title =
+            [s.scene_title.as_str(), s.label.as_str()].iter().filter(|t| !t.is_empty()).cloned().collect::<Vec<_>>();
         outln!(
-            "{:>5}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8.1e}  {}",
+            "{:>5}  {:<8}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8.1e}  {:<20}  {:>8}  {}",
             s.study_id,
+            s.kind,
             study_state_name(s.state),
             format!("{}/{}", p.done, p.total),
             strategy_name(s.strategy),
             s.parameters.join(","),
             s.tolerance,
-            s.label
+            glissade_core::text::utc_minute(s.created_unix_ms),
+            wall,
+            title.join(" / ")
         );
     }
     Ok(())
@@ -589,8 +633,13 @@ async fn studies(server: &Server, json: bool) -> Result<()> {
 fn accuracy_line(a: &v1::StudyAccuracy) -> String {
     let errors: Vec<String> =
         a.qoi.iter().map(|(q, e)| format!("{q} largest {:.1e} mean {:.1e}", e.largest, e.mean)).collect();
+    let cost = if a.work_cap > 0.0 {
+        format!("; it cost {:.0} work of its cap {:.0}", a.work, a.work_cap)
+    } else {
+        String::new()
+    };
     format!(
-        "{} of {} points re-solved cold at {:.0e} (study {}){}{}",
+        "{} of {} points re-solved cold at {:.0e} (study {}){}{}{cost}",
         a.audited,
         a.planned,
         a.tolerance,
@@ -665,12 +714,17 @@ fn study_json(s: &v1::Study) -> serde_json::Value {
             "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations,
         },
         "created_unix_ms": s.created_unix_ms,
+        "finished_unix_ms": (s.finished_unix_ms > 0).then_some(s.finished_unix_ms),
+        "kind": s.kind,
+        "scene_title": s.scene_title,
         "audit_of": (s.audit_of != 0).then_some(s.audit_of),
         "accuracy": s.accuracy.as_ref().map(|a| serde_json::json!({
             "audit_study_id": a.audit_study_id,
             "tolerance": a.tolerance,
             "audited": a.audited,
             "planned": a.planned,
+            "work": a.work,
+            "work_cap": a.work_cap,
             "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({"largest": e.largest, "mean": e.mean})))
                 .collect::<serde_json::Map<_, _>>(),
         })),
@@ -750,8 +804,8 @@ fn write_output(path: &Path, text: &str) -> Result<()> {
 
 async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
     let mut client = user(server).await?;
-    // the scene's text only for the picture's units
-    let study = get_study(&mut client, "surface", args.study, false, args.png.is_some()).await?;
+    // the scene's text for the units (the picture's axes; QoIs of one unit set their resolution)
+    let study = get_study(&mut client, "surface", args.study, false, true).await?;
     let fixed = args
         .fix
         .iter()
@@ -781,7 +835,15 @@ async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
         .await
         .map_err(|s| refused(&format!("surface {}", args.study), s))?
         .into_inner();
-    let mut table = SurfaceTable::new(&reply, args.qoi.as_deref())?;
+    if reply.points.is_empty() && !fixed.is_empty() {
+        // no point in the slice: say which values there are, not that the QoI is unknown
+        let all = get_study(&mut client, "surface", args.study, true, false).await?;
+        let points: Vec<&std::collections::BTreeMap<String, f64>> = all.points.iter().map(|p| &p.parameters).collect();
+        bail!("--fix: {}", glissade_core::study::space::slice_miss(&fixed, points));
+    }
+    let scene = Scene::parse(&study.scene).ok();
+    let unit = |q: &str| Some(scene.as_ref()?.unit(q)?.to_owned());
+    let mut table = SurfaceTable::new(&reply, args.qoi.as_deref())?.resolved(&reply, study.tolerance, unit);
     if args.all_solutions {
         // Every parameter comes back; keep the study's swept ones as columns.
         table = table.restricted_to(&study.parameters);
@@ -793,7 +855,6 @@ async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
         let Some(qoi) = &args.qoi else {
             bail!("--png: say which QoI to draw with --qoi (one of {})", reply.qoi.join(", "))
         };
-        let scene = Scene::parse(&study.scene).ok();
         let free: Vec<usize> =
             (0..table.parameters.len()).filter(|&i| !fixed.iter().any(|(n, _)| *n == table.parameters[i])).collect();
         let points: Vec<(Vec<f64>, f64)> =
@@ -899,7 +960,8 @@ fn point_json(p: &v1::PointStatus) -> serde_json::Value {
 }
 
 async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<()> {
-    let s = get_study(&mut user(server).await?, "show", study, points, false).await?;
+    // the points always: the work line and the failures come from them (the scene: the QoIs' units)
+    let s = get_study(&mut user(server).await?, "show", study, true, true).await?;
     let p = s.progress.unwrap_or_default();
     if json {
         let mut value = study_json(&s);
@@ -915,7 +977,25 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
         if s.label.is_empty() { String::new() } else { format!(" ({})", s.label) },
         study_state_name(s.state)
     );
-    outln!("  scene     {}", s.scene_hash);
+    outln!(
+        "  scene     {}{}",
+        if s.scene_title.is_empty() { String::new() } else { format!("{}, ", s.scene_title) },
+        s.scene_hash
+    );
+    outln!(
+        "  kind      {}, submitted {}{}",
+        s.kind,
+        glissade_core::text::utc_minute(s.created_unix_ms),
+        if s.finished_unix_ms > 0 {
+            format!(
+                ", finished {} (wall time {})",
+                glissade_core::text::utc_minute(s.finished_unix_ms),
+                glissade_core::text::wall_time((s.finished_unix_ms - s.created_unix_ms) as f64 / 1e3)
+            )
+        } else {
+            String::new()
+        }
+    );
     outln!(
         "  sweep     {} ({} points), strategy {}, order {}",
         s.parameters.join(", "),
@@ -958,27 +1038,53 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
         (!w.is_empty())
             .then(|| glissade_core::study::WorkMean { work: w.iter().sum::<f64>() / w.len() as f64, points: w.len() })
     };
-    if let (Some(cold), Some(warm)) = (mean(false), mean(true)) {
-        outln!(
-            "  work      {} (work: dynamic iterations + static iterations / time steps)",
-            glissade_core::study::warm_against_cold(cold, warm)
-        );
+    let answered = s.points.iter().filter(|x| x.answered).count();
+    let work = match (mean(false), mean(true)) {
+        (Some(cold), Some(warm)) => Some(glissade_core::study::warm_against_cold(cold, warm)),
+        (Some(m), None) | (None, Some(m)) => Some(format!(
+            "{:.1} per point, every point solved {} ({} points)",
+            m.work,
+            if mean(false).is_some() { "cold" } else { "warm" },
+            m.points
+        )),
+        (None, None) => None,
+    };
+    match work {
+        Some(work) => outln!(
+            "  work      {work}{} (work: dynamic iterations + static iterations / time steps)",
+            if answered > 0 { format!("; {answered} answered from stored solutions") } else { String::new() }
+        ),
+        None if answered > 0 => outln!("  work      none: {answered} points answered from stored solutions"),
+        None => {}
     }
+    if !points {
+        // why a point failed, without asking for every point
+        for point in s.points.iter().filter(|x| x.state == v1::PointState::Failed as i32) {
+            outln!("  failed    #{} {}: {}", point.point_id, describe_parameters(&point.parameters), point.error);
+        }
+        return Ok(());
+    }
+    // QoIs below what the solves resolve read 0 (`--json` keeps them)
+    let scene = Scene::parse(&s.scene).ok();
+    let resolution = glissade_core::study::resolutions(s.tolerance, s.points.iter().map(|p| &p.qoi), |q| {
+        Some(scene.as_ref()?.unit(q)?.to_owned())
+    });
     for point in &s.points {
-        let params: Vec<String> = point.parameters.iter().map(|(k, v)| format!("{k}={v}")).collect();
-        let qoi: Vec<String> = point.qoi.iter().map(|(k, v)| format!("{k}={v:.6e}")).collect();
+        let qoi: Vec<String> = point
+            .qoi
+            .iter()
+            .map(|(k, &v)| format!("{k}={:.6e}", glissade_core::study::shown(v, resolution[k])))
+            .collect();
         let from = match &point.started_from {
             _ if point.answered => "answered from a stored solution".to_owned(),
-            Some(f) => {
-                format!("from {}", f.parameters.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" "))
-            }
+            Some(f) => format!("from {}", describe_parameters(&f.parameters)),
             None if point.state == v1::PointState::Done as i32 => "cold".to_owned(),
             None => String::new(),
         };
         outln!(
             "  #{:<4} {:<28} {:<9} {:>5} it  work {:>6.1}  eta {:.2e}  {}  {}{}",
             point.point_id,
-            params.join(" "),
+            describe_parameters(&point.parameters),
             point_state_name(point.state),
             point.iterations,
             point.work,

@@ -36,6 +36,9 @@ pub struct SurfaceTable {
     pub parameters: Vec<String>,
     pub qoi: Vec<String>,
     pub rows: Vec<SurfaceRow>,
+    /// Per QoI column, the smallest value the solves resolve (0: all): smaller values read 0 in
+    /// the table and the pictures, and keep their stored value in CSV and JSON.
+    pub resolution: Vec<f64>,
 }
 
 impl SurfaceTable {
@@ -60,7 +63,27 @@ impl SurfaceTable {
                 state: point_state_name(p.state),
             })
             .collect();
-        Ok(Self { scene_hash: reply.scene_hash.clone(), parameters: reply.parameters.clone(), qoi: columns, rows })
+        let resolution = vec![0.0; columns.len()];
+        Ok(Self {
+            scene_hash: reply.scene_hash.clone(),
+            parameters: reply.parameters.clone(),
+            qoi: columns,
+            rows,
+            resolution,
+        })
+    }
+
+    /// The same table knowing what solves at `tolerance` resolve of each QoI
+    /// (core::study::resolutions, over every QoI of `reply`'s points; `unit`: a QoI's unit).
+    pub fn resolved(
+        mut self,
+        reply: &v1::QuerySurfaceReply,
+        tolerance: f64,
+        unit: impl Fn(&str) -> Option<String>,
+    ) -> Self {
+        let all = glissade_core::study::resolutions(tolerance, reply.points.iter().map(|p| &p.qoi), unit);
+        self.resolution = self.qoi.iter().map(|q| all.get(q).copied().unwrap_or(0.0)).collect();
+        self
     }
 
     /// The same table with only the parameter columns named in `names` (in that order): a
@@ -147,15 +170,19 @@ impl SurfaceTable {
         let number = |x: f64, digits: usize| if exact { format!("{x:e}") } else { format!("{x:.digits$e}") };
         row.parameters
             .iter()
-            .map(|p| format!("{p}"))
-            .chain(row.qoi.iter().map(|v| v.map(|x| number(x, 6)).unwrap_or_default()))
+            .map(|&p| if exact { format!("{p}") } else { glissade_core::text::parameter(p) })
+            .chain(row.qoi.iter().zip(&self.resolution).map(|(v, &r)| {
+                v.map(|x| number(if exact { x } else { glissade_core::study::shown(x, r) }, 6)).unwrap_or_default()
+            }))
             .chain([row.iterations.to_string(), number(row.error_indicator, 3), row.state.to_owned()])
             .collect()
     }
 
-    /// The (swept parameters, QoI value) pairs of the done points, for a picture of column `qoi`.
+    /// The (swept parameters, QoI value) pairs of the done points, for a picture of column `qoi`
+    /// (values below the resolution: 0).
     pub fn values(&self, qoi: usize) -> Vec<(Vec<f64>, f64)> {
-        self.rows.iter().filter_map(|r| r.qoi[qoi].map(|v| (r.parameters.clone(), v))).collect()
+        let shown = |v| glissade_core::study::shown(v, self.resolution[qoi]);
+        self.rows.iter().filter_map(|r| r.qoi[qoi].map(|v| (r.parameters.clone(), shown(v)))).collect()
     }
 }
 

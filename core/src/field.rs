@@ -17,13 +17,14 @@ impl SideField {
         Self { force: vec![0.0; len], velocity: vec![0.0; len] }
     }
 
-    /// self <- mu * new + (1 - mu) * self (relaxation of docs/method.md 3)
-    pub fn relax_towards(&mut self, new: &SideField, mu: f64) {
-        for (a, b) in self.force.iter_mut().zip(&new.force) {
-            *a = mu * b + (1.0 - mu) * *a;
+    /// self <- mu * self + (1 - mu) * old: the relaxation of docs/method.md 3, in place on the
+    /// new field
+    pub fn relax_from(&mut self, old: &SideField, mu: f64) {
+        for (a, b) in self.force.iter_mut().zip(&old.force) {
+            *a = mu * *a + (1.0 - mu) * b;
         }
-        for (a, b) in self.velocity.iter_mut().zip(&new.velocity) {
-            *a = mu * b + (1.0 - mu) * *a;
+        for (a, b) in self.velocity.iter_mut().zip(&old.velocity) {
+            *a = mu * *a + (1.0 - mu) * b;
         }
     }
 }

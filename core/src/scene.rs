@@ -273,6 +273,10 @@ pub struct SolverSpec {
     /// a warm-started solve stops at `tolerance` times this (see docs/scenes.md)
     #[serde(default = "default_warm_tolerance_ratio")]
     pub warm_tolerance_ratio: f64,
+    /// steps per time window of the dynamic stage; 0: the whole interval at once
+    /// (docs/method.md, "Time windows")
+    #[serde(default)]
+    pub time_window: usize,
 }
 
 fn default_tolerance() -> f64 {
@@ -307,6 +311,7 @@ impl Default for SolverSpec {
             relaxation: default_relaxation(),
             scale: Scale::Single,
             warm_tolerance_ratio: default_warm_tolerance_ratio(),
+            time_window: 0,
         }
     }
 }
@@ -324,7 +329,7 @@ pub struct SceneSize {
 
 impl SceneSize {
     /// Bytes per degree of freedom: operators and their factors, measured at 6-8 kB on 3D boxes
-    /// of 375-2187-dof substructures (docs/performance.md, "Memory of a solve").
+    /// of 375-2187-dof substructures (docs/performance.md, "Memory per design point, and of one solve").
     pub const BYTES_PER_DOF: u64 = 10_000;
     /// Bytes per interface node, step and dimension: F and W of both stages' copies.
     pub const BYTES_PER_INTERFACE_VALUE: u64 = 100;

@@ -23,9 +23,91 @@ pub fn excerpt(text: &str, max: usize) -> String {
     format!("{kept}... ({} more characters)", total - max)
 }
 
+/// Significant digits of a parameter's value printed for people ([`parameter`]).
+pub const PARAMETER_DIGITS: usize = 6;
+
+/// A parameter's value for people: its shortest form at [`PARAMETER_DIGITS`] significant digits
+/// at most (a grid's 0.11000000000000001 reads 0.11, an adaptive point's 0.19785156250000002
+/// reads 0.197852: a box's points 1e-5 of its width apart stay apart). CSV and JSON keep the
+/// stored value; [`same_parameter`] takes the printed text back.
+pub fn parameter(value: f64) -> String {
+    if !value.is_finite() || value == 0.0 {
+        return format!("{value}");
+    }
+    let rounded: f64 = format!("{value:.*e}", PARAMETER_DIGITS - 1).parse().unwrap_or(value);
+    format!("{rounded}")
+}
+
+/// Whether a stored parameter `value` is the one a user gave as `given` (a value printed by
+/// [`parameter`], or the stored value itself).
+pub fn same_parameter(value: f64, given: f64) -> bool {
+    (value - given).abs() <= 1e-5 * given.abs().max(f64::MIN_POSITIVE)
+}
+
+/// A Unix time in milliseconds as `2026-11-25 18:30 UTC` (to the minute; empty for 0 or less:
+/// not known).
+pub fn utc_minute(unix_ms: i64) -> String {
+    if unix_ms <= 0 {
+        return String::new();
+    }
+    let (days, ms) = (unix_ms.div_euclid(86_400_000), unix_ms.rem_euclid(86_400_000));
+    // the civil date of a day count (H. Hinnant's algorithm)
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    let minutes = ms / 60_000;
+    format!("{year:04}-{month:02}-{day:02} {:02}:{:02} UTC", minutes / 60, minutes % 60)
+}
+
+/// A length of time for people: `42.0 s`, `3m05s`, `2h07m`.
+pub fn wall_time(seconds: f64) -> String {
+    let s = seconds.max(0.0);
+    if s < 60.0 {
+        format!("{s:.1} s")
+    } else if s < 3600.0 {
+        format!("{}m{:02}s", (s / 60.0) as u64, (s % 60.0) as u64)
+    } else {
+        format!("{}h{:02}m", (s / 3600.0) as u64, ((s % 3600.0) / 60.0) as u64)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn times_read_as_dates_and_durations() {
+        assert_eq!(utc_minute(0), "");
+        assert_eq!(utc_minute(86_400_000 - 60_000), "1970-01-01 23:59 UTC");
+        // 2026-11-25 17:31:22 UTC
+        assert_eq!(utc_minute(1_795_627_882_000), "2026-11-25 17:31 UTC");
+        assert_eq!(utc_minute(951_782_400_000), "2000-02-29 00:00 UTC");
+        assert_eq!(
+            (wall_time(6.04), wall_time(185.0), wall_time(7620.0)),
+            ("6.0 s".into(), "3m05s".into(), "2h07m".into())
+        );
+    }
+
+    #[test]
+    fn parameters_read_at_the_precision_they_need_and_their_text_finds_them() {
+        assert_eq!(parameter(0.11000000000000001), "0.11");
+        assert_eq!(parameter(0.19785156250000002), "0.197852");
+        assert_eq!(parameter(0.10178326474622772), "0.101783");
+        assert_eq!(
+            (parameter(0.15), parameter(210e9), parameter(-2.5e-7), parameter(0.0)),
+            ("0.15".into(), "210000000000".into(), "-0.00000025".into(), "0".into())
+        );
+        for v in [0.19785156250000002, 0.10178326474622772, 1.0000049, 9.9999951e-4] {
+            assert!(same_parameter(v, parameter(v).parse().unwrap()), "{v}");
+        }
+        assert!(!same_parameter(0.1, 0.11) && !same_parameter(0.13, 0.15));
+    }
 
     #[test]
     fn messages_are_one_bounded_line() {

@@ -458,8 +458,13 @@ pub fn study(v: &StudyView) -> v1::Study {
             audited: a.audited,
             planned: a.planned,
             qoi: a.qoi.iter().map(|(q, &(largest, mean))| (q.clone(), v1::QoiAccuracy { largest, mean })).collect(),
+            work: a.work,
+            work_cap: a.work_cap,
         }),
         audit_of: r.audit_of.map_or(0, |s| s.0),
+        kind: v.kind.to_owned(),
+        scene_title: v.scene_title.clone(),
+        finished_unix_ms: v.finished_unix_ms.unwrap_or(0),
         discretisation: v.discretisation.as_ref().map(|d| v1::StudyDiscretisation {
             level_study_ids: d.levels.iter().map(|(s, _)| s.0).collect(),
             factors: d.levels.iter().map(|&(_, f)| f).collect(),

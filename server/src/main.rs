@@ -61,7 +61,7 @@ struct Args {
     #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_CONNECTIONS, env = "GLISSADE_MAX_CONNECTIONS")]
     max_connections: usize,
     /// Largest estimated memory of one solve of a submitted scene, MiB (estimated from the
-    /// scene's text: dofs and interface size; docs/performance.md, "Memory of a solve").
+    /// scene's text: dofs and interface size; docs/performance.md, "Memory per design point, and of one solve").
     #[arg(long, value_name = "MIB", default_value_t = glissade_server::DEFAULT_MAX_SCENE_MIB, env = "GLISSADE_MAX_SCENE_MIB")]
     max_scene_mib: u64,
     /// File holding the token users present (submit, watch, cancel, query); with

@@ -99,6 +99,9 @@ pub struct StudyRecord {
     /// The scene's mesh files (their bytes in the `meshes` tree, by digest).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub meshes: Vec<MeshRef>,
+    /// Submitted as an explicit list of points, not a grid.
+    #[serde(default)]
+    pub listed: bool,
     /// The studies of its discretisation audit, one per refined level, finest last.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub refined_by: Vec<StudyId>,
@@ -198,6 +201,10 @@ pub struct PointRecord {
     pub error: Option<String>,
     /// Completion order among all points (for the `previous` strategy); None until done.
     pub finished_seq: Option<u64>,
+    /// When it last became done, failed or cancelled (Unix ms; None before, and in records
+    /// written before it existed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub finished_unix_ms: Option<i64>,
 }
 
 /// Metadata of a stored solution; its fields are in `solution_fields` under the same key.
@@ -333,6 +340,7 @@ mod tests {
             result: None,
             error: None,
             finished_seq: None,
+            finished_unix_ms: None,
         };
         let bytes = encode(&p);
         let back: PointRecord = decode("points", b"k", &bytes).unwrap();

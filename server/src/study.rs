@@ -110,6 +110,15 @@ impl StudyPlan {
         pending.0.get(choice).copied()
     }
 
+    /// The stored solution that answers point `i` as it is for a pool of `solver_version`, if
+    /// any (what [`Self::start`] would answer with, without preparing a warm start). A damaged
+    /// store answers nothing: the point is then leased as usual.
+    pub fn answer(&self, i: usize, solutions: Option<&SceneSolutions>, solver_version: &str) -> Option<SolutionKey> {
+        let solutions = solutions?;
+        let info = self.engine.answer(solutions, &self.full[i], solver_version).ok()??;
+        solutions.keys.get(info.id as usize).cloned()
+    }
+
     /// How point `i` begins on a pool of `solver_version`, by the study engine, from `solutions`
     /// (this scene's; None: the scene has no index, so its studies are cold); `previous` is the
     /// solution of the study's point finished last. A store failure (a damaged stored solution)

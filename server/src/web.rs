@@ -29,8 +29,12 @@ use maud::{DOCTYPE, Markup, html};
 use serde_json::json;
 
 use crate::auth::Tokens;
-use crate::coordinator::{CoordError, Coordinator, StudyState, StudyView, SurfaceSource, point_state_word, state_word};
+use crate::coordinator::{
+    AUDIT_WORK_FRACTION, CoordError, Coordinator, StudyState, StudyView, SurfaceSource, point_state_word, state_word,
+};
 use crate::records::{PointRecord, PointState};
+use glissade_core::study::shown;
+use glissade_core::text::{parameter, same_parameter, utc_minute, wall_time};
 
 #[derive(Clone)]
 struct Web {
@@ -214,10 +218,15 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "parameters": r.parameters,
         "strategy": r.strategy.name(),
         "audit_of": r.audit_of.map(|s| s.0),
+        "kind": v.kind,
+        "scene_title": v.scene_title,
+        "created_unix_ms": r.created_unix_ms,
+        "finished_unix_ms": v.finished_unix_ms,
         "progress": {"total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
                      "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations},
         "accuracy": v.accuracy.as_ref().map(|a| json!({
             "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "audited": a.audited, "planned": a.planned,
+            "work": a.work, "work_cap": a.work_cap,
             "qoi": a.qoi.iter().map(|(q, (l, m))| (q.clone(), json!({"largest": l, "mean": m}))).collect::<serde_json::Map<_, _>>(),
         })),
         "refines": r.refines.map(|x| json!({"study_id": x.study.0, "factor": x.factor})),
@@ -367,8 +376,9 @@ fn page(title: &str, body: Markup) -> Markup {
 
 /// `path?fix=NAME=VALUE`, the query percent-encoded (a parameter's name may hold any character).
 fn slice_link(path: &str, name: &str, value: f64) -> String {
-    let query: String =
-        form_urlencoded::Serializer::new(String::new()).append_pair("fix", &format!("{name}={value}")).finish();
+    let query: String = form_urlencoded::Serializer::new(String::new())
+        .append_pair("fix", &format!("{name}={}", parameter(value)))
+        .finish();
     format!("{path}?{query}")
 }
 
@@ -390,17 +400,22 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     };
     let body = html! {
         table #studies {
-            tr { th { "study" } th { "label" } th { "state" } th { "done" } th { "running" } th { "pending" }
-                 th { "tolerance" } th { "work cold" } th { "work warm" } }
+            tr { th { "study" } th { "kind" } th { "scene" } th { "label" } th { "state" } th { "done" } th { "running" } th { "pending" }
+                 th { "tolerance" } th { "submitted" } th { "finished" } th { "wall time" } th { "work cold" } th { "work warm" } }
             @for v in &studies {
                 tr {
                     td { a href=(format!("/studies/{}", v.record.id.0)) { (v.record.id.0) } }
+                    td { (v.kind) }
+                    td { (v.scene_title) }
                     td { (v.record.label) }
                     td { (state_word(v.state)) }
                     td { (v.progress.done) " / " (v.progress.total) }
                     td { (v.progress.leased) }
                     td { (v.progress.pending) }
                     td { (format!("{:.1e}", v.record.tolerance)) }
+                    td { (utc_minute(v.record.created_unix_ms)) }
+                    td { (v.finished_unix_ms.map_or(String::new(), utc_minute)) }
+                    td { (v.finished_unix_ms.map_or(String::new(), |f| wall_time((f - v.record.created_unix_ms) as f64 / 1e3))) }
                     td { (mean(v.record.id, false)) }
                     td { (mean(v.record.id, true)) }
                 }
@@ -470,7 +485,9 @@ fn surface_content(
         let hi = points.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
         (lo, if hi > lo { hi } else { lo + 1.0 })
     };
-    let label = |x: &[f64]| parameters.iter().zip(x).map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(" ");
+    let label = |x: &[f64]| {
+        parameters.iter().zip(x).map(|(n, v)| format!("{n}={}", parameter(*v))).collect::<Vec<_>>().join(" ")
+    };
     let extremes = html! { text x=(w - 200.0) y="16" { (format!("{vlo:.3e} … {vhi:.3e}")) } };
     if parameters.len() < 2 {
         let (x0, x1) = range(0);
@@ -645,6 +662,10 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
         .chain(&s.qoi)
         .filter_map(|n| Some((n.clone(), scene.as_ref()?.unit(n)?.to_owned())))
         .collect();
+    // what the solve resolves of each QoI: values below it show as 0 (the API keeps them)
+    let resolution = glissade_core::study::resolutions(r.tolerance, s.rows.iter().map(|row| &row.qoi), |q| {
+        scene.as_ref()?.unit(q).map(str::to_owned)
+    });
     // a slice: `?fix=NAME=VALUE` keeps the points at that value and draws the others' curve
     let fixed =
         q.get("fix").and_then(|f| f.split_once('=')).and_then(|(n, v)| Some((n.to_owned(), v.parse::<f64>().ok()?)));
@@ -665,18 +686,25 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 .rows
                 .iter()
                 .filter(|row| {
-                    fixed.as_ref().is_none_or(|(n, v)| {
-                        row.parameters.get(n).is_some_and(|x| (x - v).abs() <= 1e-9 * v.abs().max(1e-300))
-                    })
+                    fixed.as_ref().is_none_or(|(n, v)| row.parameters.get(n).is_some_and(|x| same_parameter(x, *v)))
                 })
                 .filter_map(|row| {
                     let x: Option<Vec<f64>> = free.iter().map(|n| row.parameters.get(n)).collect();
-                    Some((x?, *row.qoi.get(qoi)?))
+                    Some((x?, shown(*row.qoi.get(qoi)?, resolution[qoi])))
                 })
                 .collect();
             surface_svg(&free, qoi, &points, &units)
         })
         .collect();
+    // a slice that holds no point says which values there are
+    let slice_miss = fixed
+        .as_ref()
+        .filter(|(n, v)| !s.rows.iter().any(|row| row.parameters.get(n).is_some_and(|x| same_parameter(x, *v))))
+        .map(|f| {
+            let points: Vec<BTreeMap<String, f64>> =
+                s.rows.iter().map(|row| BTreeMap::from(row.parameters.clone())).collect();
+            glissade_core::study::space::slice_miss(std::slice::from_ref(f), &points)
+        });
     let histories: Vec<Vec<f64>> =
         v.points.iter().filter_map(|p| p.result.as_ref().map(|r| r.eta_history.clone())).collect();
     let state = state_word(v.state);
@@ -691,6 +719,9 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 @for (k, (q, (l, m))) in a.qoi.iter().enumerate() {
                     @if k > 0 { ", " }
                     (q) (format!(" largest {l:.1e} mean {m:.1e}"))
+                }
+                @if a.work_cap > 0.0 {
+                    (format!("; it cost {:.0} work of its cap {:.0} ({:.0} % of the study's)", a.work, a.work_cap, AUDIT_WORK_FRACTION * 100.0))
                 }
             }
         }
@@ -721,11 +752,15 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
             }
         }
         @if let Some((name, value)) = &fixed {
-            p #slice { "slice at " (name) (format!(" = {value} (")) a href=(here) { "whole surface" } ")" }
+            p #slice { "slice at " (name) (format!(" = {} (", parameter(*value))) a href=(here) { "whole surface" } ")" }
         } @else if let Some((last, value)) = offered {
-            p { "slices: " a #slice-link href=(slice_link(&here, last, value)) { (last) (format!(" = {value}")) } }
+            p { "slices: " a #slice-link href=(slice_link(&here, last, value)) { (last) (format!(" = {}", parameter(value))) } }
         }
-        @for svg in &surfaces { (svg) }
+        @if let Some(miss) = &slice_miss {
+            p #slice-miss { (miss) }
+        } @else {
+            @for svg in &surfaces { (svg) }
+        }
         // the running points: the script fills this table from the JSON while the study runs
         @if v.state == StudyState::Active {
             table #running {
@@ -744,18 +779,21 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 @for n in &r.parameters { th { (named(n, &units)) } }
                 th { "state" } th { "iterations" } th { "eta" }
                 @for qoi in &s.qoi { th { (named(qoi, &units)) } }
+                th { "note" }
             }
             @for point in &v.points {
                 @let res = point.result.as_ref();
                 tr {
                     td { (point.id.0) }
-                    @for n in &r.parameters { td { @if let Some(x) = point.parameters.get(n) { (x) } } }
+                    @for n in &r.parameters { td { @if let Some(x) = point.parameters.get(n) { (parameter(x)) } } }
                     td { (point_state_word(&point.state)) }
                     td { @if let Some(r) = res { (r.iterations) } }
                     td { @if let Some(r) = res { (format!("{:.2e}", r.error_indicator)) } }
                     @for qoi in &s.qoi {
-                        td { @if let Some(x) = res.and_then(|r| r.qoi.get(qoi)) { (format!("{x:.4e}")) } }
+                        td { @if let Some(x) = res.and_then(|r| r.qoi.get(qoi)) { (format!("{:.4e}", shown(*x, resolution[qoi]))) } }
                     }
+                    // why it failed (or why its last attempt did)
+                    td class="note" { @if let Some(e) = &point.error { (e) } }
                 }
             }
         }

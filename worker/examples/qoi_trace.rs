@@ -1,5 +1,5 @@
 //! Every QoI's true error iteration by iteration, for cold and warm starts: the data behind the
-//! stopping test (docs/performance.md, "A stopping test that keeps its word").
+//! stopping test (docs/performance.md, "Tolerance = accuracy").
 //!
 //! Solves P at a tight tolerance (the reference), then P cold and P warm-started from Q with QoI
 //! histories traced, and prints per iteration: eta and each QoI's relative L2 error over time

@@ -1,9 +1,12 @@
-//! glissade-worker: the LATIN solver core (pure computation) and its edges.
+//! glissade-worker: the LATIN solver (pure computation) and its edges.
 //!
-//! Layout: `element`, `mesh`, `sparse` (discretisation); `scene` and `model` (what is solved);
-//! `latin` (the iterative solver) and `monolithic` (the reference); `io` (solution files,
-//! field output) and `run` (one solve, for the CLI and the workers) at the edge; `study` (the
-//! multiparametric strategy: parameter space, solution store, warm starts, ordering) above `run`.
+//! Layout: `element`, `mesh`, `gmsh`, `sparse`, `newmark` (discretisation); `model` (the
+//! decomposed problem of one design point, from a `glissade_core::scene::Scene`); `latin` (the
+//! iterative solver), with `comm` (the communicator seam: serial or MPI); `monolithic` and
+//! `explicit` (independent references); `run` (one solve, for the CLI and the pools), `refine`
+//! (a point on a ladder of time steps and meshes), `io` (solution files, field output) and
+//! `pool` (a worker pool of the coordinator) at the edge. The scene, the solution store and the
+//! study engine (parameter space, warm starts, ordering) live in `glissade_core`.
 
 pub mod comm;
 pub mod element;
@@ -18,4 +21,5 @@ pub mod newmark;
 pub mod pool;
 pub mod refine;
 pub mod run;
+pub mod search_direction;
 pub mod sparse;

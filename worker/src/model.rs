@@ -4,15 +4,16 @@
 use std::collections::{BTreeMap, HashMap};
 
 use crate::element::{ElementKind, Material, face_area_and_normal};
-use crate::latin::search_direction::SearchDirection;
 use crate::mesh::{Face, Mesh};
+use crate::search_direction::{SearchDirection, dynamic_search_direction, static_search_direction};
 use crate::sparse::CsrMatrix;
 use glissade_core::scene::{
     BodySpec, History, MassMatrix, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError, Substructures,
     component_index, invalid,
 };
 
-/// Interface behaviour (docs/method.md 1).
+/// Interface behaviour (docs/method.md 1), applied node by node in the local stage
+/// (`latin::local_stage::apply_law`: perfect, contact, Coulomb friction).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum InterfaceLaw {
     Perfect,
@@ -180,14 +181,21 @@ impl<const D: usize> Interface<D> {
 }
 
 impl QoiTarget {
-    pub fn unit(&self) -> crate::latin::stopping::QoiUnit {
-        use crate::latin::stopping::QoiUnit;
+    pub fn unit(&self) -> QoiUnit {
         match self {
             QoiTarget::Slip { .. } | QoiTarget::Displacement { .. } => QoiUnit::Length,
             QoiTarget::Velocity { .. } => QoiUnit::Velocity,
             QoiTarget::Force { .. } => QoiUnit::Force,
         }
     }
+}
+
+/// The physical unit of a QoI: the stopping test compares norms within a unit only.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum QoiUnit {
+    Length,
+    Velocity,
+    Force,
 }
 
 #[derive(Debug, Clone)]
@@ -214,6 +222,8 @@ pub struct SolverSettings {
     pub scale: Scale,
     /// the dynamic stage of a warm-started solve stops at tolerance x this
     pub warm_tolerance_ratio: f64,
+    /// steps per time window of the dynamic stage (0: the whole interval)
+    pub time_window: usize,
 }
 
 /// The whole decomposed problem of one design point.
@@ -276,6 +286,7 @@ impl<const D: usize> Model<D> {
             relaxation: st.relaxation,
             scale: st.scale,
             warm_tolerance_ratio: st.warm_tolerance_ratio,
+            time_window: st.time_window,
         };
 
         let mut materials = BTreeMap::new();
@@ -686,7 +697,14 @@ impl<const D: usize> Model<D> {
                 let young = substructures[side.substructure].material.young;
                 side.k_static =
                     SearchDirection::isotropic(k0_factor * static_search_direction(young, assembly_size, h));
-                let k = k0_factor * dynamic_search_direction(&substructures[side.substructure], &normal, dt);
+                let sub = &substructures[side.substructure];
+                let k = k0_factor
+                    * dynamic_search_direction(
+                        sub.material.impedance(),
+                        sub.material.bar_wave_speed(),
+                        sub.depth_along(&normal),
+                        dt,
+                    );
                 // a contact's slip history converges at a rate set by k_t (docs/performance.md)
                 let tangential = match itf.law {
                     InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => k,
@@ -710,48 +728,18 @@ impl<const D: usize> Model<D> {
     }
 }
 
-/// The static search direction of one side: E / sqrt(L h). The static stage is multiscale
-/// (latin::LatinSolver::new): its macro problem carries the smooth part of the interface fields,
-/// and the direction aims at the rest of the range of stiffnesses a substructure opposes, from
-/// E / L (L the assembly's largest extent) for a smooth interface displacement to E / h for one
-/// that changes from node to node (h the interface's mesh size); the geometric mean of the
-/// range's ends minimises the largest contraction factor |s - k| / (s + k) over it. Measured
-/// (docs/performance.md, "Locking, and the static search direction"): 2-10 x fewer static iterations than E / L on
-/// every scene, and elements of aspect ratio 100 at an interface converge (none in 5000 with
-/// E / L).
-pub fn static_search_direction(young: f64, assembly_size: f64, mesh_size: Option<f64>) -> f64 {
-    match mesh_size {
-        Some(h) if h > 0.0 && h < assembly_size => young / (assembly_size * h).sqrt(),
-        _ => young / assembly_size,
-    }
-}
-
 /// Accepted values of `[solver] tangential_factor` (checked by `Scene::check_point`).
 pub use glissade_core::check::TANGENTIAL_FACTOR_RANGE;
 
-/// Bounds of the dynamic search direction relative to the impedance sqrt(rho E).
-pub const SEARCH_DIRECTION_BOUNDS: (f64, f64) = (1.0, 4.0);
-
-/// The dynamic search direction of one side: the impedance sqrt(rho E), or, for a substructure
-/// that a wave crosses in less than a step (depth L along the interface normal below c dt), the
-/// stiffness E dt / L it opposes within one step (= impedance x c dt / L), at most 4 x the
-/// impedance. Measured (docs/performance.md, "Search direction"): three-blocks-tiny (c dt / L =
-/// 1.35) 211 -> 185 dynamic iterations cold. Below c dt / L = 1 the impedance stays: a 3D box at
-/// 0.51 preferred 0.5 x impedance (69 iterations against 131), but the 1D impact bar at 0.04
-/// needs the impedance (190 iterations against 643 at 0.25 x, and no convergence in 1000 with 50
-/// elements).
-pub fn dynamic_search_direction<const D: usize>(sub: &Substructure<D>, normal: &[f64; D], dt: f64) -> f64 {
-    let along = |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
-    let (lo, hi) =
-        sub.coords.iter().map(along).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
-    let depth = hi - lo;
-    let impedance = sub.material.impedance();
-    // a flat (or degenerate, NaN) substructure has no depth to compare c dt with
-    if depth.is_nan() || depth <= 0.0 {
-        return impedance;
+impl<const D: usize> Substructure<D> {
+    /// The substructure's depth along `normal`: the extent of its nodes' projections (NaN when
+    /// it has none).
+    pub fn depth_along(&self, normal: &[f64; D]) -> f64 {
+        let along = |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
+        let (lo, hi) =
+            self.coords.iter().map(along).fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        hi - lo
     }
-    let ratio = sub.material.bar_wave_speed() * dt / depth;
-    impedance * ratio.clamp(SEARCH_DIRECTION_BOUNDS.0, SEARCH_DIRECTION_BOUNDS.1)
 }
 
 /// The mesh of a body (a box or a Gmsh volume) and its partition (element -> substructure of

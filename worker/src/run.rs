@@ -59,6 +59,11 @@ pub struct SolveSummary {
     pub error_estimate: f64,
     /// eta per iteration of the dynamic stage
     pub history: Vec<f64>,
+    /// the dynamic iterations' work in sweeps of the whole interval (less than their number
+    /// with time windows: an iteration sweeps its window)
+    pub dynamic_sweeps: f64,
+    /// time windows of the dynamic stage, with the closing sweeps of the whole interval
+    pub dynamic_windows: usize,
     pub static_stage: Option<StageReport>,
     /// where the dynamic stage left off and how it went (`StageReport::diagnosis`), when it did
     /// not converge
@@ -75,11 +80,11 @@ pub struct SolveSummary {
 }
 
 impl SolveSummary {
-    /// Dynamic iterations + static iterations / time steps: a dynamic iteration sweeps every
-    /// step, a static one a single step.
+    /// Sweeps of the whole interval: dynamic iterations (each sweeps every step, or its time
+    /// window's) + static iterations / time steps (a static one sweeps a single step).
     pub fn work(&self) -> f64 {
         let statics = self.static_stage.as_ref().map_or(0, |s| s.iterations);
-        self.history.len() as f64 + statics as f64 / self.time_steps.max(1) as f64
+        self.dynamic_sweeps + statics as f64 / self.time_steps.max(1) as f64
     }
 
     /// Why the solve did not converge, naming the stage that fell short and what it was held
@@ -210,6 +215,7 @@ impl SolvePoint for PointSolver {
             converged: s.converged,
             iterations: s.iterations,
             static_iterations: s.static_stage.as_ref().map_or(0, |st| st.iterations),
+            dynamic_sweeps: s.dynamic_sweeps,
             eta: s.error_indicator,
             qoi: s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect(),
             solution: o.solution,
@@ -317,6 +323,8 @@ fn solve_dim<const D: usize>(
         error_indicator: report.dynamic.error_indicator,
         error_estimate: report.dynamic.error_estimate,
         history: report.dynamic.history.clone(),
+        dynamic_sweeps: report.dynamic.sweeps,
+        dynamic_windows: report.dynamic.windows,
         dynamic_diagnosis: (!report.dynamic.converged).then(|| report.dynamic.diagnosis(model.settings.tolerance)),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,

@@ -75,11 +75,6 @@ impl CsrMatrix {
         let extra = CsrMatrix::from_triplets(self.n, t);
         self.combine(1.0, &extra, 1.0)
     }
-
-    /// Row sums (the lumped version of a mass-like matrix).
-    pub fn row_sums(&self) -> Vec<f64> {
-        (0..self.n).map(|i| self.val[self.row_ptr[i]..self.row_ptr[i + 1]].iter().sum()).collect()
-    }
 }
 
 /// A symmetric positive definite operator restricted to its free unknowns, factorised once.
@@ -125,10 +120,6 @@ impl FactorisedOperator {
 
     pub fn n(&self) -> usize {
         self.full.n
-    }
-
-    pub fn n_free(&self) -> usize {
-        self.free.len()
     }
 
     /// Solves `A x = rhs` for the free unknowns, with `x` holding the fixed values on entry.

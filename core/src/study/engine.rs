@@ -67,22 +67,30 @@ impl StudyEngine {
         self.tolerance
     }
 
-    /// How `point` (every parameter of the scene) begins, given the solutions in `store` (this
-    /// scene's), the solution of the point finished last (`previous`), and the version of the
-    /// solver that would solve it. A `Cold` study never reads the store.
-    pub fn start(
+    /// The stored solution that answers `point` as it is (converged at this study's tolerance or
+    /// a tighter one, by `solver_version`), if any: what [`Self::start`] answers with, without
+    /// preparing a warm start. A `Cold` study is never answered.
+    pub fn answer(
         &self,
         store: &dyn SolutionStore,
         point: &DesignPoint,
-        previous: Option<SolutionId>,
         solver_version: &str,
-    ) -> Result<Start, StoreError> {
+    ) -> Result<Option<SolutionInfo>, StoreError> {
         if self.strategy == InitStrategy::Cold {
-            return Ok(Start::Solve { init: Initialisation::cold(), kind: StartKind::Cold });
+            return Ok(None);
         }
-        // Stored solutions of this very point: the most accurate of those that answer it, or
-        // else the most accurate to continue from (the index gives same-point solutions in no
-        // particular order).
+        Ok(self.same_point(store, point, solver_version)?.0)
+    }
+
+    /// Stored solutions of this very point: the most accurate of those that answer it, and the
+    /// most accurate of the others to continue from (the index gives same-point solutions in no
+    /// particular order).
+    fn same_point(
+        &self,
+        store: &dyn SolutionStore,
+        point: &DesignPoint,
+        solver_version: &str,
+    ) -> Result<(Option<SolutionInfo>, Option<SolutionInfo>), StoreError> {
         let mut answer: Option<SolutionInfo> = None;
         let mut same: Option<SolutionInfo> = None;
         for (d, id) in store.nearest(point, 8)? {
@@ -99,6 +107,23 @@ impl StudyEngine {
                 *best = Some(info);
             }
         }
+        Ok((answer, same))
+    }
+
+    /// How `point` (every parameter of the scene) begins, given the solutions in `store` (this
+    /// scene's), the solution of the point finished last (`previous`), and the version of the
+    /// solver that would solve it. A `Cold` study never reads the store.
+    pub fn start(
+        &self,
+        store: &dyn SolutionStore,
+        point: &DesignPoint,
+        previous: Option<SolutionId>,
+        solver_version: &str,
+    ) -> Result<Start, StoreError> {
+        if self.strategy == InitStrategy::Cold {
+            return Ok(Start::Solve { init: Initialisation::cold(), kind: StartKind::Cold });
+        }
+        let (answer, same) = self.same_point(store, point, solver_version)?;
         if let Some(info) = answer {
             return Ok(Start::Answer(info));
         }

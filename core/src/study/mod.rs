@@ -110,6 +110,10 @@ pub struct PointRecord {
     /// LATIN iterations, static + dynamic (0 when reused)
     pub iterations: usize,
     pub static_iterations: usize,
+    /// the dynamic iterations' work in sweeps of the whole interval, where time windows made it
+    /// less than their number (absent: one sweep each)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dynamic_sweeps: Option<f64>,
     /// final error indicator of the dynamic stage (null when failed)
     pub eta: Option<f64>,
     pub tolerance: f64,
@@ -216,9 +220,11 @@ pub fn warm_against_cold(cold: WorkMean, warm: WorkMean) -> String {
 }
 
 impl PointRecord {
-    /// Dynamic iterations + static iterations / steps.
+    /// Sweeps of the whole interval: dynamic iterations (or their windows' share) + static
+    /// iterations / steps.
     pub fn work(&self, steps: usize) -> f64 {
-        (self.iterations - self.static_iterations) as f64 + self.static_iterations as f64 / steps.max(1) as f64
+        let dynamic = self.dynamic_sweeps.unwrap_or((self.iterations - self.static_iterations) as f64);
+        dynamic + self.static_iterations as f64 / steps.max(1) as f64
     }
 }
 
@@ -354,6 +360,8 @@ pub struct PointSolved {
     /// static + dynamic
     pub iterations: usize,
     pub static_iterations: usize,
+    /// the dynamic iterations in sweeps of the whole interval (their number without time windows)
+    pub dynamic_sweeps: f64,
     /// final error indicator of the dynamic stage
     pub eta: f64,
     /// final value of every QoI
@@ -443,6 +451,7 @@ fn solve_point(
         converged: false,
         iterations: 0,
         static_iterations: 0,
+        dynamic_sweeps: None,
         eta: None,
         tolerance,
         wall_seconds: 0.0,
@@ -488,6 +497,8 @@ fn solve_point(
             record.status = if o.converged { PointStatus::Converged } else { PointStatus::NotConverged };
             record.iterations = o.iterations;
             record.static_iterations = o.static_iterations;
+            let dynamic = (o.iterations - o.static_iterations) as f64;
+            record.dynamic_sweeps = (o.dynamic_sweeps != dynamic).then_some(o.dynamic_sweeps);
             record.eta = Some(o.eta);
             record.qoi = o.qoi;
             if o.converged {
@@ -511,9 +522,59 @@ fn solve_point(
     Ok(record)
 }
 
+/// Share of the largest QoI of a unit below which the solver's stopping test measures a QoI of
+/// that unit against that share, not against itself (`latin::stopping::NORM_FLOOR` in the worker).
+pub const QOI_FLOOR: f64 = 1e-3;
+
+/// Per QoI, the smallest value a study at `tolerance` resolves: tolerance x [`QOI_FLOOR`] x the
+/// largest |value| of any QoI of the same unit over `points` (each point's QoIs; `unit` gives a
+/// QoI's unit, None: its own). The stopping test bounds a QoI's error by tolerance x its own size
+/// or that floor, whichever is larger, so a value below it (a slip that sticks, 1e-21 m next to
+/// slips of 1e-5 m) is zero as far as the solve can tell.
+pub fn resolutions<'a>(
+    tolerance: f64,
+    points: impl IntoIterator<Item = &'a BTreeMap<String, f64>>,
+    unit: impl Fn(&str) -> Option<String>,
+) -> BTreeMap<String, f64> {
+    let points: Vec<&BTreeMap<String, f64>> = points.into_iter().collect();
+    let unit_of = |q: &str| unit(q).unwrap_or_else(|| format!("qoi:{q}"));
+    let mut largest: BTreeMap<String, f64> = BTreeMap::new();
+    for (q, v) in points.iter().flat_map(|p| p.iter()) {
+        let l = largest.entry(unit_of(q)).or_insert(0.0);
+        if v.is_finite() {
+            *l = l.max(v.abs());
+        }
+    }
+    let names: std::collections::BTreeSet<&String> = points.iter().flat_map(|p| p.keys()).collect();
+    names.into_iter().map(|q| (q.clone(), tolerance * QOI_FLOOR * largest[&unit_of(q)])).collect()
+}
+
+/// A QoI's value as tables, plots and ranges show it: 0 below its resolution ([`resolutions`]).
+pub fn shown(value: f64, resolution: f64) -> f64 {
+    if value.abs() < resolution { 0.0 } else { value }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_stuck_slip_below_the_resolution_shows_as_zero() {
+        // issue 25: slips of 1.9e-21 and 1.2e-22 beside 2.2e-5, displacements of 6e-4, at 2e-4
+        let points: Vec<BTreeMap<String, f64>> = [(1.915135e-21, 2.229e-5, 6e-4), (2.2e-5, 1.249e-22, 5e-4)]
+            .iter()
+            .map(|&(a, b, u)| {
+                [("slip_A".into(), a), ("slip_B".into(), b), ("middle_ux".into(), u), ("n".into(), 3.0)].into()
+            })
+            .collect();
+        let unit = |q: &str| (q != "n").then(|| "m".to_owned());
+        let r = resolutions(2e-4, &points, unit);
+        // tolerance x 1e-3 x the largest length, 6e-4; the count against its own size
+        assert!((r["slip_A"] - 1.2e-10).abs() < 1e-22 && r["slip_B"] == r["slip_A"], "{r:?}");
+        assert!((r["n"] - 6e-7).abs() < 1e-19, "{r:?}");
+        assert_eq!((shown(1.915135e-21, r["slip_A"]), shown(2.229e-5, r["slip_B"])), (0.0, 2.229e-5));
+        assert_eq!(shown(-1e-12, r["slip_A"]), 0.0);
+    }
 
     /// The comparison says which way warm starts went, and how many points stand behind it.
     #[test]

@@ -77,7 +77,7 @@ impl fmt::Display for DesignPoint {
                 f.write_str(" ")?;
             }
             first = false;
-            write!(f, "{k}={v}")?;
+            write!(f, "{k}={}", crate::text::parameter(*v))?;
         }
         Ok(())
     }
@@ -526,9 +526,49 @@ pub fn check_grid(scene: &Scene, grid: &[String]) -> Result<(Vec<String>, usize)
     }
 }
 
+/// Why a slice of a study holds no point, for people: `no point has f2 = 0.13 (f2 takes 0.1,
+/// 0.15, 0.2)` for the first fixed parameter whose value no point has (by
+/// [`crate::text::same_parameter`]), else that the values are never found together.
+pub fn slice_miss<'a>(fixed: &[(String, f64)], points: impl IntoIterator<Item = &'a BTreeMap<String, f64>>) -> String {
+    use crate::text::{parameter, same_parameter};
+    let points: Vec<&BTreeMap<String, f64>> = points.into_iter().collect();
+    for (name, value) in fixed {
+        let mut values: Vec<f64> = points.iter().filter_map(|p| p.get(name).copied()).collect();
+        if values.iter().any(|&v| same_parameter(v, *value)) {
+            continue;
+        }
+        values.sort_by(f64::total_cmp);
+        values.dedup();
+        const SHOWN: usize = 20;
+        let mut list: Vec<String> = values.iter().take(SHOWN).map(|&v| parameter(v)).collect();
+        if values.len() > SHOWN {
+            list.push(format!("... ({} more)", values.len() - SHOWN));
+        }
+        let takes =
+            if list.is_empty() { "no point has it".to_owned() } else { format!("{name} takes {}", list.join(", ")) };
+        return format!("no point has {name} = {} ({takes})", parameter(*value));
+    }
+    let all = fixed.iter().map(|(n, v)| format!("{n} = {}", parameter(*v))).collect::<Vec<_>>().join(" and ");
+    format!("no point has {all} together")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_slice_without_points_says_which_values_there_are() {
+        let points: Vec<BTreeMap<String, f64>> = [(0.1, 0.1), (0.1, 0.15), (0.2, 0.2)]
+            .iter()
+            .map(|&(a, b)| [("f1".to_owned(), a), ("f2".to_owned(), b)].into())
+            .collect();
+        let miss = |fixed: &[(&str, f64)]| {
+            let fixed: Vec<(String, f64)> = fixed.iter().map(|(n, v)| (n.to_string(), *v)).collect();
+            slice_miss(&fixed, &points)
+        };
+        assert_eq!(miss(&[("f2", 0.13)]), "no point has f2 = 0.13 (f2 takes 0.1, 0.15, 0.2)");
+        assert_eq!(miss(&[("f1", 0.1), ("f2", 0.2)]), "no point has f1 = 0.1 and f2 = 0.2 together");
+    }
 
     fn space() -> ParameterSpace {
         ParameterSpace::new(vec![

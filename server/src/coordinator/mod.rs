@@ -283,6 +283,13 @@ impl Coordinator {
         if let Some(record) = &record {
             batch.put(Tree::Studies, study_key(record.id), encode(record));
         }
+        // when each point ended (the study's finish time and wall time come from them)
+        let now = now_unix_ms();
+        let mut changes = changes;
+        for (p, _) in &mut changes {
+            let ended = matches!(p.state, PointState::Done | PointState::Failed | PointState::Cancelled);
+            p.finished_unix_ms = ended.then(|| p.finished_unix_ms.unwrap_or(now));
+        }
         for (p, _) in &changes {
             batch.put(Tree::Points, point_key(p.study, p.id), encode(p));
         }
@@ -440,6 +447,7 @@ impl Coordinator {
             audit_of: None,
             audit: audit_id,
             adaptive,
+            listed: !submission.points.is_empty(),
             meshes: scene
                 .meshes
                 .iter()
@@ -465,6 +473,7 @@ impl Coordinator {
                     result: None,
                     error: None,
                     finished_seq: None,
+                    finished_unix_ms: None,
                 })
                 .collect()
         };
@@ -526,7 +535,8 @@ impl Coordinator {
         batch.put(Tree::Meta, NEXT_STUDY_KEY, next.to_be_bytes());
         self.store.commit(batch)?;
         state.next_study = next;
-        let n = studies[0].1.len() as u32;
+        // an adaptive study's points are chosen as it runs: its budget
+        let n = studies[0].0.adaptive.as_ref().map_or(studies[0].1.len() as u32, |a| a.budget);
         for (record, points) in studies {
             // (a discretisation audit's level has its own, refined scene)
             let scene = refined.iter().find(|l| l.hash == record.scene_hash).map_or(&scene, |l| &l.scene);
@@ -542,7 +552,10 @@ impl Coordinator {
             let entry = StudyEntry { record, points, plan };
             tracing::info!(study = %entry.record.id, points = entry.points.len(), scene = %scene_hash, audit_of = ?entry.record.audit_of, "study submitted");
             self.emit(EventKind::Snapshot, &entry, None);
-            state.studies.insert(entry.record.id, entry);
+            let id = entry.record.id;
+            state.studies.insert(id, entry);
+            // stored answers need no pool: a busy pool must not hold them up
+            self.answer_stored(&mut state, id)?;
         }
         drop(state);
         self.work.notify_waiters();
@@ -559,10 +572,23 @@ impl Coordinator {
                 _ => None,
             })
             .collect();
+        let state = entry.state();
+        let r = &entry.record;
+        let kind = match (r.audit_of, &r.adaptive, r.listed) {
+            (Some(_), ..) => "audit",
+            (_, Some(_), _) => "adaptive",
+            (_, _, true) => "list",
+            _ => "grid",
+        };
         StudyView {
             solving,
+            kind,
+            scene_title: Scene::parse(&r.scene).ok().and_then(|s| s.title).unwrap_or_default(),
+            finished_unix_ms: (state != StudyState::Active)
+                .then(|| entry.points.iter().filter_map(|p| p.finished_unix_ms).max())
+                .flatten(),
             record: entry.record.clone(),
-            state: entry.state(),
+            state,
             progress: entry.progress(),
             points: if with_points { entry.points.clone() } else { Vec::new() },
             accuracy: entry.record.audit.and_then(|a| studies.get(&a)).map(|audit| accuracy(entry, audit)),
@@ -717,7 +743,23 @@ impl Coordinator {
         for id in ids {
             loop {
                 let State { studies, solutions, by_scene, .. } = &mut *state;
+                // an audit waits for its study's end, solves one point at a time, and stops at its cap
+                let audit_budget = match studies[&id].record.audit_of {
+                    None => None,
+                    Some(of) => match audit_budget(studies.get(&of), &studies[&id]) {
+                        None => break,
+                        // a discretisation level waits as an audit does, but the iteration
+                        // audit's work cap is not its: a level cut short measures nothing (its
+                        // bounds: MAX_REFINE_POINTS, MAX_REFINE_LEVELS)
+                        Some(_) if studies[&id].record.refines.is_some() => None,
+                        Some(budget) => Some(budget),
+                    },
+                };
                 let entry = studies.get_mut(&id).expect("id listed above");
+                if let Some(budget) = audit_budget.filter(|b| b.remaining() < 1.0) {
+                    self.stop_audit(entry, &budget)?;
+                    break;
+                }
                 if entry.record.adaptive.is_some()
                     && !entry.record.cancelled
                     && !entry.points.iter().any(|p| p.state == PointState::Pending)
@@ -763,7 +805,10 @@ impl Coordinator {
                     scene_text: entry.record.scene.clone(),
                     scene_hash: entry.record.scene_hash.clone(),
                     tolerance: entry.record.tolerance,
-                    max_iterations: entry.record.max_iterations,
+                    max_iterations: match audit_budget {
+                        Some(budget) => entry.record.max_iterations.min(budget.remaining() as u32),
+                        None => entry.record.max_iterations,
+                    },
                     deadline_unix_ms: deadline,
                     init,
                     meshes: entry.record.meshes.clone(),
@@ -776,6 +821,30 @@ impl Coordinator {
             }
         }
         Ok(None)
+    }
+
+    /// Cancels the pending points of an audit whose cost cap is spent, saying so on each.
+    fn stop_audit(&self, entry: &mut StudyEntry, budget: &AuditBudget) -> Result<(), CoordError> {
+        let reason = format!(
+            "not re-solved: the audit spent its cost cap ({:.0} work, {:.0} % of its study's)",
+            budget.cap,
+            AUDIT_WORK_FRACTION * 100.0
+        );
+        let changes = entry
+            .points
+            .iter()
+            .filter(|p| p.state == PointState::Pending)
+            .map(|p| {
+                let mut cancelled = apply(p, Transition::Cancel)?;
+                cancelled.error = Some(reason.clone());
+                Ok((cancelled, None))
+            })
+            .collect::<Result<Vec<_>, CoordError>>()?;
+        if !changes.is_empty() {
+            tracing::info!(study = %entry.record.id, points = changes.len(), cap = budget.cap, "audit stopped at its cost cap");
+            self.commit(entry, changes, None, Batch::new())?;
+        }
+        Ok(())
     }
 
     /// Adds the next point of an adaptive study that has none pending, if its budget allows:
@@ -808,6 +877,7 @@ impl Coordinator {
                     result: None,
                     error: None,
                     finished_seq: None,
+                    finished_unix_ms: None,
                 };
                 batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
                 self.store.commit(batch)?;
@@ -823,6 +893,25 @@ impl Coordinator {
                 tracing::warn!(study = %record.id, points = entry.points.len(), "adaptive study: no room left in the box");
                 entry.record = record;
             }
+        }
+        Ok(())
+    }
+
+    /// Marks done every pending point of study `id` that a stored solution answers as it is, for
+    /// a pool of this coordinator's solver version (the one its pools run).
+    fn answer_stored(&self, state: &mut State, id: StudyId) -> Result<(), CoordError> {
+        let entry = &state.studies[&id];
+        let solutions = state.by_scene.get(&entry.record.scene_hash);
+        let answers: Vec<(usize, SolutionKey)> = entry
+            .points
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.state == PointState::Pending)
+            .filter_map(|(i, _)| Some((i, entry.plan.answer(i, solutions, &self.config.solver_version)?)))
+            .collect();
+        for (i, key) in answers {
+            let answer = state.solutions.get(&key).expect("indexed solutions have records").clone();
+            self.answer(state, id, i, &answer)?;
         }
         Ok(())
     }
@@ -1150,10 +1239,32 @@ impl Coordinator {
     }
 }
 
+/// What an audit may still spend: [`AUDIT_WORK_FRACTION`] of its study's work, less what its
+/// points cost so far. None while it must wait: its study still has points to solve, or one of
+/// its own points is being solved (an audit solves one point at a time, each capped at what is
+/// left).
+fn audit_budget(study: Option<&StudyEntry>, audit: &StudyEntry) -> Option<AuditBudget> {
+    if audit.points.iter().any(|p| matches!(p.state, PointState::Leased { .. })) {
+        return None;
+    }
+    audit_cost(study?, audit)
+}
+
+/// An audit's cap and what it spent (None while its study still has points to solve: its work,
+/// and so the cap, is not known yet).
+fn audit_cost(study: &StudyEntry, audit: &StudyEntry) -> Option<AuditBudget> {
+    if study.state() == StudyState::Active {
+        return None;
+    }
+    let work = |e: &StudyEntry| e.points.iter().filter_map(|p| p.result.as_ref()).map(|r| r.work).sum::<f64>();
+    Some(AuditBudget { cap: AUDIT_WORK_FRACTION * work(study), spent: work(audit) })
+}
+
 /// What `audit` (re-solves of some of `study`'s points) measured of `study`: per QoI, |study -
 /// audit| over the points done in both, relative to the largest |audit value| of that QoI (the
 /// measure of docs/performance.md).
 fn accuracy(study: &StudyEntry, audit: &StudyEntry) -> Accuracy {
+    let budget = audit_cost(study, audit);
     let done = |p: &PointRecord| p.state == PointState::Done;
     // (the study's QoIs, the audit's) at each point done in both
     let mut pairs = Vec::new();
@@ -1181,6 +1292,8 @@ fn accuracy(study: &StudyEntry, audit: &StudyEntry) -> Accuracy {
         audited: pairs.len() as u32,
         planned: audit.points.len() as u32,
         qoi,
+        work: budget.map_or(0.0, |b| b.spent),
+        work_cap: budget.map_or(0.0, |b| b.cap),
     }
 }
 

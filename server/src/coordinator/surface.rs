@@ -120,7 +120,7 @@ impl Coordinator {
         rows.retain(|r| {
             fixed
                 .iter()
-                .all(|(name, v)| r.parameters.get(name).is_some_and(|x| (x - v).abs() <= 1e-9 * v.abs().max(1e-300)))
+                .all(|(name, v)| r.parameters.get(name).is_some_and(|x| glissade_core::text::same_parameter(x, v)))
         });
         let mut qoi_names: Vec<String> = rows.iter().flat_map(|r| r.qoi.keys().cloned()).collect();
         qoi_names.sort();

@@ -210,10 +210,14 @@ fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
     let r = answered.result.unwrap();
     assert!(r.answered && r.iterations == 0 && r.error_indicator == 5e-4, "{r:?}");
     assert_eq!(r.started_from.unwrap().study, Some(a));
-    // a tighter tolerance continues from it
+    // a tighter tolerance continues from it, the stored file's bytes as they came
     let tight = submit(&c, &["f1=0.15"], 1e-4, InitStrategy::Nearest);
     let grant = c.lease("p").unwrap().unwrap();
     assert_eq!((grant.study, grant.init.as_ref().map(|w| w.origin.study)), (tight, Some(Some(a))));
+    let Some(WarmStart { file: crate::study::WarmFile::Stored(sent), .. }) = &grant.init else {
+        panic!("a stored warm start expected: {:?}", grant.init)
+    };
+    assert_eq!(sent.as_slice(), bytes.as_slice());
     // the cold strategy never reads the store
     c.release("p", grant.lease_id, grant.study, grant.point).unwrap();
     c.cancel(tight).unwrap();
@@ -222,17 +226,12 @@ fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
     assert_eq!((grant.study, grant.init.is_none()), (cold, true));
     c.release("p", grant.lease_id, grant.study, grant.point).unwrap();
     c.cancel(cold).unwrap();
-    // another solver version gets it as a warm start only
+    // the coordinator answers for its own solver version (its pools'), at submit: a pool of
+    // another version is never handed the point (core::study::engine checks the version)
     pool(&c, "old", "0.0.1");
     let other = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
-    let grant = c.lease("old").unwrap().unwrap();
-    assert_eq!(grant.study, other);
-    let Some(WarmStart { file: crate::study::WarmFile::Stored(sent), .. }) = &grant.init else {
-        panic!("a stored warm start expected: {:?}", grant.init)
-    };
-    assert_eq!(sent.as_slice(), bytes.as_slice(), "the stored file's bytes as they came");
-    c.release("old", grant.lease_id, grant.study, grant.point).unwrap();
-    c.cancel(other).unwrap();
+    assert!(c.lease("old").unwrap().is_none());
+    assert!(state_of(&c, other, 0).result.unwrap().answered);
 
     // a tighter solution replaces the stored one, and then answers tight studies itself
     let tight = submit(&c, &["f1=0.15"], 1e-4, InitStrategy::Nearest);
@@ -244,6 +243,114 @@ fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
     assert!(c.lease("p").unwrap().is_none(), "the tighter solution answers");
     let r = state_of(&c, again, 0).result.unwrap();
     assert!(r.answered && r.error_indicator == 5e-5, "{r:?}");
+}
+
+/// Stored answers need no pool: a study whose points are all stored is done when submitted, even
+/// while the only pool is busy with an audit point (issue 25: such a study waited 83 s).
+#[test]
+fn stored_points_are_answered_at_submit_while_the_only_pool_is_busy() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let first = submit_audited(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Linear { k: 8 }, Some(2));
+    for _ in 0..3 {
+        let grant = c.lease("p").unwrap().unwrap();
+        assert_eq!(grant.study, first);
+        let (done, file) = solution_file(&grant, 5e-4, true);
+        c.complete(done, file).unwrap();
+    }
+    // the pool now solves an audit point, and holds it
+    let audit = c.lease("p").unwrap().unwrap();
+    assert_eq!(Some(audit.study), c.study(first, false).unwrap().record.audit);
+    let again = submit(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Linear { k: 8 });
+    let view = c.study(again, true).unwrap();
+    assert_eq!((view.state, view.progress.done), (StudyState::Done, 3), "{:?}", view.progress);
+    assert!(view.points.iter().all(|p| p.result.as_ref().is_some_and(|r| r.answered && r.iterations == 0)));
+    // the events of a study answered at once end with its end
+    let (replay, _) = c.watch(again).unwrap();
+    assert!(replay.iter().any(|e| e.kind == EventKind::StudyEnded), "{replay:?}");
+}
+
+/// An audit costs at most AUDIT_WORK_FRACTION of its study's work: each of its points is leased
+/// with the iterations left, one at a time, and once the cap is spent the rest are cancelled with
+/// that reason; the accuracy says what it cost.
+#[test]
+fn an_audit_stops_at_its_cost_cap() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    pool(&c, "q", VERSION);
+    let id = submit_audited(&c, &["f1=0.1:0.2:5"], 1e-3, InitStrategy::Cold, Some(3));
+    let audit = c.study(id, false).unwrap().record.audit.unwrap();
+    // 5 points of work 8 each: a cap of 20
+    for _ in 0..4 {
+        let g = c.lease("p").unwrap().unwrap();
+        let (done, file) = solution_file(&g, 5e-4, true);
+        c.complete(done, file).unwrap();
+    }
+    let last = c.lease("p").unwrap().unwrap();
+    assert!(c.lease("q").unwrap().is_none(), "no audit point before its study has ended");
+    let (done, file) = solution_file(&last, 5e-4, true);
+    c.complete(done, file).unwrap();
+    let g = c.lease("p").unwrap().unwrap();
+    assert_eq!((g.study, g.max_iterations), (audit, 20));
+    assert!(c.lease("q").unwrap().is_none(), "one audit point at a time");
+    let (mut done, file) = solution_file(&g, g.tolerance / 2.0, true);
+    done.work = 13.0;
+    c.complete(done, file).unwrap();
+    let g = c.lease("p").unwrap().unwrap();
+    assert_eq!((g.study, g.max_iterations), (audit, 7), "what is left of the cap");
+    let (mut done, file) = solution_file(&g, g.tolerance / 2.0, true);
+    done.work = 7.0;
+    c.complete(done, file).unwrap();
+    assert!(c.lease("p").unwrap().is_none(), "the cap is spent");
+    let a = c.study(audit, true).unwrap();
+    assert_eq!((a.state, a.progress.done, a.progress.cancelled), (StudyState::Done, 2, 1));
+    let reason = a.points[2].error.as_deref().unwrap();
+    assert!(reason.contains("cost cap (20 work, 50 % of its study's)"), "{reason}");
+    let accuracy = c.study(id, false).unwrap().accuracy.unwrap();
+    assert_eq!((accuracy.audited, accuracy.planned, accuracy.work, accuracy.work_cap), (2, 3, 20.0, 20.0));
+}
+
+/// What the studies page and `glissade studies` show of a study at a glance (issue 25).
+#[test]
+fn a_study_says_its_kind_its_scene_and_when_it_finished() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let id = submit_audited(&c, &["f1=0.1:0.2:2"], 1e-3, InitStrategy::Cold, Some(1));
+    let v = c.study(id, false).unwrap();
+    assert_eq!((v.kind, v.finished_unix_ms), ("grid", None));
+    assert!(v.scene_title.starts_with("three blocks (tiny)"), "{}", v.scene_title);
+    let audit = c.study(v.record.audit.unwrap(), false).unwrap();
+    assert_eq!(audit.kind, "audit");
+    for _ in 0..2 {
+        let g = c.lease("p").unwrap().unwrap();
+        let (done, file) = solution_file(&g, 5e-4, true);
+        c.complete(done, file).unwrap();
+    }
+    let v = c.study(id, true).unwrap();
+    let finished = v.finished_unix_ms.expect("ended");
+    assert!(finished >= v.record.created_unix_ms && finished <= now_unix_ms());
+    assert_eq!(Some(finished), v.points.iter().filter_map(|p| p.finished_unix_ms).max());
+    // an explicit list of points
+    let listed = Submission {
+        scene_text: TINY.into(),
+        grid: vec![],
+        points: vec![ParameterVector::try_from(BTreeMap::from([("f1".to_string(), 0.12)])).unwrap()],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        refine_points: Some(0),
+        refine_levels: 0,
+        adaptive: None,
+        meshes: vec![],
+    };
+    let (listed, ..) = c.submit(listed).unwrap();
+    assert_eq!(c.study(listed, false).unwrap().kind, "list");
 }
 
 #[test]
@@ -489,6 +596,10 @@ fn a_discretisation_audit_measures_the_time_step_error_a_study_got() {
     let two = submit_refined(&c, TINY, &["f1=0.2"], None, 0).unwrap();
     assert_eq!(c.study(two, false).unwrap().record.refined_by.len(), 1);
     while let Some(grant) = c.lease("p").unwrap() {
+        // a level gets its whole iteration limit: the iteration audit's work cap (half the
+        // study's work, 4 here) would leave it unconverged
+        let limit = c.study(grant.study, false).unwrap().record.max_iterations;
+        assert_eq!(grant.max_iterations, limit);
         let h = 50.0 / Scene::parse(&grant.scene_text).unwrap().time.steps as f64;
         let qoi = [("slip_A".to_string(), 2e-6 * (1.0 + 0.5 * h * h))].into();
         let (done, file) = solution_file_with_qoi(&grant, grant.tolerance / 2.0, true, &qoi);
@@ -551,7 +662,8 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
         meshes: vec![],
     };
-    let id = c.submit(submission).unwrap().0;
+    let (id, points, _) = c.submit(submission).unwrap();
+    assert_eq!(points, 8, "its budget, not the 0 points chosen yet");
     let view = c.study(id, true).unwrap();
     assert_eq!((view.points.len(), view.progress.total, view.progress.pending), (0, 8, 8));
     assert!(view.accuracy.is_none(), "no audit for an adaptive study");

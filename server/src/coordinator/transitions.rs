@@ -160,6 +160,7 @@ mod tests {
             result: None,
             error: None,
             finished_seq: None,
+            finished_unix_ms: None,
         }
     }
 

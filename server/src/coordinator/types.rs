@@ -136,6 +136,12 @@ pub struct StudyView {
     pub discretisation: Option<Discretisation>,
     /// Iterations and eta its pool last reported, per leased point that reported (not stored).
     pub solving: BTreeMap<PointId, (u64, f64)>,
+    /// `grid`, `list`, `adaptive` or `audit`.
+    pub kind: &'static str,
+    /// The scene's `title` (empty: none).
+    pub scene_title: String,
+    /// When its last point ended, once it has ended (Unix ms).
+    pub finished_unix_ms: Option<i64>,
 }
 
 /// A submission, validated by the service layer's conversions.
@@ -175,6 +181,23 @@ pub struct MeshUpload {
 pub const AUDIT_TOLERANCE_RATIO: f64 = 0.01;
 /// The audit's iteration limit, relative to the study's (a tighter tolerance takes longer).
 pub const AUDIT_ITERATION_FACTOR: u32 = 4;
+
+/// An audit's cost cap: this fraction of its study's work (dynamic iterations + static
+/// iterations / steps), so that measuring a study never costs more than half of solving it.
+pub const AUDIT_WORK_FRACTION: f64 = 0.5;
+
+/// An audit's work: its cap and what it spent.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AuditBudget {
+    pub cap: f64,
+    pub spent: f64,
+}
+
+impl AuditBudget {
+    pub fn remaining(&self) -> f64 {
+        (self.cap - self.spent).max(0.0)
+    }
+}
 
 /// Points a study's audit re-solves unless told: 10 %, at least 2 (at most all).
 pub fn default_audit_points(points: usize) -> usize {
@@ -230,6 +253,9 @@ pub struct Accuracy {
     pub planned: u32,
     /// Per QoI: (largest, mean) of |study - audit| / largest |audit|.
     pub qoi: BTreeMap<String, (f64, f64)>,
+    /// The audit's work so far and its cap (0 until its study has ended).
+    pub work: f64,
+    pub work_cap: f64,
 }
 
 /// A point handed to a pool.

@@ -221,9 +221,17 @@ with h5py.File(sys.argv[1], "r") as f:
         ],
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let id = serde_json::from_slice::<serde_json::Value>(&out.stdout)?["study_id"].to_string();
+    let submitted = serde_json::from_slice::<serde_json::Value>(&out.stdout)?;
+    assert_eq!(submitted["points"], 6, "its budget, not the 0 chosen yet: {submitted}");
+    let id = submitted["study_id"].to_string();
     let out = glissade(Some(&url), &["watch", &id]);
     assert!(out.status.success(), "{}", text(&out.stderr));
+    // its points print at 6 significant digits at most (0.197852, not 0.19785156250000002)
+    let listed = text(&glissade(Some(&url), &["show", &id, "--points"]).stdout);
+    let values: Vec<&str> =
+        listed.split_whitespace().filter_map(|w| w.strip_prefix("f1=").or(w.strip_prefix("f2="))).collect();
+    assert!(values.len() >= 12, "{listed}");
+    assert!(values.iter().all(|v| v.trim_start_matches("0.").len() <= 6), "{listed}");
     let out = glissade(Some(&url), &["show", &id, "--points", "--json"]);
     let shown: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     assert_eq!((&shown["state"], &shown["progress"]["done"]), (&"done".into(), &6.into()), "{shown}");

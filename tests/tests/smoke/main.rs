@@ -9,6 +9,7 @@ mod cli;
 mod common;
 mod discretisation;
 mod engine;
+mod first_use;
 mod limits;
 mod meshes;
 mod resilience;

@@ -504,6 +504,9 @@ fn python_example_client_submits_a_grid_and_reads_the_surface() -> anyhow::Resul
         assert!(p["qoi"]["slip_A"].as_f64().is_some_and(f64::is_finite), "{p}");
     }
     assert!(text(&out.stderr).contains("done 4/4"), "progress lines expected: {}", text(&out.stderr));
+    // no --strategy: the coordinator's default, as for the CLI (issue 25: the example said nearest)
+    let submitted = runtime().block_on(async { study(&mut user(&format!("http://{addr}")).await?, 1).await })?;
+    assert_eq!(submitted.strategy, glissade_proto::v1::InitStrategy::Linear as i32);
 
     // Server reflection lists the services (what `grpcurl list` shows).
     let list = format!(

@@ -4,6 +4,7 @@
 //! the two ranks of an interface's sides.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::ops::Range;
 
 use crate::comm::{Communicator, exchange};
 use crate::model::Model;
@@ -74,8 +75,9 @@ impl Distribution {
         comm: &dyn Communicator,
         model: &Model<D>,
         fields: &mut [InterfaceField],
+        steps: Range<usize>,
     ) {
-        self.transfer(comm, model, fields, true);
+        self.transfer(comm, model, fields, steps, true);
     }
 
     /// Sends the owners' local-stage fields back to each remote side (after the local stage).
@@ -84,8 +86,9 @@ impl Distribution {
         comm: &dyn Communicator,
         model: &Model<D>,
         fields: &mut [InterfaceField],
+        steps: Range<usize>,
     ) {
-        self.transfer(comm, model, fields, false);
+        self.transfer(comm, model, fields, steps, false);
     }
 
     fn transfer<const D: usize>(
@@ -93,6 +96,7 @@ impl Distribution {
         comm: &dyn Communicator,
         model: &Model<D>,
         fields: &mut [InterfaceField],
+        steps: Range<usize>,
         to_owner: bool,
     ) {
         if self.size == 1 {
@@ -115,13 +119,19 @@ impl Distribution {
                 })
             })
             .collect();
+        // the values of the steps moved (a time window's, or all), by interface
+        let window = |i: usize| {
+            let per_step = model.interfaces[i].n_nodes() * D;
+            steps.start * per_step..steps.end * per_step
+        };
         let mut outgoing: BTreeMap<usize, Vec<f64>> = self.neighbours.iter().map(|&q| (q, Vec::new())).collect();
         for &(i, k, from, to) in &moves {
             if from == self.rank {
                 let f = if to_owner { &fields[i].s[k] } else { &fields[i].hat[k] };
+                let r = window(i);
                 let buf = outgoing.get_mut(&to).expect("the receiver is a neighbour");
-                buf.extend_from_slice(&f.force);
-                buf.extend_from_slice(&f.velocity);
+                buf.extend_from_slice(&f.force[r.clone()]);
+                buf.extend_from_slice(&f.velocity[r]);
             }
         }
         let incoming = exchange(comm, outgoing);
@@ -131,9 +141,10 @@ impl Distribution {
                 let buf = &incoming[&from];
                 let at = cursor.entry(from).or_insert(0);
                 let f = if to_owner { &mut fields[i].s[k] } else { &mut fields[i].hat[k] };
-                let len = f.force.len();
-                f.force.copy_from_slice(&buf[*at..*at + len]);
-                f.velocity.copy_from_slice(&buf[*at + len..*at + 2 * len]);
+                let r = window(i);
+                let len = r.len();
+                f.force[r.clone()].copy_from_slice(&buf[*at..*at + len]);
+                f.velocity[r].copy_from_slice(&buf[*at + len..*at + 2 * len]);
                 *at += 2 * len;
             }
         }

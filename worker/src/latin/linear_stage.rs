@@ -6,9 +6,9 @@
 //! the two micro problems: `predict` (micro problem 1), then optionally `correct` (micro problem 2,
 //! a combination of precomputed responses to the macro basis), then `finish`.
 
-use super::search_direction::SearchDirection;
 use crate::model::{Interface, InterfaceSide, Model, PrescribedDof, Substructure};
 use crate::newmark::{NewmarkState, step_operator};
+use crate::search_direction::SearchDirection;
 use crate::sparse::{FactorisedOperator, SparseError};
 use glissade_core::scene::History;
 
@@ -133,6 +133,16 @@ impl SubstructureOperators {
         }
         // the initial state is a static equilibrium (docs/method.md 3, prestress): a0 = 0
         st.a.fill(0.0);
+    }
+
+    /// The Newmark state, to start a later time window from (docs/method.md, "Time windows").
+    pub fn save(&self) -> NewmarkState {
+        self.state.clone()
+    }
+
+    /// Starts from a state saved by [`Self::save`] instead of the initial one.
+    pub fn restore(&mut self, state: &NewmarkState) {
+        self.state.clone_from(state);
     }
 
     /// Current (u, v) of the substructure.

@@ -1,8 +1,8 @@
 //! Local stage: the interface laws in closed form, pointwise in space, stepwise in time
 //! (docs/method.md 3, "Local stage"). Pure functions of the linear-stage fields.
 
-use super::search_direction::SearchDirection;
 use crate::model::InterfaceLaw;
+use crate::search_direction::SearchDirection;
 
 /// Inputs of one interface node at one step: linear-stage fields of both sides, the normal, and
 /// the search directions as compliances h = 1/k (normal and tangential values). A rigid wall is
@@ -40,9 +40,11 @@ fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
     (0..D).map(|i| a[i] * b[i]).sum()
 }
 
-/// Applies the interface law to one node (search direction E+: F^ - F = k (W^ - W), k with a
-/// normal and a tangential value: the law is solved on the normal and the tangential parts
-/// apart, each with its own scalar h).
+/// Applies the interface law to one node: perfect (or a prestress's held jump), unilateral
+/// contact, or contact with Coulomb friction (stick trial, then the tangential force scaled back
+/// to the cone f |F_n|), on the search direction E+: F^ - F = k (W^ - W), k with a normal and a
+/// tangential value: the law is solved on the normal and the tangential parts apart, each with
+/// its own scalar h.
 pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRule) -> NodeOutput<D> {
     let (h1, h2) = (x.h1, x.h2);
     let n = &x.normal;

@@ -306,8 +306,8 @@ impl MacroProblem {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::latin::search_direction::SearchDirection;
     use crate::model::{InterfaceLaw, InterfaceSide};
+    use crate::search_direction::SearchDirection;
 
     fn square_interface(nx: usize) -> Interface<3> {
         let mut coords = vec![];

@@ -6,9 +6,9 @@ pub mod linear_stage;
 pub mod local_stage;
 pub mod macro_problem;
 pub mod relaxation;
-pub mod search_direction;
 pub mod stopping;
 
+use std::ops::Range;
 use std::time::Instant;
 
 use serde::Serialize;
@@ -18,14 +18,18 @@ use crate::model::{Model, QoiTarget};
 use crate::sparse::SparseError;
 use glissade_core::scene::Scale;
 
+use crate::newmark::NewmarkState;
+use crate::search_direction::SearchDirection;
 use distribution::Distribution;
 use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
 use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};
 use relaxation::Relaxation;
-use search_direction::SearchDirection;
 use stopping::{ErrorEstimator, UnitScales};
+
+/// Tolerance of each time window relative to the asked one (docs/method.md, "Time windows").
+pub const WINDOW_TOLERANCE_RATIO: f64 = 0.1;
 
 /// Tolerance of the static prestress stage relative to the asked one.
 pub const STATIC_TOLERANCE_RATIO: f64 = 0.01;
@@ -74,9 +78,29 @@ pub struct StageReport {
     pub worst_interface: Option<String>,
     /// the relaxation coefficient at the last iteration (lowered where the iterates oscillated)
     pub relaxation: f64,
+    /// the work of the iterations in sweeps of the whole interval: `iterations`, or less with
+    /// time windows (an iteration sweeps its window only)
+    pub sweeps: f64,
+    /// time windows iterated (1: the whole interval at once)
+    pub windows: usize,
 }
 
 impl StageReport {
+    /// Adds the report of the next time window, whose iterations each swept `share` of the
+    /// interval: iterations and eta's history go on, the estimate is the worst window's.
+    fn append(&mut self, next: StageReport, share: f64) {
+        self.sweeps += next.iterations as f64 * share;
+        self.windows += 1;
+        self.iterations += next.iterations;
+        self.history.extend(next.history);
+        self.qoi_trace.extend(next.qoi_trace);
+        self.error_indicator = next.error_indicator;
+        self.error_estimate = self.error_estimate.max(next.error_estimate);
+        self.converged = next.converged;
+        self.worst_interface = next.worst_interface;
+        self.relaxation = next.relaxation;
+    }
+
     /// How the iterations went, for a stage that did not converge: the mode and what to change.
     pub fn diagnosis(&self, tolerance: f64) -> String {
         let h = &self.history;
@@ -88,6 +112,12 @@ impl StageReport {
         let last = mean(&h[h.len().saturating_sub(window)..]);
         let before = mean(&h[h.len().saturating_sub(2 * window)..h.len().saturating_sub(window)]);
         let best = h.iter().copied().fold(f64::INFINITY, f64::min);
+        // iterations over time windows sweep less than the interval each
+        let windows = if self.sweeps < self.iterations as f64 {
+            "another solver.time_window (twice or half this one)"
+        } else {
+            "time windows (solver.time_window = 30 steps or more)"
+        };
         let place =
             self.worst_interface.as_ref().map_or(String::new(), |i| format!(", largest residual on interface '{i}'"));
         let advice = if last > 2.0 * best.max(f64::MIN_POSITIVE) && last > before {
@@ -104,13 +134,16 @@ impl StageReport {
         } else if last > 0.8 * before {
             format!(
                 "stalled: eta {before:.2e} -> {last:.2e} over the last {window} iterations; try the other solver.scale \
-                 (single or multi), solver.k0_factor (0.5 or 2) or a coarser time step"
+                 (single or multi), solver.k0_factor (0.5 or 2), {windows} or a coarser time step"
             )
         } else {
             // geometric rate over the last window: iterations still needed to reach the tolerance
             let rate = (last / before).powf(1.0 / window as f64);
             let more = ((tolerance / h.last().copied().unwrap_or(last)).ln() / rate.ln()).ceil().max(0.0);
-            format!("still converging (eta x {rate:.4} per iteration): about {more} more iterations; raise --max-iter")
+            format!(
+                "still converging (eta x {rate:.4} per iteration): about {more} more iterations; raise --max-iter, \
+                 or try {windows}"
+            )
         };
         format!("{advice}{place}")
     }
@@ -306,12 +339,17 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// One linear stage over the whole time interval: at every step micro problem 1 in each
     /// substructure, then (multiscale) the macro problem and micro problem 2, then the interface
     /// fields `s` and the substructure states.
+    ///
+    /// `steps` is the whole interval or a time window; `states` (a later window) the
+    /// substructures' states at its first step, instead of the stage's initial state.
     fn linear_stage(
         &mut self,
         stage: Stage,
         fields: &mut [InterfaceField],
         u0: &[Option<Vec<f64>>],
         mut record: Option<StepRecorder>,
+        steps: Range<usize>,
+        states: Option<&[Option<NewmarkState>]>,
     ) {
         let m = self.model;
         let ops = &mut self.ops;
@@ -320,13 +358,16 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             Stage::Dynamic => self.macro_dynamic.as_mut(),
         };
         for (s, op) in ops.iter_mut().enumerate().filter_map(|(s, o)| o.as_mut().map(|o| (s, o))) {
-            op.start(m, s, stage, u0[s].as_deref());
+            match states.and_then(|st| st[s].as_ref()) {
+                Some(state) => op.restore(state),
+                None => op.start(m, s, stage, u0[s].as_deref()),
+            }
             if let Some(r) = record.as_mut() {
                 let (u, v) = op.state();
-                r(s, 0, u, v);
+                r(s, steps.start, u, v);
             }
         }
-        for step in 0..stage.steps(m) {
+        for step in steps {
             if let Some(mp) = macro_problem.as_mut() {
                 mp.rhs.fill(0.0);
             }
@@ -419,17 +460,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
             // The static stage's error is carried by every step of the dynamics, and its
             // iterations cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
-            let report = self.iterate(
-                Stage::Static,
-                m.settings.tolerance * STATIC_TOLERANCE_RATIO,
-                &mut st.interfaces,
-                &start,
-                &[],
-                &u0,
-                &mut timings,
-                options,
-                None,
-            )?;
+            let begin = StageStart {
+                stage: Stage::Static,
+                tolerance: m.settings.tolerance * STATIC_TOLERANCE_RATIO,
+                gaps: (&start, &[]),
+                u0: &u0,
+                statics: None,
+                cold: init.is_none(),
+            };
+            let report = self.iterate(&begin, &mut st.interfaces, &mut timings, options)?;
             // the initial state of the dynamics: displacements of the converged static solution
             let t = Instant::now();
             let mut scratch = st.interfaces.clone();
@@ -438,7 +477,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     u0[s] = Some(u.to_vec());
                 }
             };
-            self.linear_stage(Stage::Static, &mut scratch, &vec![None; m.substructures.len()], Some(&mut record));
+            let none = vec![None; m.substructures.len()];
+            self.linear_stage(Stage::Static, &mut scratch, &none, Some(&mut record), 0..1, None);
             timings.post_processing += t.elapsed().as_secs_f64();
             static_report = Some(report);
             static_solution = Some(st);
@@ -473,17 +513,15 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // (warm_tolerance_ratio, docs/scenes.md; measured in docs/performance.md).
         let from_neighbour = init.is_some() && !options.init_at_this_point;
         let ratio = if from_neighbour { m.settings.warm_tolerance_ratio } else { 1.0 };
-        let report = self.iterate(
-            Stage::Dynamic,
-            m.settings.tolerance * ratio,
-            &mut dynamic.interfaces,
-            &gap_start,
-            &vn_start,
-            &u0,
-            &mut timings,
-            options,
-            static_solution.as_ref(),
-        )?;
+        let begin = StageStart {
+            stage: Stage::Dynamic,
+            tolerance: m.settings.tolerance * ratio,
+            gaps: (&gap_start, &vn_start),
+            u0: &u0,
+            statics: static_solution.as_ref(),
+            cold: init.is_none(),
+        };
+        let report = self.iterate(&begin, &mut dynamic.interfaces, &mut timings, options)?;
 
         // Post-processing sweep on the converged local-stage fields.
         let t = Instant::now();
@@ -535,21 +573,83 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         (gaps, vns)
     }
 
-    /// LATIN iterations of one stage until the error indicator is below the tolerance.
-    #[allow(clippy::too_many_arguments)] // the stage's start data; a struct would be used once
+    /// LATIN iterations of one stage until the error indicator is below the tolerance: over the
+    /// whole time interval at once (the paper's way), or window after window when the scene asks
+    /// for time windows (docs/method.md, "Time windows").
     fn iterate(
         &mut self,
-        stage: Stage,
-        tolerance: f64,
+        begin: &StageStart,
         fields: &mut [InterfaceField],
-        gap_start: &[Vec<f64>],
-        vn_start: &[Vec<f64>],
-        u0: &[Option<Vec<f64>>],
         timings: &mut Timings,
         options: &SolveOptions,
-        statics: Option<&StageSolution>,
     ) -> Result<StageReport, SolverError> {
         let m = self.model;
+        let StageStart { stage, tolerance, gaps: (gap_start, vn_start), u0, cold, .. } = *begin;
+        let steps = stage.steps(m);
+        let length = match (stage, m.settings.time_window) {
+            (Stage::Dynamic, w) if w > 0 => w.min(steps),
+            _ => steps,
+        };
+        let mut window = Window {
+            steps: 0..length,
+            states: None,
+            bases: self.initial_bases(stage, gap_start, vn_start),
+            body: BodyQois::new(m),
+        };
+        let mut report = StageReport::default();
+        // Each window's error is carried to the end of the interval and adds to the later
+        // windows' (a slip is a sum): the QoI estimate's tolerance is shared out between the
+        // windows (a share by the square root of their number let the brass block's histories
+        // at dt / 10 end 1.3 x the tolerance off); eta, a guard, is held to a tenth of it (its
+        // share too kept the 3D block's first window from converging at 1e-5):
+        // docs/performance.md, "Time windows".
+        let windows = steps.div_ceil(length);
+        let window_tolerance = if windows > 1 {
+            let share = WINDOW_TOLERANCE_RATIO * tolerance;
+            (share, share / windows as f64)
+        } else {
+            (tolerance, tolerance)
+        };
+        loop {
+            let (part, bases) = self.iterate_window(begin, window_tolerance, fields, timings, options, &window)?;
+            report.append(part, window.steps.len() as f64 / steps as f64);
+            if !report.converged || window.steps.end == steps {
+                return Ok(report);
+            }
+            // The next window starts where this one ends: the substructures' states from a
+            // sweep over the converged fields (what the post-processing sweep will find), the
+            // gap rule's bases from the last local stage.
+            let t = Instant::now();
+            let mut scratch = fields.to_vec();
+            let mut body = window.body.clone();
+            let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
+            let range = window.steps.clone();
+            self.linear_stage(stage, &mut scratch, u0, Some(&mut record), range.clone(), window.states.as_deref());
+            let states = self.ops.iter().map(|o| o.as_ref().map(SubstructureOperators::save)).collect();
+            let next = range.end..(range.end + length).min(steps);
+            if cold {
+                hold_last_step(fields, steps, range.end, next.end);
+            }
+            window = Window { steps: next, states: Some(states), bases, body };
+            timings.linear_stage += t.elapsed().as_secs_f64();
+        }
+    }
+
+    /// LATIN iterations of one stage over one time window (or the whole interval) until the
+    /// error indicator is below the tolerance; returns the report and the gap rule's bases at
+    /// the window's end.
+    /// The tolerances: eta's and the QoI estimate's.
+    fn iterate_window(
+        &mut self,
+        begin: &StageStart,
+        (tolerance, estimate_tolerance): (f64, f64),
+        fields: &mut [InterfaceField],
+        timings: &mut Timings,
+        options: &SolveOptions,
+        window: &Window,
+    ) -> Result<(StageReport, Vec<Vec<f64>>), SolverError> {
+        let m = self.model;
+        let StageStart { stage, u0, statics, .. } = *begin;
         let settings = &m.settings;
         let progress = options.progress.as_deref();
         let mut report = StageReport::default();
@@ -559,37 +659,45 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // the interface with the largest share of eta at the last iteration
         let mut worst = None;
         let mut relaxation = Relaxation::new(settings.relaxation, m.qois.iter().map(|q| q.target.unit()).collect());
+        let mut bases_end = Vec::new();
+        // the QoIs are followed up to the window's end (later steps are not computed yet)
+        let known = window.steps.end + 1;
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
             for (f, p) in fields.iter().zip(previous.iter_mut()) {
                 p.clone_from(&f.s);
             }
-            let mut body = BodyQois::new(m);
+            let mut body = window.body.clone();
             let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
             let dynamic = stage == Stage::Dynamic;
-            self.linear_stage(stage, fields, u0, dynamic.then_some(&mut record as StepRecorder));
+            self.linear_stage(
+                stage,
+                fields,
+                u0,
+                dynamic.then_some(&mut record as StepRecorder),
+                window.steps.clone(),
+                window.states.as_deref(),
+            );
             // relaxation (mu = 1 at the first iteration), on the sides this rank computed
             if iteration > 1 {
                 for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
                     for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
                         if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
-                            let mut relaxed = old.clone();
-                            relaxed.relax_towards(side, relaxation.mu());
-                            *side = relaxed;
+                            side.relax_from(old, relaxation.mu());
                         }
                     }
                 }
             }
             let c = Instant::now();
-            self.dist.send_sides_to_owners(self.comm, m, fields);
+            self.dist.send_sides_to_owners(self.comm, m, fields, window.steps.clone());
             timings.communication += c.elapsed().as_secs_f64();
             timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
-            self.local_stage(stage, fields, gap_start, vn_start);
+            bases_end = self.local_stage(stage, fields, window.steps.clone(), &window.bases);
             // the last entry: a stop asked of any rank, summed with the errors so that all stop together
             let mut partial = vec![0.0; 2 * m.interfaces.len() + 1];
             for i in (0..m.interfaces.len()).filter(|&i| self.dist.owns_interface(i)) {
-                let (num, den) = interface_error(m, stage, i, &fields[i]);
+                let (num, den) = interface_error(m, stage, i, &fields[i], window.steps.clone());
                 partial[2 * i] = num;
                 partial[2 * i + 1] = den;
             }
@@ -601,7 +709,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             let eta = error_indicator_from_parts(&partial);
             worst = (0..m.interfaces.len()).max_by(|&a, &b| partial[2 * a].total_cmp(&partial[2 * b]));
-            self.dist.send_hats_to_sides(self.comm, m, fields);
+            self.dist.send_hats_to_sides(self.comm, m, fields, window.steps.clone());
             timings.communication += c.elapsed().as_secs_f64();
             timings.local_stage += t.elapsed().as_secs_f64();
             report.iterations = iteration;
@@ -614,11 +722,17 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 // a non-finite QoI would pass the estimate's comparisons (NaN changes): refuse it
                 // (a non-finite eta is reported below, as such)
                 if eta.is_finite()
-                    && let Some(q) = series.iter().find(|q| q.values.iter().any(|v| !v.is_finite()))
+                    && let Some(q) = series.iter().find(|q| q.values[..known].iter().any(|v| !v.is_finite()))
                 {
                     return Err(SolverError::NonFiniteQoi { stage: stage_name, iteration, qoi: q.name.clone() });
                 }
-                let series: Vec<Vec<f64>> = series.into_iter().map(|q| q.values).collect();
+                let series: Vec<Vec<f64>> = series
+                    .into_iter()
+                    .map(|mut q| {
+                        q.values.truncate(known);
+                        q.values
+                    })
+                    .collect();
                 let estimate = estimator.update(&series, &scales, eta);
                 relaxation.update(&series, &scales);
                 if options.trace_qois {
@@ -635,24 +749,29 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if !eta.is_finite() {
                 return Err(SolverError::NonFinite { stage: stage_name, iteration, eta });
             }
-            if eta <= tolerance && report.error_estimate <= tolerance {
+            if eta <= tolerance && report.error_estimate <= estimate_tolerance {
                 report.converged = true;
                 break;
             }
         }
         report.worst_interface = worst.map(|i| m.interfaces[i].name.clone());
         report.relaxation = relaxation.mu();
-        Ok(report)
+        Ok((report, bases_end))
     }
 
-    /// Local stage over every interface, node and step.
-    fn local_stage(&self, stage: Stage, fields: &mut [InterfaceField], gap_start: &[Vec<f64>], vn_start: &[Vec<f64>]) {
+    /// Local stage over every interface and node, at the steps `steps`, from the gap rule's
+    /// `bases` at the first of them ([`Self::initial_bases`] at t_0); returns the bases after the
+    /// last (empty for interfaces another rank owns).
+    fn local_stage(
+        &self,
+        stage: Stage,
+        fields: &mut [InterfaceField],
+        steps: Range<usize>,
+        bases: &[Vec<f64>],
+    ) -> Vec<Vec<f64>> {
         let m = self.model;
-        let steps = match stage {
-            Stage::Static => 1,
-            Stage::Dynamic => m.steps,
-        };
         let half_dt = 0.5 * m.dt;
+        let mut out = vec![Vec::new(); m.interfaces.len()];
         for (i, itf) in m.interfaces.iter().enumerate() {
             if !self.dist.owns_interface(i) {
                 continue;
@@ -663,15 +782,12 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let h2 = itf.sides.get(1).map_or(SearchDirection::isotropic(0.0), |s| stage.k(s).inverse());
             let f = &mut fields[i];
             // gap rule state: base = g(t_{n-1}) + dt/2 vn(t_{n-1})
-            let mut base: Vec<f64> = match stage {
-                Stage::Static => gap_start[i].clone(),
-                Stage::Dynamic => (0..n).map(|j| gap_start[i][j] + half_dt * vn_start[i][j]).collect(),
-            };
+            let mut base = bases[i].clone();
             let weight = match stage {
                 Stage::Static => 1.0,
                 Stage::Dynamic => half_dt,
             };
-            for step in 0..steps {
+            for step in steps.clone() {
                 for j in 0..n {
                     let at = |v: &[f64]| -> [f64; D] {
                         let mut out = [0.0; D];
@@ -708,7 +824,23 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     base[j] = gap + half_dt * vn;
                 }
             }
+            out[i] = base;
         }
+        out
+    }
+
+    /// The gap rule's bases at t_0 of a stage: the gap, and in dynamics the gap half a step on at
+    /// the initial normal velocity.
+    fn initial_bases(&self, stage: Stage, gap_start: &[Vec<f64>], vn_start: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        let half_dt = 0.5 * self.model.dt;
+        gap_start
+            .iter()
+            .enumerate()
+            .map(|(i, g)| match stage {
+                Stage::Static => g.clone(),
+                Stage::Dynamic => g.iter().zip(&vn_start[i]).map(|(g, vn)| g + half_dt * vn).collect(),
+            })
+            .collect()
     }
 
     /// Moves every substructure's field history to rank 0.
@@ -768,7 +900,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 h.velocity[s].push(v.to_vec());
             }
         };
-        self.linear_stage(Stage::Dynamic, &mut scratch, u0, Some(&mut record));
+        self.linear_stage(Stage::Dynamic, &mut scratch, u0, Some(&mut record), 0..m.steps, None);
         let series = self.qoi_series(fields, statics, body);
         if let Some(h) = history.as_mut() {
             self.gather_field_history(h);
@@ -873,8 +1005,51 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     }
 }
 
+/// A time window of a stage: its steps, and at its first one the substructures' states (`None`:
+/// the stage's initial state) and the gap rule's bases; the body QoIs recorded before it.
+/// What a stage starts from, and the tolerance it is held to.
+#[derive(Clone, Copy)]
+struct StageStart<'a> {
+    stage: Stage,
+    tolerance: f64,
+    /// the gap and the relative normal velocity at t_0 of every interface node
+    gaps: (&'a [Vec<f64>], &'a [Vec<f64>]),
+    /// each substructure's initial displacements (the prestressed state), where there are
+    u0: &'a [Option<Vec<f64>>],
+    /// the static stage's solution (the force QoIs' values at t_0)
+    statics: Option<&'a StageSolution>,
+    /// no initial solution was given: a later time window starts from the last converged step
+    cold: bool,
+}
+
+#[derive(Clone)]
+struct Window {
+    steps: Range<usize>,
+    states: Option<Vec<Option<NewmarkState>>>,
+    bases: Vec<Vec<f64>>,
+    body: BodyQois,
+}
+
+/// Fills steps `from..to` of every field with its values at step `from - 1`: a cold start's next
+/// window begins from the state the last one converged to rather than from zero forces.
+fn hold_last_step(fields: &mut [InterfaceField], steps: usize, from: usize, to: usize) {
+    for f in fields.iter_mut().filter(|f| !f.is_empty() && from > 0) {
+        let per_step = f.len() / steps;
+        for side in f.s.iter_mut().chain(f.hat.iter_mut()) {
+            for v in [&mut side.force, &mut side.velocity] {
+                let (done, rest) = v.split_at_mut(from * per_step);
+                let last = &done[(from - 1) * per_step..];
+                for chunk in rest[..(to - from) * per_step].chunks_mut(per_step) {
+                    chunk.copy_from_slice(last);
+                }
+            }
+        }
+    }
+}
+
 /// The displacement and velocity QoIs of this rank's substructures, recorded step by step
 /// during a dynamic linear stage (zeros for the QoIs of other ranks' substructures).
+#[derive(Clone)]
 struct BodyQois {
     /// (QoI, substructure, dof, displacement rather than velocity)
     wanted: Vec<(usize, usize, usize, bool)>,
@@ -963,7 +1138,13 @@ fn slip_history<const D: usize>(
 /// over interface nodes, sides and steps.
 ///
 /// This function: the numerator and denominator on one interface.
-fn interface_error<const D: usize>(m: &Model<D>, stage: Stage, i: usize, f: &InterfaceField) -> (f64, f64) {
+fn interface_error<const D: usize>(
+    m: &Model<D>,
+    stage: Stage,
+    i: usize,
+    f: &InterfaceField,
+    steps: Range<usize>,
+) -> (f64, f64) {
     let itf = &m.interfaces[i];
     let n = itf.n_nodes();
     let (mut num, mut den) = (0.0, 0.0);
@@ -971,7 +1152,7 @@ fn interface_error<const D: usize>(m: &Model<D>, stage: Stage, i: usize, f: &Int
         let kk = stage.k(side);
         let hh = kk.inverse();
         let (s, h) = (&f.s[k], &f.hat[k]);
-        for at in (0..s.force.len()).step_by(D) {
+        for at in (steps.start * n * D..steps.end * n * D).step_by(D) {
             let j = (at / D) % n;
             let (a, nrm) = (itf.area[j], &itf.normal[j]);
             let df: [f64; D] = std::array::from_fn(|c| s.force[at + c] - h.force[at + c]);

@@ -1,5 +1,5 @@
 //! The stopping test: an estimate of how far each QoI history still is from the converged one
-//! (docs/method.md, "Stopping test").
+//! (docs/method.md, "Relaxation, error indicator, stopping test").
 //!
 //! eta measures the gap between the two LATIN spaces over every interface and step; it says
 //! little about one velocity or one slip (measured: velocity histories 40x eta, slips at 2e-4
@@ -11,6 +11,8 @@
 //! it with the largest of the window before, or the last half window with the one before it
 //! when that is slower (a slow mode under a transient that dies fast).
 
+pub use crate::model::QoiUnit;
+
 /// Iterations per window; rho is measured over two windows.
 pub const WINDOW: usize = 10;
 /// Slowest contraction the estimate trusts: beyond it (or before two windows exist, or while
@@ -20,7 +22,7 @@ pub const RHO_MAX: f64 = 0.99;
 /// A QoI's history norm is floored at this share of the largest norm among the QoIs of the same
 /// unit and of the interface fields' scale of that unit ([`UnitScales`]): a slip that sticks
 /// (1e-22 m) is measured against the displacements beside it, not against its own noise.
-pub const NORM_FLOOR: f64 = 1e-3;
+pub const NORM_FLOOR: f64 = glissade_core::study::QOI_FLOOR;
 
 /// What the interface fields say a QoI history of each unit is worth, as an L2 norm over the
 /// steps: the area-weighted RMS of the local-stage velocities, of the tractions times the mean
@@ -56,14 +58,6 @@ impl UnitScales {
             QoiUnit::Force => self.force,
         }
     }
-}
-
-/// The physical unit of a QoI: norms are compared within a unit only.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum QoiUnit {
-    Length,
-    Velocity,
-    Force,
 }
 
 /// Follows the QoI histories of successive iterates and estimates their remaining error.

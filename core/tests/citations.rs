@@ -1,0 +1,110 @@
+//! Every heading the sources and docs cite exists: a citation `docs/<name>.md, "Heading"` (comma
+//! optional, across comment lines too) must name the beginning of a heading of that file (after
+//! a section number such as `4.` or `4d.`), and the file must exist.
+
+use std::path::{Path, PathBuf};
+
+fn repository() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("core/ sits in the repository").to_path_buf()
+}
+
+/// Source and doc files of the repository (not target/ or hidden directories).
+fn files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).expect("readable directory").flatten() {
+        let path = entry.path();
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if name.starts_with('.') || name == "target" || name == "node_modules" {
+            continue;
+        }
+        if path.is_dir() {
+            files(&path, out);
+        } else if ["rs", "md", "toml", "sh", "py", "proto"].iter().any(|e| name.ends_with(&format!(".{e}"))) {
+            out.push(path);
+        }
+    }
+}
+
+/// The text with line breaks and the comment markers that follow them folded into spaces, so a
+/// citation wrapped over two comment lines reads as one.
+fn folded(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for line in text.lines() {
+        let line = line.trim_start();
+        let line = ["//!", "///", "//", "#", ">"].iter().find_map(|m| line.strip_prefix(m)).unwrap_or(line);
+        out.push_str(line.trim());
+        out.push(' ');
+    }
+    out
+}
+
+/// (doc file, cited heading) pairs in a text.
+fn citations(text: &str) -> Vec<(String, String)> {
+    let mut found = Vec::new();
+    let mut rest = text;
+    while let Some(at) = rest.find("docs/") {
+        rest = &rest[at + 5..];
+        let name: String = rest.chars().take_while(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '_').collect();
+        let after = &rest[name.len()..];
+        let Some(after) = after.strip_prefix(".md") else { continue };
+        let after = after.strip_prefix(',').unwrap_or(after);
+        let Some(after) = after.strip_prefix(" \"") else { continue };
+        if let Some(end) = after.find('"') {
+            found.push((format!("{name}.md"), after[..end].split_whitespace().collect::<Vec<_>>().join(" ")));
+        }
+    }
+    found
+}
+
+/// The headings of a markdown file, without their #s and section numbers.
+fn headings(text: &str) -> Vec<String> {
+    text.lines()
+        .filter(|l| l.starts_with('#'))
+        .map(|l| {
+            let h = l.trim_start_matches('#').trim();
+            match h.split_once(' ') {
+                Some((n, rest)) if n.ends_with('.') && n.starts_with(|c: char| c.is_ascii_digit()) => rest.to_string(),
+                _ => h.to_string(),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn every_cited_heading_exists() {
+    let root = repository();
+    let mut all = Vec::new();
+    files(&root, &mut all);
+    let mut missing = Vec::new();
+    let mut checked = 0;
+    for path in &all {
+        let Ok(text) = std::fs::read_to_string(path) else { continue };
+        for (doc, heading) in citations(&folded(&text)) {
+            let Ok(doc_text) = std::fs::read_to_string(root.join("docs").join(&doc)) else {
+                missing.push(format!("{}: docs/{doc} does not exist", path.display()));
+                continue;
+            };
+            checked += 1;
+            if !headings(&doc_text).iter().any(|h| h.starts_with(&heading)) {
+                missing.push(format!(
+                    "{}: docs/{doc} has no heading \"{heading}\"",
+                    path.strip_prefix(&root).unwrap_or(path).display()
+                ));
+            }
+        }
+    }
+    assert!(checked > 20, "only {checked} citations found: the scan is broken");
+    assert!(missing.is_empty(), "dangling citations:\n{}", missing.join("\n"));
+}
+
+#[test]
+fn citations_are_found_across_comment_lines() {
+    let text = "// see docs/performance.md, \"Locking, and\n    // the static search direction\") and docs/a.md \"B\"";
+    assert_eq!(
+        citations(&folded(text)),
+        vec![
+            ("performance.md".to_string(), "Locking, and the static search direction".to_string()),
+            ("a.md".to_string(), "B".to_string())
+        ]
+    );
+    assert_eq!(headings("## 4d. Sliding\n### Time windows (x)\ntext"), vec!["Sliding", "Time windows (x)"]);
+}
