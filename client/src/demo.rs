@@ -14,7 +14,8 @@ use glissade_server::ServerOptions;
 use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
 
 use crate::{
-    ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, get_study, refused, surface, user, watch,
+    ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, discretisation_line, dominant,
+    get_study, refused, surface, user, watch,
 };
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
@@ -142,6 +143,19 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         watch(&mut client, audit).await?;
         if let Some(a) = get_study(&mut client, "demo", id, false, false).await?.accuracy {
             outln!("measured accuracy: {}", accuracy_line(&a));
+        }
+    }
+    // and the time step's: two of its points re-solved with dt / 2
+    let levels = get_study(&mut client, "demo", id, false, false).await?.discretisation.map(|d| d.level_study_ids);
+    for level in levels.unwrap_or_default() {
+        outln!("\nthe study's discretisation audit (study {level}): points re-solved cold with the time step halved");
+        watch(&mut client, level).await?;
+    }
+    let s = get_study(&mut client, "demo", id, false, false).await?;
+    if let Some(d) = &s.discretisation {
+        outln!("time step's error: {}", discretisation_line(d));
+        if let Some(verdict) = s.accuracy.as_ref().and_then(|a| dominant(a, d)) {
+            outln!("{verdict}");
         }
     }
     Ok(outcome)

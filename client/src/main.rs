@@ -180,6 +180,15 @@ struct SubmitArgs {
     /// accuracy the study got (`glissade show`); default: 10 % of the points, at least 2; 0: none
     #[arg(long, value_name = "N")]
     audit: Option<u32>,
+    /// Points re-solved cold with the time step halved when pools are idle, to measure the
+    /// discretisation error beside the iterations' (`glissade show`); default: 2; 0: none; at
+    /// most 8
+    #[arg(long, value_name = "N")]
+    refine: Option<u32>,
+    /// Levels of that discretisation audit, the study's own included: 2 (dt / 2, order 2
+    /// assumed) or 3 (dt / 2 and dt / 4, order observed)
+    #[arg(long, value_name = "2|3", default_value_t = 2)]
+    refine_levels: u32,
     /// Follow the study until it ends (as `glissade watch`).
     #[arg(long)]
     watch: bool,
@@ -428,6 +437,8 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
         label: args.label,
         blend_neighbours: args.k,
         audit_points: args.audit,
+        refine_points: args.refine,
+        refine_levels: args.refine_levels,
     };
     let mut client = user(server).await?;
     let reply = client
@@ -638,6 +649,54 @@ fn accuracy_line(a: &v1::StudyAccuracy) -> String {
     )
 }
 
+/// `2 of 2 points re-solved at dt / 2 (study 3; 4.1 s, 0.8 x the study's 5.0 s): slip_A change
+/// 3.2e-2 error ~4.3e-2 (order 2 assumed), ...`
+fn discretisation_line(d: &v1::StudyDiscretisation) -> String {
+    let errors: Vec<String> = d
+        .qoi
+        .iter()
+        .map(|(q, e)| {
+            let how = if e.erratic > 0 {
+                format!(" (ERRATIC at {} point(s): an event moves with the step; no extrapolation)", e.erratic)
+            } else if e.below_tolerance {
+                " (below the iterations' noise)".to_string()
+            } else if e.order_assumed {
+                " (order 2 assumed)".to_string()
+            } else {
+                format!(" (observed order {:.2})", e.order)
+            };
+            format!("{q} change {:.1e} error ~{:.1e}{how}", e.change, e.error)
+        })
+        .collect();
+    let levels: Vec<String> = d.factors.iter().map(|f| format!("dt / {f}")).collect();
+    let studies: Vec<String> = d.level_study_ids.iter().map(|s| s.to_string()).collect();
+    format!(
+        "{} of {} points re-solved at {} (study {}; {:.1} s, {:.2} x the study's {:.1} s){}{}",
+        d.audited,
+        d.planned,
+        levels.join(" and "),
+        studies.join(", "),
+        d.work_seconds,
+        if d.study_seconds > 0.0 { d.work_seconds / d.study_seconds } else { 0.0 },
+        d.study_seconds,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    )
+}
+
+/// Which of the two errors dominates, by the largest over the QoIs of each (None until both
+/// measured something).
+fn dominant(a: &v1::StudyAccuracy, d: &v1::StudyDiscretisation) -> Option<String> {
+    let iterations =
+        a.qoi.values().map(|e| e.largest).fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))))?;
+    let step = d.qoi.values().map(|e| e.error).fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))))?;
+    Some(if step > iterations {
+        format!("the time step's error (~{step:.1e}) dominates the iterations' ({iterations:.1e})")
+    } else {
+        format!("the iterations' error ({iterations:.1e}) dominates the time step's (~{step:.1e})")
+    })
+}
+
 fn study_json(s: &v1::Study) -> serde_json::Value {
     let p = s.progress.unwrap_or_default();
     serde_json::json!({
@@ -668,6 +727,19 @@ fn study_json(s: &v1::Study) -> serde_json::Value {
             "work_cap": a.work_cap,
             "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({"largest": e.largest, "mean": e.mean})))
                 .collect::<serde_json::Map<_, _>>(),
+        })),
+        "refines": (s.refines != 0).then(|| serde_json::json!({"study_id": s.refines, "factor": s.refine_factor})),
+        "discretisation": s.discretisation.as_ref().map(|d| serde_json::json!({
+            "level_study_ids": d.level_study_ids,
+            "factors": d.factors,
+            "audited": d.audited,
+            "planned": d.planned,
+            "work_seconds": d.work_seconds,
+            "study_seconds": d.study_seconds,
+            "qoi": d.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
+                "change": e.change, "error": e.error, "order": (e.order > 0.0).then_some(e.order),
+                "order_assumed": e.order_assumed, "erratic": e.erratic, "below_tolerance": e.below_tolerance,
+            }))).collect::<serde_json::Map<_, _>>(),
         })),
     })
 }
@@ -932,11 +1004,19 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
         order_name(s.order)
     );
     outln!("  tolerance {:.1e}, at most {} iterations", s.tolerance, s.max_iterations);
-    if s.audit_of != 0 {
+    if s.refines != 0 {
+        outln!("  refines   study {} (its points re-solved with the time step / {})", s.refines, s.refine_factor);
+    } else if s.audit_of != 0 {
         outln!("  audits    study {} (its points re-solved cold at this tighter tolerance)", s.audit_of);
     }
     if let Some(a) = &s.accuracy {
         outln!("  accuracy  {}", accuracy_line(a));
+    }
+    if let Some(d) = &s.discretisation {
+        outln!("  dt error  {}", discretisation_line(d));
+        if let Some(verdict) = s.accuracy.as_ref().and_then(|a| dominant(a, d)) {
+            outln!("            {verdict}");
+        }
     }
     outln!(
         "  progress  {} done, {} failed, {} running, {} pending{}; {} iterations in all",

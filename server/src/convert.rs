@@ -184,6 +184,8 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             order: order(m.order)?,
             label: m.label,
             audit_points: m.audit_points,
+            refine_points: m.refine_points,
+            refine_levels: m.refine_levels,
             adaptive,
             meshes: m.meshes.into_iter().map(|f| MeshUpload { file: f.file, data: f.data, sha256: f.sha256 }).collect(),
         })
@@ -463,6 +465,33 @@ pub fn study(v: &StudyView) -> v1::Study {
         kind: v.kind.to_owned(),
         scene_title: v.scene_title.clone(),
         finished_unix_ms: v.finished_unix_ms.unwrap_or(0),
+        discretisation: v.discretisation.as_ref().map(|d| v1::StudyDiscretisation {
+            level_study_ids: d.levels.iter().map(|(s, _)| s.0).collect(),
+            factors: d.levels.iter().map(|&(_, f)| f).collect(),
+            audited: d.audited,
+            planned: d.planned,
+            work_seconds: d.work_seconds,
+            study_seconds: d.study_seconds,
+            qoi: d
+                .qoi
+                .iter()
+                .map(|(name, q)| {
+                    (
+                        name.clone(),
+                        v1::QoiDiscretisation {
+                            change: q.change,
+                            error: q.error,
+                            order: q.order.unwrap_or(0.0),
+                            order_assumed: q.order_assumed,
+                            erratic: q.erratic,
+                            below_tolerance: q.below_tolerance,
+                        },
+                    )
+                })
+                .collect(),
+        }),
+        refines: r.refines.map_or(0, |x| x.study.0),
+        refine_factor: r.refines.map_or(0, |x| x.factor),
     }
 }
 

@@ -86,7 +86,8 @@ pub struct StudyRecord {
     pub order: OrderKind,
     pub created_unix_ms: i64,
     pub cancelled: bool,
-    /// The study this one audits (re-solves some of its points cold at a tighter tolerance).
+    /// The study this one audits (re-solves some of its points cold at a tighter tolerance, or,
+    /// with `refines`, on a refined scene): leased when nothing else is pending.
     #[serde(default)]
     pub audit_of: Option<StudyId>,
     /// The study auditing this one.
@@ -101,6 +102,21 @@ pub struct StudyRecord {
     /// Submitted as an explicit list of points, not a grid.
     #[serde(default)]
     pub listed: bool,
+    /// The studies of its discretisation audit, one per refined level, finest last.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub refined_by: Vec<StudyId>,
+    /// The study this one refines: some of its points re-solved on a refined scene (its own
+    /// `scene`, written by core::refine) at the same tolerance.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refines: Option<Refines>,
+}
+
+/// What a discretisation audit level refines, and by how much.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Refines {
+    pub study: StudyId,
+    pub refinement: glissade_core::refine::Refinement,
+    pub factor: u32,
 }
 
 /// A mesh file of a study's scene: its name in the scene, SHA-256 (hex) and size.

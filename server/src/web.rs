@@ -229,6 +229,17 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             "work": a.work, "work_cap": a.work_cap,
             "qoi": a.qoi.iter().map(|(q, (l, m))| (q.clone(), json!({"largest": l, "mean": m}))).collect::<serde_json::Map<_, _>>(),
         })),
+        "refines": r.refines.map(|x| json!({"study_id": x.study.0, "factor": x.factor})),
+        "discretisation": v.discretisation.as_ref().map(|d| json!({
+            "level_study_ids": d.levels.iter().map(|(s, _)| s.0).collect::<Vec<_>>(),
+            "factors": d.levels.iter().map(|(_, f)| f).collect::<Vec<_>>(),
+            "audited": d.audited, "planned": d.planned,
+            "work_seconds": d.work_seconds, "study_seconds": d.study_seconds,
+            "qoi": d.qoi.iter().map(|(q, e)| (q.clone(), json!({
+                "change": e.change, "error": e.error, "order": e.order, "order_assumed": e.order_assumed,
+                "erratic": e.erratic, "below_tolerance": e.below_tolerance,
+            }))).collect::<serde_json::Map<_, _>>(),
+        })),
         "points": v.points.iter().map(point_json).collect::<Vec<_>>(),
         "running": v.points.iter().filter_map(|p| match &p.state {
             PointState::Leased { pool, .. } => {
@@ -711,6 +722,32 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 }
                 @if a.work_cap > 0.0 {
                     (format!("; it cost {:.0} work of its cap {:.0} ({:.0} % of the study's)", a.work, a.work_cap, AUDIT_WORK_FRACTION * 100.0))
+                }
+            }
+        }
+        @if let Some(d) = &v.discretisation {
+            p #discretisation {
+                (format!(
+                    "discretisation error: {} of {} points re-solved at {} ({:.1} s of solves, {:.2} x the study's {:.1} s): ",
+                    d.audited,
+                    d.planned,
+                    d.levels.iter().map(|(_, f)| format!("dt / {f}")).collect::<Vec<_>>().join(" and "),
+                    d.work_seconds,
+                    if d.study_seconds > 0.0 { d.work_seconds / d.study_seconds } else { 0.0 },
+                    d.study_seconds
+                ))
+                @for (k, (q, e)) in d.qoi.iter().enumerate() {
+                    @if k > 0 { ", " }
+                    (q) (format!(" change {:.1e} error ~{:.1e}", e.change, e.error))
+                    @if e.erratic > 0 {
+                        strong { (format!(" (erratic at {} point(s): an event moves with the step; no extrapolation)", e.erratic)) }
+                    } @else if e.below_tolerance {
+                        " (below the iterations' noise)"
+                    } @else if let Some(order) = e.order {
+                        (format!(" (observed order {order:.2})"))
+                    } @else {
+                        " (order 2 assumed)"
+                    }
                 }
             }
         }

@@ -32,6 +32,7 @@ use crate::store::{Batch, Store, Tree};
 use glissade_core::study::adaptive::AdaptiveDesign;
 use glissade_core::study::space::DesignPoint;
 
+mod discretisation;
 mod surface;
 mod transitions;
 mod types;
@@ -410,11 +411,17 @@ impl Coordinator {
             None => default_audit_points(points.len()),
             Some(n) => (n as usize).min(points.len()),
         };
+        // the discretisation audit: its refined scenes written and checked now
+        let (refine_points, refined) =
+            discretisation::plan(&submission, &scene, points.len(), self.config.max_scene_bytes)?;
 
         let mut state = self.lock();
         // every user's pending points together (there is one user token) stay bounded
         let pending: usize = state.studies.values().map(|e| e.progress().pending as usize).sum();
-        let adding = points.len() + audit_points + adaptive.as_ref().map_or(0, |a| a.budget as usize);
+        let adding = points.len()
+            + audit_points
+            + refine_points * refined.len()
+            + adaptive.as_ref().map_or(0, |a| a.budget as usize);
         if pending + adding > self.config.max_pending {
             return Err(CoordError::Exhausted(format!(
                 "this study would add {adding} points to the {pending} pending, more than the {} the coordinator holds (glissade-server --max-pending): wait for studies to finish, or cancel some",
@@ -423,6 +430,8 @@ impl Coordinator {
         }
         let id = StudyId(state.next_study);
         let audit_id = (audit_points > 0).then_some(StudyId(id.0 + 1));
+        let refined_ids: Vec<StudyId> =
+            (0..refined.len() as u64).map(|k| StudyId(id.0 + 1 + audit_id.is_some() as u64 + k)).collect();
         let record = StudyRecord {
             id,
             label: submission.label,
@@ -448,6 +457,8 @@ impl Coordinator {
                     bytes: bytes.len() as u64,
                 })
                 .collect(),
+            refined_by: if refine_points > 0 { refined_ids.clone() } else { Vec::new() },
+            refines: None,
         };
         let pending = |study: StudyId, points: Vec<ParameterVector>| -> Vec<PointRecord> {
             points
@@ -468,11 +479,7 @@ impl Coordinator {
         };
         // The audit: points spread over the list, re-solved cold at a tighter tolerance.
         let audit = audit_id.map(|audit_id| {
-            let chosen: Vec<ParameterVector> = (0..audit_points)
-                .map(|k| {
-                    points[if audit_points == 1 { 0 } else { k * (points.len() - 1) / (audit_points - 1) }].clone()
-                })
-                .collect();
+            let chosen = discretisation::spread(&points, audit_points);
             let audit = StudyRecord {
                 id: audit_id,
                 label: format!("audit of study {id}"),
@@ -486,20 +493,38 @@ impl Coordinator {
                 audit_of: Some(id),
                 audit: None,
                 adaptive: None,
+                refined_by: Vec::new(),
                 ..record.clone()
             };
             (audit, pending(audit_id, chosen))
         });
+        let refined_studies: Vec<(StudyRecord, Vec<PointRecord>)> = refined
+            .iter()
+            .zip(&refined_ids)
+            .take(if refine_points > 0 { refined.len() } else { 0 })
+            .map(|(level, &rid)| {
+                (
+                    discretisation::record(&record, rid, level),
+                    pending(rid, discretisation::spread(&points, refine_points)),
+                )
+            })
+            .collect();
         let points = pending(id, points);
         let mut batch = Batch::new();
         if self.store.get(Tree::Scenes, scene_hash.as_bytes())?.is_none() {
             batch.put(Tree::Scenes, scene_hash.as_bytes(), record.scene.as_bytes());
+        }
+        for level in &refined {
+            if self.store.get(Tree::Scenes, level.hash.as_bytes())?.is_none() {
+                batch.put(Tree::Scenes, level.hash.as_bytes(), level.text.as_bytes());
+            }
         }
         for (digest, compressed) in new_meshes {
             batch.put(Tree::Meshes, digest.as_bytes(), compressed);
         }
         let mut studies = vec![(record, points)];
         studies.extend(audit);
+        studies.extend(refined_studies);
         for (r, ps) in &studies {
             batch.put(Tree::Studies, study_key(r.id), encode(r));
             for p in ps {
@@ -513,11 +538,15 @@ impl Coordinator {
         // an adaptive study's points are chosen as it runs: its budget
         let n = studies[0].0.adaptive.as_ref().map_or(studies[0].1.len() as u32, |a| a.budget);
         for (record, points) in studies {
-            let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
-            if !state.by_scene.contains_key(&scene_hash) {
+            // (a discretisation audit's level has its own, refined scene)
+            let scene = refined.iter().find(|l| l.hash == record.scene_hash).map_or(&scene, |l| &l.scene);
+            let plan = StudyPlan::new(scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+            if !state.by_scene.contains_key(&record.scene_hash) {
                 // None for a scene of too many parameters: its studies are cold (checked above).
-                if let Ok(index) = SceneSolutions::new(scene_hash.clone(), plan.space().clone(), self.store.clone()) {
-                    state.by_scene.insert(scene_hash.clone(), index);
+                if let Ok(index) =
+                    SceneSolutions::new(record.scene_hash.clone(), plan.space().clone(), self.store.clone())
+                {
+                    state.by_scene.insert(record.scene_hash.clone(), index);
                 }
             }
             let entry = StudyEntry { record, points, plan };
@@ -563,6 +592,10 @@ impl Coordinator {
             progress: entry.progress(),
             points: if with_points { entry.points.clone() } else { Vec::new() },
             accuracy: entry.record.audit.and_then(|a| studies.get(&a)).map(|audit| accuracy(entry, audit)),
+            discretisation: (!entry.record.refined_by.is_empty()).then(|| {
+                let levels: Vec<&StudyEntry> = entry.record.refined_by.iter().filter_map(|l| studies.get(l)).collect();
+                discretisation::measure(entry, &levels)
+            }),
         }
     }
 
@@ -631,14 +664,14 @@ impl Coordinator {
             .collect::<Result<_, CoordError>>()?;
         self.commit(entry, changes, Some(record), Batch::new())?;
         tracing::info!(study = %id, "study cancelled");
-        let audit = entry.record.audit;
-        // its audit has nothing left to measure
-        if let Some(audit) = audit
-            && state.studies.get(&audit).is_some_and(|a| a.state() == StudyState::Active)
-        {
-            drop(state);
-            self.cancel(audit)?;
-            state = self.lock();
+        let audits: Vec<StudyId> = entry.record.audit.into_iter().chain(entry.record.refined_by.clone()).collect();
+        // its audits have nothing left to measure
+        for audit in audits {
+            if state.studies.get(&audit).is_some_and(|a| a.state() == StudyState::Active) {
+                drop(state);
+                self.cancel(audit)?;
+                state = self.lock();
+            }
         }
         let entry = state.studies.get(&id).expect("cancelled above");
         Ok(Self::view(&state, entry, false))
@@ -715,6 +748,10 @@ impl Coordinator {
                     None => None,
                     Some(of) => match audit_budget(studies.get(&of), &studies[&id]) {
                         None => break,
+                        // a discretisation level waits as an audit does, but the iteration
+                        // audit's work cap is not its: a level cut short measures nothing (its
+                        // bounds: MAX_REFINE_POINTS, MAX_REFINE_LEVELS)
+                        Some(_) if studies[&id].record.refines.is_some() => None,
                         Some(budget) => Some(budget),
                     },
                 };

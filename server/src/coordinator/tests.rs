@@ -48,6 +48,8 @@ fn submit_audited(
         order: OrderKind::Asc,
         label: String::new(),
         audit_points,
+        refine_points: Some(0),
+        refine_levels: 0,
         adaptive: None,
         meshes: vec![],
     };
@@ -65,6 +67,8 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         order: OrderKind::Asc,
         label: String::new(),
         audit_points: None,
+        refine_points: Some(0),
+        refine_levels: 0,
         adaptive: None,
         meshes: vec![],
     };
@@ -340,6 +344,8 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
         order: OrderKind::Asc,
         label: String::new(),
         audit_points: Some(0),
+        refine_points: Some(0),
+        refine_levels: 0,
         adaptive: None,
         meshes: vec![],
     };
@@ -481,6 +487,158 @@ fn an_audit_measures_the_accuracy_a_study_got() {
     assert!(c.study(plain, false).unwrap().accuracy.is_none());
 }
 
+/// A study of `grid` with the discretisation audit asked for (`refine_points`, `refine_levels`)
+/// and no iteration audit.
+fn submit_refined(
+    c: &Coordinator,
+    scene: &str,
+    grid: &[&str],
+    refine_points: Option<u32>,
+    refine_levels: u32,
+) -> Result<StudyId, CoordError> {
+    let submission = Submission {
+        scene_text: scene.into(),
+        grid: grid.iter().map(|s| s.to_string()).collect(),
+        points: vec![],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        refine_points,
+        refine_levels,
+        adaptive: None,
+        meshes: vec![],
+    };
+    c.submit(submission).map(|r| r.0)
+}
+
+/// A study's discretisation audit: its first and last points re-solved cold on the scene with
+/// the time step halved and quartered (core::refine's text: it reads back with 100 and 200
+/// steps), leased after every user study, and per QoI the change, the observed order and
+/// Richardson's error estimate, checked here against QoIs made of a known law: slip_A = f1 *
+/// 1e-5 * (1 + 0.5 (dt / dt0)^2), second order, whose limit is f1 * 1e-5; slip_B erratic (up,
+/// then down) at f1 = 0.2. It survives a restart, and a cancelled study cancels it.
+#[test]
+fn a_discretisation_audit_measures_the_time_step_error_a_study_got() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let id = submit_refined(&c, TINY, &["f1=0.1:0.2:5"], None, 3).unwrap();
+    let view = c.study(id, false).unwrap();
+    assert!(view.record.audit.is_none());
+    let levels = view.record.refined_by.clone();
+    assert_eq!(levels.len(), 2);
+    let tiny = Scene::parse(TINY).unwrap();
+    for (&level, factor) in levels.iter().zip([2u32, 4]) {
+        let l = c.study(level, true).unwrap();
+        assert_eq!(
+            l.record.refines,
+            Some(crate::records::Refines { study: id, refinement: glissade_core::refine::Refinement::Time, factor })
+        );
+        assert_eq!((l.record.audit_of, l.record.strategy, l.record.tolerance), (Some(id), InitStrategy::Cold, 1e-3));
+        assert_eq!(l.record.max_iterations, tiny.solver.max_iterations as u32 * factor);
+        let refined = Scene::parse(&l.record.scene).unwrap();
+        assert_eq!(refined.time.steps, 50 * factor as usize);
+        assert_eq!(l.record.scene_hash, refined.content_hash());
+        assert_ne!(l.record.scene_hash, view.record.scene_hash);
+        let f1: Vec<f64> = l.points.iter().map(|p| p.parameters.get("f1").unwrap()).collect();
+        assert_eq!(f1, [0.1, 0.2]);
+    }
+    // a later study's points come before the audit's
+    let later = submit(&c, &["f1=0.11"], 1e-3, InitStrategy::Cold);
+    let mut order = Vec::new();
+    while let Some(grant) = c.lease("p").unwrap() {
+        order.push(grant.study);
+        let f = grant.parameters.get("f1").unwrap();
+        let steps = Scene::parse(&grant.scene_text).unwrap().time.steps as f64;
+        let h = 50.0 / steps;
+        let slip_b =
+            if f > 0.15 { [1.0, 1.2, 1.1][((steps / 100.0) as usize).min(2)] * 1e-6 } else { 1e-6 * (1.0 + h * h) };
+        // stuck: a slip that does not happen at f1 = 0.2, its value the iterations' noise
+        let stuck =
+            if f > 0.15 { [1.0, 0.5, 2.0][((steps / 100.0) as usize).min(2)] * 1e-21 } else { 1e-6 * (1.0 + h * h) };
+        let qoi = [
+            ("slip_A".to_string(), f * 1e-5 * (1.0 + 0.5 * h * h)),
+            ("slip_B".to_string(), slip_b),
+            ("stuck".to_string(), stuck),
+        ]
+        .into();
+        let (done, file) = solution_file_with_qoi(&grant, grant.tolerance / 2.0, true, &qoi);
+        c.complete(done, file).unwrap();
+    }
+    assert_eq!(order, [vec![id; 5], vec![later], vec![levels[0]; 2], vec![levels[1]; 2]].concat());
+    let measured = c.study(id, false).unwrap().discretisation.expect("measured");
+    assert_eq!((measured.audited, measured.planned), (2, 2));
+    assert_eq!(measured.levels, [(levels[0], 2), (levels[1], 4)]);
+    // cost: 4 refined solves of 0.5 s, against the study's 5
+    assert_eq!((measured.work_seconds, measured.study_seconds), (2.0, 2.5));
+    // slip_A by hand: at f1 = 0.2 (the largest) 3e-6, 2.25e-6, 2.0625e-6; limit 2e-6
+    let a = &measured.qoi["slip_A"];
+    assert!((a.change - 0.75e-6 / 3e-6).abs() < 1e-9, "{a:?}");
+    assert!((a.error - 1e-6 / 3e-6).abs() < 1e-9, "{a:?}");
+    assert!((a.order.unwrap() - 2.0).abs() < 1e-9 && !a.order_assumed && a.erratic == 0 && !a.below_tolerance, "{a:?}");
+    // slip_B: erratic at one point; the order is the other's
+    let b = &measured.qoi["slip_B"];
+    assert!(b.erratic == 1 && (b.order.unwrap() - 2.0).abs() < 1e-9, "{b:?}");
+    // stuck: noise where it is 1e-21 (relative to the QoI's scale, 2e-6), second order elsewhere
+    let stuck = &measured.qoi["stuck"];
+    assert_eq!(stuck.erratic, 0, "{stuck:?}");
+    assert!((stuck.order.unwrap() - 2.0).abs() < 1e-9 && !stuck.below_tolerance, "{stuck:?}");
+    // the same after a restart (the refined scenes are stored with their studies)
+    drop(c);
+    let c = open(dir.path(), 60_000, 3);
+    assert_eq!(c.study(id, false).unwrap().discretisation, Some(measured));
+
+    // two levels: the order 2 assumed, and on this law the estimate exact
+    pool(&c, "p", VERSION);
+    let two = submit_refined(&c, TINY, &["f1=0.2"], None, 0).unwrap();
+    assert_eq!(c.study(two, false).unwrap().record.refined_by.len(), 1);
+    while let Some(grant) = c.lease("p").unwrap() {
+        // a level gets its whole iteration limit: the iteration audit's work cap (half the
+        // study's work, 4 here) would leave it unconverged
+        let limit = c.study(grant.study, false).unwrap().record.max_iterations;
+        assert_eq!(grant.max_iterations, limit);
+        let h = 50.0 / Scene::parse(&grant.scene_text).unwrap().time.steps as f64;
+        let qoi = [("slip_A".to_string(), 2e-6 * (1.0 + 0.5 * h * h))].into();
+        let (done, file) = solution_file_with_qoi(&grant, grant.tolerance / 2.0, true, &qoi);
+        c.complete(done, file).unwrap();
+    }
+    let a = c.study(two, false).unwrap().discretisation.expect("measured").qoi["slip_A"].clone();
+    assert!(a.order_assumed && a.order.is_none() && (a.error - 1.0 / 3.0).abs() < 1e-9, "{a:?}");
+
+    // a cancelled study cancels its audit
+    let cancelled = submit_refined(&c, TINY, &["f1=0.1:0.2:3"], Some(1), 2).unwrap();
+    let level = c.study(cancelled, false).unwrap().record.refined_by[0];
+    assert_eq!(c.study(level, true).unwrap().points.len(), 1);
+    c.cancel(cancelled).unwrap();
+    assert_eq!(c.study(level, false).unwrap().state, StudyState::Cancelled);
+
+    // bounds: too many points or levels, a refined scene past the step limit, refused when asked
+    // for; the default audit is dropped instead
+    for (points, levels, expect) in [
+        (Some(MAX_REFINE_POINTS + 1), 2, "refine_points 9: at most 8"),
+        (Some(2), 4, "refine_levels 4: 2"),
+        (Some(u32::MAX), 2, "at most 8"),
+    ] {
+        match submit_refined(&c, TINY, &["f1=0.1"], points, levels) {
+            Err(CoordError::Invalid(m)) => assert!(m.contains(expect), "{m}"),
+            other => panic!("must be refused: {other:?}"),
+        }
+    }
+    let long = TINY.replacen("steps = 50", "steps = 150000", 1);
+    match submit_refined(&c, &long, &["f1=0.1"], Some(1), 2) {
+        Err(CoordError::Invalid(m)) => {
+            assert!(m.contains("refine_points: the time step / 2") && m.contains("200000"), "{m}")
+        }
+        other => panic!("must be refused: {other:?}"),
+    }
+    let quiet = submit_refined(&c, &long, &["f1=0.1"], None, 2).unwrap();
+    let v = c.study(quiet, false).unwrap();
+    assert!(v.record.refined_by.is_empty() && v.discretisation.is_none());
+}
+
 /// An adaptive study: two pools asking at once get different points, the study grows point by
 /// point as they finish, and it ends at its budget.
 #[test]
@@ -499,6 +657,8 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         order: OrderKind::Greedy,
         label: String::new(),
         audit_points: None,
+        refine_points: Some(0),
+        refine_levels: 0,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
         meshes: vec![],
     };
@@ -554,6 +714,8 @@ fn joint_submission(meshes: Vec<MeshUpload>) -> Submission {
         order: OrderKind::Asc,
         label: String::new(),
         audit_points: Some(0),
+        refine_points: Some(0),
+        refine_levels: 0,
         adaptive: None,
         meshes,
     }

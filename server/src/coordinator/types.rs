@@ -132,6 +132,8 @@ pub struct StudyView {
     pub progress: Progress,
     pub points: Vec<PointRecord>,
     pub accuracy: Option<Accuracy>,
+    /// What its discretisation audit measured (None: it has none).
+    pub discretisation: Option<Discretisation>,
     /// Iterations and eta its pool last reported, per leased point that reported (not stored).
     pub solving: BTreeMap<PointId, (u64, f64)>,
     /// `grid`, `list`, `adaptive` or `audit`.
@@ -155,6 +157,10 @@ pub struct Submission {
     pub label: String,
     /// Points re-solved by the audit (None: [`default_audit_points`]; 0: no audit).
     pub audit_points: Option<u32>,
+    /// Points re-solved with the time step halved (None: [`DEFAULT_REFINE_POINTS`]; 0: none).
+    pub refine_points: Option<u32>,
+    /// Levels of that discretisation audit, the study's own included (0: 2).
+    pub refine_levels: u32,
     /// An adaptive study instead of `grid` / `points`: `NAME=LOW:HIGH` ranges and the budget.
     pub adaptive: Option<(Vec<String>, u32)>,
     /// The mesh files the scene names.
@@ -196,6 +202,45 @@ impl AuditBudget {
 /// Points a study's audit re-solves unless told: 10 %, at least 2 (at most all).
 pub fn default_audit_points(points: usize) -> usize {
     points.div_ceil(10).max(2).min(points)
+}
+
+/// Points a study's discretisation audit re-solves unless told (at most the study's).
+pub const DEFAULT_REFINE_POINTS: u32 = 2;
+/// The most points a discretisation audit may re-solve: each costs 2 (or 2 + 4) of the study's.
+pub const MAX_REFINE_POINTS: u32 = 8;
+/// The most levels of a discretisation audit, the study's own included (dt, dt / 2, dt / 4).
+pub const MAX_REFINE_LEVELS: u32 = 3;
+
+/// What a study's discretisation audit measured (docs/verification.md 11).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Discretisation {
+    /// The refined studies, finest last, and their time-step divisors.
+    pub levels: Vec<(StudyId, u32)>,
+    /// Points solved at every level so far, of `planned`.
+    pub audited: u32,
+    pub planned: u32,
+    /// Wall seconds of the refined solves done, and of the study's own points done.
+    pub work_seconds: f64,
+    pub study_seconds: f64,
+    pub qoi: BTreeMap<String, QoiDiscretisation>,
+}
+
+/// One QoI's discretisation error over the audited points, relative to the largest |final
+/// value| of the QoI over the points and levels compared.
+#[derive(Debug, Clone, PartialEq)]
+pub struct QoiDiscretisation {
+    /// largest |q(dt / 2) - q(dt)|
+    pub change: f64,
+    /// largest estimated error of the study's values (core::refine::richardson's `error_first`)
+    pub error: f64,
+    /// observed order, mean over the points that observed one (None: 2 levels, or none did)
+    pub order: Option<f64>,
+    /// 2 levels: the scheme's order was assumed
+    pub order_assumed: bool,
+    /// points whose changes are erratic
+    pub erratic: u32,
+    /// every point's last change within the iterations' noise
+    pub below_tolerance: bool,
 }
 
 /// What a study's audit measured.

@@ -118,6 +118,7 @@ fn a_study_of_hostile_names_renders_inert_in_a_browser() -> anyhow::Result<()> {
             tolerance: Some(STUDY_TOL),
             label: HOSTILE_LABEL.into(),
             audit_points: Some(0),
+            refine_points: Some(0),
             ..Default::default()
         };
         anyhow::Ok(user(&url).await?.submit_study(request).await?.into_inner().study_id)

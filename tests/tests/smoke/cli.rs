@@ -9,10 +9,13 @@ fn cli_demo_runs_a_study_and_draws_its_pictures() -> anyhow::Result<()> {
     let out = glissade(None, &["demo", "--grid", "3", "--out", out_dir.to_str().expect("utf-8")]);
     assert!(out.status.success(), "demo failed:\n{}\n{}", text(&out.stdout), text(&out.stderr));
     let stdout = text(&out.stdout);
-    // plain progress lines without a terminal (the study's 9 points, its audit's 2), the summary,
-    // the surface table, the measured accuracy
-    assert_eq!(stdout.matches("done (f1=").count(), 9 + 2, "{stdout}");
+    // plain progress lines without a terminal (the study's 9 points, its audit's 2, its
+    // discretisation audit's 2), the summary, the surface table, the measured accuracy and time
+    // step's error, and which dominates
+    assert_eq!(stdout.matches("done (f1=").count(), 9 + 2 + 2, "{stdout}");
     assert!(stdout.contains("measured accuracy: 2 of 2 points re-solved cold at 2e-6"), "{stdout}");
+    assert!(stdout.contains("time step's error: 2 of 2 points re-solved at dt / 2 (study 3; "), "{stdout}");
+    assert!(stdout.contains(" dominates the "), "{stdout}");
     assert!(stdout.contains("study 1 done: 9/9 done"), "{stdout}");
     assert!(stdout.contains("x less work than cold ones"), "{stdout}");
     assert!(stdout.lines().any(|l| l.split_whitespace().take(2).eq(["f1", "f2"])), "{stdout}");

@@ -100,10 +100,16 @@ fn show_watch_fields_and_slices_say_what_the_readme_says() -> anyhow::Result<()>
     let (_, _, index) = http_get(&addr, "/");
     assert!(index.contains("<td>grid</td>") && index.contains("three blocks (tiny)"), "{index}");
     // a failed point says why, in `show` and on the study page
-    let out =
-        glissade(Some(&url), &["submit", &scene, "--grid", "f1=0.12", "--max-iter", "2", "--audit", "0", "--watch"]);
+    let out = glissade(
+        Some(&url),
+        &["submit", &scene, "--grid", "f1=0.12", "--max-iter", "2", "--audit", "0", "--refine", "0", "--watch"],
+    );
     assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
-    let id = text(&glissade(Some(&url), &["studies", "--json"]).stdout).matches("\"study_id\"").count();
+    // (its id from `study N submitted`: audits and discretisation levels take ids too)
+    let id: u64 = text(&out.stdout)
+        .strip_prefix("study ")
+        .and_then(|t| t.split_whitespace().next()?.parse().ok())
+        .expect("study N submitted");
     let shown = text(&glissade(Some(&url), &["show", &id.to_string()]).stdout);
     assert!(shown.contains("  failed    #0 f1=0.12: not converged"), "{shown}");
     let (_, _, page) = http_get(&addr, &format!("/studies/{id}"));

@@ -18,6 +18,7 @@ fn slow_request() -> v1::SubmitStudyRequest {
         tolerance: Some(glissade_core::scene::MIN_TOLERANCE),
         max_iterations: Some(glissade_core::scene::MAX_ITERATIONS as u32),
         audit_points: Some(0),
+        refine_points: Some(0),
         ..Default::default()
     }
 }
@@ -220,6 +221,7 @@ fn pending_points_are_bounded_across_studies_and_a_cancel_frees_its_share() -> a
         let three = || {
             let mut r = grid_request(&["f1=0.1,0.15,0.2"], STUDY_TOL);
             r.audit_points = Some(0);
+            r.refine_points = Some(0);
             r
         };
         let first = client.submit_study(three()).await?.into_inner().study_id;
@@ -335,6 +337,7 @@ fn a_cancel_stops_every_rank_of_an_mpi_pool_together() -> anyhow::Result<()> {
         wait_point(&mut client, slow, Duration::from_secs(8), "cancelled", cancelled).await?;
         let mut quick = grid_request(&["f1=0.15"], STUDY_TOL);
         quick.audit_points = Some(0);
+        quick.refine_points = Some(0);
         let quick = client.submit_study(quick).await?.into_inner().study_id;
         let done = |p: &v1::PointStatus| p.state == v1::PointState::Done as i32;
         wait_point(&mut client, quick, LIMIT, "done", done).await?;

@@ -7,6 +7,7 @@
 mod browser;
 mod cli;
 mod common;
+mod discretisation;
 mod engine;
 mod first_use;
 mod limits;

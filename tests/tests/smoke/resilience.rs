@@ -194,6 +194,7 @@ fn a_pool_stopped_while_the_coordinator_is_down_spools_its_result_and_delivers_i
     // no audit: its cold solve at 1/100 of the tolerance kept the second pool busy past the
     // limit on a loaded machine, and it is not what this test is about
     request.audit_points = Some(0);
+    request.refine_points = Some(0);
     let id = rt.block_on(client.submit_study(request))?.into_inner().study_id;
     let pool_log = dir.path().join("pool.log");
     let pool_args = ["pool", "--coordinator", &url, "--stop-grace", "2", "--spool", spool.to_str().unwrap()];

@@ -1,0 +1,194 @@
+//! A study's discretisation audit: a few of its points re-solved cold on refined scenes (the
+//! time step halved, and quartered with 3 levels; core::refine writes the scenes), at the
+//! study's tolerance, when the pools have nothing else to do. Per QoI the finals of the levels,
+//! the study's own first, give Richardson's estimate of the error of the time step
+//! (core::refine::richardson, the rule the worker's `refine` command uses), beside the
+//! iteration audit's measure of the tolerance's (docs/verification.md 11).
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use glissade_core::refine::{NOISE_PER_TOLERANCE, Refinement, refined_scene_text, richardson};
+use glissade_core::scene::Scene;
+use glissade_core::text::one_line;
+use glissade_proto::{ParameterVector, StudyId};
+
+use super::{CoordError, Discretisation, MAX_REFINE_LEVELS, MAX_REFINE_POINTS, QoiDiscretisation, StudyEntry};
+use super::{DEFAULT_REFINE_POINTS, Submission};
+use crate::records::{PointResult, PointState, Refines, StudyRecord};
+
+/// The time step's divisor between two levels.
+const RATIO: u32 = 2;
+
+/// One refined level of a submission's audit: its divisor, scene text and hash, and the scene
+/// (meshes attached).
+pub(super) struct Level {
+    pub factor: u32,
+    pub text: String,
+    pub hash: String,
+    pub scene: Scene,
+}
+
+/// The audit a submission asks for: its points (how many) and refined levels. An explicit
+/// request that cannot be met (too many points or levels, a refined scene over the coordinator's
+/// size bound or step limit) is refused; the default audit is dropped instead, silently for the
+/// user (logged), so that a scene near the bound is not refused for what no one asked.
+pub(super) fn plan(
+    submission: &Submission,
+    scene: &Scene,
+    points: usize,
+    max_scene_bytes: u64,
+) -> Result<(usize, Vec<Level>), CoordError> {
+    let levels = match submission.refine_levels {
+        0 => 2,
+        n if (2..=MAX_REFINE_LEVELS).contains(&n) => n,
+        n => {
+            return Err(CoordError::Invalid(format!(
+                "refine_levels {n}: 2 (the time step halved) or {MAX_REFINE_LEVELS} (halved and quartered), the study's own level included"
+            )));
+        }
+    };
+    let asked = match submission.refine_points {
+        None => DEFAULT_REFINE_POINTS,
+        Some(n) if n > MAX_REFINE_POINTS => {
+            return Err(CoordError::Invalid(format!(
+                "refine_points {n}: at most {MAX_REFINE_POINTS} (each costs {} of the study's points)",
+                (1..levels).map(|k| RATIO.pow(k)).sum::<u32>()
+            )));
+        }
+        Some(n) => n,
+    };
+    let n = (asked as usize).min(points);
+    if n == 0 {
+        return Ok((0, Vec::new()));
+    }
+    let mut refined = Vec::new();
+    for k in 1..levels {
+        let factor = RATIO.pow(k);
+        match level(scene, factor, max_scene_bytes) {
+            Ok(l) => refined.push(l),
+            Err(e) if submission.refine_points.is_none() => {
+                tracing::info!(error = %e, "no discretisation audit for this study");
+                return Ok((0, Vec::new()));
+            }
+            Err(e) => return Err(CoordError::Invalid(format!("refine_points: {e}"))),
+        }
+    }
+    Ok((n, refined))
+}
+
+/// The scene of one level, within the bounds every submitted scene obeys.
+fn level(scene: &Scene, factor: u32, max_scene_bytes: u64) -> Result<Level, String> {
+    let dt = format!("the time step / {factor}");
+    let text = refined_scene_text(scene, Refinement::Time, factor as usize).map_err(|e| format!("{dt}: {e}"))?;
+    let mut refined = Scene::parse(&text).map_err(|e| format!("{dt}: {}", one_line(&e.to_string())))?;
+    refined
+        .attach_mesh_bytes(scene.meshes.iter().map(|(f, b)| (f.clone(), b.clone())))
+        .map_err(|e| format!("{dt}: {e}"))?;
+    let size = refined.size().map_err(|e| format!("{dt}: {}", one_line(&e.to_string())))?;
+    if size.bytes() > max_scene_bytes {
+        return Err(format!(
+            "{dt} ({} steps) would need about {} MiB, more than the {} MiB accepted (glissade-server --max-scene-mib): ask for fewer levels, or none",
+            size.steps,
+            size.bytes() >> 20,
+            max_scene_bytes >> 20
+        ));
+    }
+    Ok(Level { factor, hash: refined.content_hash(), text, scene: refined })
+}
+
+/// `n` of `points` spread over the list: the first and the last, and evenly between (the
+/// iteration audit's choice too).
+pub(super) fn spread(points: &[ParameterVector], n: usize) -> Vec<ParameterVector> {
+    (0..n).map(|k| points[if n == 1 { 0 } else { k * (points.len() - 1) / (n - 1) }].clone()).collect()
+}
+
+/// The record of a level's study, refining `study`.
+pub(super) fn record(study: &StudyRecord, id: StudyId, level: &Level) -> StudyRecord {
+    StudyRecord {
+        id,
+        label: format!("discretisation audit of study {}: time step / {}", study.id, level.factor),
+        scene_hash: level.hash.clone(),
+        scene: level.text.clone(),
+        // more steps may take more iterations: the limit grows with them, within every solve's
+        max_iterations: study
+            .max_iterations
+            .saturating_mul(level.factor)
+            .min(glissade_core::scene::MAX_ITERATIONS as u32),
+        strategy: glissade_core::study::strategy::InitStrategy::Cold,
+        order: glissade_core::study::order::OrderKind::Asc,
+        // an audit: leased when nothing else is pending
+        audit_of: Some(study.id),
+        audit: None,
+        adaptive: None,
+        refined_by: Vec::new(),
+        refines: Some(Refines { study: study.id, refinement: Refinement::Time, factor: level.factor }),
+        ..study.clone()
+    }
+}
+
+/// What the levels (finest last) measured of `study`: per QoI, over the points done at every
+/// level and in the study, the change from the study's value to the first refined level's, and
+/// Richardson's estimate of the study's error (core::refine::richardson), relative to the
+/// largest |final value| of the QoI over those points and levels.
+pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisation {
+    fn result<'a>(e: &'a StudyEntry, at: &ParameterVector) -> Option<&'a PointResult> {
+        let p = e.points.iter().find(|p| p.state == PointState::Done && &p.parameters == at)?;
+        p.result.as_ref()
+    }
+    // the QoIs of each audited point, level by level, the study's own first
+    let mut ladders: Vec<Vec<&BTreeMap<String, f64>>> = Vec::new();
+    let planned = levels.first().map_or(0, |l| l.points.len());
+    if let Some(first) = levels.first() {
+        for p in &first.points {
+            let ladder: Option<Vec<_>> = std::iter::once(study)
+                .chain(levels.iter().copied())
+                .map(|e| result(e, &p.parameters).map(|r| &r.qoi))
+                .collect();
+            ladders.extend(ladder);
+        }
+    }
+    let seconds =
+        |e: &StudyEntry| e.points.iter().filter_map(|p| p.result.as_ref()).map(|r| r.wall_seconds).sum::<f64>();
+    let names: BTreeSet<&String> = ladders.iter().flat_map(|l| l[0].keys()).collect();
+    let noise = NOISE_PER_TOLERANCE * study.record.tolerance;
+    let mut qoi = BTreeMap::new();
+    for name in names {
+        let finals: Vec<Vec<f64>> =
+            ladders.iter().filter_map(|l| l.iter().map(|q| q.get(name).copied()).collect()).collect();
+        let largest = |v: &[f64]| v.iter().fold(0.0f64, |s, x| s.max(x.abs()));
+        let scale = finals.iter().map(|f| largest(f)).fold(0.0f64, f64::max);
+        let scale = if scale > 0.0 { scale } else { 1.0 };
+        let mut q = QoiDiscretisation {
+            change: 0.0,
+            error: 0.0,
+            order: None,
+            order_assumed: levels.len() < 2,
+            erratic: 0,
+            below_tolerance: true,
+        };
+        let mut orders = Vec::new();
+        for f in &finals {
+            // the iterations' noise is relative to the QoI's scale, not to this point's: a QoI
+            // near zero here (a slip that sticks, 1e-21) is noise at every level, not erratic
+            let e = richardson(f, RATIO as usize, noise * scale / largest(f).max(f64::MIN_POSITIVE));
+            q.change = q.change.max((f[1] - f[0]).abs() / scale);
+            // richardson's errors are relative to this point's largest final: to the QoI's
+            q.error = q.error.max(e.error_first * largest(f) / scale);
+            q.erratic += e.erratic as u32;
+            q.below_tolerance &= e.below_tolerance;
+            orders.push(e.order);
+        }
+        // the mean over the points that observed one (not erratic, not within the noise)
+        let observed: Vec<f64> = orders.iter().flatten().copied().collect();
+        q.order = (!observed.is_empty()).then(|| observed.iter().sum::<f64>() / observed.len() as f64);
+        qoi.insert(name.clone(), q);
+    }
+    Discretisation {
+        levels: levels.iter().map(|l| (l.record.id, l.record.refines.map_or(0, |r| r.factor))).collect(),
+        audited: ladders.len() as u32,
+        planned: planned as u32,
+        work_seconds: levels.iter().map(|l| seconds(l)).sum(),
+        study_seconds: seconds(study),
+        qoi,
+    }
+}
