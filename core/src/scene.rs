@@ -457,6 +457,11 @@ impl Scene {
         Ok(scene)
     }
 
+    /// Whether a QoI is a norm, never negative: a slip without a component.
+    pub fn qoi_is_norm(&self, name: &str) -> bool {
+        self.qoi.iter().any(|q| q.name == name && q.kind == QoiKind::Slip && q.component.is_none())
+    }
+
     /// The unit of a parameter (as declared; None if it has none) or of a QoI (from its kind).
     pub fn unit(&self, name: &str) -> Option<&str> {
         match self.parameters.get(name) {

@@ -185,6 +185,8 @@ pub struct ResponseSurface {
     /// (lowest, highest) of each parameter where the surface predicts
     bounds: Vec<(f64, f64)>,
     process: Surrogate,
+    /// the QoI is a norm: its mean is never predicted below zero ([`Self::non_negative`])
+    non_negative: bool,
 }
 
 impl ResponseSurface {
@@ -215,7 +217,15 @@ impl ResponseSurface {
                 samples.iter().fold((range.min, range.max), |(lo, hi), (x, _)| (lo.min(x[k]), hi.max(x[k])))
             })
             .collect();
-        Ok(Self { names: names.to_vec(), origins, scales, bounds, process })
+        Ok(Self { names: names.to_vec(), origins, scales, bounds, process, non_negative: false })
+    }
+
+    /// The surface of a QoI that cannot be negative (a slip's norm): a mean below zero, which the
+    /// process gives beside a region that sticks (a slip at -4.5e-8 m was read), is predicted as
+    /// zero; the standard deviation stays the process's.
+    pub fn non_negative(mut self) -> Self {
+        self.non_negative = true;
+        self
     }
 
     pub fn names(&self) -> &[String] {
@@ -254,7 +264,11 @@ impl ResponseSurface {
                 if v.is_finite() { Ok((v - o) / s) } else { Err(SurrogateError::NotFinite { index: 0 }) }
             })
             .collect::<Result<Vec<f64>, _>>()?;
-        Ok(self.process.predict(&x))
+        let mut p = self.process.predict(&x);
+        if self.non_negative {
+            p.mean = p.mean.max(0.0);
+        }
+        Ok(p)
     }
 }
 
@@ -418,6 +432,30 @@ mod tests {
         let line: Vec<f64> = points.iter().map(|p| 1.0 + 2.0 * p[0]).collect();
         let s = Surrogate::fit(&points, &line).unwrap();
         assert!((s.predict(&[0.5]).mean - 2.0).abs() < 1e-3);
+    }
+
+    /// A norm that sticks over half the range and grows over the other: the process alone
+    /// undershoots zero beside the edge; the non-negative surface never does, and keeps the same
+    /// mean where the process is positive.
+    #[test]
+    fn a_norm_is_never_predicted_below_zero() {
+        let scene = crate::scene::Scene::parse(include_str!("../../../scenes/three-blocks-tiny.toml")).unwrap();
+        let space = ParameterSpace::from_scene(&scene);
+        let names = vec!["f1".to_owned()];
+        let slip = |f: f64| (0.15 - f).max(0.0) * 1e-3;
+        let samples: Vec<(Vec<f64>, f64)> = (0..6).map(|i| 0.1 + 0.02 * i as f64).map(|f| (vec![f], slip(f))).collect();
+        let raw = ResponseSurface::fit(&space, &names, &samples).unwrap();
+        let norm = raw.clone().non_negative();
+        let at = |s: &ResponseSurface, f: f64| s.predict(&DesignPoint::from_pairs([("f1", f)])).unwrap();
+        let grid: Vec<f64> = (0..=100).map(|i| 0.1 + 0.001 * i as f64).collect();
+        let lowest = grid.iter().map(|&f| at(&raw, f).mean).fold(f64::INFINITY, f64::min);
+        assert!(lowest < 0.0, "the process alone undershoots beside the edge: {lowest:e}");
+        for &f in &grid {
+            let (r, n) = (at(&raw, f), at(&norm, f));
+            assert!(n.mean >= 0.0, "f1 = {f}: {n:?}");
+            assert_eq!(n.mean, r.mean.max(0.0));
+            assert_eq!(n.std, r.std);
+        }
     }
 
     /// `--at f1=1e300` answered `NaN +- 0`: a point outside the box is refused, naming it.

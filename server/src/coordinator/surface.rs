@@ -9,12 +9,13 @@ use super::*;
 /// The predictions of a surface's QoIs at `at`: a Gaussian process per QoI over the rows that
 /// have it (docs/surrogate.md).
 fn predict(
-    space: &ParameterSpace,
+    scene: &Scene,
     names: &[String],
     qoi: &[String],
     rows: &[SurfaceRow],
     at: &[BTreeMap<String, f64>],
 ) -> Result<Vec<PointPrediction>, CoordError> {
+    let space = ParameterSpace::from_scene(scene);
     let mut surfaces = Vec::with_capacity(qoi.len());
     for q in qoi {
         let samples: Vec<(Vec<f64>, f64)> = rows
@@ -24,9 +25,9 @@ fn predict(
                 Some((x?, *r.qoi.get(q)?))
             })
             .collect();
-        let surface = ResponseSurface::fit(space, names, &samples)
+        let surface = ResponseSurface::fit(&space, names, &samples)
             .map_err(|e| CoordError::Precondition(format!("the surface of {q} cannot predict: {e}")))?;
-        surfaces.push(surface);
+        surfaces.push(if scene.qoi_is_norm(q) { surface.non_negative() } else { surface });
     }
     at.iter()
         .enumerate()
@@ -156,7 +157,7 @@ impl Coordinator {
                 }
             };
             let scene = Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?;
-            predict(&ParameterSpace::from_scene(&scene), &names, &qoi_names, &rows, predict_at)?
+            predict(&scene, &names, &qoi_names, &rows, predict_at)?
         };
         Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows, predictions })
     }
