@@ -481,6 +481,13 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             s.substructures,
             s.wall_seconds
         );
+        if s.dynamic_windows > 1 {
+            // an iteration of a time window sweeps the window only: the work is in sweeps
+            println!(
+                "  time windows: {} of {} steps, the dynamic work {:.1} sweeps of the interval",
+                s.dynamic_windows, s.time_window, s.dynamic_sweeps
+            );
+        }
         if let Some(p) = &args.init {
             println!("  initialised from {}", p.display());
         }

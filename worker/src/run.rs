@@ -62,8 +62,10 @@ pub struct SolveSummary {
     /// the dynamic iterations' work in sweeps of the whole interval (less than their number
     /// with time windows: an iteration sweeps its window)
     pub dynamic_sweeps: f64,
-    /// time windows of the dynamic stage, with the closing sweeps of the whole interval
+    /// time windows the dynamic stage iterated (1: the whole interval at once)
     pub dynamic_windows: usize,
+    /// steps per time window (`solver.time_window`; 0: the whole interval)
+    pub time_window: usize,
     pub static_stage: Option<StageReport>,
     /// where the dynamic stage left off and how it went (`StageReport::diagnosis`), when it did
     /// not converge
@@ -325,6 +327,7 @@ fn solve_dim<const D: usize>(
         history: report.dynamic.history.clone(),
         dynamic_sweeps: report.dynamic.sweeps,
         dynamic_windows: report.dynamic.windows,
+        time_window: model.settings.time_window,
         dynamic_diagnosis: (!report.dynamic.converged).then(|| report.dynamic.diagnosis(model.settings.tolerance)),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,

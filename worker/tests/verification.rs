@@ -1828,3 +1828,20 @@ fn time_windows_keep_the_work_flat_as_the_time_step_falls() {
     eprintln!("dt / 10 at 2e-4 against 1e-6: {e:.2e}");
     assert!(e < 2e-4, "dt / 10: QoI histories {e} from the tight solve");
 }
+
+/// A windowed solve says so, with its work in sweeps of the interval (its iterations each sweep
+/// a window only, so their count alone would overstate the work 8 times here).
+#[test]
+fn the_cli_reports_a_windowed_solves_work_in_sweeps() {
+    let out = std::process::Command::new(worker_bin())
+        .args(["solve", &scene_path("three-blocks-tiny-200.toml"), "--tol", "1e-2"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
+    let line = text.lines().find(|l| l.contains("time windows:")).unwrap_or_else(|| panic!("no windows line: {text}"));
+    assert!(line.contains("8 of 25 steps") && line.contains("sweeps of the interval"), "{line}");
+    let sweeps: f64 = line.split("work ").nth(1).and_then(|r| r.split(' ').next()).unwrap().parse().unwrap();
+    let iterations: f64 = text.split("after ").nth(1).and_then(|r| r.split(' ').next()).unwrap().parse().unwrap();
+    assert!(sweeps > 0.0 && sweeps < iterations / 4.0, "{sweeps} sweeps for {iterations} iterations");
+}
