@@ -662,10 +662,21 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut bases_end = Vec::new();
         // the QoIs are followed up to the window's end (later steps are not computed yet)
         let known = window.steps.end + 1;
+        // each interface's values of the window's steps: what an iteration changes
+        let at: Vec<Range<usize>> = m
+            .interfaces
+            .iter()
+            .map(|itf| window.steps.start * itf.n_nodes() * D..window.steps.end * itf.n_nodes() * D)
+            .collect();
         for iteration in 1..=settings.max_iterations {
             let t = Instant::now();
-            for (f, p) in fields.iter().zip(previous.iter_mut()) {
-                p.clone_from(&f.s);
+            // `previous` holds every value once; only the window's change (a copy of the whole
+            // interval per iteration would cost O(steps) in a window's loop)
+            for ((f, p), at) in fields.iter().zip(previous.iter_mut()).zip(&at) {
+                for (side, old) in f.s.iter().zip(p.iter_mut()).filter(|(side, _)| !side.force.is_empty()) {
+                    old.force[at.clone()].copy_from_slice(&side.force[at.clone()]);
+                    old.velocity[at.clone()].copy_from_slice(&side.velocity[at.clone()]);
+                }
             }
             let mut body = window.body.clone();
             let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
@@ -683,9 +694,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
                     for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
                         if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
-                            let per_step = m.interfaces[i].n_nodes() * D;
-                            let at = window.steps.start * per_step..window.steps.end * per_step;
-                            side.relax_from(old, relaxation.mu(), at);
+                            side.relax_from(old, relaxation.mu(), at[i].clone());
                         }
                     }
                 }
@@ -1024,7 +1033,6 @@ struct StageStart<'a> {
     cold: bool,
 }
 
-#[derive(Clone)]
 struct Window {
     steps: Range<usize>,
     states: Option<Vec<Option<NewmarkState>>>,
