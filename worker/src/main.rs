@@ -487,6 +487,12 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
                 "  time windows: {} of {} steps, the dynamic work {:.1} sweeps of the interval",
                 s.dynamic_windows, s.time_window, s.dynamic_sweeps
             );
+            if s.dynamic_windows_stalled > 0 {
+                println!(
+                    "  {} window(s) stalled on a QoI still small and were accepted against the whole histories; {} iterated again",
+                    s.dynamic_windows_stalled, s.dynamic_windows_redone
+                );
+            }
         }
         if let Some(p) = &args.init {
             println!("  initialised from {}", p.display());

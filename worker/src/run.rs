@@ -66,6 +66,10 @@ pub struct SolveSummary {
     pub dynamic_windows: usize,
     /// steps per time window (`solver.time_window`; 0: the whole interval)
     pub time_window: usize,
+    /// windows accepted after stalling on a QoI still small, and of those the ones iterated
+    /// again once the whole histories were known (docs/method.md, "Time windows")
+    pub dynamic_windows_stalled: usize,
+    pub dynamic_windows_redone: usize,
     pub static_stage: Option<StageReport>,
     /// where the dynamic stage left off and how it went (`StageReport::diagnosis`), when it did
     /// not converge
@@ -328,6 +332,8 @@ fn solve_dim<const D: usize>(
         dynamic_sweeps: report.dynamic.sweeps,
         dynamic_windows: report.dynamic.windows,
         time_window: model.settings.time_window,
+        dynamic_windows_stalled: report.dynamic.windows_stalled,
+        dynamic_windows_redone: report.dynamic.windows_redone,
         dynamic_diagnosis: (!report.dynamic.converged).then(|| report.dynamic.diagnosis(model.settings.tolerance)),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,

@@ -1845,3 +1845,91 @@ fn the_cli_reports_a_windowed_solves_work_in_sweeps() {
     let iterations: f64 = text.split("after ").nth(1).and_then(|r| r.split(' ').next()).unwrap().parse().unwrap();
     assert!(sweeps > 0.0 && sweeps < iterations / 4.0, "{sweeps} sweeps for {iterations} iterations");
 }
+
+/// A steel block of our own in 3D, pressed onto a rigid floor and pushed until it slides half
+/// way through (f = 0.2): before sliding, the slip at the floor's middle is a creep of 1e-7 m.
+const PUSHED_STEEL_BLOCK_3D: &str = r#"
+dimension = 3
+[time]
+duration = 4e-4
+steps = 200
+[solver]
+time_window = WINDOW
+[parameters]
+f = { default = 0.2, min = 0.0, max = 5.0 }
+[materials.steel]
+E = 200e9
+nu = 0.29
+rho = 7850
+[[bodies]]
+name = "block"
+material = "steel"
+size = [0.024, 0.01, 0.01]
+elements = [6, 2, 2]
+substructures = [2, 1, 1]
+[[interfaces]]
+name = "floor"
+a = "block.y-"
+b = "wall"
+law = "friction"
+friction = "f"
+[[loads]]
+face = "block.y+"
+pressure = 4e6
+[[loads]]
+face = "block.x-"
+traction = [1e7, 0, 0]
+history = [[0, 0], [4e-4, 1]]
+[[qoi]]
+name = "slip"
+kind = "slip"
+interface = "floor"
+point = [0.012, 0, 0.005]
+[[qoi]]
+name = "end_vx"
+kind = "velocity"
+body = "block"
+point = [0.024, 0.01, 0.01]
+component = "x"
+"#;
+
+/// docs/method.md "Time windows": a window before the block slides holds the creeping slip
+/// (1e-7 m) to its share of the tolerance against that small prefix of its history, and stalled
+/// there (not converged in 1000 iterations, windows of 10 or 20 steps, before this test). Such
+/// a window is accepted once eta has converged and is checked against the whole histories at
+/// the end: the solve converges, and every QoI history lies within the tolerance of a
+/// whole-interval solve at 1e-7.
+#[test]
+fn a_time_window_stalled_on_a_small_slip_is_judged_against_the_whole_history() {
+    let steel = |window: usize, tolerance: f64| {
+        let mut m = build::<3>(&PUSHED_STEEL_BLOCK_3D.replace("WINDOW", &window.to_string()), &[]);
+        m.settings.tolerance = tolerance;
+        m.settings.max_iterations = 5000;
+        m
+    };
+    let reference = solve(&steel(0, 1e-7), false);
+    for tolerance in [2e-4, 1e-5] {
+        let r = solve(&steel(10, tolerance), false);
+        let e = largest_history_difference(&r, &reference);
+        eprintln!(
+            "windows of 10 at {tolerance:.0e}: {:.1} sweeps, {} windows stalled, {} redone; error {e:.2e}",
+            r.dynamic.sweeps, r.dynamic.windows_stalled, r.dynamic.windows_redone
+        );
+        assert!(r.dynamic.windows_stalled > 0, "no window stalled: the test no longer tests the rule");
+        assert!(r.dynamic.sweeps <= 1000.0, "{} sweeps", r.dynamic.sweeps);
+        assert!(e < tolerance, "QoI histories {e} from the whole interval at 1e-7");
+    }
+}
+
+/// Without `time_window`, a scene of more than 100 steps is iterated in windows of 10 steps and
+/// a shorter one whole; `time_window = 0` asks for the whole interval whatever the steps.
+#[test]
+fn time_windows_are_chosen_from_the_number_of_steps() {
+    let without = PUSHED_STEEL_BLOCK_3D.replace("[solver]\ntime_window = WINDOW\n", "");
+    assert!(!without.contains("time_window"));
+    let window = |text: &str| build::<3>(text, &[]).settings.time_window;
+    assert_eq!(window(&without), 10);
+    assert_eq!(window(&without.replace("steps = 200", "steps = 100")), 0);
+    assert_eq!(window(&PUSHED_STEEL_BLOCK_3D.replace("WINDOW", "0")), 0);
+    assert_eq!(window(&PUSHED_STEEL_BLOCK_3D.replace("WINDOW", "40")), 40);
+}

@@ -31,6 +31,15 @@ use stopping::{ErrorEstimator, UnitScales};
 /// Tolerance of each time window relative to the asked one (docs/method.md, "Time windows").
 pub const WINDOW_TOLERANCE_RATIO: f64 = 0.1;
 
+/// A time window whose eta has converged but whose QoI estimate has not after
+/// `STALL_ITERATIONS` plus `STALL_PER_STEP` per step iterations is accepted for now (docs/method.md, "Time
+/// windows"): a QoI that barely moves yet (a slip of 1e-7 m before sliding starts) is held to
+/// its share of the tolerance against that small prefix of its history and can stall there. Its
+/// estimated error is checked against the whole histories once the last window has converged,
+/// and the window is iterated again from where it stopped if it falls short.
+pub const STALL_ITERATIONS: usize = 100;
+pub const STALL_PER_STEP: usize = 4;
+
 /// Tolerance of the static prestress stage relative to the asked one.
 pub const STATIC_TOLERANCE_RATIO: f64 = 0.01;
 
@@ -83,14 +92,26 @@ pub struct StageReport {
     pub sweeps: f64,
     /// time windows iterated (1: the whole interval at once)
     pub windows: usize,
+    /// windows accepted after stalling on a small QoI ([`STALL_ITERATIONS`]), and of those
+    /// the ones the whole histories did not clear, iterated again
+    pub windows_stalled: usize,
+    pub windows_redone: usize,
+    /// set by [`LatinSolver::iterate_window`]: eta converged, the QoI estimate stalled
+    #[serde(skip)]
+    stalled: bool,
 }
 
 impl StageReport {
-    /// Adds the report of the next time window, whose iterations each swept `share` of the
-    /// interval: iterations and eta's history go on, the estimate is the worst window's.
-    fn append(&mut self, next: StageReport, share: f64) {
+    /// Adds the report of the next time window (or of one iterated again: `again`), whose
+    /// iterations each swept `share` of the interval: iterations and eta's history go on, the
+    /// estimate is the worst window's.
+    fn append(&mut self, next: StageReport, share: f64, again: bool) {
         self.sweeps += next.iterations as f64 * share;
-        self.windows += 1;
+        if again {
+            self.windows_redone += 1;
+        } else {
+            self.windows += 1;
+        }
         self.iterations += next.iterations;
         self.history.extend(next.history);
         self.qoi_trace.extend(next.qoi_trace);
@@ -610,12 +631,55 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         } else {
             (tolerance, tolerance)
         };
+        // windows accepted after stalling, with their QoIs' estimated errors (absolute)
+        let mut stalled: Vec<(Window, Vec<f64>)> = Vec::new();
+        // once a stalled window is iterated again: every QoI measured against at least its
+        // whole history's norm
+        let mut floors: Option<Vec<f64>> = None;
         loop {
-            let (part, bases) = self.iterate_window(begin, window_tolerance, fields, timings, options, &window)?;
-            report.append(part, window.steps.len() as f64 / steps as f64);
+            let stall_at = (window.steps.end < steps && floors.is_none() && !m.qois.is_empty())
+                .then(|| STALL_ITERATIONS + STALL_PER_STEP * window.steps.len());
+            let rule = WindowRule {
+                tolerance: window_tolerance.0,
+                estimate_tolerance: window_tolerance.1,
+                stall_at,
+                floors: floors.as_deref(),
+            };
+            let end = self.iterate_window(begin, rule, fields, timings, options, &window)?;
+            let mut part = end.report;
+            if part.stalled {
+                // accepted for now: its errors are checked against the whole histories below
+                stalled.push((window.clone(), end.errors.iter().zip(&end.scales).map(|(e, s)| e * s).collect()));
+                part.converged = true;
+                part.error_estimate = 0.0;
+                report.windows_stalled += 1;
+            }
+            report.append(part, window.steps.len() as f64 / steps as f64, floors.is_some() && stalled.is_empty());
+            if report.converged && window.steps.end == steps && !stalled.is_empty() {
+                // The whole histories are known: does each stalled window's error fit its share
+                // of them? The first that does not is iterated again from where it stopped,
+                // and the windows after it from their converged fields.
+                let share = window_tolerance.1;
+                let fits = |errors: &[f64]| errors.iter().zip(&end.scales).all(|(e, s)| *e <= share * s);
+                match stalled.iter().position(|(_, errors)| !fits(errors)) {
+                    None => {
+                        for (_, errors) in &stalled {
+                            let worst = errors.iter().zip(&end.scales).map(|(e, s)| e / s).fold(0.0, f64::max);
+                            report.error_estimate = report.error_estimate.max(worst);
+                        }
+                    }
+                    Some(k) => {
+                        window = stalled.swap_remove(k).0;
+                        stalled.clear();
+                        floors = Some(end.scales.clone());
+                        continue;
+                    }
+                }
+            }
             if !report.converged || window.steps.end == steps {
                 return Ok(report);
             }
+            let bases = end.bases;
             // The next window starts where this one ends: the substructures' states from a
             // sweep over the converged fields (what the post-processing sweep will find), the
             // gap rule's bases from the last local stage.
@@ -627,7 +691,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             self.linear_stage(stage, &mut scratch, u0, Some(&mut record), range.clone(), window.states.as_deref());
             let states = self.ops.iter().map(|o| o.as_ref().map(SubstructureOperators::save)).collect();
             let next = range.end..(range.end + length).min(steps);
-            if cold {
+            // (a window iterated again starts the next from its converged fields, not held ones)
+            if cold && floors.is_none() {
                 hold_last_step(fields, steps, range.end, next.end);
             }
             window = Window { steps: next, states: Some(states), bases, body };
@@ -642,20 +707,22 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     fn iterate_window(
         &mut self,
         begin: &StageStart,
-        (tolerance, estimate_tolerance): (f64, f64),
+        rule: WindowRule,
         fields: &mut [InterfaceField],
         timings: &mut Timings,
         options: &SolveOptions,
         window: &Window,
-    ) -> Result<(StageReport, Vec<Vec<f64>>), SolverError> {
+    ) -> Result<WindowEnd, SolverError> {
         let m = self.model;
         let StageStart { stage, u0, statics, .. } = *begin;
+        let WindowRule { tolerance, estimate_tolerance, stall_at, floors } = rule;
         let settings = &m.settings;
         let progress = options.progress.as_deref();
         let mut report = StageReport::default();
         let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
         let stage_name = stage.name();
-        let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect());
+        let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect())
+            .with_floors(floors.map(<[f64]>::to_vec).unwrap_or_default());
         // the interface with the largest share of eta at the last iteration
         let mut worst = None;
         let mut relaxation = Relaxation::new(settings.relaxation, m.qois.iter().map(|q| q.target.unit()).collect());
@@ -764,10 +831,14 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 report.converged = true;
                 break;
             }
+            if stall_at.is_some_and(|at| iteration >= at) && eta <= tolerance {
+                report.stalled = true;
+                break;
+            }
         }
         report.worst_interface = worst.map(|i| m.interfaces[i].name.clone());
         report.relaxation = relaxation.mu();
-        Ok((report, bases_end))
+        Ok(WindowEnd { report, bases: bases_end, errors: estimator.errors(), scales: estimator.scales().to_vec() })
     }
 
     /// Local stage over every interface and node, at the steps `steps`, from the gap rule's
@@ -1033,11 +1104,31 @@ struct StageStart<'a> {
     cold: bool,
 }
 
+#[derive(Clone)]
 struct Window {
     steps: Range<usize>,
     states: Option<Vec<Option<NewmarkState>>>,
     bases: Vec<Vec<f64>>,
     body: BodyQois,
+}
+
+/// When a time window's iterations stop: eta's and the QoI estimate's tolerances, the iteration
+/// from which a window whose eta has converged is accepted as stalled ([`STALL_ITERATIONS`]),
+/// and the norms each QoI is measured against at least.
+struct WindowRule<'a> {
+    tolerance: f64,
+    estimate_tolerance: f64,
+    stall_at: Option<usize>,
+    floors: Option<&'a [f64]>,
+}
+
+/// How a time window's iterations ended: the report, the gap rule's bases at the window's end,
+/// and each QoI's estimated error relative to the norm it was measured against.
+struct WindowEnd {
+    report: StageReport,
+    bases: Vec<Vec<f64>>,
+    errors: Vec<f64>,
+    scales: Vec<f64>,
 }
 
 /// Fills steps `from..to` of every field with its values at step `from - 1`: a cold start's next

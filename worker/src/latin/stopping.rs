@@ -67,12 +67,28 @@ pub struct ErrorEstimator {
     previous: Option<Vec<Vec<f64>>>,
     /// relative change of each QoI (or eta, when there is none) at each iteration so far
     changes: Vec<Vec<f64>>,
+    /// per QoI, a norm below which its history is not measured (empty: none)
+    floors: Vec<f64>,
+    /// per QoI, the norm its last change was measured against
+    scales: Vec<f64>,
 }
 
 impl ErrorEstimator {
     /// An estimator of QoIs with these units; with none, it follows eta's sequence instead.
     pub fn new(units: Vec<QoiUnit>) -> Self {
-        Self { units, previous: None, changes: Vec::new() }
+        Self { units, previous: None, changes: Vec::new(), floors: Vec::new(), scales: Vec::new() }
+    }
+
+    /// The same, measuring each QoI against at least `floors[q]` (a time window redone with the
+    /// whole interval's norms, docs/method.md "Time windows").
+    pub fn with_floors(mut self, floors: Vec<f64>) -> Self {
+        self.floors = floors;
+        self
+    }
+
+    /// Per QoI, the norm its error is relative to at the last update (empty without QoIs).
+    pub fn scales(&self) -> &[f64] {
+        &self.scales
     }
 
     /// Takes the iterate's QoI histories (`[qoi][step]`) and eta; returns the estimated relative
@@ -88,19 +104,25 @@ impl ErrorEstimator {
         let largest = |unit: QoiUnit| {
             norms.iter().zip(&self.units).filter(|(_, u)| **u == unit).map(|(n, _)| *n).fold(scales.of(unit), f64::max)
         };
+        let floors = &self.floors;
+        self.scales = norms
+            .iter()
+            .zip(&self.units)
+            .enumerate()
+            .map(|(q, (&n, &unit))| n.max(NORM_FLOOR * largest(unit)).max(floors.get(q).copied().unwrap_or(0.0)))
+            .collect();
         if let Some(prev) = &self.previous {
             let change = series
                 .iter()
                 .zip(prev)
-                .zip(norms.iter().zip(&self.units))
-                .map(|((now, before), (&n, &unit))| {
+                .zip(self.scales.iter_mut())
+                .map(|((now, before), scale)| {
                     let diff = norm(&now.iter().zip(before).map(|(a, b)| a - b).collect::<Vec<_>>());
-                    let mut scale = n.max(NORM_FLOOR * largest(unit));
-                    if scale == 0.0 {
+                    if *scale == 0.0 {
                         // everything of this unit just fell to zero: measure against before
-                        scale = norm(before);
+                        *scale = norm(before);
                     }
-                    if diff == 0.0 { 0.0 } else { diff / scale }
+                    if diff == 0.0 { 0.0 } else { diff / *scale }
                 })
                 .collect();
             self.changes.push(change);
@@ -113,8 +135,14 @@ impl ErrorEstimator {
     /// last window decayed to today at the measured rate (the envelope of an oscillation, the
     /// change itself for a monotone contraction), times rho / (1 - rho).
     fn estimate(&self) -> f64 {
+        self.errors().into_iter().fold(if self.changes.is_empty() { f64::INFINITY } else { 0.0 }, f64::max)
+    }
+
+    /// Each QoI's estimated remaining error relative to its norm ([`Self::scales`]), or eta's
+    /// when there is no QoI; empty before the first change.
+    pub fn errors(&self) -> Vec<f64> {
         let k = self.changes.len();
-        let Some(last) = self.changes.last() else { return f64::INFINITY };
+        let Some(last) = self.changes.last() else { return Vec::new() };
         let window_max = |q: usize, from: usize, to: usize| -> f64 {
             self.changes[from..to].iter().map(|c| c[q]).fold(0.0, f64::max)
         };
@@ -142,7 +170,7 @@ impl ErrorEstimator {
                     .fold(0.0, f64::max);
                 now * rho / (1.0 - rho)
             })
-            .fold(0.0, f64::max)
+            .collect()
     }
 }
 
