@@ -286,7 +286,7 @@ impl<const D: usize> Model<D> {
             relaxation: st.relaxation,
             scale: st.scale,
             warm_tolerance_ratio: st.warm_tolerance_ratio,
-            time_window: st.window_steps(scene.time.steps),
+            time_window: scene.window_steps(),
         };
 
         let mut materials = BTreeMap::new();

@@ -137,7 +137,7 @@ impl StageReport {
         let windows = if self.sweeps < self.iterations as f64 {
             "another solver.time_window (twice or half this one)"
         } else {
-            "time windows (solver.time_window = 30 steps or more)"
+            "time windows (solver.time_window = 10)"
         };
         let place =
             self.worst_interface.as_ref().map_or(String::new(), |i| format!(", largest residual on interface '{i}'"));
