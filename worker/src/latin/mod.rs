@@ -631,50 +631,56 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         } else {
             (tolerance, tolerance)
         };
-        // windows accepted after stalling, with their QoIs' estimated errors (absolute)
-        let mut stalled: Vec<(Window, Vec<f64>)> = Vec::new();
+        // each accepted window's QoI errors (absolute: estimate x the norm it was measured
+        // against); together they may spend share.0 of each QoI's whole history
+        let mut spent: Vec<Vec<f64>> = Vec::new();
+        // windows accepted after stalling, and where their errors sit in `spent`
+        let mut stalled: Vec<(Window, usize)> = Vec::new();
         // once a stalled window is iterated again: every QoI measured against at least its
         // whole history's norm
         let mut floors: Option<Vec<f64>> = None;
         loop {
             let stall_at = (window.steps.end < steps && floors.is_none() && !m.qois.is_empty())
                 .then(|| STALL_ITERATIONS + STALL_PER_STEP * window.steps.len());
+            let earlier: Vec<f64> = (0..m.qois.len()).map(|q| spent.iter().map(|e| e[q]).sum()).collect();
             let rule = WindowRule {
                 tolerance: window_tolerance.0,
                 estimate_tolerance: window_tolerance.1,
                 stall_at,
                 floors: floors.as_deref(),
+                // the last window sees the whole histories: it may spend what the others left
+                budget: (windows > 1 && window.steps.end == steps && !m.qois.is_empty())
+                    .then_some((window_tolerance.0, earlier.as_slice())),
             };
             let end = self.iterate_window(begin, rule, fields, timings, options, &window)?;
             let mut part = end.report;
             if part.stalled {
-                // accepted for now: its errors are checked against the whole histories below
-                stalled.push((window.clone(), end.errors.iter().zip(&end.scales).map(|(e, s)| e * s).collect()));
+                // accepted for now: judged with the whole histories below
+                stalled.push((window.clone(), spent.len()));
                 part.converged = true;
                 part.error_estimate = 0.0;
                 report.windows_stalled += 1;
             }
+            spent.push(end.errors.iter().zip(&end.scales).map(|(e, s)| e * s).collect());
             report.append(part, window.steps.len() as f64 / steps as f64, floors.is_some() && stalled.is_empty());
-            if report.converged && window.steps.end == steps && !stalled.is_empty() {
-                // The whole histories are known: does each stalled window's error fit its share
-                // of them? The first that does not is iterated again from where it stopped,
-                // and the windows after it from their converged fields.
-                let share = window_tolerance.1;
-                let fits = |errors: &[f64]| errors.iter().zip(&end.scales).all(|(e, s)| *e <= share * s);
-                match stalled.iter().position(|(_, errors)| !fits(errors)) {
-                    None => {
-                        for (_, errors) in &stalled {
-                            let worst = errors.iter().zip(&end.scales).map(|(e, s)| e / s).fold(0.0, f64::max);
-                            report.error_estimate = report.error_estimate.max(worst);
-                        }
-                    }
-                    Some(k) => {
-                        window = stalled.swap_remove(k).0;
-                        stalled.clear();
-                        floors = Some(end.scales.clone());
-                        continue;
-                    }
+            if report.converged && window.steps.end == steps && windows > 1 && !m.qois.is_empty() {
+                // The whole histories are known: the windows' errors together must fit
+                // share.0 of each. If they do not, the first stalled window is iterated again
+                // from where it stopped, and the windows after it from their converged fields.
+                let total: Vec<f64> = (0..m.qois.len()).map(|q| spent.iter().map(|e| e[q]).sum()).collect();
+                let fits = total.iter().zip(&end.scales).all(|(e, s)| *e <= window_tolerance.0 * s);
+                if !fits && !stalled.is_empty() {
+                    let (again, at) = stalled.swap_remove(0);
+                    window = again;
+                    spent.truncate(at);
+                    stalled.clear();
+                    floors = Some(end.scales.clone());
+                    continue;
                 }
+                // (each window met its share of a prefix no larger than the whole history, so
+                // this holds but for the norms' floors; what is reported is the sum)
+                report.error_estimate = total.iter().zip(&end.scales).map(|(e, s)| e / s).fold(0.0, f64::max);
+                report.converged = report.error_estimate <= tolerance;
             }
             if !report.converged || window.steps.end == steps {
                 return Ok(report);
@@ -715,7 +721,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     ) -> Result<WindowEnd, SolverError> {
         let m = self.model;
         let StageStart { stage, u0, statics, .. } = *begin;
-        let WindowRule { tolerance, estimate_tolerance, stall_at, floors } = rule;
+        let WindowRule { tolerance, estimate_tolerance, stall_at, floors, budget } = rule;
         let settings = &m.settings;
         let progress = options.progress.as_deref();
         let mut report = StageReport::default();
@@ -827,7 +833,18 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if !eta.is_finite() {
                 return Err(SolverError::NonFinite { stage: stage_name, iteration, eta });
             }
-            if eta <= tolerance && report.error_estimate <= estimate_tolerance {
+            let within_budget = || {
+                budget.is_some_and(|(share, earlier)| {
+                    let errors = estimator.errors();
+                    !errors.is_empty()
+                        && errors
+                            .iter()
+                            .zip(estimator.scales())
+                            .zip(earlier)
+                            .all(|((e, s), before)| e * s + before <= share * s)
+                })
+            };
+            if eta <= tolerance && (report.error_estimate <= estimate_tolerance || within_budget()) {
                 report.converged = true;
                 break;
             }
@@ -1120,6 +1137,9 @@ struct WindowRule<'a> {
     estimate_tolerance: f64,
     stall_at: Option<usize>,
     floors: Option<&'a [f64]>,
+    /// for the last window: the share of each whole QoI history all windows may spend, and what
+    /// the earlier ones spent (absolute)
+    budget: Option<(f64, &'a [f64])>,
 }
 
 /// How a time window's iterations ended: the report, the gap rule's bases at the window's end,
