@@ -284,7 +284,7 @@ impl<const D: usize> Model<D> {
             tolerance: st.tolerance,
             max_iterations: st.max_iterations,
             relaxation: st.relaxation,
-            scale: st.scale,
+            scale: scene.scale(),
             warm_tolerance_ratio: st.warm_tolerance_ratio,
             time_window: scene.window_steps(),
         };

@@ -1925,13 +1925,21 @@ fn a_time_window_stalled_on_a_small_slip_is_judged_against_the_whole_history() {
 }
 
 /// Without `time_window`, a scene with friction and more than 100 steps is iterated in windows of
-/// 10 steps, any other whole; `time_window = 0` asks for the whole interval whatever the steps.
+/// 10 steps, multiscale unless it names its scale, any other whole; `time_window = 0` asks for
+/// the whole interval whatever the steps.
 #[test]
 fn time_windows_are_chosen_from_the_scene() {
     let without = PUSHED_STEEL_BLOCK_3D.replace("[solver]\ntime_window = WINDOW\n", "");
     assert!(!without.contains("time_window"));
     let window = |text: &str| build::<3>(text, &[]).settings.time_window;
+    let scale = |text: &str| build::<3>(text, &[]).settings.scale;
     assert_eq!(window(&without), 10);
+    // chosen windows come with the macro problem; named ones and the whole interval keep the
+    // scene's scale, single unless it says
+    assert_eq!(scale(&without), Scale::Multi);
+    assert_eq!(scale(&without.replace("steps = 200", "steps = 100")), Scale::Single);
+    assert_eq!(scale(&PUSHED_STEEL_BLOCK_3D.replace("WINDOW", "10")), Scale::Single);
+    assert_eq!(scale(&format!("{without}\n[solver]\nscale = \"single\"\n")), Scale::Single);
     assert_eq!(window(&without.replace("steps = 200", "steps = 100")), 0);
     assert_eq!(window(&without.replace("law = \"friction\"\nfriction = \"f\"", "law = \"contact\"")), 0);
     assert_eq!(window(&PUSHED_STEEL_BLOCK_3D.replace("WINDOW", "0")), 0);
