@@ -32,11 +32,12 @@ use stopping::{ErrorEstimator, UnitScales};
 pub const WINDOW_TOLERANCE_RATIO: f64 = 0.1;
 
 /// A time window whose eta has converged but whose QoI estimate has not after
-/// `STALL_ITERATIONS` plus `STALL_PER_STEP` per step iterations is accepted for now (docs/method.md, "Time
-/// windows"): a QoI that barely moves yet (a slip of 1e-7 m before sliding starts) is held to
-/// its share of the tolerance against that small prefix of its history and can stall there. Its
-/// estimated error is checked against the whole histories once the last window has converged,
-/// and the window is iterated again from where it stopped if it falls short.
+/// `STALL_ITERATIONS` plus `STALL_PER_STEP` per step iterations is accepted for now
+/// (docs/method.md, "Time windows"): a QoI that barely moves yet (a slip of 1e-7 m before
+/// sliding starts) is held to its share of the tolerance against that small prefix of its
+/// history and can stall there. The windows' errors are judged together against the whole
+/// histories once the last window has converged; if they do not fit, the first stalled window is
+/// iterated again from where it stopped.
 pub const STALL_ITERATIONS: usize = 100;
 pub const STALL_PER_STEP: usize = 4;
 
