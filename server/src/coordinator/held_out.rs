@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use glissade_core::scene::Scene;
 use glissade_core::study::holdout::{self, held_out_points};
 use glissade_core::study::space::{DesignPoint, ParameterSpace};
-use glissade_core::study::surrogate::{Prediction, ResponseSurface};
+use glissade_core::study::surrogate::{Prediction, QoiSurface};
 use glissade_proto::ParameterVector;
 
 use super::{StudyEntry, SurfaceAccuracy, audit_cost, now_unix_ms};
@@ -76,7 +76,8 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
 }
 
 /// The surface of each QoI of the study's points (as `glissade surface` fits it: norms never
-/// below zero), predicted at the held-out points.
+/// below zero, from their components where the points carry them), predicted at the held-out
+/// points.
 pub(super) fn predict(job: &Job) -> Predicted {
     let mut refused = BTreeMap::new();
     let mut at = vec![BTreeMap::new(); job.at.len()];
@@ -89,17 +90,16 @@ pub(super) fn predict(job: &Job) -> Predicted {
     };
     let space = ParameterSpace::from_scene(&scene);
     let qois: std::collections::BTreeSet<&String> = job.rows.iter().flat_map(|(_, q)| q.keys()).collect();
+    let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = job.rows.iter().map(|(x, q)| (x.clone(), q)).collect();
     for q in qois {
-        let samples: Vec<(Vec<f64>, f64)> =
-            job.rows.iter().filter_map(|(x, v)| Some((x.clone(), *v.get(q)?))).collect();
-        let surface = match ResponseSurface::fit(&space, &job.names, &samples) {
-            Ok(s) if scene.qoi_is_norm(q) => s.non_negative(),
-            Ok(s) => s,
-            Err(e) => {
-                refused.insert(q.clone(), e.to_string());
-                continue;
-            }
-        };
+        let surface =
+            match QoiSurface::fit(&space, &job.names, &points, q, scene.qoi_is_norm(q), &scene.components_of(q)) {
+                Ok(s) => s,
+                Err(e) => {
+                    refused.insert(q.clone(), e.to_string());
+                    continue;
+                }
+            };
         for (point, values) in job.at.iter().zip(&mut at) {
             match surface.predict(point) {
                 Ok(p) => {

@@ -975,3 +975,52 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
     let c = open(dir.path(), 60_000, 3);
     assert_eq!(c.study(id, false).unwrap().surface_accuracy.unwrap(), measured);
 }
+
+/// A slip norm whose signed components the scene reports too is predicted from them (a norm
+/// through zero has a V its own surface rounds off), also when only the norm is asked for.
+#[test]
+fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let mut scene = TINY.to_owned();
+    for axis in ["x", "y"] {
+        scene.push_str(&format!(
+            "\n[[qoi]]\nname = \"slip_A_{axis}\"\nkind = \"slip\"\ninterface = \"interface1\"\npoint = [0.0075, 0.0075, 0.06]\ncomponent = \"{axis}\"\n"
+        ));
+    }
+    let submission = Submission {
+        scene_text: scene,
+        grid: vec!["f1=0.1:0.2:6".into()],
+        points: vec![],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        refine_points: Some(0),
+        refine_levels: 0,
+        adaptive: None,
+        surface_audit_points: Some(0),
+        meshes: vec![],
+    };
+    let id = c.submit(submission).unwrap().0;
+    // the final slip slides back through zero at f1 = 0.137: x changes sign, y stays small
+    let (x, y) = (|f: f64| (f - 0.137) * 1e-3, |f: f64| 2e-6 * (1.0 + f));
+    while let Some(g) = c.lease("p").unwrap() {
+        let f = g.parameters.get("f1").unwrap();
+        let qoi =
+            [("slip_A".to_string(), x(f).hypot(y(f))), ("slip_A_x".into(), x(f)), ("slip_A_y".into(), y(f))].into();
+        let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &qoi);
+        c.complete(done, file).unwrap();
+    }
+    let at: BTreeMap<String, f64> = [("f1".to_string(), 0.137)].into();
+    let s = c.surface(SurfaceSource::Study(id), &ParameterVector::default(), &["slip_A".into()], &[at]).unwrap();
+    assert_eq!(s.qoi, ["slip_A"], "only what was asked for is returned");
+    let (p, fitted) = s.predictions[0].qoi[0];
+    let truth = y(0.137);
+    assert_eq!(fitted, 6);
+    // the V's bottom within 10 % (the norm's own surface read 3.7e-6 here, 65 % high)
+    assert!((p.mean - truth).abs() < 0.1 * truth, "{p:?} against {truth:e}");
+}
