@@ -514,20 +514,24 @@ impl Coordinator {
             })
             .collect();
         // The surface audit: points held out of the study's surface, solved as the audit's are.
-        let surface_audit = (held_out_points > 0).then(|| {
-            let sid = StudyId(id.0 + 1 + audit_id.is_some() as u64 + refined_studies.len() as u64);
-            let held = held_out::points(&record.parameters, &points, record.adaptive.as_ref(), held_out_points, id.0)
-                .into_iter()
-                // (the design's points passed this check; its box's may not everywhere)
-                .filter(|p| {
-                    let set: Vec<(String, f64)> = p.iter().map(|(n, v)| (n.to_owned(), v)).collect();
-                    scene.parameter_values(&set).and_then(|v| scene.check_point(&v)).is_ok()
-                })
-                .collect();
-            let mut audit = cold_audit_record(&record, sid, format!("surface audit of study {id}"));
-            audit.held_out = Some(records::HeldOut::default());
-            (audit, pending(sid, held))
-        });
+        let surface_audit = (held_out_points > 0)
+            .then(|| {
+                let sid = StudyId(id.0 + 1 + audit_id.is_some() as u64 + refined_studies.len() as u64);
+                let held =
+                    held_out::points(&record.parameters, &points, record.adaptive.as_ref(), held_out_points, id.0)
+                        .into_iter()
+                        // (the design's points passed this check; its box's may not everywhere)
+                        .filter(|p| {
+                            let set: Vec<(String, f64)> = p.iter().map(|(n, v)| (n.to_owned(), v)).collect();
+                            scene.parameter_values(&set).and_then(|v| scene.check_point(&v)).is_ok()
+                        })
+                        .collect();
+                let mut audit = cold_audit_record(&record, sid, format!("surface audit of study {id}"));
+                audit.held_out = Some(records::HeldOut::default());
+                (audit, pending(sid, held))
+            })
+            // (a box the design fills, a point with no swept parameter: nothing to hold out)
+            .filter(|(_, held)| !held.is_empty());
         let mut record = record;
         record.surface_audit = surface_audit.as_ref().map(|(r, _)| r.id);
         let points = pending(id, points);
