@@ -189,6 +189,12 @@ struct SubmitArgs {
     /// assumed) or 3 (dt / 2 and dt / 4, order observed)
     #[arg(long, value_name = "2|3", default_value_t = 2)]
     refine_levels: u32,
+    /// Points held out of the study's response surface (random in its box), solved cold at 1/100
+    /// of the tolerance when pools are idle, against the surface's predictions made before: how
+    /// good the surface is between the points (`glissade show`); default: 5 % of the points, at
+    /// least 5, at most a quarter; 0: none
+    #[arg(long, value_name = "N")]
+    surface_audit: Option<u32>,
     /// Follow the study until it ends (as `glissade watch`).
     #[arg(long)]
     watch: bool,
@@ -439,6 +445,7 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
         audit_points: args.audit,
         refine_points: args.refine,
         refine_levels: args.refine_levels,
+        surface_audit_points: args.surface_audit,
     };
     let mut client = user(server).await?;
     let reply = client
@@ -649,6 +656,38 @@ fn accuracy_line(a: &v1::StudyAccuracy) -> String {
     )
 }
 
+/// `7 of 7 held-out points solved cold at 2e-6 (study 4) against the surface of 121 points:
+/// slip_A largest 1.3e-1 mean 5.0e-3 within 2 sd 86 %, ...`; errors relative to each QoI's spread.
+fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
+    let mut parts: Vec<String> = a
+        .qoi
+        .iter()
+        .map(|(q, e)| {
+            format!("{q} largest {:.1e} mean {:.1e} within 2 sd {:.0} %", e.largest, e.mean, e.within_2sd * 100.0)
+        })
+        .collect();
+    parts.extend(
+        a.refused
+            .iter()
+            .map(|(q, why)| format!("{} not predicted: {why}", if q.is_empty() { "the surface" } else { q })),
+    );
+    let cost = if a.work_cap > 0.0 {
+        format!("; it cost {:.0} work of its cap {:.0}", a.work, a.work_cap)
+    } else {
+        String::new()
+    };
+    format!(
+        "{} of {} held-out points solved cold at {:.0e} (study {}) against the surface of {} points{}{}{cost}",
+        a.validated,
+        a.planned,
+        a.tolerance,
+        a.audit_study_id,
+        a.fitted,
+        if parts.is_empty() { "" } else { ": " },
+        parts.join(", ")
+    )
+}
+
 /// `2 of 2 points re-solved at dt / 2 (study 3; 4.1 s, 0.8 x the study's 5.0 s): slip_A change
 /// 3.2e-2 error ~4.3e-2 (order 2 assumed), ...`
 fn discretisation_line(d: &v1::StudyDiscretisation) -> String {
@@ -729,6 +768,20 @@ fn study_json(s: &v1::Study) -> serde_json::Value {
                 .collect::<serde_json::Map<_, _>>(),
         })),
         "refines": (s.refines != 0).then(|| serde_json::json!({"study_id": s.refines, "factor": s.refine_factor})),
+        "held_out": s.held_out,
+        "surface_accuracy": s.surface_accuracy.as_ref().map(|a| serde_json::json!({
+            "audit_study_id": a.audit_study_id,
+            "tolerance": a.tolerance,
+            "validated": a.validated,
+            "planned": a.planned,
+            "fitted": a.fitted,
+            "work": a.work,
+            "work_cap": a.work_cap,
+            "refused": a.refused,
+            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
+                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.points,
+            }))).collect::<serde_json::Map<_, _>>(),
+        })),
         "discretisation": s.discretisation.as_ref().map(|d| serde_json::json!({
             "level_study_ids": d.level_study_ids,
             "factors": d.factors,
@@ -1006,11 +1059,19 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
     outln!("  tolerance {:.1e}, at most {} iterations", s.tolerance, s.max_iterations);
     if s.refines != 0 {
         outln!("  refines   study {} (its points re-solved with the time step / {})", s.refines, s.refine_factor);
+    } else if s.held_out {
+        outln!(
+            "  audits    study {} (points held out of its surface, solved cold at this tighter tolerance)",
+            s.audit_of
+        );
     } else if s.audit_of != 0 {
         outln!("  audits    study {} (its points re-solved cold at this tighter tolerance)", s.audit_of);
     }
     if let Some(a) = &s.accuracy {
         outln!("  accuracy  {}", accuracy_line(a));
+    }
+    if let Some(a) = &s.surface_accuracy {
+        outln!("  surface   {}", surface_accuracy_line(a));
     }
     if let Some(d) = &s.discretisation {
         outln!("  dt error  {}", discretisation_line(d));

@@ -474,6 +474,28 @@ impl Scene {
         self.qoi.iter().any(|q| q.name == name && q.kind == QoiKind::Slip && q.component.is_none())
     }
 
+    /// The signed components of a norm QoI that the scene also reports (slips with a
+    /// `component` at the same interface and point), in the scene's order; empty for any other.
+    pub fn components_of(&self, name: &str) -> Vec<&str> {
+        let Some(norm) = self.qoi.iter().find(|q| q.name == name && q.kind == QoiKind::Slip && q.component.is_none())
+        else {
+            return Vec::new();
+        };
+        // (axis, name): one QoI per axis (two of one axis are the same number)
+        let mut found: Vec<(&str, &str)> = Vec::new();
+        for q in &self.qoi {
+            if let Some(axis) = q.component.as_deref()
+                && q.kind == QoiKind::Slip
+                && q.interface == norm.interface
+                && q.point == norm.point
+                && !found.iter().any(|(a, _)| *a == axis)
+            {
+                found.push((axis, &q.name));
+            }
+        }
+        found.into_iter().map(|(_, name)| name).collect()
+    }
+
     /// The unit of a parameter (as declared; None if it has none) or of a QoI (from its kind).
     pub fn unit(&self, name: &str) -> Option<&str> {
         match self.parameters.get(name) {

@@ -187,6 +187,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             refine_points: m.refine_points,
             refine_levels: m.refine_levels,
             adaptive,
+            surface_audit_points: m.surface_audit_points,
             meshes: m.meshes.into_iter().map(|f| MeshUpload { file: f.file, data: f.data, sha256: f.sha256 }).collect(),
         })
     }
@@ -492,6 +493,28 @@ pub fn study(v: &StudyView) -> v1::Study {
         }),
         refines: r.refines.map_or(0, |x| x.study.0),
         refine_factor: r.refines.map_or(0, |x| x.factor),
+        surface_accuracy: v.surface_accuracy.as_ref().map(|a| v1::StudySurfaceAccuracy {
+            audit_study_id: a.audit_study.0,
+            tolerance: a.tolerance,
+            validated: a.validated,
+            planned: a.planned,
+            fitted: a.fitted,
+            qoi: a
+                .qoi
+                .iter()
+                .map(|(q, e)| {
+                    let points = e.count as u32;
+                    (
+                        q.clone(),
+                        v1::QoiSurfaceAccuracy { largest: e.largest, mean: e.mean, within_2sd: e.within_2sd, points },
+                    )
+                })
+                .collect(),
+            refused: a.refused.clone().into_iter().collect(),
+            work: a.work,
+            work_cap: a.work_cap,
+        }),
+        held_out: r.held_out.is_some(),
     }
 }
 

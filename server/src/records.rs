@@ -109,6 +109,33 @@ pub struct StudyRecord {
     /// `scene`, written by core::refine) at the same tolerance.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refines: Option<Refines>,
+    /// The study holding points out of this one's response surface (its surface audit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surface_audit: Option<StudyId>,
+    /// A surface audit: its points are held out of `audit_of`'s response surface; what that
+    /// surface predicted at them, before they were solved.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub held_out: Option<HeldOut>,
+}
+
+/// What a surface audit's study predicted at its points (None until that study has ended).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct HeldOut {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted: Option<Predicted>,
+}
+
+/// A surface's predictions at the held-out points, made from the study's points alone.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Predicted {
+    /// Points the surface was fitted to.
+    pub fitted: u32,
+    /// Per held-out point (in point id order), per QoI: the mean and standard deviation.
+    pub at: Vec<BTreeMap<String, (f64, f64)>>,
+    /// QoIs whose surface could not be fitted, and why.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub refused: BTreeMap<String, String>,
+    pub unix_ms: i64,
 }
 
 /// What a discretisation audit level refines, and by how much.

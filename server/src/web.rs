@@ -230,6 +230,14 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             "qoi": a.qoi.iter().map(|(q, (l, m))| (q.clone(), json!({"largest": l, "mean": m}))).collect::<serde_json::Map<_, _>>(),
         })),
         "refines": r.refines.map(|x| json!({"study_id": x.study.0, "factor": x.factor})),
+        "held_out": r.held_out.is_some(),
+        "surface_accuracy": v.surface_accuracy.as_ref().map(|a| json!({
+            "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "validated": a.validated,
+            "planned": a.planned, "fitted": a.fitted, "work": a.work, "work_cap": a.work_cap, "refused": a.refused,
+            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), json!({
+                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
+            }))).collect::<serde_json::Map<_, _>>(),
+        })),
         "discretisation": v.discretisation.as_ref().map(|d| json!({
             "level_study_ids": d.levels.iter().map(|(s, _)| s.0).collect::<Vec<_>>(),
             "factors": d.levels.iter().map(|(_, f)| f).collect::<Vec<_>>(),
@@ -722,6 +730,24 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 }
                 @if a.work_cap > 0.0 {
                     (format!("; it cost {:.0} work of its cap {:.0} ({:.0} % of the study's)", a.work, a.work_cap, AUDIT_WORK_FRACTION * 100.0))
+                }
+            }
+        }
+        @if let Some(a) = &v.surface_accuracy {
+            p #surface-accuracy {
+                (format!(
+                    "surface between the points: {} of {} held-out points solved cold at {:.0e}, against the surface of {} points: ",
+                    a.validated, a.planned, a.tolerance, a.fitted
+                ))
+                @for (k, (q, e)) in a.qoi.iter().enumerate() {
+                    @if k > 0 { ", " }
+                    (q) (format!(" largest {:.1e} mean {:.1e} of its spread, {:.0} % within 2 sd", e.largest, e.mean, e.within_2sd * 100.0))
+                }
+                @for (q, why) in &a.refused {
+                    (format!("; {} not predicted: {why}", if q.is_empty() { "the surface" } else { q }))
+                }
+                @if a.work_cap > 0.0 {
+                    (format!("; it cost {:.0} work of its cap {:.0}", a.work, a.work_cap))
                 }
             }
         }

@@ -13,6 +13,7 @@
 
 pub mod adaptive;
 pub mod engine;
+pub mod holdout;
 pub mod order;
 pub mod space;
 pub mod store;

@@ -33,6 +33,7 @@ use glissade_core::study::adaptive::AdaptiveDesign;
 use glissade_core::study::space::DesignPoint;
 
 mod discretisation;
+mod held_out;
 mod surface;
 mod transitions;
 mod types;
@@ -114,6 +115,8 @@ struct State {
     lease_progress: HashMap<u64, (u64, f64)>,
     /// Lease id -> when it was granted (or found at start): the per-point budget runs from it.
     lease_since: HashMap<u64, Instant>,
+    /// Surface audits whose predictions a lease call is making (outside the lock).
+    predicting: std::collections::HashSet<StudyId>,
     pools: HashMap<String, PoolInfo>,
     next_study: u64,
     next_finish_seq: u64,
@@ -414,6 +417,19 @@ impl Coordinator {
         // the discretisation audit: its refined scenes written and checked now
         let (refine_points, refined) =
             discretisation::plan(&submission, &scene, points.len(), self.config.max_scene_bytes)?;
+        // the surface audit: points held out of the study's response surface
+        let study_points = adaptive.as_ref().map_or(points.len(), |a| a.budget as usize);
+        let held_out_points = match submission.surface_audit_points {
+            None => default_surface_audit_points(study_points),
+            Some(0) => 0,
+            Some(_) if study_points > glissade_core::study::surrogate::MAX_POINTS => {
+                return Err(CoordError::Invalid(format!(
+                    "surface_audit_points: a response surface is fitted to at most {} points, this study has {study_points}",
+                    glissade_core::study::surrogate::MAX_POINTS
+                )));
+            }
+            Some(n) => (n as usize).min(study_points),
+        };
 
         let mut state = self.lock();
         // every user's pending points together (there is one user token) stay bounded
@@ -421,6 +437,7 @@ impl Coordinator {
         let adding = points.len()
             + audit_points
             + refine_points * refined.len()
+            + held_out_points
             + adaptive.as_ref().map_or(0, |a| a.budget as usize);
         if pending + adding > self.config.max_pending {
             return Err(CoordError::Exhausted(format!(
@@ -459,6 +476,9 @@ impl Coordinator {
                 .collect(),
             refined_by: if refine_points > 0 { refined_ids.clone() } else { Vec::new() },
             refines: None,
+            // set below, once the audits' records are written from this one
+            surface_audit: None,
+            held_out: None,
         };
         let pending = |study: StudyId, points: Vec<ParameterVector>| -> Vec<PointRecord> {
             points
@@ -480,23 +500,7 @@ impl Coordinator {
         // The audit: points spread over the list, re-solved cold at a tighter tolerance.
         let audit = audit_id.map(|audit_id| {
             let chosen = discretisation::spread(&points, audit_points);
-            let audit = StudyRecord {
-                id: audit_id,
-                label: format!("audit of study {id}"),
-                // within the bounds every solve obeys
-                tolerance: (tolerance * AUDIT_TOLERANCE_RATIO).max(glissade_core::scene::MIN_TOLERANCE),
-                max_iterations: max_iterations
-                    .saturating_mul(AUDIT_ITERATION_FACTOR)
-                    .min(glissade_core::scene::MAX_ITERATIONS as u32),
-                strategy: InitStrategy::Cold,
-                order: OrderKind::Asc,
-                audit_of: Some(id),
-                audit: None,
-                adaptive: None,
-                refined_by: Vec::new(),
-                ..record.clone()
-            };
-            (audit, pending(audit_id, chosen))
+            (cold_audit_record(&record, audit_id, format!("audit of study {id}")), pending(audit_id, chosen))
         });
         let refined_studies: Vec<(StudyRecord, Vec<PointRecord>)> = refined
             .iter()
@@ -509,6 +513,27 @@ impl Coordinator {
                 )
             })
             .collect();
+        // The surface audit: points held out of the study's surface, solved as the audit's are.
+        let surface_audit = (held_out_points > 0)
+            .then(|| {
+                let sid = StudyId(id.0 + 1 + audit_id.is_some() as u64 + refined_studies.len() as u64);
+                let held =
+                    held_out::points(&record.parameters, &points, record.adaptive.as_ref(), held_out_points, id.0)
+                        .into_iter()
+                        // (the design's points passed this check; its box's may not everywhere)
+                        .filter(|p| {
+                            let set: Vec<(String, f64)> = p.iter().map(|(n, v)| (n.to_owned(), v)).collect();
+                            scene.parameter_values(&set).and_then(|v| scene.check_point(&v)).is_ok()
+                        })
+                        .collect();
+                let mut audit = cold_audit_record(&record, sid, format!("surface audit of study {id}"));
+                audit.held_out = Some(records::HeldOut::default());
+                (audit, pending(sid, held))
+            })
+            // (a box the design fills, a point with no swept parameter: nothing to hold out)
+            .filter(|(_, held)| !held.is_empty());
+        let mut record = record;
+        record.surface_audit = surface_audit.as_ref().map(|(r, _)| r.id);
         let points = pending(id, points);
         let mut batch = Batch::new();
         if self.store.get(Tree::Scenes, scene_hash.as_bytes())?.is_none() {
@@ -525,6 +550,7 @@ impl Coordinator {
         let mut studies = vec![(record, points)];
         studies.extend(audit);
         studies.extend(refined_studies);
+        studies.extend(surface_audit);
         for (r, ps) in &studies {
             batch.put(Tree::Studies, study_key(r.id), encode(r));
             for p in ps {
@@ -596,6 +622,11 @@ impl Coordinator {
                 let levels: Vec<&StudyEntry> = entry.record.refined_by.iter().filter_map(|l| studies.get(l)).collect();
                 discretisation::measure(entry, &levels)
             }),
+            surface_accuracy: entry
+                .record
+                .surface_audit
+                .and_then(|a| studies.get(&a))
+                .map(|a| held_out::measure(entry, a)),
         }
     }
 
@@ -664,7 +695,13 @@ impl Coordinator {
             .collect::<Result<_, CoordError>>()?;
         self.commit(entry, changes, Some(record), Batch::new())?;
         tracing::info!(study = %id, "study cancelled");
-        let audits: Vec<StudyId> = entry.record.audit.into_iter().chain(entry.record.refined_by.clone()).collect();
+        let audits: Vec<StudyId> = entry
+            .record
+            .audit
+            .into_iter()
+            .chain(entry.record.refined_by.clone())
+            .chain(entry.record.surface_audit)
+            .collect();
         // its audits have nothing left to measure
         for audit in audits {
             if state.studies.get(&audit).is_some_and(|a| a.state() == StudyState::Active) {
@@ -734,6 +771,7 @@ impl Coordinator {
     /// solver's stopping test bounds every QoI's error by its tolerance) are marked done on the way.
     pub fn lease(&self, pool: &str) -> Result<Option<LeaseGrant>, CoordError> {
         self.expire_leases()?;
+        self.predict_held_out()?;
         let mut state = self.lock();
         let version =
             state.pools.get(pool).ok_or_else(|| CoordError::UnknownPool(pool.to_owned()))?.solver_version.clone();
@@ -758,6 +796,10 @@ impl Coordinator {
                 let entry = studies.get_mut(&id).expect("id listed above");
                 if let Some(budget) = audit_budget.filter(|b| b.remaining() < 1.0) {
                     self.stop_audit(entry, &budget)?;
+                    break;
+                }
+                // held-out points are solved only once the surface has predicted them
+                if entry.record.held_out.as_ref().is_some_and(|h| h.predicted.is_none()) {
                     break;
                 }
                 if entry.record.adaptive.is_some()
@@ -821,6 +863,61 @@ impl Coordinator {
             }
         }
         Ok(None)
+    }
+
+    /// Makes the predictions of the surface audits whose study has ended: each study's surface,
+    /// fitted to its points, at its held-out points, recorded before any of them is leased. The
+    /// fits run outside the lock, one caller per audit. An audit whose study's surface predicts
+    /// nothing (too few points done) has its points cancelled with the reason.
+    fn predict_held_out(&self) -> Result<(), CoordError> {
+        let jobs: Vec<held_out::Job> = {
+            let mut state = self.lock();
+            let State { studies, predicting, .. } = &mut *state;
+            let ready: Vec<held_out::Job> = studies
+                .values()
+                .filter(|a| a.record.held_out.as_ref().is_some_and(|h| h.predicted.is_none()))
+                .filter(|a| !a.record.cancelled && !predicting.contains(&a.record.id))
+                .filter_map(|a| {
+                    let study = studies.get(&a.record.audit_of?)?;
+                    (study.state() != StudyState::Active).then(|| held_out::job(study, a))
+                })
+                .collect();
+            predicting.extend(ready.iter().map(|j| j.audit));
+            ready
+        };
+        let mut result = Ok(());
+        for job in jobs {
+            let predicted = held_out::predict(&job);
+            let mut state = self.lock();
+            state.predicting.remove(&job.audit);
+            let Some(entry) = state.studies.get_mut(&job.audit) else { continue };
+            if result.is_err() || entry.record.held_out.as_ref().is_none_or(|h| h.predicted.is_some()) {
+                continue;
+            }
+            let why = (!held_out::predicts_anything(&predicted)).then(|| {
+                let reasons: Vec<String> = predicted
+                    .refused
+                    .iter()
+                    .map(|(q, e)| if q.is_empty() { e.clone() } else { format!("{q}: {e}") })
+                    .collect();
+                format!("not solved: the study's surface predicts nothing here ({})", reasons.join("; "))
+            });
+            let changes = entry
+                .points
+                .iter()
+                .filter(|p| why.is_some() && p.state == PointState::Pending)
+                .map(|p| {
+                    let mut cancelled = apply(p, Transition::Cancel)?;
+                    cancelled.error = why.clone();
+                    Ok((cancelled, None))
+                })
+                .collect::<Result<Vec<_>, CoordError>>()?;
+            let mut record = entry.record.clone();
+            tracing::info!(study = %job.audit, fitted = predicted.fitted, "surface audit: predictions made");
+            record.held_out = Some(records::HeldOut { predicted: Some(predicted) });
+            result = self.commit(entry, changes, Some(record), Batch::new());
+        }
+        result
     }
 
     /// Cancels the pending points of an audit whose cost cap is spent, saying so on each.
@@ -1236,6 +1333,31 @@ impl Coordinator {
     /// Makes everything durable (at shutdown).
     pub fn flush(&self) -> Result<(), CoordError> {
         Ok(self.store.flush()?)
+    }
+}
+
+/// The record of an audit of `study` that re-solves points cold at [`AUDIT_TOLERANCE_RATIO`] of
+/// its tolerance (the iteration audit, the surface audit).
+fn cold_audit_record(study: &StudyRecord, id: StudyId, label: String) -> StudyRecord {
+    StudyRecord {
+        id,
+        label,
+        // within the bounds every solve obeys
+        tolerance: (study.tolerance * AUDIT_TOLERANCE_RATIO).max(glissade_core::scene::MIN_TOLERANCE),
+        max_iterations: study
+            .max_iterations
+            .saturating_mul(AUDIT_ITERATION_FACTOR)
+            .min(glissade_core::scene::MAX_ITERATIONS as u32),
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        audit_of: Some(study.id),
+        audit: None,
+        adaptive: None,
+        refined_by: Vec::new(),
+        refines: None,
+        surface_audit: None,
+        held_out: None,
+        ..study.clone()
     }
 }
 

@@ -2,12 +2,12 @@
 //! solutions' files and fields.
 
 use glissade_core::study::space::DesignPoint;
-use glissade_core::study::surrogate::ResponseSurface;
+use glissade_core::study::surrogate::QoiSurface;
 
 use super::*;
 
 /// The predictions of a surface's QoIs at `at`: a Gaussian process per QoI over the rows that
-/// have it (docs/surrogate.md).
+/// have it, a norm's from its components where the rows carry them (docs/surrogate.md).
 fn predict(
     scene: &Scene,
     names: &[String],
@@ -16,18 +16,18 @@ fn predict(
     at: &[BTreeMap<String, f64>],
 ) -> Result<Vec<PointPrediction>, CoordError> {
     let space = ParameterSpace::from_scene(scene);
+    let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = rows
+        .iter()
+        .filter_map(|r| {
+            let x: Option<Vec<f64>> = names.iter().map(|n| r.parameters.get(n)).collect();
+            Some((x?, &r.qoi))
+        })
+        .collect();
     let mut surfaces = Vec::with_capacity(qoi.len());
     for q in qoi {
-        let samples: Vec<(Vec<f64>, f64)> = rows
-            .iter()
-            .filter_map(|r| {
-                let x: Option<Vec<f64>> = names.iter().map(|n| r.parameters.get(n)).collect();
-                Some((x?, *r.qoi.get(q)?))
-            })
-            .collect();
-        let surface = ResponseSurface::fit(&space, names, &samples)
+        let surface = QoiSurface::fit(&space, names, &points, q, scene.qoi_is_norm(q), &scene.components_of(q))
             .map_err(|e| CoordError::Precondition(format!("the surface of {q} cannot predict: {e}")))?;
-        surfaces.push(if scene.qoi_is_norm(q) { surface.non_negative() } else { surface });
+        surfaces.push(surface);
     }
     at.iter()
         .enumerate()
@@ -126,6 +126,8 @@ impl Coordinator {
         let mut qoi_names: Vec<String> = rows.iter().flat_map(|r| r.qoi.keys().cloned()).collect();
         qoi_names.sort();
         qoi_names.dedup();
+        // a norm is predicted from its components, which the QoIs asked for may leave out
+        let predicted_from = (!predict_at.is_empty()).then(|| rows.clone());
         if !qoi.is_empty() {
             for q in qoi {
                 if !qoi_names.contains(q) && !rows.iter().all(|r| r.qoi.is_empty()) {
@@ -144,9 +146,7 @@ impl Coordinator {
             let key = |r: &SurfaceRow| r.parameters.iter().map(|(_, v)| v).collect::<Vec<_>>();
             key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal)
         });
-        let predictions = if predict_at.is_empty() {
-            Vec::new()
-        } else {
+        let predictions = if let Some(predicted_from) = predicted_from {
             let text = match scene_text {
                 Some(text) => text,
                 None => {
@@ -157,7 +157,9 @@ impl Coordinator {
                 }
             };
             let scene = Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?;
-            predict(&scene, &names, &qoi_names, &rows, predict_at)?
+            predict(&scene, &names, &qoi_names, &predicted_from, predict_at)?
+        } else {
+            Vec::new()
         };
         Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows, predictions })
     }

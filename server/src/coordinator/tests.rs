@@ -3,6 +3,7 @@
 use std::time::Duration;
 
 use glissade_core::study::order::OrderKind;
+use glissade_core::study::surrogate::ResponseSurface;
 
 use super::*;
 use crate::store::SledStore;
@@ -51,6 +52,7 @@ fn submit_audited(
         refine_points: Some(0),
         refine_levels: 0,
         adaptive: None,
+        surface_audit_points: Some(0),
         meshes: vec![],
     };
     c.submit(submission).unwrap().0
@@ -70,6 +72,7 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         refine_points: Some(0),
         refine_levels: 0,
         adaptive: None,
+        surface_audit_points: Some(0),
         meshes: vec![],
     };
     match c.submit(submission) {
@@ -347,6 +350,7 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
         refine_points: Some(0),
         refine_levels: 0,
         adaptive: None,
+        surface_audit_points: Some(0),
         meshes: vec![],
     };
     let (listed, ..) = c.submit(listed).unwrap();
@@ -509,6 +513,7 @@ fn submit_refined(
         refine_points,
         refine_levels,
         adaptive: None,
+        surface_audit_points: Some(0),
         meshes: vec![],
     };
     c.submit(submission).map(|r| r.0)
@@ -660,6 +665,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         refine_points: Some(0),
         refine_levels: 0,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
+        surface_audit_points: Some(0),
         meshes: vec![],
     };
     let (id, points, _) = c.submit(submission).unwrap();
@@ -717,6 +723,7 @@ fn joint_submission(meshes: Vec<MeshUpload>) -> Submission {
         refine_points: Some(0),
         refine_levels: 0,
         adaptive: None,
+        surface_audit_points: Some(0),
         meshes,
     }
 }
@@ -820,4 +827,200 @@ fn retry_keeps_failed_points_whose_scene_is_invalid_at_their_parameters() {
     assert_eq!((requeued, kept), (0, 2));
     assert!(why.contains("interfaces[0].friction: must be >= 0, got -0.1: retrying cannot help"), "{why}");
     assert_eq!(state_of(&c, id, 1).state, PointState::Failed);
+}
+
+/// A study of `grid` of the tiny scene with its surface audit as asked and no other audit.
+fn submit_held_out(
+    c: &Coordinator,
+    grid: &[&str],
+    adaptive: Option<(Vec<String>, u32)>,
+    held_out: Option<u32>,
+) -> StudyId {
+    let submission = Submission {
+        scene_text: TINY.into(),
+        grid: grid.iter().map(|s| s.to_string()).collect(),
+        points: vec![],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        refine_points: Some(0),
+        refine_levels: 0,
+        adaptive,
+        surface_audit_points: held_out,
+        meshes: vec![],
+    };
+    c.submit(submission).unwrap().0
+}
+
+/// A QoI law with a stick region and a kink (slip_A, a norm: zero below f1 = 0.14) and a smooth
+/// one (middle_ux).
+fn law(p: &ParameterVector) -> BTreeMap<String, f64> {
+    // (f2 at the scene's default where it is not swept)
+    let (f1, f2) = (p.get("f1").unwrap(), p.get("f2").unwrap_or(0.1));
+    [("slip_A".to_string(), (f1 - 0.14).max(0.0) * 1e-3 * (1.0 + f2)), ("middle_ux".to_string(), (9.0 * f1).sin() * f2)]
+        .into()
+}
+
+/// A study's surface audit: held-out points random in its box (never a design point), not leased
+/// before the study has ended, predicted by the surface of the study's points before the first is
+/// leased, then solved cold at 1/100 of the tolerance; what it reports is the errors of those
+/// predictions, computed here by hand with the same surface. An adaptive study gets one over its
+/// ranges; a study whose surface predicts nothing has its held-out points cancelled, saying why.
+#[test]
+fn a_surface_audit_measures_the_surface_between_the_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    // 25 points: 5 % of them, at least 5, at most a quarter: 5 held out
+    let id = submit_held_out(&c, &["f1=0.1:0.2:5", "f2=0.1:0.2:5"], None, None);
+    let audit = c.study(id, false).unwrap().record.surface_audit.expect("a surface audit");
+    let a = c.study(audit, true).unwrap();
+    assert_eq!(
+        (a.kind, a.record.audit_of, a.record.strategy, a.points.len()),
+        ("audit", Some(id), InitStrategy::Cold, 5)
+    );
+    assert_eq!(a.record.tolerance, 1e-3 * AUDIT_TOLERANCE_RATIO);
+    assert_eq!(a.record.held_out, Some(records::HeldOut { predicted: None }));
+    let grid = [0.1, 0.125, 0.15, 0.175, 0.2];
+    for p in &a.points {
+        let (f1, f2) = (p.parameters.get("f1").unwrap(), p.parameters.get("f2").unwrap());
+        assert!((0.1..=0.2).contains(&f1) && (0.1..=0.2).contains(&f2), "{p:?}");
+        let at_design = grid.iter().any(|g| (g - f1).abs() < 1e-4) && grid.iter().any(|g| (g - f2).abs() < 1e-4);
+        assert!(!at_design, "{p:?} is a design point");
+    }
+    let mut order = Vec::new();
+    while let Some(g) = c.lease("p").unwrap() {
+        order.push(g.study);
+        if g.study == audit {
+            // predicted before any held-out point was solved, from the study's 25 points alone
+            let predicted = c.study(audit, false).unwrap().record.held_out.unwrap().predicted.expect("predicted");
+            assert_eq!((predicted.fitted, predicted.at.len()), (25, 5));
+        }
+        let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &law(&g.parameters));
+        c.complete(done, file).unwrap();
+    }
+    assert_eq!(order, [vec![id; 25], vec![audit; 5]].concat(), "the held-out points once the study has ended");
+    // by hand: the surfaces of the 25 points, as `glissade surface` fits them
+    let study = c.study(id, true).unwrap();
+    let held = c.study(audit, true).unwrap();
+    let scene = Scene::parse(TINY).unwrap();
+    let space = ParameterSpace::from_scene(&scene);
+    let names = vec!["f1".to_string(), "f2".to_string()];
+    let measured = study.surface_accuracy.expect("measured");
+    assert_eq!((measured.audit_study, measured.validated, measured.planned, measured.fitted), (audit, 5, 5, 25));
+    // its cost: 5 points of work 8 against a cap of half the study's 25 x 8
+    assert_eq!((measured.work, measured.work_cap), (40.0, 100.0));
+    for q in ["slip_A", "middle_ux"] {
+        let xy = |p: &PointRecord| vec![p.parameters.get("f1").unwrap(), p.parameters.get("f2").unwrap()];
+        let samples: Vec<(Vec<f64>, f64)> = study.points.iter().map(|p| (xy(p), law(&p.parameters)[q])).collect();
+        let surface = ResponseSurface::fit(&space, &names, &samples).unwrap();
+        let surface = if q == "slip_A" { surface.non_negative() } else { surface };
+        let (mut largest, mut sum, mut within) = (0.0f64, 0.0, 0);
+        let values: Vec<f64> = study.points.iter().chain(&held.points).map(|p| law(&p.parameters)[q]).collect();
+        let spread = values.iter().cloned().fold(f64::MIN, f64::max) - values.iter().cloned().fold(f64::MAX, f64::min);
+        for p in &held.points {
+            let at = DesignPoint::from(BTreeMap::from(p.parameters.clone()));
+            let predicted = surface.predict(&at).unwrap();
+            let error = (predicted.mean - law(&p.parameters)[q]).abs();
+            largest = largest.max(error / spread);
+            sum += error / spread;
+            within += usize::from(error <= 2.0 * predicted.std);
+        }
+        let e = measured.qoi[q];
+        assert!(largest > 0.0, "{q}: the held-out points are between the design's");
+        assert!((e.largest - largest).abs() < 1e-12 && (e.mean - sum / 5.0).abs() < 1e-12, "{q}: {e:?}");
+        assert_eq!((e.within_2sd, e.count), (within as f64 / 5.0, 5), "{q}");
+    }
+
+    // an adaptive study: over its ranges (8 points: a quarter, 2 held out)
+    let adaptive = submit_held_out(&c, &[], Some((vec!["f1=0.1:0.15".into(), "f2=0.1:0.2".into()], 8)), None);
+    let audit = c.study(adaptive, false).unwrap().record.surface_audit.expect("a surface audit");
+    let a = c.study(audit, true).unwrap();
+    assert_eq!(a.points.len(), 2);
+    assert!(a.points.iter().all(|p| (0.1..=0.15).contains(&p.parameters.get("f1").unwrap())), "{:?}", a.points);
+    c.cancel(adaptive).unwrap();
+    assert_eq!(c.study(audit, false).unwrap().state, StudyState::Cancelled, "cancelled with its study");
+
+    // none asked for: none; a study of 3 points gets none by default
+    assert!(
+        c.study(submit_held_out(&c, &["f1=0.1:0.2:25"], None, Some(0)), false).unwrap().record.surface_audit.is_none()
+    );
+    assert!(c.study(submit_held_out(&c, &["f1=0.1:0.2:3"], None, None), false).unwrap().record.surface_audit.is_none());
+    while let Some(g) = c.lease("p").unwrap() {
+        let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &law(&g.parameters));
+        c.complete(done, file).unwrap();
+    }
+    // two points of which one fails: a surface of one point predicts nothing, the held-out
+    // point is cancelled with the reason
+    let two = submit_held_out(&c, &["f1=0.105,0.195"], None, Some(1));
+    let audit = c.study(two, false).unwrap().record.surface_audit.expect("asked for");
+    let mut converged = true;
+    while let Some(g) = c.lease("p").unwrap() {
+        assert_eq!(g.study, two, "no held-out point without a prediction");
+        let eta = if converged { g.tolerance / 2.0 } else { g.tolerance * 2.0 };
+        let (done, file) = solution_file_with_qoi(&g, eta, converged, &law(&g.parameters));
+        c.complete(done, file).unwrap();
+        converged = false;
+    }
+    assert_eq!(c.study(two, false).unwrap().state, StudyState::Failed);
+    let a = c.study(audit, true).unwrap();
+    assert_eq!((a.state, a.progress.cancelled, a.progress.done), (StudyState::Done, 1, 0));
+    let why = a.points[0].error.as_deref().unwrap();
+    assert!(why.contains("the study's surface predicts nothing here") && why.contains("at least 2 points"), "{why}");
+    // the predictions and what they measured survive a restart
+    drop(c);
+    let c = open(dir.path(), 60_000, 3);
+    assert_eq!(c.study(id, false).unwrap().surface_accuracy.unwrap(), measured);
+}
+
+/// A slip norm whose signed components the scene reports too is predicted from them (a norm
+/// through zero has a V its own surface rounds off), also when only the norm is asked for.
+#[test]
+fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let mut scene = TINY.to_owned();
+    for axis in ["x", "y"] {
+        scene.push_str(&format!(
+            "\n[[qoi]]\nname = \"slip_A_{axis}\"\nkind = \"slip\"\ninterface = \"interface1\"\npoint = [0.0075, 0.0075, 0.06]\ncomponent = \"{axis}\"\n"
+        ));
+    }
+    let submission = Submission {
+        scene_text: scene,
+        grid: vec!["f1=0.1:0.2:6".into()],
+        points: vec![],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        refine_points: Some(0),
+        refine_levels: 0,
+        adaptive: None,
+        surface_audit_points: Some(0),
+        meshes: vec![],
+    };
+    let id = c.submit(submission).unwrap().0;
+    // the final slip slides back through zero at f1 = 0.137: x changes sign, y stays small
+    let (x, y) = (|f: f64| (f - 0.137) * 1e-3, |f: f64| 2e-6 * (1.0 + f));
+    while let Some(g) = c.lease("p").unwrap() {
+        let f = g.parameters.get("f1").unwrap();
+        let qoi =
+            [("slip_A".to_string(), x(f).hypot(y(f))), ("slip_A_x".into(), x(f)), ("slip_A_y".into(), y(f))].into();
+        let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &qoi);
+        c.complete(done, file).unwrap();
+    }
+    let at: BTreeMap<String, f64> = [("f1".to_string(), 0.137)].into();
+    let s = c.surface(SurfaceSource::Study(id), &ParameterVector::default(), &["slip_A".into()], &[at]).unwrap();
+    assert_eq!(s.qoi, ["slip_A"], "only what was asked for is returned");
+    let (p, fitted) = s.predictions[0].qoi[0];
+    let truth = y(0.137);
+    assert_eq!(fitted, 6);
+    // the V's bottom within 10 % (the norm's own surface read 3.7e-6 here, 65 % high)
+    assert!((p.mean - truth).abs() < 0.1 * truth, "{p:?} against {truth:e}");
 }

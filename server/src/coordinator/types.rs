@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use glissade_core::study::holdout::SurfaceErrors;
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
 use glissade_core::study::surrogate::Prediction;
@@ -134,6 +135,8 @@ pub struct StudyView {
     pub accuracy: Option<Accuracy>,
     /// What its discretisation audit measured (None: it has none).
     pub discretisation: Option<Discretisation>,
+    /// What its surface audit measured of its response surface (None: it has none).
+    pub surface_accuracy: Option<SurfaceAccuracy>,
     /// Iterations and eta its pool last reported, per leased point that reported (not stored).
     pub solving: BTreeMap<PointId, (u64, f64)>,
     /// `grid`, `list`, `adaptive` or `audit`.
@@ -163,6 +166,9 @@ pub struct Submission {
     pub refine_levels: u32,
     /// An adaptive study instead of `grid` / `points`: `NAME=LOW:HIGH` ranges and the budget.
     pub adaptive: Option<(Vec<String>, u32)>,
+    /// Points held out of the study's response surface (None: [`default_surface_audit_points`];
+    /// 0: none).
+    pub surface_audit_points: Option<u32>,
     /// The mesh files the scene names.
     pub meshes: Vec<MeshUpload>,
 }
@@ -202,6 +208,16 @@ impl AuditBudget {
 /// Points a study's audit re-solves unless told: 10 %, at least 2 (at most all).
 pub fn default_audit_points(points: usize) -> usize {
     points.div_ceil(10).max(2).min(points)
+}
+
+/// Points held out of a study's response surface unless told: 5 %, at least 5, at most a
+/// quarter of its points (its own solves stay the bulk of the work: a study of fewer than 4 has
+/// none); none for a study of more points than a surface is fitted to.
+pub fn default_surface_audit_points(points: usize) -> usize {
+    if points > glissade_core::study::surrogate::MAX_POINTS {
+        return 0;
+    }
+    points.div_ceil(20).max(5).min(points / 4)
 }
 
 /// Points a study's discretisation audit re-solves unless told (at most the study's).
@@ -253,6 +269,26 @@ pub struct Accuracy {
     pub planned: u32,
     /// Per QoI: (largest, mean) of |study - audit| / largest |audit|.
     pub qoi: BTreeMap<String, (f64, f64)>,
+    /// The audit's work so far and its cap (0 until its study has ended).
+    pub work: f64,
+    pub work_cap: f64,
+}
+
+/// What a study's surface audit measured: its response surface's predictions at held-out
+/// points (made before they were solved) against their solves at the audit's tolerance.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceAccuracy {
+    pub audit_study: StudyId,
+    pub tolerance: f64,
+    /// Held-out points compared so far, of `planned`.
+    pub validated: u32,
+    pub planned: u32,
+    /// Points the surface was fitted to (0 until the study has ended and it predicted).
+    pub fitted: u32,
+    /// Per QoI: largest and mean |predicted - solved| / the QoI's spread, share within 2 sd.
+    pub qoi: BTreeMap<String, SurfaceErrors>,
+    /// QoIs whose surface could not be fitted, and why.
+    pub refused: BTreeMap<String, String>,
     /// The audit's work so far and its cap (0 until its study has ended).
     pub work: f64,
     pub work_cap: f64,

@@ -15,5 +15,6 @@ mod meshes;
 mod resilience;
 mod security;
 mod service;
+mod surface_audit;
 mod toolchain;
 mod worker_cli;

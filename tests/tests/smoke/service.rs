@@ -106,7 +106,8 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
         format!("server:\n{}\npool-a:\n{}\npool-b:\n{}", log_of(&server_log), log_of(a), log_of(b))
     };
 
-    // A cold study (so that each point is exactly a direct solve), submitted with the CLI.
+    // A cold study (so that each point is exactly a direct solve), submitted with the CLI; no
+    // held-out points (the stored solutions are counted below; surface_audit.rs tests them).
     let out = run_with_timeout(
         command(&glissade).args(["--server", &url, "submit"]).arg(&scene_path).args([
             "--grid",
@@ -117,6 +118,8 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
             &STUDY_TOL.to_string(),
             "--strategy",
             "cold",
+            "--surface-audit",
+            "0",
             "--json",
         ]),
         LIMIT,

@@ -1,0 +1,90 @@
+//! A study's surface audit on a real coordinator with a real pool: its held-out points solved
+//! cold at 1/100 of the tolerance, and what the study reports (the API, `glissade show`, the web
+//! page) is the error of the study's response surface (QuerySurface's predictions, `glissade
+//! surface --at`) at those points.
+
+use crate::common::*;
+
+#[test]
+fn a_surface_audit_reports_the_error_of_the_surface_at_held_out_solves() -> anyhow::Result<()> {
+    const TOL: f64 = 1e-3;
+    let dir = tempfile::tempdir()?;
+    let (server_log, pool_log) = (dir.path().join("server.log"), dir.path().join("pool.log"));
+    let (_server, addr) = start_server(&dir.path().join("db"), &server_log);
+    let url = format!("http://{addr}");
+    let mut pool = start_single_pool(&url, "pool", &pool_log);
+    let rt = runtime();
+    let (measured, held, predictions) = rt.block_on(async {
+        let mut client = user(&url).await?;
+        let request = v1::SubmitStudyRequest {
+            audit_points: Some(0),
+            refine_points: Some(0),
+            // (two: each costs about 2 of the study's cold points, within the cap of half its 16)
+            surface_audit_points: Some(2),
+            ..grid_request(&["f1=0.1:0.2:4", "f2=0.1:0.2:4"], TOL)
+        };
+        let id = client.submit_study(request).await?.into_inner().study_id;
+        watch(&mut client, id, |_| true).await?;
+        let audit = study(&mut client, id).await?.surface_accuracy.expect("a surface audit").audit_study_id;
+        watch(&mut client, audit, |_| true).await?;
+        let held = study(&mut client, audit).await?;
+        // the study's surface, as users read it, at the held-out points
+        let request = v1::QuerySurfaceRequest {
+            source: Some(v1::query_surface_request::Source::StudyId(id)),
+            predict_at: held.points.iter().map(|p| v1::ParameterPoint { parameters: p.parameters.clone() }).collect(),
+            ..Default::default()
+        };
+        let predictions = client.query_surface(request).await?.into_inner().predictions;
+        anyhow::Ok((study(&mut client, id).await?, held, predictions))
+    })?;
+    let logs = || format!("server:\n{}\npool:\n{}", log_of(&server_log), log_of(&pool_log));
+    let s = measured.surface_accuracy.clone().expect("measured");
+    assert_eq!((s.validated, s.planned, s.fitted), (2, 2, 16), "{s:?}\n{}", logs());
+    assert!(held.held_out && held.audit_of == measured.study_id, "{held:?}");
+    assert!((held.tolerance - TOL / 100.0).abs() < 1e-15);
+    let design: Vec<(f64, f64)> = measured.points.iter().map(|p| (p.parameters["f1"], p.parameters["f2"])).collect();
+    for p in &held.points {
+        assert_eq!(p.state, v1::PointState::Done as i32, "{p:?}\n{}", logs());
+        assert!(p.started_from.is_none() && p.error_indicator <= TOL / 100.0, "cold, at the audit's tolerance: {p:?}");
+        let (f1, f2) = (p.parameters["f1"], p.parameters["f2"]);
+        assert!((0.1..=0.2).contains(&f1) && (0.1..=0.2).contains(&f2), "{p:?}");
+        assert!(!design.contains(&(f1, f2)), "{p:?} is a design point");
+    }
+    // the reported errors, from the surface's predictions and the held-out solves
+    assert_eq!(s.qoi.len(), 3, "{s:?}");
+    for (name, reported) in &s.qoi {
+        let values = measured.points.iter().chain(&held.points).map(|p| p.qoi[name]);
+        let spread = values.clone().fold(f64::MIN, f64::max) - values.fold(f64::MAX, f64::min);
+        let errors: Vec<(f64, f64)> = held
+            .points
+            .iter()
+            .zip(&predictions)
+            .map(|(p, at)| ((at.qoi[name].mean - p.qoi[name]).abs(), at.qoi[name].std))
+            .collect();
+        let largest = errors.iter().fold(0.0f64, |m, (e, _)| m.max(*e)) / spread;
+        let mean = errors.iter().map(|(e, _)| e).sum::<f64>() / 2.0 / spread;
+        let within = errors.iter().filter(|(e, sd)| *e <= 2.0 * sd).count() as f64 / 2.0;
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1e-300);
+        assert!(close(reported.largest, largest) && close(reported.mean, mean), "{name}: {reported:?} {errors:?}");
+        assert_eq!((reported.within_2sd, reported.points), (within, 2), "{name}");
+    }
+    assert!(s.work > 0.0 && s.work <= s.work_cap, "{s:?}");
+
+    // `glissade show`, the web page and its JSON carry it
+    let out = glissade(Some(&url), &["show", &measured.study_id.to_string()]);
+    assert!(out.status.success(), "show: {}", text(&out.stderr));
+    let shown = text(&out.stdout);
+    assert!(shown.contains("  surface   2 of 2 held-out points solved cold at 1e-5"), "{shown}");
+    assert!(shown.contains("against the surface of 16 points: middle_ux largest"), "{shown}");
+    let out = glissade(Some(&url), &["show", &held.study_id.to_string()]);
+    assert!(text(&out.stdout).contains("points held out of its surface"), "{}", text(&out.stdout));
+    let (status, _, page) = http_get(&addr, &format!("/studies/{}", measured.study_id));
+    assert_eq!(status, 200);
+    assert!(page.contains("id=\"surface-accuracy\"") && page.contains("2 of 2 held-out points"), "{page}");
+    let (_, _, json) = http_get(&addr, &format!("/api/studies/{}", measured.study_id));
+    let json: serde_json::Value = serde_json::from_str(&json)?;
+    let slip = &json["surface_accuracy"]["qoi"]["slip_A"];
+    assert_eq!(slip["largest"].as_f64(), Some(s.qoi["slip_A"].largest), "{json}");
+    assert!(terminate(&mut pool.0).success());
+    Ok(())
+}
