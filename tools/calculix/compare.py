@@ -464,6 +464,14 @@ def main():
             p.add_argument("--ccx", default="ccx")
             p.add_argument("--workdir", help="keep ccx's files here (default: a temporary directory)")
             p.add_argument("--json", help="write the histories and the comparison here")
+            p.add_argument("--ccx-dat", metavar="FILE",
+                           help="read ccx's results from this .dat (of this scene's deck) instead of running ccx")
+            p.add_argument("--partial", action="store_true",
+                           help="where ccx stopped before the end (too many cutbacks), compare up to where it "
+                                "stopped (the finals: the values there)")
+            p.add_argument("--glissade-json", metavar="FILE",
+                           help="read glissade's solve from this `glissade-worker solve --json` output "
+                                "instead of running it (its steps must be --glissade-steps)")
     args = ap.parse_args()
     try:
         text = open(args.scene).read()
@@ -488,11 +496,11 @@ def main():
         return 0
 
     ccx = shutil.which(args.ccx)
-    if ccx is None:
+    if ccx is None and not args.ccx_dat:
         print(f"skipped: CalculiX ({args.ccx}) is not installed (Debian: apt-get install calculix-ccx)",
               file=sys.stderr)
         return 3
-    if not os.access(args.worker, os.X_OK):
+    if not args.glissade_json and not os.access(args.worker, os.X_OK):
         print(f"error: {args.worker}: no glissade-worker there (cargo build --release -p glissade-worker)",
               file=sys.stderr)
         return 1
@@ -503,20 +511,27 @@ def main():
     with open(os.path.join(work, "deck.inp"), "w") as f:
         f.write(write_deck(scene, mesh, dt, args.kn, args.kt, args.alpha, title))
 
-    # ccx, one thread (the CPU comparison is per job)
-    env = dict(os.environ, OMP_NUM_THREADS="1", CCX_NPROC_EQUATION_SOLVER="1")
-    c0, w0 = child_cpu(), time.time()
-    with open(os.path.join(work, "ccx.log"), "w") as log:
-        rc = subprocess.run([ccx, "-i", "deck"], cwd=work, env=env, stdout=log, stderr=subprocess.STDOUT).returncode
-    ccx_cpu, ccx_wall = child_cpu() - c0, time.time() - w0
-    if rc != 0:
-        print(f"error: ccx exited {rc}; see {work}/ccx.log", file=sys.stderr)
-        return 1
-    ref = ccx_histories(scene, mesh, read_dat(os.path.join(work, "deck.dat")))
-    if abs(ref[scene.qois[0]["name"]][0][-1] - scene.duration) > 1e-6 * scene.duration:
-        print(f"error: ccx stopped at t = {ref[scene.qois[0]['name']][0][-1]:.4g}; see {work}/ccx.log",
-              file=sys.stderr)
-        return 1
+    dat = args.ccx_dat or os.path.join(work, "deck.dat")
+    ccx_cpu = ccx_wall = float("nan")
+    if not args.ccx_dat:
+        # ccx, one thread (the CPU comparison is per job)
+        env = dict(os.environ, OMP_NUM_THREADS="1", CCX_NPROC_EQUATION_SOLVER="1")
+        c0, w0 = child_cpu(), time.time()
+        with open(os.path.join(work, "ccx.log"), "w") as log:
+            rc = subprocess.run([ccx, "-i", "deck"], cwd=work, env=env, stdout=log,
+                                stderr=subprocess.STDOUT).returncode
+        ccx_cpu, ccx_wall = child_cpu() - c0, time.time() - w0
+        if rc != 0 and not args.partial:
+            print(f"error: ccx exited {rc}; see {work}/ccx.log", file=sys.stderr)
+            return 1
+    ref = ccx_histories(scene, mesh, read_dat(dat))
+    end = ref[scene.qois[0]["name"]][0][-1]
+    if abs(end - scene.duration) > 1e-6 * scene.duration:
+        if not args.partial:
+            print(f"error: ccx stopped at t = {end:.4g}; see {work}/ccx.log (--partial compares up to there)",
+                  file=sys.stderr)
+            return 1
+        print(f"PARTIAL: ccx stopped at t = {end:.4g} s of {scene.duration:.4g}: compared over [0, {end:.4g}]")
 
     # glissade at its number of steps
     gscene = os.path.join(work, "glissade-scene.toml")
@@ -524,13 +539,22 @@ def main():
         f.write(with_steps(text, steps))
     cmd = [args.worker, "solve", gscene, "--tol", str(args.tol), "--json"] + \
         [a for s in args.set for a in ("--set", s)]
-    c0, w0 = child_cpu(), time.time()
-    res = subprocess.run(cmd, capture_output=True, text=True)
-    gl_cpu, gl_wall = child_cpu() - c0, time.time() - w0
-    if res.returncode != 0:
-        print(f"error: glissade-worker exited {res.returncode}: {res.stderr.strip()}", file=sys.stderr)
-        return 1
-    gl = json.loads(res.stdout)
+    if args.glissade_json:
+        with open(args.glissade_json) as f:
+            gl = json.load(f)
+        gl_cpu = gl_wall = float("nan")
+        if gl["time_steps"] != steps or not gl["converged"]:
+            print(f"error: {args.glissade_json}: {gl['time_steps']} steps, converged {gl['converged']}; "
+                  f"expected {steps} steps, converged", file=sys.stderr)
+            return 1
+    else:
+        c0, w0 = child_cpu(), time.time()
+        res = subprocess.run(cmd, capture_output=True, text=True)
+        gl_cpu, gl_wall = child_cpu() - c0, time.time() - w0
+        if res.returncode != 0:
+            print(f"error: glissade-worker exited {res.returncode}: {res.stderr.strip()}", file=sys.stderr)
+            return 1
+        gl = json.loads(res.stdout)
 
     rows = []
     print(f"{title}: ccx dt {dt:.3g} s ({ccx_cpu:.1f} s CPU), glissade {steps} steps, dt "
@@ -538,13 +562,16 @@ def main():
     print(f"{'QoI':<14} {'ccx final':>12} {'glissade final':>15} {'final diff':>11} {'L2 diff':>9}")
     for q in scene.qois:
         g = gl["qoi"][q["name"]]
-        l2, fin = compare((g["times"], g["values"]), ref[q["name"]])
-        rows.append(dict(qoi=q["name"], ccx_final=ref[q["name"]][1][-1], glissade_final=g["final"],
+        # (up to where ccx stopped, with --partial)
+        kept = [(t, v) for t, v in zip(g["times"], g["values"]) if t <= end * (1 + 1e-9)]
+        hist = ([t for t, _ in kept], [v for _, v in kept])
+        l2, fin = compare(hist, ref[q["name"]])
+        rows.append(dict(qoi=q["name"], ccx_final=ref[q["name"]][1][-1], glissade_final=hist[1][-1],
                          final_rel=fin, l2_rel=l2))
-        print(f"{q['name']:<14} {ref[q['name']][1][-1]:12.4e} {g['final']:15.4e} {100 * fin:10.2f}% {100 * l2:8.2f}%")
+        print(f"{q['name']:<14} {ref[q['name']][1][-1]:12.4e} {hist[1][-1]:15.4e} {100 * fin:10.2f}% {100 * l2:8.2f}%")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump(dict(scene=args.scene, parameters=scene.params, ccx_dt=dt, glissade_steps=steps, tol=args.tol,
+            json.dump(dict(scene=args.scene, parameters=scene.params, ccx_dt=dt, ccx_end=end, glissade_steps=steps, tol=args.tol,
                            kn=args.kn, kt=args.kt, ccx_cpu_s=ccx_cpu, ccx_wall_s=ccx_wall, glissade_cpu_s=gl_cpu,
                            glissade_wall_s=gl_wall, glissade_iterations=gl["iterations"], comparison=rows,
                            ccx={k: {"times": v[0], "values": v[1]} for k, v in ref.items()},
