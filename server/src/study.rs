@@ -62,6 +62,9 @@ pub struct StudyPlan {
     policy: Box<dyn OrderingPolicy>,
     /// Every parameter at each point, by point id.
     pub full: Vec<DesignPoint>,
+    /// Stored points are answered though the study's solves start cold (a discretisation
+    /// audit's level: its cold solves measure the step, a stored solve of its scene does too).
+    answers_stored: bool,
 }
 
 /// How a leased point begins.
@@ -78,7 +81,8 @@ impl StudyPlan {
     pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Result<Self, StudyError> {
         let engine = StudyEngine::new(scene, record.strategy, Some(record.tolerance))?;
         let full = points.iter().map(|p| design_point(engine.space(), &p.parameters)).collect();
-        Ok(Self { policy: record.order.policy(engine.space()), engine, full })
+        let answers_stored = record.refines.is_some();
+        Ok(Self { policy: record.order.policy(engine.space()), engine, full, answers_stored })
     }
 
     pub fn space(&self) -> &ParameterSpace {
@@ -115,8 +119,12 @@ impl StudyPlan {
     /// store answers nothing: the point is then leased as usual.
     pub fn answer(&self, i: usize, solutions: Option<&SceneSolutions>, solver_version: &str) -> Option<SolutionKey> {
         let solutions = solutions?;
-        let info = self.engine.answer(solutions, &self.full[i], solver_version).ok()??;
-        solutions.keys.get(info.id as usize).cloned()
+        let info = if self.answers_stored {
+            self.engine.stored_answer(solutions, &self.full[i], solver_version)
+        } else {
+            self.engine.answer(solutions, &self.full[i], solver_version)
+        };
+        solutions.keys.get(info.ok()??.id as usize).cloned()
     }
 
     /// How point `i` begins on a pool of `solver_version`, by the study engine, from `solutions`
@@ -132,6 +140,11 @@ impl StudyPlan {
         solver_version: &str,
     ) -> PointStart {
         let Some(solutions) = solutions else { return PointStart::Solve(None) };
+        if self.answers_stored
+            && let Some(key) = self.answer(i, Some(solutions), solver_version)
+        {
+            return PointStart::Answer(key);
+        }
         let point = &self.full[i];
         let previous = previous.and_then(|k| solutions.id_of(k));
         match self.engine.start(solutions, point, previous, solver_version) {

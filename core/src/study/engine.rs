@@ -79,6 +79,18 @@ impl StudyEngine {
         if self.strategy == InitStrategy::Cold {
             return Ok(None);
         }
+        self.stored_answer(store, point, solver_version)
+    }
+
+    /// The stored solution that answers `point` as it is, whatever the strategy: for a study
+    /// whose solves start cold but whose stored points need no solve (a discretisation audit's
+    /// level: a stored solution of its refined scene at the point is the level's measurement).
+    pub fn stored_answer(
+        &self,
+        store: &dyn SolutionStore,
+        point: &DesignPoint,
+        solver_version: &str,
+    ) -> Result<Option<SolutionInfo>, StoreError> {
         Ok(self.same_point(store, point, solver_version)?.0)
     }
 

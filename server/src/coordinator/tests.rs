@@ -519,6 +519,48 @@ fn submit_refined(
     c.submit(submission).map(|r| r.0)
 }
 
+/// A refined level whose points are stored (an earlier study's audit, the same scene and points)
+/// is answered from the store at submit, not re-solved: only the (cold) study's own points are
+/// leased, and the audit measures the same as the first time at no cost.
+#[test]
+fn a_discretisation_level_whose_points_are_stored_is_answered_not_re_solved() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let solve_all = |c: &Coordinator| {
+        let mut leased = Vec::new();
+        while let Some(grant) = c.lease("p").unwrap() {
+            leased.push(grant.study);
+            let h = 50.0 / Scene::parse(&grant.scene_text).unwrap().time.steps as f64;
+            let f = grant.parameters.get("f1").unwrap();
+            let qoi = [("slip_A".to_string(), f * 1e-5 * (1.0 + 0.5 * h * h))].into();
+            let (done, file) = solution_file_with_qoi(&grant, grant.tolerance / 2.0, true, &qoi);
+            c.complete(done, file).unwrap();
+        }
+        leased
+    };
+    let first = submit_refined(&c, TINY, &["f1=0.1:0.2:3"], Some(2), 2).unwrap();
+    let level = c.study(first, false).unwrap().record.refined_by[0];
+    assert_eq!(solve_all(&c), [vec![first; 3], vec![level; 2]].concat());
+    let measured = c.study(first, false).unwrap().discretisation.expect("measured");
+    assert_eq!(measured.work_seconds, 1.0);
+
+    let again = submit_refined(&c, TINY, &["f1=0.1:0.2:3"], Some(2), 2).unwrap();
+    let again_level = c.study(again, false).unwrap().record.refined_by[0];
+    assert_ne!(again_level, level);
+    let l = c.study(again_level, true).unwrap();
+    assert_eq!(l.record.scene_hash, c.study(level, false).unwrap().record.scene_hash);
+    for p in &l.points {
+        let r = p.result.as_ref().expect("answered at submit");
+        assert!(p.state == PointState::Done && r.answered && r.iterations == 0, "{p:?}");
+    }
+    // the cold study's own points are solved again; its level's are not
+    assert_eq!(solve_all(&c), vec![again; 3]);
+    let remeasured = c.study(again, false).unwrap().discretisation.expect("measured");
+    assert_eq!((remeasured.audited, remeasured.work_seconds), (2, 0.0));
+    assert_eq!(remeasured.qoi, measured.qoi);
+}
+
 /// A study's discretisation audit: its first and last points re-solved cold on the scene with
 /// the time step halved and quartered (core::refine's text: it reads back with 100 and 200
 /// steps), leased after every user study, and per QoI the change, the observed order and
@@ -613,8 +655,9 @@ fn a_discretisation_audit_measures_the_time_step_error_a_study_got() {
     let a = c.study(two, false).unwrap().discretisation.expect("measured").qoi["slip_A"].clone();
     assert!(a.order_assumed && a.order.is_none() && (a.error - 1.0 / 3.0).abs() < 1e-9, "{a:?}");
 
-    // a cancelled study cancels its audit
-    let cancelled = submit_refined(&c, TINY, &["f1=0.1:0.2:3"], Some(1), 2).unwrap();
+    // a cancelled study cancels its audit (at a point not stored at dt / 2: a stored one would
+    // be answered at submit)
+    let cancelled = submit_refined(&c, TINY, &["f1=0.13:0.2:3"], Some(1), 2).unwrap();
     let level = c.study(cancelled, false).unwrap().record.refined_by[0];
     assert_eq!(c.study(level, true).unwrap().points.len(), 1);
     c.cancel(cancelled).unwrap();

@@ -5,6 +5,7 @@
 //! `cargo build --workspace`.
 
 mod browser;
+mod calculix;
 mod cli;
 mod common;
 mod discretisation;
