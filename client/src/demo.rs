@@ -15,7 +15,7 @@ use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
 
 use crate::{
     ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, discretisation_line, dominant,
-    get_study, refused, surface, user, watch,
+    get_study, refused, surface, surface_accuracy_line, user, watch,
 };
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
@@ -156,6 +156,17 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         outln!("time step's error: {}", discretisation_line(d));
         if let Some(verdict) = s.accuracy.as_ref().and_then(|a| dominant(a, d)) {
             outln!("{verdict}");
+        }
+    }
+    // and the surface's between the points: points held out of it, predicted before they were
+    // solved (docs/surrogate.md, "Surface audit")
+    if let Some(held_out) = s.surface_accuracy.map(|a| a.audit_study_id).filter(|&a| a != 0) {
+        outln!(
+            "\nthe study's surface audit (study {held_out}): points held out of its response surface, solved cold at 1/100 of the tolerance"
+        );
+        watch(&mut client, held_out).await?;
+        if let Some(a) = get_study(&mut client, "demo", id, false, false).await?.surface_accuracy {
+            outln!("surface accuracy (errors relative to each QoI's spread): {}", surface_accuracy_line(&a));
         }
     }
     Ok(outcome)

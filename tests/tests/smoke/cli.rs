@@ -12,7 +12,15 @@ fn cli_demo_runs_a_study_and_draws_its_pictures() -> anyhow::Result<()> {
     // plain progress lines without a terminal (the study's 9 points, its audit's 2, its
     // discretisation audit's 2), the summary, the surface table, the measured accuracy and time
     // step's error, and which dominates
-    assert_eq!(stdout.matches("done (f1=").count(), 9 + 2 + 2, "{stdout}");
+    // the study's points, its audit's, its dt / 2 level's and those held out of its surface (a
+    // quarter of 9 at most)
+    assert_eq!(stdout.matches("done (f1=").count(), 9 + 2 + 2 + 2, "{stdout}");
+    assert!(
+        stdout.contains(
+            "surface accuracy (errors relative to each QoI's spread): 2 of 2 held-out points solved cold at 2e-6"
+        ),
+        "{stdout}"
+    );
     assert!(stdout.contains("measured accuracy: 2 of 2 points re-solved cold at 2e-6"), "{stdout}");
     assert!(stdout.contains("time step's error: 2 of 2 points re-solved at dt / 2 (study 3; "), "{stdout}");
     assert!(stdout.contains(" dominates the "), "{stdout}");
