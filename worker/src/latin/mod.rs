@@ -105,7 +105,8 @@ pub struct StageReport {
 impl StageReport {
     /// Adds the report of the next time window (or of one iterated again: `again`), whose
     /// iterations each swept `share` of the interval: iterations and eta's history go on, the
-    /// estimate is the worst window's.
+    /// estimate is the worst window's until the last, when [`LatinSolver::iterate`] replaces it
+    /// with the windows' errors summed.
     fn append(&mut self, next: StageReport, share: f64, again: bool) {
         self.sweeps += next.iterations as f64 * share;
         if again {
