@@ -280,6 +280,11 @@ pub struct SolverSpec {
     /// (which serialises the default solver section) stays what it was before time windows.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub time_window: Option<usize>,
+    /// a solve in time windows is iterated again in other windows and the two answers compared
+    /// (docs/method.md, "Two windowings"); absent: true. Left out of the serialised form when
+    /// absent, as `time_window`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_check: Option<bool>,
 }
 
 /// Without `time_window`, a scene with a friction interface and more than this many steps is
@@ -324,6 +329,7 @@ impl Default for SolverSpec {
             scale: None,
             warm_tolerance_ratio: default_warm_tolerance_ratio(),
             time_window: None,
+            window_check: None,
         }
     }
 }

@@ -224,6 +224,8 @@ pub struct SolverSettings {
     pub warm_tolerance_ratio: f64,
     /// steps per time window of the dynamic stage (0: the whole interval)
     pub time_window: usize,
+    /// a solve in time windows is checked against another windowing (latin/window_check.rs)
+    pub window_check: bool,
 }
 
 /// The whole decomposed problem of one design point.
@@ -287,6 +289,7 @@ impl<const D: usize> Model<D> {
             scale: scene.scale(),
             warm_tolerance_ratio: st.warm_tolerance_ratio,
             time_window: scene.window_steps(),
+            window_check: st.window_check.unwrap_or(true),
         };
 
         let mut materials = BTreeMap::new();

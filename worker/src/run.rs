@@ -7,7 +7,9 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::comm::Communicator;
-use crate::latin::{FieldHistory, LatinSolver, Operators, SolveOptions, SolverError, StageReport, Timings};
+use crate::latin::{
+    FieldHistory, LatinSolver, Operators, SolveOptions, SolverError, StageReport, Timings, WindowCheck,
+};
 use crate::model::Model;
 use glissade_core::field::InterfaceSolution;
 use glissade_core::scene::{ParameterValues, Scale, Scene, SceneError};
@@ -70,6 +72,9 @@ pub struct SolveSummary {
     /// again once the whole histories were known (docs/method.md, "Time windows")
     pub dynamic_windows_stalled: usize,
     pub dynamic_windows_redone: usize,
+    /// a windowed solve iterated again in other windows and compared (docs/method.md, "Two
+    /// windowings"); its passes are counted in `iterations` and `dynamic_sweeps`
+    pub window_check: Option<WindowCheck>,
     pub static_stage: Option<StageReport>,
     /// where the dynamic stage left off and how it went (`StageReport::diagnosis`), when it did
     /// not converge
@@ -334,6 +339,7 @@ fn solve_dim<const D: usize>(
         time_window: model.settings.time_window,
         dynamic_windows_stalled: report.dynamic.windows_stalled,
         dynamic_windows_redone: report.dynamic.windows_redone,
+        window_check: report.dynamic.window_check.clone(),
         dynamic_diagnosis: (!report.dynamic.converged).then(|| report.dynamic.diagnosis(model.settings.tolerance)),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,

@@ -7,6 +7,7 @@ pub mod local_stage;
 pub mod macro_problem;
 pub mod relaxation;
 pub mod stopping;
+mod window_check;
 
 use std::ops::Range;
 use std::time::Instant;
@@ -27,6 +28,7 @@ use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};
 use relaxation::Relaxation;
 use stopping::{ErrorEstimator, UnitScales};
+pub use window_check::{CheckOutcome, WindowCheck};
 
 /// Tolerance of each time window relative to the asked one (docs/method.md, "Time windows").
 pub const WINDOW_TOLERANCE_RATIO: f64 = 0.1;
@@ -97,6 +99,13 @@ pub struct StageReport {
     /// the ones the whole histories did not clear, iterated again
     pub windows_stalled: usize,
     pub windows_redone: usize,
+    /// the same solve iterated again in other time windows and compared (dynamic stage in
+    /// windows, unless the scene turns it off): `iterations` and `sweeps` include its passes
+    pub window_check: Option<WindowCheck>,
+    /// per QoI, the norm of its whole history its error is measured against (floored as the
+    /// stopping test floors it) when the stage stopped
+    #[serde(skip)]
+    scales: Vec<f64>,
     /// set by [`LatinSolver::iterate_window`]: eta converged, the QoI estimate stalled
     #[serde(skip)]
     stalled: bool,
@@ -126,6 +135,17 @@ impl StageReport {
 
     /// How the iterations went, for a stage that did not converge: the mode and what to change.
     pub fn diagnosis(&self, tolerance: f64) -> String {
+        match &self.window_check {
+            Some(check) if check.outcome == CheckOutcome::Parted => check.diagnosis(tolerance, ""),
+            Some(check) if check.outcome == CheckOutcome::PassNotConverged => {
+                check.diagnosis(tolerance, &self.iterations_diagnosis(check.iteration_tolerance))
+            }
+            _ => self.iterations_diagnosis(tolerance),
+        }
+    }
+
+    /// How the last iterations went (the history's end): the mode and what to change.
+    fn iterations_diagnosis(&self, tolerance: f64) -> String {
         let h = &self.history;
         if h.is_empty() {
             return "no iteration ran".into();
@@ -466,48 +486,109 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let m = self.model;
         let mut timings = Timings { factorisation: self.factorisation_seconds, ..Default::default() };
         self.macro_seconds = 0.0;
-        let needs_static = m.needs_static_stage();
-
-        // Static prestress stage.
-        let mut static_report = None;
-        let mut static_solution = None;
-        let mut u0: Vec<Option<Vec<f64>>> = vec![None; m.substructures.len()];
-        if needs_static {
-            let mut st = match init.and_then(|i| i.static_stage.clone()) {
-                Some(s) => {
-                    self.check_init(&s, 1, "static stage")?;
-                    s
-                }
-                None => self.zero_stage(1),
-            };
-            let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
-            // The static stage's error is carried by every step of the dynamics, and its
-            // iterations cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
-            let begin = StageStart {
-                stage: Stage::Static,
-                tolerance: m.settings.tolerance * STATIC_TOLERANCE_RATIO,
-                gaps: (&start, &[]),
-                u0: &u0,
-                statics: None,
-                cold: init.is_none(),
-            };
-            let report = self.iterate(&begin, &mut st.interfaces, &mut timings, options)?;
-            // the initial state of the dynamics: displacements of the converged static solution
-            let t = Instant::now();
-            let mut scratch = st.interfaces.clone();
-            let mut record = |s: usize, step: usize, u: &[f64], _: &[f64]| {
-                if step == 1 {
-                    u0[s] = Some(u.to_vec());
-                }
-            };
-            let none = vec![None; m.substructures.len()];
-            self.linear_stage(Stage::Static, &mut scratch, &none, Some(&mut record), 0..1, None);
-            timings.post_processing += t.elapsed().as_secs_f64();
-            static_report = Some(report);
-            static_solution = Some(st);
+        let from = init.and_then(|i| i.static_stage.as_ref());
+        let mut prestress = self.prestress(from, m.settings.tolerance, init.is_none(), &mut timings, options)?;
+        let mut dynamic = self.dynamic_start(init, prestress.as_ref())?;
+        // A warm start begins near in eta but not as near in the solution: it converges tighter
+        // (warm_tolerance_ratio, docs/scenes.md; measured in docs/performance.md).
+        let from_neighbour = init.is_some() && !options.init_at_this_point;
+        let ratio = if from_neighbour { m.settings.warm_tolerance_ratio } else { 1.0 };
+        let tolerance = m.settings.tolerance * ratio;
+        let checked = m.settings.window_check && m.settings.time_window > 0 && !m.qois.is_empty();
+        let initial = checked.then(|| dynamic.interfaces.clone());
+        let mut report = self.dynamic_stage(
+            prestress.as_ref(),
+            (tolerance, m.settings.time_window, init.is_none()),
+            &mut dynamic.interfaces,
+            &mut timings,
+            options,
+        )?;
+        if let Some(initial) = initial.filter(|_| report.converged && report.windows > 1) {
+            let start = CheckStart { init, tolerance, initial: &initial };
+            self.check_windows(start, &mut report, &mut prestress, &mut dynamic.interfaces, &mut timings, options)?;
         }
+        let (static_report, static_solution, u0) = match prestress {
+            Some(p) => (Some(p.report), Some(p.solution), p.u0),
+            None => (None, None, vec![None; m.substructures.len()]),
+        };
 
-        // Dynamic stage.
+        // Post-processing sweep on the converged local-stage fields.
+        let t = Instant::now();
+        let (qoi, fields) = self.post_process(&mut dynamic.interfaces, &u0, static_solution.as_ref(), options);
+        self.dist.gather_interfaces(self.comm, &mut dynamic.interfaces);
+        let mut static_solution = static_solution;
+        if let Some(st) = static_solution.as_mut() {
+            self.dist.gather_interfaces(self.comm, &mut st.interfaces);
+        }
+        timings.post_processing += t.elapsed().as_secs_f64();
+        timings.macro_problem = self.macro_seconds;
+        Ok(SolveReport {
+            static_stage: static_report,
+            dynamic: report,
+            solution: InterfaceSolution { static_stage: static_solution, dynamic },
+            qoi,
+            fields,
+            timings,
+        })
+    }
+
+    /// The static prestress stage, where the model needs one, from `from` (a solution's static
+    /// stage) or zero fields, to `tolerance` x [`STATIC_TOLERANCE_RATIO`]: its report, solution
+    /// and the displacements it leaves each substructure in (the dynamics' initial state).
+    fn prestress(
+        &mut self,
+        from: Option<&StageSolution>,
+        tolerance: f64,
+        cold: bool,
+        timings: &mut Timings,
+        options: &SolveOptions,
+    ) -> Result<Option<Prestress>, SolverError> {
+        let m = self.model;
+        if !m.needs_static_stage() {
+            return Ok(None);
+        }
+        let mut st = match from {
+            Some(s) => {
+                self.check_init(s, 1, "static stage")?;
+                s.clone()
+            }
+            None => self.zero_stage(1),
+        };
+        let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
+        let mut u0: Vec<Option<Vec<f64>>> = vec![None; m.substructures.len()];
+        // The static stage's error is carried by every step of the dynamics, and its
+        // iterations cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
+        let begin = StageStart {
+            stage: Stage::Static,
+            tolerance: tolerance * STATIC_TOLERANCE_RATIO,
+            gaps: (&start, &[]),
+            u0: &u0,
+            statics: None,
+            cold,
+            window: 0,
+        };
+        let report = self.iterate(&begin, &mut st.interfaces, timings, options)?;
+        // the initial state of the dynamics: displacements of the converged static solution
+        let t = Instant::now();
+        let mut scratch = st.interfaces.clone();
+        let mut record = |s: usize, step: usize, u: &[f64], _: &[f64]| {
+            if step == 1 {
+                u0[s] = Some(u.to_vec());
+            }
+        };
+        let none = vec![None; m.substructures.len()];
+        self.linear_stage(Stage::Static, &mut scratch, &none, Some(&mut record), 0..1, None);
+        timings.post_processing += t.elapsed().as_secs_f64();
+        Ok(Some(Prestress { report, solution: st, u0 }))
+    }
+
+    /// The dynamic stage's fields to start from: `init`'s, or zero; moved by the prestress.
+    fn dynamic_start(
+        &self,
+        init: Option<&InterfaceSolution>,
+        prestress: Option<&Prestress>,
+    ) -> Result<StageSolution, SolverError> {
+        let m = self.model;
         let mut dynamic = match init {
             Some(i) => {
                 self.check_init(&i.dynamic, m.steps, "dynamic stage")?;
@@ -515,7 +596,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             None => self.zero_stage(m.steps),
         };
-        if let Some(st) = &static_solution {
+        if let Some(st) = prestress.map(|p| &p.solution) {
             // A cold start holds the prestressed interface forces over the whole interval
             // (velocities zero): the state the assembly is in before loading. A warm start's
             // fields hold its source's static forces at every step: they move by the change of
@@ -531,38 +612,27 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 }
             }
         }
-        let (gap_start, vn_start) = self.dynamic_initial_gaps(static_solution.as_ref());
-        // A warm start begins near in eta but not as near in the solution: it converges tighter
-        // (warm_tolerance_ratio, docs/scenes.md; measured in docs/performance.md).
-        let from_neighbour = init.is_some() && !options.init_at_this_point;
-        let ratio = if from_neighbour { m.settings.warm_tolerance_ratio } else { 1.0 };
-        let begin = StageStart {
-            stage: Stage::Dynamic,
-            tolerance: m.settings.tolerance * ratio,
-            gaps: (&gap_start, &vn_start),
-            u0: &u0,
-            statics: static_solution.as_ref(),
-            cold: init.is_none(),
-        };
-        let report = self.iterate(&begin, &mut dynamic.interfaces, &mut timings, options)?;
+        Ok(dynamic)
+    }
 
-        // Post-processing sweep on the converged local-stage fields.
-        let t = Instant::now();
-        let (qoi, fields) = self.post_process(&mut dynamic.interfaces, &u0, static_solution.as_ref(), options);
-        self.dist.gather_interfaces(self.comm, &mut dynamic.interfaces);
-        if let Some(st) = static_solution.as_mut() {
-            self.dist.gather_interfaces(self.comm, &mut st.interfaces);
-        }
-        timings.post_processing += t.elapsed().as_secs_f64();
-        timings.macro_problem = self.macro_seconds;
-        Ok(SolveReport {
-            static_stage: static_report,
-            dynamic: report,
-            solution: InterfaceSolution { static_stage: static_solution, dynamic },
-            qoi,
-            fields,
-            timings,
-        })
+    /// The dynamic stage's iterations from `fields` after `prestress`, to `tolerance` in
+    /// windows of `window` steps (0: the whole interval); `cold`: no initial solution was given.
+    fn dynamic_stage(
+        &mut self,
+        prestress: Option<&Prestress>,
+        (tolerance, window, cold): (f64, usize, bool),
+        fields: &mut [InterfaceField],
+        timings: &mut Timings,
+        options: &SolveOptions,
+    ) -> Result<StageReport, SolverError> {
+        let m = self.model;
+        let statics = prestress.map(|p| &p.solution);
+        let none = vec![None; m.substructures.len()];
+        let u0 = prestress.map_or(&none, |p| &p.u0);
+        let (gap_start, vn_start) = self.dynamic_initial_gaps(statics);
+        let begin =
+            StageStart { stage: Stage::Dynamic, tolerance, gaps: (&gap_start, &vn_start), u0, statics, cold, window };
+        self.iterate(&begin, fields, timings, options)
     }
 
     /// Gap and relative normal velocity at t_0, per interface node.
@@ -609,9 +679,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let m = self.model;
         let StageStart { stage, tolerance, gaps: (gap_start, vn_start), u0, cold, .. } = *begin;
         let steps = stage.steps(m);
-        let length = match (stage, m.settings.time_window) {
-            (Stage::Dynamic, w) if w > 0 => w.min(steps),
-            _ => steps,
+        let length = match begin.window {
+            0 => steps,
+            w => w.min(steps),
         };
         let mut window = Window {
             steps: 0..length,
@@ -664,6 +734,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 report.windows_stalled += 1;
             }
             spent.push(end.errors.iter().zip(&end.scales).map(|(e, s)| e * s).collect());
+            report.scales = end.scales.clone();
             report.append(part, window.steps.len() as f64 / steps as f64, floors.is_some() && stalled.is_empty());
             if report.converged && window.steps.end == steps && windows > 1 && !m.qois.is_empty() {
                 // The whole histories are known: the windows' errors together must fit
@@ -1106,6 +1177,22 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     }
 }
 
+/// The static prestress stage's outcome: its report, its solution, and the displacements it
+/// leaves each substructure in (the dynamics' initial state).
+struct Prestress {
+    report: StageReport,
+    solution: StageSolution,
+    u0: Vec<Option<Vec<f64>>>,
+}
+
+/// What the check of a windowed solve starts from: the solve's initial solution (`None`: a
+/// cold start), its dynamic tolerance and the dynamic fields it began with.
+struct CheckStart<'a> {
+    init: Option<&'a InterfaceSolution>,
+    tolerance: f64,
+    initial: &'a [InterfaceField],
+}
+
 /// A time window of a stage: its steps, and at its first one the substructures' states (`None`:
 /// the stage's initial state) and the gap rule's bases; the body QoIs recorded before it.
 /// What a stage starts from, and the tolerance it is held to.
@@ -1121,6 +1208,8 @@ struct StageStart<'a> {
     statics: Option<&'a StageSolution>,
     /// no initial solution was given: a later time window starts from the last converged step
     cold: bool,
+    /// steps per time window (0: the whole interval at once)
+    window: usize,
 }
 
 #[derive(Clone)]

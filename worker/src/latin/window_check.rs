@@ -1,0 +1,289 @@
+//! Two windowings (docs/method.md, "Two windowings"). A solve in time windows accepts each
+//! window on its own estimate, given the state the windows before it ended in; what no window
+//! sees is how an error left at its end grows through the later ones. Where a contact chatters,
+//! a perturbation as small as the iteration error grows a thousandfold (measured: a wall's
+//! normal force 9 % off a tight solve while every window's estimate was below 2e-5). So the
+//! converged fields are iterated again in windows of another length, to the same tolerance, and
+//! the two answers compared: their distance is a measured error the estimates missed. Where it
+//! exceeds the tolerance, both windowings are iterated again at a tighter iteration tolerance;
+//! a solve whose windowings still part after [`CHECK_ROUNDS`] rounds did not meet its
+//! tolerance, and says so.
+
+use super::*;
+
+/// Pairs the check compares at most: the solve with a pass `TIGHTER` times its tolerance; where
+/// they part, a pair at a tolerance chosen from the distance measured.
+pub const CHECK_ROUNDS: usize = 3;
+/// The tighter member of a pair is iterated to this times the looser one's tolerance.
+pub const TIGHTER: f64 = 0.1;
+/// Where a pair parts, the next one's looser member is aimed at this share of the tolerance.
+pub const AIM: f64 = 0.3;
+
+/// What the check of a windowed solve found.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct WindowCheck {
+    /// steps per window of the solve and of the other windowing
+    pub windows: [usize; 2],
+    /// passes over the interval the check iterated
+    pub passes: usize,
+    pub iterations: usize,
+    pub sweeps: f64,
+    /// the distance between the two windowings' last answers: the largest over the QoIs,
+    /// relative L2 over the history as the stopping test measures it
+    pub discrepancy: f64,
+    /// the QoI it was found on
+    pub qoi: String,
+    /// the tolerance the answer returned (the last pair's tighter member) was iterated to
+    pub iteration_tolerance: f64,
+    pub outcome: CheckOutcome,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CheckOutcome {
+    /// the windowings agreed within the tolerance
+    Agreed,
+    /// they still parted after the last round
+    #[default]
+    Parted,
+    /// a pass did not converge within the iteration limit (the stage's diagnosis is its)
+    PassNotConverged,
+}
+
+impl WindowCheck {
+    /// Why the check failed, and what to change; `pass` is the diagnosis of a pass that did not
+    /// converge.
+    pub fn diagnosis(&self, tolerance: f64, pass: &str) -> String {
+        if self.outcome == CheckOutcome::PassNotConverged {
+            let measured = if self.passes > 0 && !self.qoi.is_empty() {
+                format!(
+                    "iterated in windows of {} and of {} steps, the answers parted by {:.2e} on '{}', and ",
+                    self.windows[0], self.windows[1], self.discrepancy, self.qoi
+                )
+            } else {
+                String::new()
+            };
+            return format!(
+                "checking the windowed solve: {measured}a pass to {:.1e} did not converge ({pass}); a looser tolerance, \
+                 or solver.window_check = false to take the first answer unchecked",
+                self.iteration_tolerance
+            );
+        }
+        format!(
+            "sensitive: iterated in windows of {} and of {} steps, the last two answers part by {:.2e} on '{}' \
+             (the tighter iterated to {:.1e}, the tolerance {tolerance:.1e}): this QoI moves with the iteration \
+             error far more than the tolerance allows, as the force of a chattering or fluttering contact does; \
+             a looser tolerance, a QoI that does not follow the chatter (a slip, a displacement), or \
+             solver.window_check = false to take the first answer, off by about that much",
+            self.windows[0], self.windows[1], self.discrepancy, self.qoi, self.iteration_tolerance
+        )
+    }
+}
+
+impl<const D: usize> LatinSolver<'_, D> {
+    /// Checks a converged windowed solve (module docs). Every pass starts where the solve
+    /// started, its prestress converged again as much tighter as the pass is; `prestress` and
+    /// `fields` end as the last pass's, `report` counts the passes' work and carries the check.
+    pub(super) fn check_windows(
+        &mut self,
+        start: CheckStart,
+        report: &mut StageReport,
+        prestress: &mut Option<Prestress>,
+        fields: &mut [InterfaceField],
+        timings: &mut Timings,
+        options: &SolveOptions,
+    ) -> Result<(), SolverError> {
+        let tolerance = start.tolerance;
+        let first = self.model.settings.time_window;
+        let windows = [first, first + first.div_ceil(2)];
+        let quiet = SolveOptions { record_fields: false, trace_qois: false, ..options.clone() };
+        let mut pass = Pass { start: &start, prestress, fields, check: WindowCheck { windows, ..Default::default() } };
+        // the looser member of the pair and its iteration tolerance: first the solve itself
+        let mut looser = self.answer(&pass, &quiet);
+        let mut loose = tolerance;
+        let mut scales = report.scales.clone();
+        let mut fresh = false;
+        for _ in 0..CHECK_ROUNDS {
+            if fresh {
+                // a fresh looser member (the last tighter one was predicted too far off)
+                let Some(answer) =
+                    self.check_pass(&mut pass, windows[0], loose, report, &mut scales, timings, &quiet)?
+                else {
+                    break;
+                };
+                looser = answer;
+            }
+            let tight = loose * TIGHTER;
+            pass.check.iteration_tolerance = tight;
+            let Some(answer) = self.check_pass(&mut pass, windows[1], tight, report, &mut scales, timings, &quiet)?
+            else {
+                break;
+            };
+            let check = &mut pass.check;
+            (check.discrepancy, check.qoi) = discrepancy(&looser, &answer, &scales);
+            tracing::info!(
+                loose,
+                tight,
+                discrepancy = check.discrepancy,
+                qoi = check.qoi,
+                "window check: a pair compared"
+            );
+            // the looser member's error is about the distance, the tighter's is less: the
+            // distance bounds the answer returned, the tighter one
+            report.error_estimate = check.discrepancy;
+            if check.discrepancy <= tolerance {
+                check.outcome = CheckOutcome::Agreed;
+                break;
+            }
+            // The error grows about as the iteration tolerance (measured in docs/performance.md,
+            // "Two windowings"): the next pair's looser member at the tolerance whose error is
+            // predicted at AIM of the asked one; the tighter member just iterated when it is
+            // predicted there already.
+            let wanted = (loose * AIM * tolerance / check.discrepancy).max(loose * 1e-4);
+            fresh = wanted < tight;
+            if fresh {
+                loose = wanted;
+            } else {
+                looser = answer;
+                loose = tight;
+            }
+        }
+        report.converged &= pass.check.outcome == CheckOutcome::Agreed;
+        report.window_check = Some(pass.check);
+        Ok(())
+    }
+
+    /// The QoIs of the fields a pass left.
+    fn answer(&mut self, pass: &Pass, quiet: &SolveOptions) -> Vec<QoiSeries> {
+        let none = vec![None; self.model.substructures.len()];
+        let (u0, statics) = pass.prestress.as_ref().map_or((&none, None), |p| (&p.u0, Some(&p.solution)));
+        let mut fields = pass.fields.to_vec();
+        self.post_process(&mut fields, u0, statics, quiet).0
+    }
+
+    /// One pass of the check: the prestress converged again for `tolerance` (from its last
+    /// solution: it costs a step per iteration), then the dynamic stage from where the solve
+    /// started, in windows of `window` steps; its QoIs, or `None` when it did not converge
+    /// (then `report` says so with the pass's own diagnosis).
+    #[allow(clippy::too_many_arguments)]
+    fn check_pass(
+        &mut self,
+        pass: &mut Pass,
+        window: usize,
+        tolerance: f64,
+        report: &mut StageReport,
+        scales: &mut [f64],
+        timings: &mut Timings,
+        quiet: &SolveOptions,
+    ) -> Result<Option<Vec<QoiSeries>>, SolverError> {
+        let CheckStart { init, initial, .. } = *pass.start;
+        if let Some(before) = pass.prestress.take() {
+            let mut again = self
+                .prestress(Some(&before.solution), tolerance, false, timings, quiet)?
+                .expect("the model needs its prestress");
+            again.report.iterations += before.report.iterations;
+            again.report.sweeps += before.report.sweeps;
+            let converged = again.report.converged;
+            *pass.prestress = Some(again);
+            if !converged {
+                report.converged = false;
+                report.error_estimate = report.error_estimate.max(pass.check.discrepancy);
+                pass.check.outcome = CheckOutcome::PassNotConverged;
+                pass.check.iteration_tolerance = tolerance;
+                return Ok(None);
+            }
+            // the dynamic fields a cold start holds, or a warm one moves, follow the prestress
+            let moved = self.dynamic_start(init, pass.prestress.as_ref())?;
+            pass.fields.clone_from_slice(&moved.interfaces);
+        } else {
+            pass.fields.clone_from_slice(initial);
+        }
+        let outcome = self.dynamic_stage(
+            pass.prestress.as_ref(),
+            (tolerance, window, init.is_none()),
+            pass.fields,
+            timings,
+            quiet,
+        )?;
+        tracing::info!(
+            window,
+            tolerance,
+            iterations = outcome.iterations,
+            sweeps = outcome.sweeps,
+            converged = outcome.converged,
+            stalled = outcome.windows_stalled,
+            "window check: a pass"
+        );
+        let check = &mut pass.check;
+        check.passes += 1;
+        check.iterations += outcome.iterations;
+        check.sweeps += outcome.sweeps;
+        for (s, p) in scales.iter_mut().zip(&outcome.scales) {
+            *s = s.max(*p);
+        }
+        report.iterations += outcome.iterations;
+        report.sweeps += outcome.sweeps;
+        report.history.extend(&outcome.history);
+        report.error_indicator = outcome.error_indicator;
+        report.worst_interface = outcome.worst_interface.clone();
+        report.relaxation = outcome.relaxation;
+        report.windows_stalled += outcome.windows_stalled;
+        report.windows_redone += outcome.windows_redone;
+        if !outcome.converged {
+            // what the check measured before stays the estimate of the answer returned
+            report.converged = false;
+            report.error_estimate = outcome.error_estimate.max(check.discrepancy);
+            check.outcome = CheckOutcome::PassNotConverged;
+            check.iteration_tolerance = tolerance;
+            return Ok(None);
+        }
+        Ok(Some(self.answer(pass, quiet)))
+    }
+}
+
+/// Where the check's passes start from and what they leave: the prestress and dynamic fields
+/// of the last pass, and the check's record.
+struct Pass<'a, 'b> {
+    start: &'a CheckStart<'a>,
+    prestress: &'b mut Option<Prestress>,
+    fields: &'b mut [InterfaceField],
+    check: WindowCheck,
+}
+
+/// The largest distance between two answers' QoI histories, each relative to the larger of its
+/// norm in `scales` (the stopping test's, floored) and its own; and the QoI it is on.
+fn discrepancy(a: &[QoiSeries], b: &[QoiSeries], scales: &[f64]) -> (f64, String) {
+    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    a.iter()
+        .zip(b)
+        .enumerate()
+        .map(|(q, (x, y))| {
+            let diff = norm(&mut x.values.iter().zip(&y.values).map(|(p, r)| p - r));
+            let scale = scales.get(q).copied().unwrap_or(0.0).max(norm(&mut x.values.iter().copied()));
+            let d = if diff == 0.0 { 0.0 } else { diff / scale };
+            (d, x.name.clone())
+        })
+        .fold((0.0, String::new()), |best, next| if next.0 > best.0 { next } else { best })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn series(name: &str, values: &[f64]) -> QoiSeries {
+        QoiSeries { name: name.into(), times: (0..values.len()).map(|n| n as f64).collect(), values: values.to_vec() }
+    }
+
+    /// The distance is the worst QoI's, relative to its norm or, for a QoI near zero, to its
+    /// floored scale (a stuck slip of 1e-22 m is not compared with itself).
+    #[test]
+    fn the_discrepancy_is_the_worst_qoi_relative_to_its_floored_norm() {
+        let a = [series("slip", &[0.0, 1e-22, 2e-22]), series("force", &[3.0, 4.0, 0.0])];
+        let b = [series("slip", &[0.0, 3e-22, 2e-22]), series("force", &[3.0, 4.0, 0.5])];
+        let (d, q) = discrepancy(&a, &b, &[1e-6, 5.0]);
+        assert_eq!(q, "force");
+        assert!((d - 0.1).abs() < 1e-12, "{d}");
+        let (d, q) = discrepancy(&a, &a, &[1e-6, 5.0]);
+        assert_eq!((d, q.as_str()), (0.0, ""));
+    }
+}
