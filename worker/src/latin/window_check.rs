@@ -10,6 +10,7 @@
 //! tolerance, and says so.
 
 use super::*;
+use glissade_core::scene::MIN_TOLERANCE;
 
 /// Pairs the check compares at most: the solve with a pass `TIGHTER` times its tolerance; where
 /// they part, a pair at a tolerance chosen from the distance measured.
@@ -113,7 +114,8 @@ impl<const D: usize> LatinSolver<'_, D> {
                 };
                 looser = answer;
             }
-            let tight = loose * TIGHTER;
+            // (no tighter than a scene may ask: below it the iterations stall on round-off)
+            let tight = (loose * TIGHTER).max(MIN_TOLERANCE);
             pass.check.iteration_tolerance = tight;
             let Some(answer) = self.check_pass(&mut pass, windows[1], tight, report, &mut scales, timings, &quiet)?
             else {
@@ -139,7 +141,10 @@ impl<const D: usize> LatinSolver<'_, D> {
             // "Two windowings"): the next pair's looser member at the tolerance whose error is
             // predicted at AIM of the asked one; the tighter member just iterated when it is
             // predicted there already.
-            let wanted = (loose * AIM * tolerance / check.discrepancy).max(loose * 1e-4);
+            if tight <= MIN_TOLERANCE {
+                break;
+            }
+            let wanted = (loose * AIM * tolerance / check.discrepancy).max(loose * 1e-4).max(MIN_TOLERANCE);
             fresh = wanted < tight;
             if fresh {
                 loose = wanted;
