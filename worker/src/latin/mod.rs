@@ -543,17 +543,29 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         timings: &mut Timings,
         options: &SolveOptions,
     ) -> Result<Option<Prestress>, SolverError> {
-        let m = self.model;
-        if !m.needs_static_stage() {
+        if !self.model.needs_static_stage() {
             return Ok(None);
         }
-        let mut st = match from {
+        let st = match from {
             Some(s) => {
                 self.check_init(s, 1, "static stage")?;
                 s.clone()
             }
             None => self.zero_stage(1),
         };
+        self.iterate_prestress(st, tolerance, cold, timings, options).map(Some)
+    }
+
+    /// [`Self::prestress`] from `st` (this rank's fields: the interfaces it owns).
+    fn iterate_prestress(
+        &mut self,
+        mut st: StageSolution,
+        tolerance: f64,
+        cold: bool,
+        timings: &mut Timings,
+        options: &SolveOptions,
+    ) -> Result<Prestress, SolverError> {
+        let m = self.model;
         let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
         let mut u0: Vec<Option<Vec<f64>>> = vec![None; m.substructures.len()];
         // The static stage's error is carried by every step of the dynamics, and its
@@ -579,7 +591,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let none = vec![None; m.substructures.len()];
         self.linear_stage(Stage::Static, &mut scratch, &none, Some(&mut record), 0..1, None);
         timings.post_processing += t.elapsed().as_secs_f64();
-        Ok(Some(Prestress { report, solution: st, u0 }))
+        Ok(Prestress { report, solution: st, u0 })
     }
 
     /// The dynamic stage's fields to start from: `init`'s, or zero; moved by the prestress.

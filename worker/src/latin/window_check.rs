@@ -73,9 +73,9 @@ impl WindowCheck {
         format!(
             "sensitive: iterated in windows of {} and of {} steps, the last two answers part by {:.2e} on '{}' \
              (the tighter iterated to {:.1e}, the tolerance {tolerance:.1e}): this QoI moves with the iteration \
-             error far more than the tolerance allows, as the force of a chattering or fluttering contact does; \
-             a looser tolerance, a QoI that does not follow the chatter (a slip, a displacement), or \
-             solver.window_check = false to take the first answer, off by about that much",
+             error far more than the tolerance allows, as those of a chattering or fluttering contact do; \
+             a looser tolerance, leaving this QoI out (a slip is often determined where a contact force is \
+             not), or solver.window_check = false to take the first answer, off by about that much",
             self.windows[0], self.windows[1], self.discrepancy, self.qoi, self.iteration_tolerance
         )
     }
@@ -183,9 +183,7 @@ impl<const D: usize> LatinSolver<'_, D> {
     ) -> Result<Option<Vec<QoiSeries>>, SolverError> {
         let CheckStart { init, initial, .. } = *pass.start;
         if let Some(before) = pass.prestress.take() {
-            let mut again = self
-                .prestress(Some(&before.solution), tolerance, false, timings, quiet)?
-                .expect("the model needs its prestress");
+            let mut again = self.iterate_prestress(before.solution, tolerance, false, timings, quiet)?;
             again.report.iterations += before.report.iterations;
             again.report.sweeps += before.report.sweeps;
             let converged = again.report.converged;
