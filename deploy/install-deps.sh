@@ -15,6 +15,8 @@ PACKAGES=(
   python3-h5py python3-numpy  # an independent reader of `glissade fields` output in the tests
   openssl                     # the TLS test makes a certificate authority with it
   chromium                    # the web page's test loads it in a real (headless) browser
+  slurm-wlm munge             # a real one-node Slurm for the batch files' test
+                              # (deploy/slurm/one-node-cluster.sh starts daemons of its own)
 )
 
 missing=()
@@ -34,6 +36,15 @@ else
   fi
   echo "install-deps: installing ${missing[*]}"
   export DEBIAN_FRONTEND=noninteractive
+  # No daemon starts from a package's install script (munge and slurm-wlm would start munged,
+  # slurmctld and slurmd as system services): a policy-rc.d that refuses, for the install only,
+  # unless the machine has one (Debian's container images do).
+  policy=/usr/sbin/policy-rc.d
+  if [[ ! -e $policy ]]; then
+    printf '#!/bin/sh\n# deploy/install-deps.sh: no service starts during its install\nexit 101\n' > "$policy"
+    chmod 755 "$policy"
+    trap 'rm -f "$policy"' EXIT
+  fi
   apt-get update -q
   apt-get install -y -q --no-install-recommends "${missing[@]}"
 fi
@@ -49,8 +60,13 @@ for component in rustfmt clippy; do
 done
 
 # Check the tools the build actually calls, so a broken install fails here and not mid-build.
-for tool in mpiexec mpicc protoc pkg-config chromium; do
+for tool in mpiexec mpicc protoc pkg-config chromium sbatch srun; do
   command -v "$tool" >/dev/null || { echo "install-deps: '$tool' not found after install" >&2; exit 1; }
+done
+# the daemons, in /usr/sbin (not on a user's PATH)
+for daemon in munged slurmctld slurmd; do
+  command -v "$daemon" >/dev/null || [[ -x /usr/sbin/$daemon ]] ||
+    { echo "install-deps: '$daemon' not found after install" >&2; exit 1; }
 done
 pkg-config --exists hdf5 || { echo "install-deps: pkg-config cannot find hdf5" >&2; exit 1; }
 # Hydra's `mpiexec --version` starts with "HYDRA build details:"; the MPI version is on its

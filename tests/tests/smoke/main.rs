@@ -16,6 +16,7 @@ mod meshes;
 mod resilience;
 mod security;
 mod service;
+mod slurm;
 mod surface_audit;
 mod toolchain;
 mod worker_cli;
