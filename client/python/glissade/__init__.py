@@ -25,7 +25,7 @@ from .errors import (
 from .proto import glissade_pb2 as pb
 from .proto import glissade_pb2_grpc as pb_grpc
 
-__version__ = "0.1.0"
+__version__ = "0.3.0"
 
 __all__ = [
     "Client",

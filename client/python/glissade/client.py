@@ -293,8 +293,8 @@ class Client:
                 total=e.progress.total,
                 replay=e.replay,
                 point=point,
-                parameters=dict(point.parameters) if point is not None else {},
-                qoi=dict(point.qoi) if point is not None else {},
+                parameters=dict(sorted(point.parameters.items())) if point is not None else {},
+                qoi=dict(sorted(point.qoi.items())) if point is not None else {},
                 raw=e,
             )
 
