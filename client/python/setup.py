@@ -76,13 +76,11 @@ class Sdist(sdist):
 def dependencies():
     """At least the grpcio and protobuf the stubs were generated with (their version checks)."""
     deps = ["numpy", "pandas", 'tomli; python_version < "3.11"']
-    try:
-        import grpc_tools
-        import google.protobuf
-        from importlib.metadata import version
+    from importlib.metadata import PackageNotFoundError, version
 
-        deps += [f"grpcio>={version('grpcio-tools')}", f"protobuf>={google.protobuf.__version__}"]
-    except ImportError:  # metadata read without the build requirements
+    try:
+        deps += [f"grpcio>={version('grpcio-tools')}", f"protobuf>={version('protobuf')}"]
+    except PackageNotFoundError:  # metadata read without the build requirements
         deps += ["grpcio", "protobuf"]
     return deps
 

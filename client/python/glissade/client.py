@@ -194,10 +194,13 @@ class Client:
             raise errors.from_rpc(e) from None
 
     def _stream(self, method, request, timeout: Optional[float]) -> Iterator[Any]:
+        call = method(request, timeout=timeout, metadata=self._metadata)
         try:
-            yield from method(request, timeout=timeout, metadata=self._metadata)
+            yield from call
         except grpc.RpcError as e:
             raise errors.from_rpc(e) from None
+        finally:
+            call.cancel()  # a caller that stops iterating early ends the stream (no-op when done)
 
     # -- the API ----------------------------------------------------------------------------
 
@@ -380,7 +383,11 @@ class Client:
         reply = self._surface(study, None, qoi, fixed, points)
         if one:
             found = {q: Prediction(v.mean, v.std, v.fitted_points) for q, v in reply.predictions[0].qoi.items()}
-            return found[qoi] if isinstance(qoi, str) else found
+            if isinstance(qoi, str):
+                if qoi not in found:
+                    raise errors.GlissadeError(f"no prediction of {qoi} (the surface has {sorted(found)})")
+                return found[qoi]
+            return found
         qois = sorted({q for p in reply.predictions for q in p.qoi})
         rows = []
         for point, p in zip(points, reply.predictions):
