@@ -348,32 +348,55 @@ pub async fn complete(
     Ok(pool.complete_point(tokio_stream::iter(messages)).await?.into_inner())
 }
 
-/// A Python virtual environment with grpcio, grpcio-tools and grpcio-reflection under target/,
-/// made once; None when PyPI cannot be reached (the caller skips, saying so).
-pub fn python_with_grpc() -> Option<std::path::PathBuf> {
-    let venv = Path::new(env!("CARGO_TARGET_TMPDIR")).join("python-grpc");
+/// A Python virtual environment under target/ with the glissade package (client/python, its
+/// stubs generated from the .proto as it installs; numpy and pandas with it) and
+/// grpcio-reflection, made once and reinstalled when the package or the .proto change; None
+/// when PyPI cannot be reached (the caller skips, saying so). Tests in parallel share one.
+pub fn python_with_glissade() -> Option<std::path::PathBuf> {
+    static VENV: std::sync::OnceLock<Option<std::path::PathBuf>> = std::sync::OnceLock::new();
+    VENV.get_or_init(make_python_venv).clone()
+}
+
+fn make_python_venv() -> Option<std::path::PathBuf> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let package = root.join("client/python");
+    let venv = Path::new(env!("CARGO_TARGET_TMPDIR")).join("python-glissade");
     let python = venv.join("bin/python");
+    // what the installed package was built from: its sources and the .proto
+    let mut sources =
+        vec![root.join("proto/proto/glissade.proto"), package.join("pyproject.toml"), package.join("setup.py")];
+    for dir in [package.join("glissade"), package.join("glissade/proto")] {
+        let mut files: Vec<_> = std::fs::read_dir(&dir)
+            .expect("client/python/glissade")
+            .map(|e| e.expect("dir entry").path())
+            .filter(|p| p.extension().is_some_and(|e| e == "py") && !p.to_string_lossy().contains("_pb2"))
+            .collect();
+        files.sort();
+        sources.extend(files);
+    }
+    let mut hasher = std::hash::DefaultHasher::new();
+    for path in &sources {
+        std::hash::Hash::hash(&std::fs::read(path).expect("package source"), &mut hasher);
+    }
+    let fingerprint = format!("{:016x}", std::hash::Hasher::finish(&hasher));
+    let marker = venv.join("glissade-source");
+    let check = "import glissade, pandas, numpy, grpc_reflection";
     let ready = |python: &Path| {
         python.is_file()
-            && run_with_timeout(Command::new(python).args(["-c", "import grpc, grpc_tools, grpc_reflection"]), LIMIT)
-                .status
-                .success()
+            && std::fs::read_to_string(&marker).is_ok_and(|m| m == fingerprint)
+            && run_with_timeout(Command::new(python).args(["-c", check]), LIMIT).status.success()
     };
     if ready(&python) {
         return Some(python);
     }
-    let out = run_with_timeout(Command::new("python3").args(["-m", "venv"]).arg(&venv), LIMIT);
-    assert!(out.status.success(), "python3 -m venv failed (run deploy/install-deps.sh): {}", text(&out.stderr));
-    let pip = venv.join("bin/pip");
+    if !python.is_file() {
+        let out = run_with_timeout(Command::new("python3").args(["-m", "venv"]).arg(&venv), LIMIT);
+        assert!(out.status.success(), "python3 -m venv failed (run deploy/install-deps.sh): {}", text(&out.stderr));
+    }
     let out = run_with_timeout(
-        Command::new(&pip).args([
-            "install",
-            "--quiet",
-            "--disable-pip-version-check",
-            "grpcio",
-            "grpcio-tools",
-            "grpcio-reflection",
-        ]),
+        Command::new(venv.join("bin/pip"))
+            .args(["install", "--quiet", "--disable-pip-version-check", "grpcio-reflection"])
+            .arg(&package),
         Duration::from_secs(600),
     );
     if !out.status.success() {
@@ -381,12 +404,10 @@ pub fn python_with_grpc() -> Option<std::path::PathBuf> {
         if !run_with_timeout(Command::new("python3").args(["-c", reach]), LIMIT).status.success() {
             return None;
         }
-        panic!(
-            "pip install grpcio grpcio-tools grpcio-reflection failed although PyPI answers:\n{}",
-            text(&out.stderr)
-        );
+        panic!("pip install ./client/python grpcio-reflection failed although PyPI answers:\n{}", text(&out.stderr));
     }
-    assert!(ready(&python), "grpcio installed but not importable");
+    std::fs::write(&marker, &fingerprint).expect("write the venv's marker");
+    assert!(ready(&python), "the glissade package installed but not importable");
     Some(python)
 }
 

@@ -474,9 +474,9 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
 
 #[test]
 fn python_example_client_submits_a_grid_and_reads_the_surface() -> anyhow::Result<()> {
-    let Some(python) = python_with_grpc() else {
+    let Some(python) = python_with_glissade() else {
         eprintln!(
-            "SKIPPED python_example_client_submits_a_grid_and_reads_the_surface: PyPI is unreachable, so grpcio cannot be installed"
+            "SKIPPED python_example_client_submits_a_grid_and_reads_the_surface: PyPI is unreachable, so the glissade package cannot be installed"
         );
         return Ok(());
     };

@@ -1,0 +1,444 @@
+"""The glissade coordinator's user API (proto/proto/glissade.proto, service User) for Python."""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Union
+
+import grpc
+import numpy as np
+import pandas as pd
+
+from . import errors
+from ._scene import read_scene
+from .proto import glissade_pb2 as pb
+from .proto import glissade_pb2_grpc as pb_grpc
+
+DEFAULT_URL = "http://127.0.0.1:50051"
+
+#: A study: its id, or anything with a `study_id` (a Submitted, a Study message).
+StudyRef = Union[int, Any]
+#: One grid axis: "START:STOP:COUNT", "V1,V2,...", "lhs:N:SEED", or the values themselves.
+GridSpec = Union[str, Sequence[float]]
+
+
+def _study_id(study: StudyRef) -> int:
+    sid = getattr(study, "study_id", study)
+    if isinstance(sid, bool) or not isinstance(sid, (int, np.integer)):
+        raise TypeError(f"a study is an id or has a study_id, got {study!r}")
+    return int(sid)
+
+
+def _number(v: float) -> str:
+    """A value as the coordinator parses it, exactly (repr round-trips a float)."""
+    return repr(float(v))
+
+
+def _grid_specs(grid: Mapping[str, GridSpec]) -> List[str]:
+    specs = []
+    for name, spec in grid.items():
+        if isinstance(spec, str):
+            specs.append(f"{name}={spec}")
+        else:
+            specs.append(f"{name}=" + ",".join(_number(v) for v in spec))
+    return specs
+
+
+def _range_specs(ranges: Mapping[str, Union[str, Sequence[float]]]) -> List[str]:
+    specs = []
+    for name, box in ranges.items():
+        if isinstance(box, str):
+            specs.append(f"{name}={box}")
+        else:
+            low, high = box
+            specs.append(f"{name}={_number(low)}:{_number(high)}")
+    return specs
+
+
+def read_token(token_file: Optional[str] = None) -> Optional[str]:
+    """The user token as the CLI finds it: the file given, else GLISSADE_TOKEN, else the file
+    GLISSADE_TOKEN_FILE names, else none."""
+    if token_file is None and "GLISSADE_TOKEN" in os.environ:
+        return os.environ["GLISSADE_TOKEN"].strip()
+    token_file = token_file or os.environ.get("GLISSADE_TOKEN_FILE")
+    if token_file is None:
+        return None
+    try:
+        with open(token_file, encoding="ascii") as f:
+            return f.read().strip()
+    except OSError as e:
+        raise errors.GlissadeError(f"cannot read token file {token_file}: {e.strerror}") from e
+
+
+@dataclass(frozen=True)
+class Submitted:
+    """What SubmitStudy answered: the study's id, its number of points, the scene's hash."""
+
+    study_id: int
+    points: int
+    scene_hash: str
+
+    def __int__(self) -> int:
+        return self.study_id
+
+    __index__ = __int__
+
+
+@dataclass(frozen=True)
+class Event:
+    """One event of a study's progress (WatchStudy).
+
+    `kind`: "snapshot", "point_started", "point_finished", "point_failed", "point_requeued",
+    "point_progress" or "study_ended"; `state`: the study's, "active", "done", "failed" or
+    "cancelled"; `point`: the PointStatus concerned (None for snapshot and study_ended);
+    `replay`: the event replays the state at the start of the stream.
+    """
+
+    kind: str
+    study_id: int
+    state: str
+    done: int
+    failed: int
+    total: int
+    replay: bool
+    point: Optional[Any]
+    parameters: Dict[str, float] = field(default_factory=dict)
+    qoi: Dict[str, float] = field(default_factory=dict)
+    raw: Optional[Any] = field(default=None, repr=False)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """A QoI predicted by the response surface: its mean, one standard deviation, and the
+    number of points the surface was fitted to."""
+
+    mean: float
+    std: float
+    fitted_points: int
+
+
+@dataclass(frozen=True)
+class SurfaceArrays:
+    """A response surface as arrays: x[i, j] is parameter j at point i, y[i, k] QoI k there
+    (NaN where the point has none, e.g. not done)."""
+
+    parameters: List[str]
+    qoi: List[str]
+    x: np.ndarray
+    y: np.ndarray
+
+
+def _state_name(value: int) -> str:
+    return pb.StudyState.Name(value).removeprefix("STUDY_STATE_").lower()
+
+
+class Client:
+    """A connection to a glissade coordinator.
+
+    `url`: http://host:port or https://host:port (default $GLISSADE_SERVER, else
+    http://127.0.0.1:50051). `token`: the user token (default as the CLI: token_file, else
+    $GLISSADE_TOKEN, else the file $GLISSADE_TOKEN_FILE names), sent as
+    `authorization: Bearer <token>`. `ca_cert`: PEM file (or bytes) of the authority that signed
+    an https coordinator's certificate (default $GLISSADE_CA_CERT, else the system's roots);
+    giving one makes the connection TLS. `timeout`: seconds for each call but watch.
+
+    Every refused call raises glissade.GlissadeError with the gRPC status code and message.
+    """
+
+    def __init__(
+        self,
+        url: Optional[str] = None,
+        token: Optional[str] = None,
+        ca_cert: Union[str, bytes, None] = None,
+        token_file: Optional[str] = None,
+        timeout: float = 30.0,
+    ):
+        url = url or os.environ.get("GLISSADE_SERVER") or DEFAULT_URL
+        self.url = url
+        self.timeout = timeout
+        token = token if token is not None else read_token(token_file)
+        self._metadata = (("authorization", f"Bearer {token}"),) if token else ()
+        if ca_cert is None and url.startswith("https://"):
+            ca_cert = os.environ.get("GLISSADE_CA_CERT")
+        target = url.removeprefix("https://").removeprefix("http://").rstrip("/")
+        if url.startswith("https://") or ca_cert is not None:
+            if isinstance(ca_cert, str):
+                try:
+                    with open(ca_cert, "rb") as f:
+                        ca_cert = f.read()
+                except OSError as e:
+                    raise errors.GlissadeError(f"cannot read the CA certificate {ca_cert}: {e.strerror}") from e
+            self._channel = grpc.secure_channel(target, grpc.ssl_channel_credentials(ca_cert))
+        else:
+            self._channel = grpc.insecure_channel(target)
+        self._user = pb_grpc.UserStub(self._channel)
+        self._health = pb_grpc.HealthStub(self._channel)
+
+    # -- plumbing ---------------------------------------------------------------------------
+
+    def close(self) -> None:
+        self._channel.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _call(self, method, request, timeout: Optional[float] = None):
+        try:
+            return method(request, timeout=timeout or self.timeout, metadata=self._metadata)
+        except grpc.RpcError as e:
+            raise errors.from_rpc(e) from None
+
+    def _stream(self, method, request, timeout: Optional[float]) -> Iterator[Any]:
+        call = method(request, timeout=timeout, metadata=self._metadata)
+        try:
+            yield from call
+        except grpc.RpcError as e:
+            raise errors.from_rpc(e) from None
+        finally:
+            call.cancel()  # a caller that stops iterating early ends the stream (no-op when done)
+
+    # -- the API ----------------------------------------------------------------------------
+
+    def health(self) -> Dict[str, str]:
+        """The coordinator's status ("SERVING") and version."""
+        reply = self._call(self._health.Check, pb.HealthRequest())
+        return {"status": reply.status, "version": reply.version, "detail": reply.detail}
+
+    def submit(
+        self,
+        scene: str,
+        grid: Optional[Mapping[str, GridSpec]] = None,
+        *,
+        points: Optional[Sequence[Mapping[str, float]]] = None,
+        ranges: Optional[Mapping[str, Union[str, Sequence[float]]]] = None,
+        adaptive: Optional[int] = None,
+        tol: Optional[float] = None,
+        max_iterations: Optional[int] = None,
+        strategy: Optional[str] = None,
+        order: Optional[str] = None,
+        neighbours: int = 0,
+        label: str = "",
+        audit: Optional[int] = None,
+        refine: Optional[int] = None,
+        refine_levels: int = 0,
+        surface_audit: Optional[int] = None,
+    ) -> Submitted:
+        """Submits a study of the scene file `scene` (its mesh files, next to it, travel with it).
+
+        One of: `grid` {name: "0.1:0.2:11" | "0.1,0.15" | [0.1, 0.15]} (the product of the
+        axes), `points` [{name: value}, ...], or `adaptive`=N with `ranges` {name: (low, high)}.
+        `tol`: tolerance on eta (default the scene's); `strategy`: "cold", "previous",
+        "nearest", "blend" or "linear" (default the coordinator's); `order`: "ascending",
+        "descending" or "greedy"; `audit`, `refine`, `surface_audit`: points of the audits
+        (None: the coordinator's default, 0: none), as `glissade submit --help` says.
+        """
+        given = [x for x in (grid, points, adaptive) if x is not None]
+        if len(given) != 1:
+            raise ValueError("give exactly one of grid=, points= or adaptive= (with ranges=)")
+        if (adaptive is None) != (ranges is None):
+            raise ValueError("adaptive= and ranges= go together")
+        text, meshes = read_scene(os.fspath(scene))
+        request = pb.SubmitStudyRequest(
+            scene=text,
+            grid=_grid_specs(grid) if grid is not None else [],
+            points=[pb.ParameterVector(values={k: float(v) for k, v in p.items()}) for p in points or []],
+            ranges=_range_specs(ranges) if ranges is not None else [],
+            adaptive_points=adaptive or 0,
+            strategy=pb.InitStrategy.Value("INIT_STRATEGY_" + (strategy or "unspecified").upper()),
+            order=pb.PointOrder.Value("POINT_ORDER_" + (order or "unspecified").upper()),
+            blend_neighbours=neighbours,
+            label=label,
+            refine_levels=refine_levels,
+            meshes=[pb.MeshFile(file=name, data=data, sha256=digest) for name, data, digest in meshes],
+        )
+        for name, value in [
+            ("tolerance", tol),
+            ("max_iterations", max_iterations),
+            ("audit_points", audit),
+            ("refine_points", refine),
+            ("surface_audit_points", surface_audit),
+        ]:
+            if value is not None:
+                setattr(request, name, value)
+        reply = self._call(self._user.SubmitStudy, request, timeout=max(self.timeout, 120.0))
+        return Submitted(reply.study_id, reply.points, reply.scene_hash)
+
+    def study(self, study: StudyRef, points: bool = False, scene: bool = False):
+        """The study (a glissade.pb.Study message), with every point's status if `points`."""
+        return self._call(self._user.GetStudy, pb.GetStudyRequest(study_id=_study_id(study), points=points, scene=scene))
+
+    def studies(self) -> list:
+        """Every study (Study messages without their points), newest last."""
+        return list(self._call(self._user.ListStudies, pb.ListStudiesRequest()).studies)
+
+    def cancel(self, study: StudyRef):
+        """Stops handing out the study's points; the Study after it."""
+        return self._call(self._user.CancelStudy, pb.CancelStudyRequest(study_id=_study_id(study)))
+
+    def watch(self, study: StudyRef, timeout: Optional[float] = None) -> Iterator[Event]:
+        """The study's events until it is no longer active: first a snapshot and the replayed
+        state, then every change as it happens. `timeout`: give up (DEADLINE_EXCEEDED) after
+        this many seconds (default: never)."""
+        request = pb.WatchStudyRequest(study_id=_study_id(study))
+        for e in self._stream(self._user.WatchStudy, request, timeout):
+            point = e.point if e.HasField("point") else None
+            yield Event(
+                kind=pb.EventKind.Name(e.kind).removeprefix("EVENT_KIND_").lower(),
+                study_id=e.study_id,
+                state=_state_name(e.state),
+                done=e.progress.done,
+                failed=e.progress.failed,
+                total=e.progress.total,
+                replay=e.replay,
+                point=point,
+                parameters=dict(sorted(point.parameters.items())) if point is not None else {},
+                qoi=dict(sorted(point.qoi.items())) if point is not None else {},
+                raw=e,
+            )
+
+    def wait(self, study: StudyRef, timeout: Optional[float] = None):
+        """Follows the study until it ends; the Study (with its points) then."""
+        for _ in self.watch(study, timeout=timeout):
+            pass
+        return self.study(study, points=True)
+
+    def _surface(self, study, scene_hash, qoi, fixed, predict_at=()):
+        if (study is None) == (scene_hash is None):
+            raise ValueError("give a study or scene_hash=, not both")
+        qoi = [qoi] if isinstance(qoi, str) else list(qoi or [])
+        request = pb.QuerySurfaceRequest(
+            qoi=qoi,
+            fixed={k: float(v) for k, v in (fixed or {}).items()},
+            predict_at=[pb.ParameterPoint(parameters=p) for p in predict_at],
+        )
+        if study is not None:
+            request.study_id = _study_id(study)
+        else:
+            request.scene_hash = scene_hash
+        return self._call(self._user.QuerySurface, request)
+
+    def surface(
+        self,
+        study: Optional[StudyRef] = None,
+        qoi: Union[str, Sequence[str], None] = None,
+        fixed: Optional[Mapping[str, float]] = None,
+        scene_hash: Optional[str] = None,
+    ) -> pd.DataFrame:
+        """The response surface: one row per point, columns the parameters, the QoIs (all, or
+        those named; NaN where a point has none), then iterations, error_indicator, converged,
+        state. `fixed` {name: value} keeps a slice; `scene_hash` instead of a study: every
+        stored solution of that scene."""
+        reply = self._surface(study, scene_hash, qoi, fixed)
+        columns = list(reply.parameters) + list(reply.qoi)
+        rows = [
+            [p.parameters.get(n, math.nan) for n in reply.parameters]
+            + [p.qoi.get(q, math.nan) for q in reply.qoi]
+            + [p.iterations, p.error_indicator, p.converged, pb.PointState.Name(p.state).removeprefix("POINT_STATE_").lower()]
+            for p in reply.points
+        ]
+        frame = pd.DataFrame(rows, columns=columns + ["iterations", "error_indicator", "converged", "state"])
+        frame.attrs.update(scene_hash=reply.scene_hash, parameters=list(reply.parameters), qoi=list(reply.qoi))
+        return frame
+
+    def surface_arrays(
+        self,
+        study: Optional[StudyRef] = None,
+        qoi: Union[str, Sequence[str], None] = None,
+        fixed: Optional[Mapping[str, float]] = None,
+        scene_hash: Optional[str] = None,
+    ) -> SurfaceArrays:
+        """The response surface as numpy arrays (x: points by parameters, y: points by QoIs)."""
+        frame = self.surface(study, qoi=qoi, fixed=fixed, scene_hash=scene_hash)
+        names, qois = frame.attrs["parameters"], frame.attrs["qoi"]
+        return SurfaceArrays(
+            names, qois, frame[names].to_numpy(dtype=float).reshape(len(frame), len(names)),
+            frame[qois].to_numpy(dtype=float).reshape(len(frame), len(qois)),
+        )
+
+    def predict(
+        self,
+        study: StudyRef,
+        at: Union[Mapping[str, float], Sequence[Mapping[str, float]], pd.DataFrame],
+        qoi: Union[str, Sequence[str], None] = None,
+        fixed: Optional[Mapping[str, float]] = None,
+    ):
+        """The response surface's prediction (a Gaussian process per QoI) between the points.
+
+        `at` one point {name: value} (every parameter of the surface): a Prediction(mean, std,
+        fitted_points) when `qoi` is one name, else {qoi: Prediction}. `at` several points (a
+        list of dicts or a DataFrame of parameter columns): a DataFrame with the parameters
+        and, per QoI, columns `q` (the mean) and `q_std`.
+        """
+        one = isinstance(at, Mapping)
+        if isinstance(at, pd.DataFrame):
+            points = at.to_dict("records")
+        else:
+            points = [at] if one else list(at)
+        points = [{k: float(v) for k, v in p.items()} for p in points]
+        reply = self._surface(study, None, qoi, fixed, points)
+        if one:
+            found = {q: Prediction(v.mean, v.std, v.fitted_points) for q, v in reply.predictions[0].qoi.items()}
+            if isinstance(qoi, str):
+                if qoi not in found:
+                    raise errors.GlissadeError(f"no prediction of {qoi} (the surface has {sorted(found)})")
+                return found[qoi]
+            return found
+        qois = sorted({q for p in reply.predictions for q in p.qoi})
+        rows = []
+        for point, p in zip(points, reply.predictions):
+            row = dict(point)
+            for q in qois:
+                v = p.qoi.get(q)
+                row[q] = v.mean if v is not None else math.nan
+                row[f"{q}_std"] = v.std if v is not None else math.nan
+            rows.append(row)
+        return pd.DataFrame(rows)
+
+    def fetch_solution(
+        self,
+        study: Optional[StudyRef] = None,
+        point: Optional[int] = None,
+        *,
+        at: Optional[Mapping[str, float]] = None,
+        scene_hash: Optional[str] = None,
+        parameters: Optional[Mapping[str, float]] = None,
+        path: Optional[str] = None,
+    ) -> Union[bytes, str]:
+        """The bytes of a stored solution file (docs/solution-format.md): of `point` (its id) of
+        `study`, or of the study's point at the swept parameters `at`, or the stored solution of
+        `scene_hash` at every scene parameter `parameters`. With `path`, writes them there and
+        returns the path."""
+        if scene_hash is not None:
+            request = pb.FetchSolutionRequest(key=pb.SolutionKey(scene_hash=scene_hash, parameters=parameters or {}))
+        else:
+            if study is None or (point is None) == (at is None):
+                raise ValueError("give study= with point= or at=, or scene_hash= with parameters=")
+            if at is not None:
+                point = self._point_at(study, at)
+            request = pb.FetchSolutionRequest(point=pb.PointKey(study_id=_study_id(study), point_id=point))
+        data = bytearray()
+        total = None
+        for chunk in self._stream(self._user.FetchSolution, request, max(self.timeout, 300.0)):
+            if chunk.offset != len(data):
+                raise errors.GlissadeError(f"solution stream: chunk at {chunk.offset}, expected {len(data)}")
+            total = chunk.total_bytes
+            data += chunk.data
+        if total is not None and len(data) != total:
+            raise errors.GlissadeError(f"solution stream ended at {len(data)} of {total} bytes")
+        if path is None:
+            return bytes(data)
+        with open(path, "wb") as f:
+            f.write(data)
+        return path
+
+    def _point_at(self, study: StudyRef, at: Mapping[str, float]) -> int:
+        for p in self.study(study, points=True).points:
+            if all(k in p.parameters and math.isclose(p.parameters[k], float(v), rel_tol=1e-9, abs_tol=1e-300)
+                   for k, v in at.items()):
+                return p.point_id
+        raise errors.NotFound(f"study {_study_id(study)} has no point at {dict(at)}", grpc.StatusCode.NOT_FOUND)

@@ -1,0 +1,83 @@
+//! The glissade Python package (client/python) against a live coordinator and pool: a script
+//! (python_api.py, beside this file) submits, watches, reads the surface as a DataFrame and as
+//! arrays, predicts, fetches a solution file, and meets the errors as exceptions.
+
+use crate::common::*;
+
+#[test]
+fn python_package_submits_watches_reads_predicts_and_fetches() -> anyhow::Result<()> {
+    let Some(python) = python_with_glissade() else {
+        eprintln!(
+            "SKIPPED python_package_submits_watches_reads_predicts_and_fetches: PyPI is unreachable, so the glissade package cannot be installed"
+        );
+        return Ok(());
+    };
+    let dir = tempfile::tempdir()?;
+    let (user_token, pool_token) = ("u".repeat(40), "p".repeat(40));
+    let (user_file, pool_file) = (dir.path().join("user.token"), dir.path().join("pool.token"));
+    std::fs::write(&user_file, &user_token)?;
+    std::fs::write(&pool_file, &pool_token)?;
+    let files = ["--user-token-file", user_file.to_str().unwrap(), "--pool-token-file", pool_file.to_str().unwrap()];
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &files);
+    let url = format!("http://{addr}");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/smoke/python_api.py");
+    let solution = dir.path().join("solution.bin");
+    let run = |mode: &str, scene: &Path| -> anyhow::Result<serde_json::Value> {
+        let out = run_with_timeout(
+            command(&python).arg(&script).args([mode, url.as_str(), user_token.as_str()]).arg(scene).arg(&solution),
+            Duration::from_secs(180),
+        );
+        assert!(out.status.success(), "python_api.py {mode}:\n{}{}", text(&out.stdout), text(&out.stderr));
+        Ok(serde_json::from_slice(&out.stdout)?)
+    };
+
+    // A Gmsh scene: its mesh file travels with it, so the coordinator hashes it as read here.
+    // (Submitted before any pool starts, and cancelled: nothing is solved.)
+    let bolted = shipped_scene("bolted-joint-tiny.toml");
+    let v = run("mesh", &bolted)?;
+    let local = glissade_core::scene::Scene::read(&bolted)?;
+    assert_eq!(v["scene_hash"].as_str(), Some(local.content_hash().as_str()), "{v}");
+    assert_eq!(v["cancelled"], "STUDY_STATE_CANCELLED", "{v}");
+
+    let token = child_token();
+    let pool = command(&workspace_bin("glissade-worker"))
+        .args(["pool", "--coordinator", &url, "--pool-id", "py"])
+        .env("GLISSADE_TOKEN", &pool_token)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(File::create(dir.path().join("pool.log"))?)
+        .spawn()?;
+    let _pool = ServerGuard(pool, token);
+    let v = run("main", &shipped_scene("three-blocks-tiny.toml"))?;
+    assert_eq!(v["finished"], 4, "{v}");
+    assert!(v["not_found"].as_str().is_some_and(|m| m.ends_with("(NOT_FOUND)")), "{v}");
+    assert!(v["invalid"].as_str().is_some_and(|m| m.contains("f1 = 0.5 is outside")), "{v}");
+    assert_eq!(v["failed_precondition"], "FAILED_PRECONDITION", "{v}");
+    assert_eq!(v["unauthenticated"], "UNAUTHENTICATED", "{v}");
+
+    // The solution file it fetched is the one the coordinator stored (read here with tonic).
+    let study_id = v["solution"]["study_id"].as_u64().expect("study id");
+    let point_id = v["solution"]["point_id"].as_u64().expect("point id");
+    let rt = runtime();
+    let bytes = rt.block_on(async {
+        let channel = tonic::transport::Endpoint::from_shared(url.clone())?.connect().await?;
+        let bearer: tonic::metadata::MetadataValue<_> = format!("Bearer {user_token}").parse()?;
+        let mut user =
+            glissade_proto::v1::user_client::UserClient::with_interceptor(channel, move |mut r: tonic::Request<()>| {
+                r.metadata_mut().insert("authorization", bearer.clone());
+                Ok(r)
+            });
+        let key = v1::PointKey { study_id, point_id };
+        let request = v1::FetchSolutionRequest { solution: Some(v1::fetch_solution_request::Solution::Point(key)) };
+        let mut stream = user.fetch_solution(request).await?.into_inner();
+        let mut bytes = Vec::new();
+        while let Some(chunk) = stream.message().await? {
+            bytes.extend_from_slice(&chunk.data);
+        }
+        anyhow::Ok(bytes)
+    })?;
+    assert_eq!(v["solution"]["bytes"].as_u64(), Some(bytes.len() as u64), "{v}");
+    assert!(std::fs::read(&solution)? == bytes, "the file python wrote is not the stored solution");
+    Ok(())
+}

@@ -1,0 +1,100 @@
+"""Drives the glissade Python package against a live coordinator (tests/tests/smoke/python.rs).
+
+    python python_api.py mesh URL TOKEN SCENE      submits a meshed scene, cancels it
+    python python_api.py main URL TOKEN SCENE OUT  a 2 x 2 grid: submit, watch, surface, predict,
+                                                   fetch_solution (written to OUT), the errors
+Checks what it can itself (assert) and prints one JSON object for the test to check the rest.
+"""
+
+import json
+import sys
+
+import numpy as np
+import pandas as pd
+
+import glissade
+
+mode, url, token, scene = sys.argv[1:5]
+out = {}
+
+if mode == "mesh":
+    with glissade.Client(url, token=token) as c:
+        s = c.submit(scene, grid={"f": [0.3]}, audit=0, refine=0, surface_audit=0)
+        out["scene_hash"] = s.scene_hash
+        out["cancelled"] = glissade.pb.StudyState.Name(c.cancel(s).state)
+    print(json.dumps(out))
+    sys.exit(0)
+
+assert mode == "main", mode
+with glissade.Client(url, token=token) as c:
+    assert c.health()["status"] == "SERVING"
+    s = c.submit(scene, grid={"f1": "0.1,0.2", "f2": [0.1, 0.2]}, tol=1e-3, audit=0, refine=0, surface_audit=0)
+    assert s.points == 4, s
+
+    events = list(c.watch(s, timeout=120))
+    assert events[0].kind == "snapshot", events[0]
+    assert events[-1].kind == "study_ended" and events[-1].state == "done", events[-1]
+    finished = [e for e in events if e.kind == "point_finished"]
+    assert len(finished) == 4 and all(isinstance(e.point, glissade.pb.PointStatus) for e in finished)
+    out["finished"] = len(finished)
+    out["kinds"] = sorted({e.kind for e in events})
+
+    frame = c.surface(s)
+    assert isinstance(frame, pd.DataFrame), type(frame)
+    assert list(frame.columns) == ["f1", "f2", "middle_ux", "slip_A", "slip_B", "iterations",
+                                   "error_indicator", "converged", "state"], list(frame.columns)
+    assert len(frame) == 4 and frame["converged"].all() and (frame["state"] == "done").all(), frame
+    assert (frame["error_indicator"] <= 1e-3).all(), frame
+    one = c.surface(s, qoi="slip_A", fixed={"f2": 0.2})
+    assert list(one.columns[:3]) == ["f1", "f2", "slip_A"] and len(one) == 2, one
+    arrays = c.surface_arrays(s, qoi="slip_A")
+    assert arrays.x.shape == (4, 2) and arrays.y.shape == (4, 1) and np.isfinite(arrays.y).all(), arrays
+    assert np.allclose(arrays.y[:, 0], frame["slip_A"].to_numpy())
+    out["slip_A"] = frame["slip_A"].tolist()
+
+    # the surface between the points; at a point it was fitted to, close to the solved value
+    p = c.predict(s, at={"f1": 0.15, "f2": 0.15}, qoi="slip_A")
+    assert isinstance(p, glissade.Prediction) and np.isfinite(p.mean) and p.std >= 0 and p.fitted_points == 4, p
+    lo, hi = frame["slip_A"].min(), frame["slip_A"].max()
+    assert lo - (hi - lo) <= p.mean <= hi + (hi - lo), (p, lo, hi)
+    corner = c.predict(s, at={"f1": 0.1, "f2": 0.1})
+    assert set(corner) == {"middle_ux", "slip_A", "slip_B"}, corner
+    many = c.predict(s, at=pd.DataFrame({"f1": [0.12, 0.18], "f2": [0.15, 0.15]}), qoi=["slip_A", "slip_B"])
+    assert list(many.columns) == ["f1", "f2", "slip_A", "slip_A_std", "slip_B", "slip_B_std"], many
+    out["predicted"] = {"mean": p.mean, "std": p.std}
+
+    # a solution file: by point id and by parameters, the same bytes
+    study = c.study(s, points=True)
+    first = study.points[0]
+    data = c.fetch_solution(s, first.point_id)
+    assert data == c.fetch_solution(s, at=dict(first.parameters)), "same point, same bytes"
+    assert c.fetch_solution(s, first.point_id, path=sys.argv[5]) == sys.argv[5]
+    out["solution"] = {"study_id": s.study_id, "point_id": first.point_id, "bytes": len(data)}
+
+    # errors: exceptions with the gRPC status code and the coordinator's message
+    try:
+        c.study(999)
+        raise AssertionError("unknown study answered")
+    except glissade.NotFound as e:
+        assert e.code.name == "NOT_FOUND" and "999" in e.message, e
+        out["not_found"] = str(e)
+    try:
+        c.submit(scene, grid={"f1": [0.5]})
+        raise AssertionError("out-of-range point accepted")
+    except glissade.GlissadeError as e:
+        assert e.code_name == "INVALID_ARGUMENT", e
+        out["invalid"] = e.message
+    try:
+        c.cancel(s)
+        raise AssertionError("a done study cancelled")
+    except glissade.FailedPrecondition as e:
+        out["failed_precondition"] = e.code_name
+
+with glissade.Client(url, token="w" * 40) as stranger:
+    try:
+        stranger.studies()
+        raise AssertionError("a wrong token answered")
+    except glissade.Unauthenticated as e:
+        out["unauthenticated"] = e.code_name
+
+print(json.dumps(out))
