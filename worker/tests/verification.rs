@@ -1842,7 +1842,8 @@ fn time_windows_keep_the_work_flat_as_the_time_step_falls() {
 }
 
 /// A windowed solve says so, with its work in sweeps of the interval (its iterations each sweep
-/// a window only, so their count alone would overstate the work 8 times here).
+/// a window only, so their count alone would overstate the work 8 times here), and says how its
+/// check against another windowing went.
 #[test]
 fn the_cli_reports_a_windowed_solves_work_in_sweeps() {
     let out = std::process::Command::new(worker_bin())
@@ -1856,6 +1857,10 @@ fn the_cli_reports_a_windowed_solves_work_in_sweeps() {
     let sweeps: f64 = line.split("work ").nth(1).and_then(|r| r.split(' ').next()).unwrap().parse().unwrap();
     let iterations: f64 = text.split("after ").nth(1).and_then(|r| r.split(' ').next()).unwrap().parse().unwrap();
     assert!(sweeps > 0.0 && sweeps < iterations / 4.0, "{sweeps} sweeps for {iterations} iterations");
+    // and that it was checked against another windowing, whose work the sweeps include
+    let check =
+        text.lines().find(|l| l.contains("checked in windows of")).unwrap_or_else(|| panic!("no check: {text}"));
+    assert!(check.contains("25 and 38 steps") && check.contains("the answers agree by"), "{check}");
 }
 
 /// A steel block of our own in 3D, pressed onto a rigid floor and pushed until it slides half
