@@ -14,7 +14,8 @@
 //!
 //! JSON: `/api/studies`, `/api/studies/ID` (with points, and the running points with the
 //! iterations and eta their pools last reported), `/api/studies/ID/surface` (every QoI of every
-//! point); CSV: `/api/studies/ID/surface.csv`. Any other path is 404.
+//! point); CSV: `/api/studies/ID/surface.csv`; Prometheus text: `/metrics` (metrics.rs). Any
+//! other path is 404.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
