@@ -7,6 +7,7 @@ mod conn;
 mod convert;
 mod coordinator;
 mod health;
+mod metrics;
 mod pool;
 mod records;
 mod store;
@@ -138,6 +139,7 @@ pub async fn bind(
         solver_version: env!("CARGO_PKG_VERSION").to_owned(),
     };
     let coordinator = Arc::new(Coordinator::open(Arc::new(store), config).context("loading the database")?);
+    let metrics = Arc::new(metrics::Metrics::new(coordinator.clone()));
     // Both reflection versions: grpcurl asks v1 first, older tools (grpcio-reflection) v1alpha.
     let reflection = || {
         tonic_reflection::server::Builder::configure()
@@ -198,7 +200,7 @@ pub async fn bind(
                 .add_service(InterceptedService::new(
                     // a pool's messages are a chunk of at most 1 MiB plus a small header: a bigger one is
                     // refused as it is decoded, not after
-                    PoolServer::new(pool::PoolService::new(coordinator.clone()))
+                    PoolServer::new(pool::PoolService::new(coordinator.clone(), metrics.clone()))
                         .max_decoding_message_size(glissade_proto::CHUNK_BYTES + (64 << 10)),
                     auth::RequireToken::pools(tokens.as_ref()),
                 ))
@@ -209,7 +211,10 @@ pub async fn bind(
         let grpc = std::mem::take(routes.axum_router_mut())
             .fallback(web::not_found)
             .layer(axum::middleware::from_fn(grpc_only));
-        *routes.axum_router_mut() = grpc.merge(web::router(coordinator.clone(), tokens.as_ref(), tls));
+        // every request, gRPC or HTTP, counted by method and status for /metrics
+        *routes.axum_router_mut() = grpc
+            .merge(web::router(coordinator.clone(), metrics.clone(), tokens.as_ref(), tls))
+            .layer(axum::middleware::from_fn_with_state(metrics.clone(), metrics::count_requests));
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
             conn::Incoming::new(listener, max_connections, idle),
             {
@@ -258,11 +263,7 @@ pub async fn bind(
 /// (its codec's rule, for either side); a server that receives one was sent bad input:
 /// INVALID_ARGUMENT. (Such an answer is trailers-only: the status is in the headers.)
 async fn grpc_only(request: axum::extract::Request, next: axum::middleware::Next) -> axum::response::Response {
-    let grpc = request
-        .headers()
-        .get(axum::http::header::CONTENT_TYPE)
-        .is_some_and(|v| v.as_bytes().starts_with(b"application/grpc"));
-    if !grpc {
+    if !web::is_grpc(request.headers()) {
         return web::not_found(request).await;
     }
     let mut response = next.run(request).await;

@@ -14,6 +14,7 @@ use tonic::{Request, Response, Status, Streaming};
 
 use crate::convert::{self, Invalid, Registration};
 use crate::coordinator::{Completion, Coordinator, Failure, now_unix_ms};
+use crate::metrics::Metrics;
 use crate::user::blocking;
 
 /// Longest a LeasePoint call waits for work before answering NoWork.
@@ -23,11 +24,13 @@ pub struct PoolService {
     pub coordinator: Arc<Coordinator>,
     /// For ids assigned to pools that bring none.
     pub next_pool: AtomicU64,
+    /// Each delivered solve goes into the solve histograms.
+    pub metrics: Arc<Metrics>,
 }
 
 impl PoolService {
-    pub fn new(coordinator: Arc<Coordinator>) -> Self {
-        Self { coordinator, next_pool: AtomicU64::new(1) }
+    pub fn new(coordinator: Arc<Coordinator>, metrics: Arc<Metrics>) -> Self {
+        Self { coordinator, next_pool: AtomicU64::new(1), metrics }
     }
 }
 
@@ -171,6 +174,7 @@ impl Pool for PoolService {
         let bytes = assembler.finish().map_err(|e| Invalid(e.to_string()))?;
         let c = self.coordinator.clone();
         let point = blocking(move || c.complete(completion, bytes)).await?;
+        self.metrics.solved(&point);
         Ok(Response::new(v1::CompletePointReply { point: Some(convert::point(&point)) }))
     }
 

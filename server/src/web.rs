@@ -14,7 +14,8 @@
 //!
 //! JSON: `/api/studies`, `/api/studies/ID` (with points, and the running points with the
 //! iterations and eta their pools last reported), `/api/studies/ID/surface` (every QoI of every
-//! point); CSV: `/api/studies/ID/surface.csv`. Any other path is 404.
+//! point); CSV: `/api/studies/ID/surface.csv`; Prometheus text: `/metrics` (metrics.rs). Any
+//! other path is 404.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
@@ -32,6 +33,7 @@ use crate::auth::Tokens;
 use crate::coordinator::{
     AUDIT_WORK_FRACTION, CoordError, Coordinator, StudyState, StudyView, SurfaceSource, point_state_word, state_word,
 };
+use crate::metrics::{self, Metrics};
 use crate::records::{PointRecord, PointState};
 use glissade_core::study::shown;
 use glissade_core::text::{parameter, same_parameter, utc_minute, wall_time};
@@ -39,6 +41,7 @@ use glissade_core::text::{parameter, same_parameter, utc_minute, wall_time};
 #[derive(Clone)]
 struct Web {
     coordinator: Arc<Coordinator>,
+    metrics: Arc<Metrics>,
     token: Option<Token>,
     /// the login cookie is `Secure` (sent over https only) when the coordinator serves TLS
     secure_cookie: bool,
@@ -53,8 +56,13 @@ const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-
                    form-action 'self'; frame-ancestors 'none'; base-uri 'none'";
 
 /// The routes of the page and the API; every answer carries [`CSP`], and any other path is 404.
-pub fn router(coordinator: Arc<Coordinator>, tokens: Option<&Tokens>, secure_cookie: bool) -> axum::Router {
-    let web = Web { coordinator, token: tokens.map(|t| t.user.clone()), secure_cookie };
+pub fn router(
+    coordinator: Arc<Coordinator>,
+    metrics: Arc<Metrics>,
+    tokens: Option<&Tokens>,
+    secure_cookie: bool,
+) -> axum::Router {
+    let web = Web { coordinator, metrics, token: tokens.map(|t| t.user.clone()), secure_cookie };
     axum::Router::new()
         .route("/", get(index))
         .route("/login", get(login_form).post(login))
@@ -65,6 +73,8 @@ pub fn router(coordinator: Arc<Coordinator>, tokens: Option<&Tokens>, secure_coo
         .route("/api/studies/{id}", get(api_study))
         .route("/api/studies/{id}/surface", get(api_surface))
         .route("/api/studies/{id}/surface.csv", get(api_surface_csv))
+        .route("/metrics", get(metrics_text))
+        .route_layer(axum::middleware::from_fn(metrics::keep_route))
         .with_state(web)
         .layer(axum::middleware::map_response(|mut r: Response| async move {
             let h = r.headers_mut();
@@ -74,15 +84,15 @@ pub fn router(coordinator: Arc<Coordinator>, tokens: Option<&Tokens>, secure_coo
         }))
 }
 
+/// Whether a request is a gRPC call (the rest is HTTP for the page, the API and /metrics).
+pub fn is_grpc(headers: &HeaderMap) -> bool {
+    headers.get(header::CONTENT_TYPE).is_some_and(|v| v.as_bytes().starts_with(b"application/grpc"))
+}
+
 /// What a path the gRPC services and the web page do not know answers (tonic's default is a
 /// gRPC UNIMPLEMENTED inside HTTP 200): 404 for a browser or curl, UNIMPLEMENTED for gRPC.
 pub async fn not_found(request: axum::extract::Request) -> Response {
-    let grpc = request
-        .headers()
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.starts_with("application/grpc"));
-    if grpc {
+    if is_grpc(request.headers()) {
         return tonic::Status::unimplemented(format!("no gRPC method {}", request.uri().path())).into_http();
     }
     refuse(StatusCode::NOT_FOUND, "no such page (try /)").into_response()
@@ -189,6 +199,19 @@ async fn login(State(web): State<Web>, Form(login): Form<Login>) -> Response {
     match HeaderValue::from_str(&cookie) {
         Ok(value) => ([(header::SET_COOKIE, value)], Redirect::to("/")).into_response(),
         Err(_) => refuse(StatusCode::BAD_REQUEST, "a token is printable characters").into_response(),
+    }
+}
+
+/// `/metrics` for Prometheus, behind the user token as every page is (Prometheus sends it as
+/// `Authorization: Bearer`: its scrape config's `authorization.credentials_file`).
+async fn metrics_text(State(web): State<Web>, headers: HeaderMap, Query(params): Params) -> Response {
+    if let Err(r) = check(&web, &headers, &params) {
+        return r.into_response();
+    }
+    // counting walks every point under the coordinator's lock: off the async threads
+    match tokio::task::spawn_blocking(move || web.metrics.render()).await {
+        Ok(text) => ([(header::CONTENT_TYPE, metrics::CONTENT_TYPE)], text).into_response(),
+        Err(e) => refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("rendering the metrics: {e}")).into_response(),
     }
 }
 

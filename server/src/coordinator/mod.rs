@@ -11,6 +11,7 @@
 use glissade_core::text::one_line;
 pub use glissade_proto::now_unix_ms;
 use std::collections::{BTreeMap, HashMap};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
@@ -118,6 +119,8 @@ struct State {
     /// Surface audits whose predictions a lease call is making (outside the lock).
     predicting: std::collections::HashSet<StudyId>,
     pools: HashMap<String, PoolInfo>,
+    /// Pool id -> when it last called (registration, lease call, heartbeat): who is connected.
+    pools_seen: HashMap<String, Instant>,
     next_study: u64,
     next_finish_seq: u64,
 }
@@ -132,6 +135,8 @@ pub struct Coordinator {
     work: Notify,
     /// True once the server is stopping: long polls and event streams end.
     stopping: tokio::sync::watch::Sender<bool>,
+    /// Leases lost since this process started (a counter for /metrics).
+    leases_expired: AtomicU64,
 }
 
 impl Coordinator {
@@ -205,7 +210,15 @@ impl Coordinator {
         );
         let (events, _) = broadcast::channel(4096);
         let (stopping, _) = tokio::sync::watch::channel(false);
-        Ok(Self { store, config, state: Mutex::new(state), events, work: Notify::new(), stopping })
+        Ok(Self {
+            store,
+            config,
+            state: Mutex::new(state),
+            events,
+            work: Notify::new(),
+            stopping,
+            leases_expired: AtomicU64::new(0),
+        })
     }
 
     pub fn config(&self) -> &Config {
@@ -763,7 +776,38 @@ impl Coordinator {
 
     pub fn register_pool(&self, id: String, info: PoolInfo) {
         tracing::info!(pool = %id, ranks = info.ranks, host = %info.host, version = %info.solver_version, "pool registered");
-        self.lock().pools.insert(id, info);
+        let mut state = self.lock();
+        state.pools_seen.insert(id.clone(), Instant::now());
+        state.pools.insert(id, info);
+    }
+
+    /// Counts of studies, points, leases and pools now; walks every point under the lock, so
+    /// it is for a scrape every few seconds, not a hot path.
+    pub fn gauges(&self) -> Gauges {
+        let mut g = Gauges {
+            studies: StudyState::ALL.iter().map(|&s| (state_word(s), 0)).collect(),
+            points: POINT_STATE_WORDS.iter().map(|&w| (w, 0)).collect(),
+            leases_expired: self.leases_expired.load(Ordering::Relaxed),
+            ..Gauges::default()
+        };
+        let mut state = self.lock();
+        for entry in state.studies.values() {
+            *g.studies.entry(state_word(entry.state())).or_default() += 1;
+            g.pending += u64::from(entry.progress().pending);
+            for point in &entry.points {
+                *g.points.entry(point_state_word(&point.state)).or_default() += 1;
+            }
+        }
+        g.leases = state.leases.len() as u64;
+        let lease = self.config.lease;
+        state.pools_seen.retain(|_, seen| seen.elapsed() <= lease);
+        g.pools_connected = state.pools_seen.len() as u64;
+        g
+    }
+
+    /// Bytes of the database on disk.
+    pub fn store_bytes(&self) -> Result<u64, CoordError> {
+        Ok(self.store.size_on_disk()?)
     }
 
     /// Leases the next point to `pool`, if any is pending. Points that a stored solution answers
@@ -775,6 +819,7 @@ impl Coordinator {
         let mut state = self.lock();
         let version =
             state.pools.get(pool).ok_or_else(|| CoordError::UnknownPool(pool.to_owned()))?.solver_version.clone();
+        state.pools_seen.insert(pool.to_owned(), Instant::now());
         // audits when nothing else is pending: they measure, they answer no one
         let mut ids: Vec<StudyId> = state.studies.keys().copied().collect();
         ids.sort_by_key(|id| (state.studies[id].record.audit_of.is_some(), *id));
@@ -1245,6 +1290,10 @@ impl Coordinator {
     /// its solve should stop (its study was cancelled), or None when it is no longer the pool's.
     pub fn heartbeat(&self, pool: &str, lease_ids: &[u64], progress: &[(u64, u64, f64)]) -> Vec<Option<(i64, bool)>> {
         let mut state = self.lock();
+        // only registered pools: the ids seen stay as many as the pools
+        if state.pools.contains_key(pool) {
+            state.pools_seen.insert(pool.to_owned(), Instant::now());
+        }
         let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
         let State { studies, leases, lease_progress, .. } = &mut *state;
         let deadlines: Vec<Option<(i64, bool)>> = lease_ids
@@ -1325,6 +1374,7 @@ impl Coordinator {
         }
         drop(state);
         if expired > 0 {
+            self.leases_expired.fetch_add(expired as u64, Ordering::Relaxed);
             self.work.notify_waiters();
         }
         Ok(expired)
@@ -1502,6 +1552,9 @@ pub fn state_word(s: StudyState) -> &'static str {
         StudyState::Cancelled => "cancelled",
     }
 }
+
+/// Every word of [`point_state_word`], in the order of a point's life.
+pub const POINT_STATE_WORDS: [&str; 5] = ["pending", "leased", "done", "failed", "cancelled"];
 
 pub fn point_state_word(s: &PointState) -> &'static str {
     match s {

@@ -395,6 +395,41 @@ fn lost_leases_requeue_then_fail_and_retry_requeues() {
 }
 
 #[test]
+fn gauges_count_studies_points_leases_lost_leases_and_the_pools_heard_from() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 50, 2);
+    let g = c.gauges();
+    // every state has its series from the start, at 0
+    assert_eq!(g.studies.len(), 4);
+    assert_eq!(g.points.keys().copied().collect::<Vec<_>>(), {
+        let mut words = POINT_STATE_WORDS.to_vec();
+        words.sort();
+        words
+    });
+    assert_eq!((g.pending, g.leases, g.leases_expired, g.pools_connected), (0, 0, 0, 0));
+
+    pool(&c, "p", VERSION);
+    let id = submit(&c, &["f1=0.1,0.2"], 1e-3, InitStrategy::Nearest);
+    c.lease("p").unwrap().expect("a point to lease");
+    let g = c.gauges();
+    assert_eq!((g.studies["active"], g.points["pending"], g.points["leased"]), (1, 1, 1));
+    assert_eq!((g.pending, g.leases, g.pools_connected), (1, 1, 1));
+    // a heartbeat of a pool never registered is not a pool
+    c.heartbeat("stranger", &[], &[]);
+    assert_eq!(c.gauges().pools_connected, 1);
+
+    // a lost lease is counted once, and a pool silent for a lease period is no longer connected
+    std::thread::sleep(Duration::from_millis(80));
+    assert_eq!(c.expire_leases().unwrap(), 1);
+    let g = c.gauges();
+    assert_eq!((g.leases_expired, g.leases, g.points["pending"], g.pools_connected), (1, 0, 2, 0));
+    c.cancel(id).unwrap();
+    let g = c.gauges();
+    assert_eq!((g.studies["cancelled"], g.points["cancelled"], g.pending), (1, 2, 0));
+    assert!(c.store_bytes().unwrap() > 0);
+}
+
+#[test]
 fn a_study_shows_what_its_running_points_last_reported_and_forgets_it_when_they_stop() {
     let dir = tempfile::tempdir().unwrap();
     let c = open(dir.path(), 60_000, 2);

@@ -98,6 +98,27 @@ pub enum StudyState {
     Cancelled,
 }
 
+impl StudyState {
+    pub const ALL: [StudyState; 4] = [StudyState::Active, StudyState::Done, StudyState::Failed, StudyState::Cancelled];
+}
+
+/// What the coordinator holds at one instant, for `/metrics` (counted when scraped).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Gauges {
+    /// Studies by state word (every state present, 0 included).
+    pub studies: BTreeMap<&'static str, u64>,
+    /// Design points by state word (every state present, 0 included).
+    pub points: BTreeMap<&'static str, u64>,
+    /// Points pending, as `max_pending` counts them (an adaptive study's unchosen points too).
+    pub pending: u64,
+    /// Points leased to pools now.
+    pub leases: u64,
+    /// Leases lost (deadline or per-point budget passed) since this process started.
+    pub leases_expired: u64,
+    /// Pools heard from (registration, lease call or heartbeat) within one lease period.
+    pub pools_connected: u64,
+}
+
 /// What a progress event reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum EventKind {

@@ -13,6 +13,7 @@ mod engine;
 mod first_use;
 mod limits;
 mod meshes;
+mod metrics;
 mod python;
 mod resilience;
 mod security;
