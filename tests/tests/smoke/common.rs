@@ -144,10 +144,23 @@ pub fn start_single_pool(url: &str, id: &str, log: &Path) -> ServerGuard {
     spawn_pool(command(&workspace_bin("glissade-worker")), url, id, log)
 }
 
-fn spawn_pool(mut cmd: Command, url: &str, id: &str, log: &Path) -> ServerGuard {
+/// Starts a pool of one process that presents `token` (`GLISSADE_TOKEN`), with `args` after
+/// `pool --coordinator URL`.
+pub fn start_single_pool_with_token(url: &str, token: &str, args: &[&str], log: &Path) -> ServerGuard {
+    let mut cmd = command(&workspace_bin("glissade-worker"));
+    cmd.env("GLISSADE_TOKEN", token);
+    spawn(cmd, url, args, log)
+}
+
+fn spawn_pool(cmd: Command, url: &str, id: &str, log: &Path) -> ServerGuard {
+    spawn(cmd, url, &["--pool-id", id], log)
+}
+
+fn spawn(mut cmd: Command, url: &str, args: &[&str], log: &Path) -> ServerGuard {
     let token = child_token();
     let child = cmd
-        .args(["pool", "--coordinator", url, "--pool-id", id])
+        .args(["pool", "--coordinator", url])
+        .args(args)
         .env("RUST_LOG", "glissade_worker::pool=debug")
         .stdin(Stdio::null())
         .stdout(Stdio::null())
@@ -155,6 +168,37 @@ fn spawn_pool(mut cmd: Command, url: &str, id: &str, log: &Path) -> ServerGuard 
         .spawn()
         .expect("start glissade-worker pool");
     ServerGuard(child, token)
+}
+
+/// A coordinator's two tokens and the files under a test's directory that hold them.
+pub struct Tokens {
+    pub user: String,
+    pub pool: String,
+    pub user_file: std::path::PathBuf,
+    pub pool_file: std::path::PathBuf,
+}
+
+impl Tokens {
+    /// Writes them, the user token with a newline (as `openssl rand -hex 32 > file` leaves it).
+    pub fn write(dir: &Path) -> std::io::Result<Self> {
+        let t = Self {
+            user: "u".repeat(40),
+            pool: "p".repeat(40),
+            user_file: dir.join("user.token"),
+            pool_file: dir.join("pool.token"),
+        };
+        std::fs::write(&t.user_file, format!("{}\n", t.user))?;
+        std::fs::write(&t.pool_file, &t.pool)?;
+        Ok(t)
+    }
+
+    /// The coordinator's arguments that name the files.
+    pub fn server_args(&self) -> [&str; 4] {
+        fn path(p: &Path) -> &str {
+            p.to_str().expect("a UTF-8 temporary path")
+        }
+        ["--user-token-file", path(&self.user_file), "--pool-token-file", path(&self.pool_file)]
+    }
 }
 
 /// Sends SIGTERM to a child and waits for it to exit.

@@ -40,13 +40,10 @@ impl Scrape {
 #[test]
 fn metrics_follow_a_study_behind_the_user_token() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
-    let (user_token, pool_token) = ("u".repeat(40), "p".repeat(40));
-    let (user_file, pool_file) = (dir.path().join("user.token"), dir.path().join("pool.token"));
-    std::fs::write(&user_file, &user_token)?;
-    std::fs::write(&pool_file, &pool_token)?;
-    let files = ["--user-token-file", user_file.to_str().unwrap(), "--pool-token-file", pool_file.to_str().unwrap()];
+    let tokens = Tokens::write(dir.path())?;
+    let (user_token, pool_token) = (&tokens.user, &tokens.pool);
     let (server_log, pool_log) = (dir.path().join("server.log"), dir.path().join("pool.log"));
-    let (_server, addr) = start_server_with(&dir.path().join("db"), &server_log, "127.0.0.1:0", &files);
+    let (_server, addr) = start_server_with(&dir.path().join("db"), &server_log, "127.0.0.1:0", &tokens.server_args());
     let url = format!("http://{addr}");
     let logs = || format!("server:\n{}\npool:\n{}", log_of(&server_log), log_of(&pool_log));
 
@@ -55,9 +52,9 @@ fn metrics_follow_a_study_behind_the_user_token() -> anyhow::Result<()> {
     assert_eq!(status, 401, "{body}");
     let scrape_with =
         |token: &str| http_request(&addr, &format!("GET /metrics HTTP/1.1\r\nAuthorization: Bearer {token}\r\n"), "");
-    assert_eq!(scrape_with(&pool_token).0, 401);
+    assert_eq!(scrape_with(pool_token).0, 401);
     let scrape = || {
-        let (status, head, body) = scrape_with(&user_token);
+        let (status, head, body) = scrape_with(user_token);
         assert_eq!(status, 200, "{head}\n{body}\n{}", logs());
         assert!(head.to_ascii_lowercase().contains("content-type: text/plain; version=0.0.4"), "{head}");
         Scrape::parse(&body)
@@ -89,15 +86,7 @@ fn metrics_follow_a_study_behind_the_user_token() -> anyhow::Result<()> {
     assert_eq!(during.get("glissade_queue_pending_points"), 4.0);
     assert_eq!(during.get(r#"glissade_grpc_requests_total{method="/glissade.v1.User/SubmitStudy",code="OK"}"#), 1.0);
 
-    let token = child_token();
-    let pool = command(&workspace_bin("glissade-worker"))
-        .args(["pool", "--coordinator", &url, "--pool-id", "metrics"])
-        .env("GLISSADE_TOKEN", &pool_token)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(File::create(&pool_log)?)
-        .spawn()?;
-    let _pool = ServerGuard(pool, token);
+    let _pool = start_single_pool_with_token(&url, pool_token, &["--pool-id", "metrics"], &pool_log);
     rt.block_on(async {
         let mut stream = client.watch_study(v1::WatchStudyRequest { study_id: id }).await?.into_inner();
         while let Some(e) = tokio::time::timeout(LIMIT, stream.message()).await?? {

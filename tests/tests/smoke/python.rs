@@ -13,13 +13,10 @@ fn python_package_submits_watches_reads_predicts_and_fetches() -> anyhow::Result
         return Ok(());
     };
     let dir = tempfile::tempdir()?;
-    let (user_token, pool_token) = ("u".repeat(40), "p".repeat(40));
-    let (user_file, pool_file) = (dir.path().join("user.token"), dir.path().join("pool.token"));
-    std::fs::write(&user_file, &user_token)?;
-    std::fs::write(&pool_file, &pool_token)?;
-    let files = ["--user-token-file", user_file.to_str().unwrap(), "--pool-token-file", pool_file.to_str().unwrap()];
+    let tokens = Tokens::write(dir.path())?;
+    let (user_token, pool_token) = (&tokens.user, &tokens.pool);
     let (_server, addr) =
-        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &files);
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &tokens.server_args());
     let url = format!("http://{addr}");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/smoke/python_api.py");
     let solution = dir.path().join("solution.bin");
@@ -40,15 +37,7 @@ fn python_package_submits_watches_reads_predicts_and_fetches() -> anyhow::Result
     assert_eq!(v["scene_hash"].as_str(), Some(local.content_hash().as_str()), "{v}");
     assert_eq!(v["cancelled"], "STUDY_STATE_CANCELLED", "{v}");
 
-    let token = child_token();
-    let pool = command(&workspace_bin("glissade-worker"))
-        .args(["pool", "--coordinator", &url, "--pool-id", "py"])
-        .env("GLISSADE_TOKEN", &pool_token)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(File::create(dir.path().join("pool.log"))?)
-        .spawn()?;
-    let _pool = ServerGuard(pool, token);
+    let _pool = start_single_pool_with_token(&url, pool_token, &["--pool-id", "py"], &dir.path().join("pool.log"));
     let v = run("main", &shipped_scene("three-blocks-tiny.toml"))?;
     assert_eq!(v["finished"], 4, "{v}");
     assert!(v["not_found"].as_str().is_some_and(|m| m.ends_with("(NOT_FOUND)")), "{v}");

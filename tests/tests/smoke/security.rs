@@ -5,10 +5,8 @@ use crate::common::*;
 #[test]
 fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
-    let (user_token, pool_token) = ("u".repeat(40), "p".repeat(40));
-    let (user_file, pool_file) = (dir.path().join("user.token"), dir.path().join("pool.token"));
-    std::fs::write(&user_file, format!("{user_token}\n"))?;
-    std::fs::write(&pool_file, &pool_token)?;
+    let tokens = Tokens::write(dir.path())?;
+    let (user_token, pool_token, user_file) = (&tokens.user, &tokens.pool, &tokens.user_file);
 
     // Without tokens a coordinator refuses to listen beyond loopback.
     let out = run_with_timeout(
@@ -18,9 +16,8 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     assert_eq!(out.status.code(), Some(1));
     assert!(text(&out.stderr).contains("without tokens"), "{}", text(&out.stderr));
 
-    let files = ["--user-token-file", user_file.to_str().unwrap(), "--pool-token-file", pool_file.to_str().unwrap()];
     let (_server, addr) =
-        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &files);
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &tokens.server_args());
     let url = format!("http://{addr}");
     let rt = runtime();
     let with = |token: &str| {
@@ -36,11 +33,11 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     let mut stranger = UserClient::new(channel.clone());
     let s = rt.block_on(stranger.submit_study(grid_request(&["f1=0.1"], STUDY_TOL))).expect_err("no token");
     assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
-    let mut posing = UserClient::with_interceptor(channel.clone(), with(&pool_token));
+    let mut posing = UserClient::with_interceptor(channel.clone(), with(pool_token));
     let s = rt.block_on(posing.list_studies(v1::ListStudiesRequest {})).expect_err("pool token");
     assert_eq!(s.code(), Code::PermissionDenied, "{s:?}");
     // ...and a user posing as a pool cannot lease or complete.
-    let mut fake = PoolClient::with_interceptor(channel.clone(), with(&user_token));
+    let mut fake = PoolClient::with_interceptor(channel.clone(), with(user_token));
     let s = rt
         .block_on(fake.register_pool(v1::RegisterPoolRequest { pool_id: "fake".into(), ..Default::default() }))
         .expect_err("user token");
@@ -51,8 +48,8 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     // The web page obeys the tokens: nothing without the user token, the page with it.
     assert_eq!(http_get(&addr, "/api/studies").0, 401);
     let bearer = |t: &str| format!("GET /api/studies HTTP/1.1\r\nAuthorization: Bearer {t}\r\n");
-    assert_eq!(http_request(&addr, &bearer(&pool_token), "").0, 401);
-    assert_eq!(http_request(&addr, &bearer(&user_token), "").0, 200);
+    assert_eq!(http_request(&addr, &bearer(pool_token), "").0, 401);
+    assert_eq!(http_request(&addr, &bearer(user_token), "").0, 200);
     // A token never goes in a URL (histories and logs keep them), not even the right one.
     let (status, _, body) = http_get(&addr, &format!("/?token={user_token}"));
     assert_eq!(status, 400, "{body}");
@@ -70,7 +67,7 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
         .find_map(|l| l.strip_prefix("set-cookie: ").or_else(|| l.strip_prefix("Set-Cookie: ")))
         .unwrap_or_default();
     assert!(cookie.contains("HttpOnly") && cookie.contains("SameSite=Strict"), "{head}");
-    assert!(!cookie.contains(&user_token), "the cookie does not show the token as is: {cookie}");
+    assert!(!cookie.contains(user_token.as_str()), "the cookie does not show the token as is: {cookie}");
     let with_cookie = format!("GET / HTTP/1.1\r\nCookie: {}\r\n", cookie.split(';').next().unwrap_or_default());
     let (status, _, body) = http_request(&addr, &with_cookie, "");
     assert!(status == 200 && body.contains("glissade studies"), "{status} {body}");
@@ -100,16 +97,8 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
 
     // A pool with its token (from the environment) solves the study.
     let pool_log = dir.path().join("pool.log");
-    let token = child_token();
-    let pool = command(&workspace_bin("glissade-worker"))
-        .args(["pool", "--coordinator", &url, "--idle-exit", "3"])
-        .env("GLISSADE_TOKEN", &pool_token)
-        .stdin(Stdio::null())
-        .stdout(Stdio::null())
-        .stderr(File::create(&pool_log)?)
-        .spawn()?;
-    let _pool = ServerGuard(pool, token);
-    let mut user = UserClient::with_interceptor(channel, with(&user_token));
+    let _pool = start_single_pool_with_token(&url, pool_token, &["--idle-exit", "3"], &pool_log);
+    let mut user = UserClient::with_interceptor(channel, with(user_token));
     rt.block_on(async {
         let mut stream = user.watch_study(v1::WatchStudyRequest { study_id: 1 }).await?.into_inner();
         while let Some(e) = tokio::time::timeout(LIMIT, stream.message()).await?? {
