@@ -2099,4 +2099,8 @@ fn windowings_that_keep_parting_are_reported_not_converged() {
     assert!(check.discrepancy > 2e-4 && r.dynamic.error_estimate >= check.discrepancy);
     assert!(why.starts_with("sensitive:") && why.contains(&format!("'{}'", check.qoi)), "{why}");
     assert!(why.contains("window_check = false"), "{why}");
+    // every QoI's distance is kept: the worst is the one reported
+    assert_eq!(check.distances.len(), m.qois.len());
+    assert_eq!(check.distances[&check.qoi], check.discrepancy);
+    assert!(check.distances.values().all(|d| *d <= check.discrepancy));
 }

@@ -10,6 +10,7 @@
 
 use super::*;
 use glissade_core::scene::MIN_TOLERANCE;
+use std::collections::BTreeMap;
 
 /// Pairs the check compares at most: the solve with a pass `TIGHTER` times its tolerance; where
 /// they part, a pair at a tolerance chosen from the distance measured.
@@ -33,6 +34,8 @@ pub struct WindowCheck {
     pub discrepancy: f64,
     /// the QoI it was found on
     pub qoi: String,
+    /// every QoI's distance in the last pair (where the worst parted, the others may agree)
+    pub distances: BTreeMap<String, f64>,
     /// the tolerance the answer returned (the last pair's tighter member) was iterated to
     pub iteration_tolerance: f64,
     pub outcome: CheckOutcome,
@@ -69,9 +72,12 @@ impl WindowCheck {
                 self.iteration_tolerance
             );
         }
+        let agreeing: Vec<String> =
+            self.distances.iter().filter(|(_, d)| **d <= tolerance).map(|(q, d)| format!("'{q}' {d:.1e}")).collect();
+        let others = if agreeing.is_empty() { String::new() } else { format!("; within it: {}", agreeing.join(", ")) };
         format!(
             "sensitive: iterated in windows of {} and of {} steps, the last two answers part by {:.2e} on '{}' \
-             (the tighter iterated to {:.1e}, the tolerance {tolerance:.1e}): this QoI moves with the iteration \
+             (the tighter iterated to {:.1e}, the tolerance {tolerance:.1e}{others}): this QoI moves with the iteration \
              error far more than the tolerance allows, as those of a chattering or fluttering contact do; \
              a looser tolerance, leaving this QoI out (a slip is often determined where a contact force is \
              not), or solver.window_check = false to take the first answer, off by about that much",
@@ -121,6 +127,7 @@ impl<const D: usize> LatinSolver<'_, D> {
                 break;
             };
             let check = &mut pass.check;
+            check.distances = distances(&looser, &answer, &scales);
             (check.discrepancy, check.qoi) = discrepancy(&looser, &answer, &scales);
             tracing::info!(
                 loose,
@@ -255,6 +262,14 @@ struct Pass<'a, 'b> {
 /// The largest distance between two answers' QoI histories, each relative to the larger of its
 /// norm in `scales` (the stopping test's, floored) and its own; and the QoI it is on.
 fn discrepancy(a: &[QoiSeries], b: &[QoiSeries], scales: &[f64]) -> (f64, String) {
+    distances(a, b, scales)
+        .into_iter()
+        .fold((0.0, String::new()), |best, (name, d)| if d > best.0 { (d, name) } else { best })
+}
+
+/// Each QoI's distance between two answers, relative to the larger of its norm in `scales` (the
+/// stopping test's, floored) and its own.
+fn distances(a: &[QoiSeries], b: &[QoiSeries], scales: &[f64]) -> BTreeMap<String, f64> {
     let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
     a.iter()
         .zip(b)
@@ -262,10 +277,9 @@ fn discrepancy(a: &[QoiSeries], b: &[QoiSeries], scales: &[f64]) -> (f64, String
         .map(|(q, (x, y))| {
             let diff = norm(&mut x.values.iter().zip(&y.values).map(|(p, r)| p - r));
             let scale = scales.get(q).copied().unwrap_or(0.0).max(norm(&mut x.values.iter().copied()));
-            let d = if diff == 0.0 { 0.0 } else { diff / scale };
-            (d, x.name.clone())
+            (x.name.clone(), if diff == 0.0 { 0.0 } else { diff / scale })
         })
-        .fold((0.0, String::new()), |best, next| if next.0 > best.0 { next } else { best })
+        .collect()
 }
 
 #[cfg(test)]
