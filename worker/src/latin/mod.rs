@@ -514,7 +514,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
 
         // Post-processing sweep on the converged local-stage fields.
         let t = Instant::now();
-        let (qoi, fields) = self.post_process(&mut dynamic.interfaces, &u0, static_solution.as_ref(), options);
+        let (qoi, fields) = self.post_process(&dynamic.interfaces, &u0, static_solution.as_ref(), options);
         self.dist.gather_interfaces(self.comm, &mut dynamic.interfaces);
         let mut static_solution = static_solution;
         if let Some(st) = static_solution.as_mut() {
@@ -1061,7 +1061,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// every node's history.
     fn post_process(
         &mut self,
-        fields: &mut [InterfaceField],
+        fields: &[InterfaceField],
         u0: &[Option<Vec<f64>>],
         statics: Option<&StageSolution>,
         options: &SolveOptions,

@@ -128,7 +128,7 @@ impl<const D: usize> LatinSolver<'_, D> {
             };
             let check = &mut pass.check;
             check.distances = distances(&looser, &answer, &scales);
-            (check.discrepancy, check.qoi) = discrepancy(&looser, &answer, &scales);
+            (check.discrepancy, check.qoi) = worst(&check.distances);
             tracing::info!(
                 loose,
                 tight,
@@ -168,8 +168,7 @@ impl<const D: usize> LatinSolver<'_, D> {
     fn answer(&mut self, pass: &Pass, quiet: &SolveOptions) -> Vec<QoiSeries> {
         let none = vec![None; self.model.substructures.len()];
         let (u0, statics) = pass.prestress.as_ref().map_or((&none, None), |p| (&p.u0, Some(&p.solution)));
-        let mut fields = pass.fields.to_vec();
-        self.post_process(&mut fields, u0, statics, quiet).0
+        self.post_process(pass.fields, u0, statics, quiet).0
     }
 
     /// One pass of the check: the prestress converged again for `tolerance` (from its last
@@ -259,12 +258,9 @@ struct Pass<'a, 'b> {
     check: WindowCheck,
 }
 
-/// The largest distance between two answers' QoI histories, each relative to the larger of its
-/// norm in `scales` (the stopping test's, floored) and its own; and the QoI it is on.
-fn discrepancy(a: &[QoiSeries], b: &[QoiSeries], scales: &[f64]) -> (f64, String) {
-    distances(a, b, scales)
-        .into_iter()
-        .fold((0.0, String::new()), |best, (name, d)| if d > best.0 { (d, name) } else { best })
+/// The largest of the QoIs' distances ([`distances`]), and the QoI it is on.
+fn worst(distances: &BTreeMap<String, f64>) -> (f64, String) {
+    distances.iter().fold((0.0, String::new()), |best, (name, d)| if *d > best.0 { (*d, name.clone()) } else { best })
 }
 
 /// Each QoI's distance between two answers, relative to the larger of its norm in `scales` (the
@@ -296,10 +292,10 @@ mod tests {
     fn the_discrepancy_is_the_worst_qoi_relative_to_its_floored_norm() {
         let a = [series("slip", &[0.0, 1e-22, 2e-22]), series("force", &[3.0, 4.0, 0.0])];
         let b = [series("slip", &[0.0, 3e-22, 2e-22]), series("force", &[3.0, 4.0, 0.5])];
-        let (d, q) = discrepancy(&a, &b, &[1e-6, 5.0]);
+        let (d, q) = worst(&distances(&a, &b, &[1e-6, 5.0]));
         assert_eq!(q, "force");
         assert!((d - 0.1).abs() < 1e-12, "{d}");
-        let (d, q) = discrepancy(&a, &a, &[1e-6, 5.0]);
+        let (d, q) = worst(&distances(&a, &a, &[1e-6, 5.0]));
         assert_eq!((d, q.as_str()), (0.0, ""));
     }
 }
