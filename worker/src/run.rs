@@ -105,12 +105,13 @@ impl SolveSummary {
             return None;
         }
         if let Some(st) = self.static_stage.as_ref().filter(|s| !s.converged) {
-            let tol = self.tolerance * crate::latin::STATIC_TOLERANCE_RATIO;
+            let tol = crate::latin::static_tolerance(self.tolerance);
             return Some(format!(
-                "the static stage did not converge: eta = {:.3e} > {:.1e} (the tolerance x {}) after {} iterations; {}",
+                "the static stage did not converge: eta = {:.3e} > {:.1e} (the tolerance x {}, no tighter than {:.0e}) after {} iterations; {}",
                 st.error_indicator,
                 tol,
                 crate::latin::STATIC_TOLERANCE_RATIO,
+                crate::latin::STATIC_TOLERANCE_FLOOR,
                 st.iterations,
                 st.diagnosis(tol)
             ));

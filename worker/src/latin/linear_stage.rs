@@ -38,6 +38,17 @@ impl Stage {
         }
     }
 
+    /// Iterations the stage may run: the model's limit, the static stage's
+    /// [`super::STATIC_ITERATIONS_FACTOR`] times more (no more times than there are steps: an
+    /// iteration of it sweeps one).
+    pub fn iteration_limit<const D: usize>(self, model: &Model<D>) -> usize {
+        let limit = model.settings.max_iterations;
+        match self {
+            Stage::Static => limit.saturating_mul(super::STATIC_ITERATIONS_FACTOR.min(model.steps).max(1)),
+            Stage::Dynamic => limit,
+        }
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Stage::Static => "static",

@@ -43,8 +43,23 @@ pub const WINDOW_TOLERANCE_RATIO: f64 = 0.1;
 pub const STALL_ITERATIONS: usize = 100;
 pub const STALL_PER_STEP: usize = 4;
 
-/// Tolerance of the static prestress stage relative to the asked one.
-pub const STATIC_TOLERANCE_RATIO: f64 = 0.01;
+/// Tolerance of the static prestress stage relative to the asked one: the prestress is the
+/// dynamics' initial state, and its error comes out of them amplified (a wall's normal force
+/// 4,000 x the static stage's eta: docs/performance.md, "The prestress's error"), while a static
+/// iteration costs one step.
+pub const STATIC_TOLERANCE_RATIO: f64 = 1e-5;
+/// Below this the static stage's eta stalls on round-off: no tighter than it.
+pub const STATIC_TOLERANCE_FLOOR: f64 = 1e-12;
+/// The static stage may iterate this many times the iteration limit (no more times than there
+/// are steps): its iterations sweep one step, and tight it can take thousands (elements of
+/// aspect ratio 100 at a floor: 3,012 to 2e-9, docs/performance.md "The prestress's error").
+pub const STATIC_ITERATIONS_FACTOR: usize = 10;
+
+/// The static stage's tolerance for a solve asked to `tolerance` (one rule: the solve's and its
+/// report's).
+pub fn static_tolerance(tolerance: f64) -> f64 {
+    (tolerance * STATIC_TOLERANCE_RATIO).max(STATIC_TOLERANCE_FLOOR)
+}
 
 /// Errors of a LATIN solve.
 #[derive(Debug, thiserror::Error)]
@@ -533,7 +548,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     }
 
     /// The static prestress stage, where the model needs one, from `from` (a solution's static
-    /// stage) or zero fields, to `tolerance` x [`STATIC_TOLERANCE_RATIO`]: its report, solution
+    /// stage) or zero fields, to [`static_tolerance`]: its report, solution
     /// and the displacements it leaves each substructure in (the dynamics' initial state).
     fn prestress(
         &mut self,
@@ -569,10 +584,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let start: Vec<Vec<f64>> = m.interfaces.iter().map(|itf| itf.gap0.clone()).collect();
         let mut u0: Vec<Option<Vec<f64>>> = vec![None; m.substructures.len()];
         // The static stage's error is carried by every step of the dynamics, and its
-        // iterations cost one step each: it is converged STATIC_TOLERANCE_RATIO tighter.
+        // iterations cost one step each: it is converged far tighter ([`static_tolerance`]).
         let begin = StageStart {
             stage: Stage::Static,
-            tolerance: tolerance * STATIC_TOLERANCE_RATIO,
+            tolerance: static_tolerance(tolerance),
             gaps: (&start, &[]),
             u0: &u0,
             statics: None,
@@ -826,7 +841,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             .iter()
             .map(|itf| window.steps.start * itf.n_nodes() * D..window.steps.end * itf.n_nodes() * D)
             .collect();
-        for iteration in 1..=settings.max_iterations {
+        for iteration in 1..=stage.iteration_limit(m) {
             let t = Instant::now();
             // `previous` holds every value once; only the window's change (a copy of the whole
             // interval per iteration would cost O(steps) in a window's loop)
