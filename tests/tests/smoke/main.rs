@@ -6,6 +6,7 @@
 
 mod browser;
 mod calculix;
+mod citations;
 mod cli;
 mod common;
 mod discretisation;
