@@ -79,55 +79,26 @@ impl OrderingPolicy for LexicographicDescending {
     }
 }
 
-/// Where a greedy order starts when nothing is done or in flight.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum GreedyStart {
-    /// the lexicographically smallest pending point (for friction studies: the most slip,
-    /// from which the sweep moves towards stick, the cheaper direction in the paper)
-    First,
-    /// the pending point nearest the centre of the parameter ranges
-    Centre,
-}
-
 /// The pending point nearest (normalised distance) to the set of done and in-flight points, so
 /// every solve can warm-start from a close neighbour; ties go to the lexicographically smaller
-/// point. The first point: see [`GreedyStart`] (default `First`). Cost per call
+/// point; the first, the lexicographically smallest pending point (for friction studies: the most
+/// slip, from which the sweep moves towards stick, the cheaper direction in the paper). Cost per call
 /// O(|pending| x |done + in flight|): a second for about 10^4 x 10^4 points.
 #[derive(Debug, Clone)]
 pub struct Greedy {
     space: ParameterSpace,
-    start: GreedyStart,
 }
 
 impl Greedy {
     pub fn new(space: ParameterSpace) -> Self {
-        Self { space, start: GreedyStart::First }
-    }
-
-    pub fn starting_at(space: ParameterSpace, start: GreedyStart) -> Self {
-        Self { space, start }
+        Self { space }
     }
 }
 
 impl OrderingPolicy for Greedy {
     fn next(&mut self, pending: &[DesignPoint], done: &[DesignPoint], in_flight: &[DesignPoint]) -> Option<usize> {
-        let by_key = |key: &dyn Fn(&DesignPoint) -> f64| {
-            (0..pending.len()).min_by(|&i, &j| {
-                key(&pending[i])
-                    .total_cmp(&key(&pending[j]))
-                    .then(lexicographic(&pending[i], &pending[j]))
-                    .then(i.cmp(&j))
-            })
-        };
         if done.is_empty() && in_flight.is_empty() {
-            return match self.start {
-                GreedyStart::First => LexicographicAscending.next(pending, done, in_flight),
-                GreedyStart::Centre => {
-                    let centre = self.space.centre();
-                    by_key(&|p| self.space.normalised_distance(p, &centre))
-                }
-            };
+            return LexicographicAscending.next(pending, done, in_flight);
         }
         // O(|pending| x |done + in flight|) per call, on coordinates computed once per call
         let refs: Vec<Vec<f64>> = done.iter().chain(in_flight).map(|q| self.space.normalised_coordinates(q)).collect();
@@ -197,8 +168,6 @@ mod tests {
             let d = order[..k].iter().map(|q| space.normalised_distance(p, q)).fold(f64::INFINITY, f64::min);
             assert!((d - 0.5).abs() < 1e-12, "step {k} to {p} is {d} from the done set");
         }
-        let centre = sweep(&mut Greedy::starting_at(space, GreedyStart::Centre), pts.clone());
-        assert_eq!(centre[0], pts[4]);
     }
 
     #[test]

@@ -181,11 +181,6 @@ impl ParameterSpace {
         DesignPoint(self.parameters.iter().map(|p| (p.name.clone(), p.default)).collect())
     }
 
-    /// The centre of every range.
-    pub fn centre(&self) -> DesignPoint {
-        DesignPoint(self.parameters.iter().map(|p| (p.name.clone(), 0.5 * (p.min + p.max))).collect())
-    }
-
     /// `point` with every parameter it lacks at its default; refuses names not in the space and
     /// non-finite values.
     pub fn complete(&self, point: &DesignPoint) -> Result<DesignPoint, SpaceError> {
