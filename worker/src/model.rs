@@ -350,372 +350,19 @@ impl<const D: usize> Model<D> {
         // body node -> local node, per substructure
         let local_of: Vec<HashMap<usize, usize>> =
             substructures.iter().map(|s| s.nodes.iter().enumerate().map(|(l, &g)| (g, l)).collect()).collect();
-        // the search directions are set below, once the interfaces' geometry is known
-        let side = |s: usize, body_nodes: &[usize]| -> InterfaceSide {
-            InterfaceSide {
-                substructure: s,
-                nodes: body_nodes.iter().map(|g| local_of[s][g]).collect(),
-                k_dynamic: SearchDirection::isotropic(1.0),
-                k_static: SearchDirection::isotropic(1.0),
-            }
-        };
-
-        let mut interfaces: Vec<Interface<D>> = Vec::new();
-        // Implicit perfect interfaces between the substructures of one body.
-        for (bi, body) in bodies.iter().enumerate() {
-            let mut by_key: HashMap<Vec<usize>, Vec<Face>> = HashMap::new();
-            for e in 0..body.mesh.n_elements() {
-                for f in body.mesh.faces_of(e) {
-                    let mut key = body.mesh.face_nodes(f);
-                    key.sort_unstable();
-                    by_key.entry(key).or_default().push(f);
-                }
-            }
-            let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
-            for faces in by_key.values() {
-                if let [f1, f2] = faces[..] {
-                    let (s1, s2) = (body.partition[f1.element], body.partition[f2.element]);
-                    if s1 != s2 {
-                        let (f, pair) = if s1 < s2 { (f1, (s1, s2)) } else { (f2, (s2, s1)) };
-                        groups.entry(pair).or_default().push(f);
-                    }
-                }
-            }
-            for ((s1, s2), mut faces) in groups {
-                faces.sort();
-                let name = format!("{}:{}-{}", scene.bodies[bi].name, s1, s2);
-                let (nodes, area, normal) = face_group_geometry(&body.mesh, &faces);
-                let coords: Vec<[f64; D]> = nodes.iter().map(|&n| body.mesh.nodes[n]).collect();
-                interfaces.push(Interface {
-                    name,
-                    law: InterfaceLaw::Perfect,
-                    sides: vec![side(s1, &nodes), side(s2, &nodes)],
-                    gap0: vec![0.0; nodes.len()],
-                    area,
-                    normal,
-                    coords,
-                });
-            }
-        }
-        // Declared interfaces between bodies, or with a wall.
-        let mut interface_index = BTreeMap::new();
-        for (ii, spec) in scene.interfaces.iter().enumerate() {
-            let key = format!("interfaces[{ii}]");
-            if interface_index.contains_key(&spec.name) {
-                return Err(invalid(format!("{key}.name"), format!("duplicate interface name '{}'", spec.name)));
-            }
-            let law = resolve_law(&r, &key, spec)?;
-            let (ba, faces_a) = find_face_set(&bodies, &format!("{key}.a"), &spec.a)?;
-            let mesh_a = &bodies[ba].mesh;
-            let first = interfaces.len();
-            if spec.b == "wall" {
-                if matches!(law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
-                    return Err(invalid(
-                        format!("{key}.law"),
-                        "a glued interface with a wall is a boundary condition: use [[boundary]] (clamped or displacement)",
-                    ));
-                }
-                let gap = match &spec.gap {
-                    Some(g) => r.get(&format!("{key}.gap"), g)?,
-                    None => 0.0,
-                };
-                if gap < 0.0 {
-                    return Err(invalid(format!("{key}.gap"), "an initial gap must be >= 0"));
-                }
-                let mut groups: BTreeMap<usize, Vec<Face>> = BTreeMap::new();
-                for f in faces_a {
-                    groups.entry(bodies[ba].partition[f.element]).or_default().push(*f);
-                }
-                for (s1, faces) in groups {
-                    let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
-                    let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
-                    interfaces.push(Interface {
-                        name: spec.name.clone(),
-                        law,
-                        sides: vec![side(s1, &nodes)],
-                        gap0: vec![gap; nodes.len()],
-                        area,
-                        normal,
-                        coords,
-                    });
-                }
-            } else {
-                if spec.gap.is_some() {
-                    return Err(invalid(
-                        format!("{key}.gap"),
-                        "a gap is only allowed with b = \"wall\" (body faces must touch)",
-                    ));
-                }
-                let (bb, faces_b) = find_face_set(&bodies, &format!("{key}.b"), &spec.b)?;
-                if ba == bb {
-                    return Err(invalid(format!("{key}.b"), "both sides are on the same body"));
-                }
-                let mesh_b = &bodies[bb].mesh;
-                let scale = bbox_size(mesh_a).max(bbox_size(mesh_b));
-                let tol = 1e-9 * scale;
-                let quant = |p: &[f64; D]| -> Vec<i64> { p.iter().map(|x| (x / tol).round() as i64).collect() };
-                let mut node_b: HashMap<Vec<i64>, usize> = HashMap::new();
-                let mut face_b: HashMap<Vec<usize>, usize> = HashMap::new();
-                for f in faces_b {
-                    let nodes = mesh_b.face_nodes(*f);
-                    for &n in &nodes {
-                        node_b.insert(quant(&mesh_b.nodes[n]), n);
-                    }
-                    let mut k = nodes;
-                    k.sort_unstable();
-                    face_b.insert(k, bodies[bb].partition[f.element]);
-                }
-                let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
-                for f in faces_a {
-                    let mut matched = Vec::new();
-                    let fnodes = mesh_a.face_nodes(*f);
-                    // names the face by its nodes' coordinates, what the user can find in a viewer
-                    let nonconforming = |why: String| {
-                        let at: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh_a.nodes[n]).collect();
-                        invalid(
-                            key.clone(),
-                            format!(
-                                "interface faces do not match: the face of '{}' at {at:?} {why} on '{}'",
-                                spec.a, spec.b
-                            ),
-                        )
-                    };
-                    for &n in &fnodes {
-                        let p = mesh_a.nodes[n];
-                        let nb = node_b
-                            .get(&quant(&p))
-                            .ok_or_else(|| nonconforming(format!("has a node at {p:?} with no counterpart")))?;
-                        matched.push(*nb);
-                    }
-                    matched.sort_unstable();
-                    let s2 = face_b.get(&matched).ok_or_else(|| nonconforming("has no conforming face".into()))?;
-                    groups.entry((bodies[ba].partition[f.element], *s2)).or_default().push(*f);
-                }
-                if groups.values().map(Vec::len).sum::<usize>() != faces_b.len() {
-                    return Err(invalid(
-                        key.clone(),
-                        format!(
-                            "interface faces do not match: '{}' and '{}' have different numbers of faces",
-                            spec.a, spec.b
-                        ),
-                    ));
-                }
-                for ((s1, s2), faces) in groups {
-                    let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
-                    let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
-                    let nodes_b: Vec<usize> = coords.iter().map(|p| node_b[&quant(p)]).collect();
-                    let mut sides = vec![side(s1, &nodes), side(s2, &nodes_b)];
-                    sides[1].nodes = nodes_b.iter().map(|g| local_of[s2][g]).collect();
-                    interfaces.push(Interface {
-                        name: spec.name.clone(),
-                        law,
-                        sides,
-                        gap0: vec![0.0; nodes.len()],
-                        area,
-                        normal,
-                        coords,
-                    });
-                }
-            }
-            interface_index.insert(spec.name.clone(), first..interfaces.len());
-        }
+        let mut interfaces = implicit_interfaces(scene, &bodies, &local_of);
+        let interface_index = declared_interfaces(scene, &r, &bodies, &local_of, &mut interfaces)?;
         for (i, itf) in interfaces.iter().enumerate() {
             for (k, s) in itf.sides.iter().enumerate() {
                 substructures[s.substructure].sides.push((i, k));
             }
         }
 
-        // Boundary conditions and loads.
-        let mut histories = vec![History::constant()];
-        for (i, bc) in scene.boundary.iter().enumerate() {
-            let key = format!("boundary[{i}]");
-            let (bi, faces) = find_face_set(&bodies, &format!("{key}.face"), &bc.face)?;
-            let mut comps: Vec<(usize, f64, f64)> = Vec::new(); // (component, static u, velocity)
-            if bc.clamped {
-                comps.extend((0..D).map(|c| (c, 0.0, 0.0)));
-            }
-            for (name, v) in bc.displacement.iter().flatten() {
-                let c = component_index(&format!("{key}.displacement.{name}"), name, D)?;
-                comps.push((c, r.get(&format!("{key}.displacement.{name}"), v)?, 0.0));
-            }
-            for (name, v) in bc.velocity.iter().flatten() {
-                let c = component_index(&format!("{key}.velocity.{name}"), name, D)?;
-                comps.push((c, 0.0, r.get(&format!("{key}.velocity.{name}"), v)?));
-            }
-            if comps.is_empty() {
-                return Err(invalid(key, "a boundary condition needs clamped = true, displacement or velocity"));
-            }
-            let history = histories.len();
-            histories.push(r.history(&format!("{key}.history"), &bc.history)?);
-            for f in faces {
-                let s = bodies[bi].partition[f.element];
-                for n in bodies[bi].mesh.face_nodes(*f) {
-                    let l = local_of[s][&n];
-                    for &(c, u, v) in &comps {
-                        let dof = l * D + c;
-                        let sub = &mut substructures[s];
-                        sub.fixed[dof] = true;
-                        sub.prescribed.retain(|p| p.dof != dof);
-                        sub.prescribed.push(PrescribedDof { dof, static_displacement: u, velocity: v, history });
-                    }
-                }
-            }
-        }
-        for (i, load) in scene.loads.iter().enumerate() {
-            let key = format!("loads[{i}]");
-            let (bi, faces) = find_face_set(&bodies, &format!("{key}.face"), &load.face)?;
-            let pressure = match &load.pressure {
-                Some(p) => Some(r.get(&format!("{key}.pressure"), p)?),
-                None => None,
-            };
-            let traction = match &load.traction {
-                Some(t) => Some(r.vector::<D>(&format!("{key}.traction"), t)?),
-                None => None,
-            };
-            if pressure.is_some() == traction.is_some() {
-                return Err(invalid(key, "a load needs exactly one of pressure or traction"));
-            }
-            let history = histories.len();
-            histories.push(r.history(&format!("{key}.history"), &load.history)?);
-            let mesh = &bodies[bi].mesh;
-            let mut per_sub: BTreeMap<usize, Vec<(usize, f64)>> = BTreeMap::new();
-            for f in faces {
-                let s = bodies[bi].partition[f.element];
-                let fnodes = mesh.face_nodes(*f);
-                let x: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh.nodes[n]).collect();
-                let (area, normal) = face_area_and_normal(&x, mesh.centroid(f.element));
-                let t = match (pressure, traction) {
-                    (Some(p), _) => normal.map(|n| -p * n),
-                    (_, Some(t)) => t,
-                    _ => unreachable!("checked above"),
-                };
-                for (a, &n) in fnodes.iter().enumerate() {
-                    for c in 0..D {
-                        per_sub.entry(s).or_default().push((local_of[s][&n] * D + c, area[a] * t[c]));
-                    }
-                }
-            }
-            for (s, forces) in per_sub {
-                substructures[s].loads.push(NodalLoad { forces, history });
-            }
-        }
-
-        // Quantities of interest.
-        let mut qois = Vec::new();
-        for (i, q) in scene.qoi.iter().enumerate() {
-            let key = format!("qoi[{i}]");
-            if scene.qoi[..i].iter().any(|o| o.name == q.name) {
-                return Err(invalid(format!("{key}.name"), format!("duplicate QoI name '{}'", q.name)));
-            }
-            let point = |q: &glissade_core::scene::QoiSpec| -> Result<[f64; D], SceneError> {
-                let p = q.point.as_ref().ok_or_else(|| invalid(format!("{key}.point"), "this QoI needs a point"))?;
-                r.vector::<D>(&format!("{key}.point"), p)
-            };
-            let component = |q: &glissade_core::scene::QoiSpec| -> Result<usize, SceneError> {
-                let c = q
-                    .component
-                    .as_deref()
-                    .ok_or_else(|| invalid(format!("{key}.component"), "this QoI needs a component (x, y or z)"))?;
-                component_index(&format!("{key}.component"), c, D)
-            };
-            let target = match q.kind {
-                QoiKind::Slip | QoiKind::Force => {
-                    let name = q
-                        .interface
-                        .as_ref()
-                        .ok_or_else(|| invalid(format!("{key}.interface"), "this QoI needs an interface"))?;
-                    let range = interface_index
-                        .get(name)
-                        .ok_or_else(|| invalid(format!("{key}.interface"), format!("unknown interface '{name}'")))?
-                        .clone();
-                    if q.kind == QoiKind::Force {
-                        QoiTarget::Force { interfaces: range, component: component(q)? }
-                    } else {
-                        let p = point(q)?;
-                        let (mut best, mut dist) = ((0, 0), f64::INFINITY);
-                        for ii in range {
-                            for (j, c) in interfaces[ii].coords.iter().enumerate() {
-                                let d = distance(c, &p);
-                                if d < dist {
-                                    (best, dist) = ((ii, j), d);
-                                }
-                            }
-                        }
-                        let h = min_spacing(&interfaces[best.0].coords);
-                        if dist > 0.5 * h + 1e-12 {
-                            return Err(invalid(
-                                format!("{key}.point"),
-                                format!("{p:?} is not on interface '{name}' (nearest node {dist:.3e} away)"),
-                            ));
-                        }
-                        // a component: the slip vector (tangential already) along an axis, signed
-                        let component = match q.component {
-                            Some(_) => Some(component(q)?),
-                            None => None,
-                        };
-                        QoiTarget::Slip { interface: best.0, node: best.1, component }
-                    }
-                }
-                QoiKind::Displacement | QoiKind::Velocity => {
-                    let name =
-                        q.body.as_ref().ok_or_else(|| invalid(format!("{key}.body"), "this QoI needs a body"))?;
-                    let bi = bodies
-                        .iter()
-                        .position(|b| &b.name == name)
-                        .ok_or_else(|| invalid(format!("{key}.body"), format!("unknown body '{name}'")))?;
-                    let p = point(q)?;
-                    let c = component(q)?;
-                    let mesh = &bodies[bi].mesh;
-                    let (n, dist) = mesh
-                        .nodes
-                        .iter()
-                        .enumerate()
-                        .map(|(n, x)| (n, distance(x, &p)))
-                        .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-                    if dist > 1e-6 * bbox_size(mesh) {
-                        return Err(invalid(
-                            format!("{key}.point"),
-                            format!("{p:?} is not a node of body '{name}' (nearest {dist:.3e} away)"),
-                        ));
-                    }
-                    let s = (0..substructures.len())
-                        .find(|&s| substructures[s].body == bi && local_of[s].contains_key(&n))
-                        .expect("every node is in a substructure");
-                    let dof = local_of[s][&n] * D + c;
-                    if q.kind == QoiKind::Displacement {
-                        QoiTarget::Displacement { substructure: s, dof }
-                    } else {
-                        QoiTarget::Velocity { substructure: s, dof }
-                    }
-                }
-            };
-            qois.push(Qoi { name: q.name.clone(), target });
-        }
-
+        let histories = boundary_and_loads(scene, &r, &bodies, &local_of, &mut substructures)?;
+        let qois =
+            quantities_of_interest(scene, &r, &bodies, &interfaces, &interface_index, &substructures, &local_of)?;
         let dt = duration / scene.time.steps as f64;
-        for itf in interfaces.iter_mut() {
-            let normal = itf.mean_normal();
-            let h = itf.mesh_size();
-            for side in itf.sides.iter_mut() {
-                let young = substructures[side.substructure].material.young;
-                side.k_static =
-                    SearchDirection::isotropic(k0_factor * static_search_direction(young, assembly_size, h));
-                let sub = &substructures[side.substructure];
-                let k = k0_factor
-                    * dynamic_search_direction(
-                        sub.material.impedance(),
-                        sub.material.bar_wave_speed(),
-                        sub.depth_along(&normal),
-                        dt,
-                    );
-                // a contact's slip history converges at a rate set by k_t (docs/performance.md)
-                let tangential = match itf.law {
-                    InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => k,
-                    InterfaceLaw::Contact | InterfaceLaw::Friction { .. } => k * tangential_factor,
-                };
-                side.k_dynamic = SearchDirection { normal: k, tangential };
-            }
-        }
+        set_search_directions(&mut interfaces, &substructures, (k0_factor, tangential_factor), assembly_size, dt);
 
         Ok(Model {
             bodies,
@@ -728,6 +375,417 @@ impl<const D: usize> Model<D> {
             settings,
             parameters: values.clone(),
         })
+    }
+}
+
+/// A side of an interface on substructure `s` at these body nodes; its search directions are set
+/// once every interface's geometry is known ([`set_search_directions`]).
+fn interface_side(local_of: &[HashMap<usize, usize>], s: usize, body_nodes: &[usize]) -> InterfaceSide {
+    InterfaceSide {
+        substructure: s,
+        nodes: body_nodes.iter().map(|g| local_of[s][g]).collect(),
+        k_dynamic: SearchDirection::isotropic(1.0),
+        k_static: SearchDirection::isotropic(1.0),
+    }
+}
+
+/// The perfect interfaces between the substructures of each body (the faces two of them share).
+fn implicit_interfaces<const D: usize>(
+    scene: &Scene,
+    bodies: &[Body<D>],
+    local_of: &[HashMap<usize, usize>],
+) -> Vec<Interface<D>> {
+    let side = |s: usize, body_nodes: &[usize]| interface_side(local_of, s, body_nodes);
+    let mut interfaces = Vec::new();
+    for (bi, body) in bodies.iter().enumerate() {
+        let mut by_key: HashMap<Vec<usize>, Vec<Face>> = HashMap::new();
+        for e in 0..body.mesh.n_elements() {
+            for f in body.mesh.faces_of(e) {
+                let mut key = body.mesh.face_nodes(f);
+                key.sort_unstable();
+                by_key.entry(key).or_default().push(f);
+            }
+        }
+        let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
+        for faces in by_key.values() {
+            if let [f1, f2] = faces[..] {
+                let (s1, s2) = (body.partition[f1.element], body.partition[f2.element]);
+                if s1 != s2 {
+                    let (f, pair) = if s1 < s2 { (f1, (s1, s2)) } else { (f2, (s2, s1)) };
+                    groups.entry(pair).or_default().push(f);
+                }
+            }
+        }
+        for ((s1, s2), mut faces) in groups {
+            faces.sort();
+            let name = format!("{}:{}-{}", scene.bodies[bi].name, s1, s2);
+            let (nodes, area, normal) = face_group_geometry(&body.mesh, &faces);
+            let coords: Vec<[f64; D]> = nodes.iter().map(|&n| body.mesh.nodes[n]).collect();
+            interfaces.push(Interface {
+                name,
+                law: InterfaceLaw::Perfect,
+                sides: vec![side(s1, &nodes), side(s2, &nodes)],
+                gap0: vec![0.0; nodes.len()],
+                area,
+                normal,
+                coords,
+            });
+        }
+    }
+    interfaces
+}
+
+/// The scene's interfaces between bodies, or with a wall, appended to `interfaces`; each name's
+/// range of interfaces there (a declared interface is one per pair of substructures it joins).
+fn declared_interfaces<const D: usize>(
+    scene: &Scene,
+    r: &Resolver,
+    bodies: &[Body<D>],
+    local_of: &[HashMap<usize, usize>],
+    interfaces: &mut Vec<Interface<D>>,
+) -> Result<BTreeMap<String, std::ops::Range<usize>>, SceneError> {
+    let side = |s: usize, body_nodes: &[usize]| interface_side(local_of, s, body_nodes);
+    let mut interface_index = BTreeMap::new();
+    for (ii, spec) in scene.interfaces.iter().enumerate() {
+        let key = format!("interfaces[{ii}]");
+        if interface_index.contains_key(&spec.name) {
+            return Err(invalid(format!("{key}.name"), format!("duplicate interface name '{}'", spec.name)));
+        }
+        let law = resolve_law(r, &key, spec)?;
+        let (ba, faces_a) = find_face_set(bodies, &format!("{key}.a"), &spec.a)?;
+        let mesh_a = &bodies[ba].mesh;
+        let first = interfaces.len();
+        if spec.b == "wall" {
+            if matches!(law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
+                return Err(invalid(
+                    format!("{key}.law"),
+                    "a glued interface with a wall is a boundary condition: use [[boundary]] (clamped or displacement)",
+                ));
+            }
+            let gap = match &spec.gap {
+                Some(g) => r.get(&format!("{key}.gap"), g)?,
+                None => 0.0,
+            };
+            if gap < 0.0 {
+                return Err(invalid(format!("{key}.gap"), "an initial gap must be >= 0"));
+            }
+            let mut groups: BTreeMap<usize, Vec<Face>> = BTreeMap::new();
+            for f in faces_a {
+                groups.entry(bodies[ba].partition[f.element]).or_default().push(*f);
+            }
+            for (s1, faces) in groups {
+                let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
+                let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+                interfaces.push(Interface {
+                    name: spec.name.clone(),
+                    law,
+                    sides: vec![side(s1, &nodes)],
+                    gap0: vec![gap; nodes.len()],
+                    area,
+                    normal,
+                    coords,
+                });
+            }
+        } else {
+            if spec.gap.is_some() {
+                return Err(invalid(
+                    format!("{key}.gap"),
+                    "a gap is only allowed with b = \"wall\" (body faces must touch)",
+                ));
+            }
+            let (bb, faces_b) = find_face_set(bodies, &format!("{key}.b"), &spec.b)?;
+            if ba == bb {
+                return Err(invalid(format!("{key}.b"), "both sides are on the same body"));
+            }
+            let mesh_b = &bodies[bb].mesh;
+            let scale = bbox_size(mesh_a).max(bbox_size(mesh_b));
+            let tol = 1e-9 * scale;
+            let quant = |p: &[f64; D]| -> Vec<i64> { p.iter().map(|x| (x / tol).round() as i64).collect() };
+            let mut node_b: HashMap<Vec<i64>, usize> = HashMap::new();
+            let mut face_b: HashMap<Vec<usize>, usize> = HashMap::new();
+            for f in faces_b {
+                let nodes = mesh_b.face_nodes(*f);
+                for &n in &nodes {
+                    node_b.insert(quant(&mesh_b.nodes[n]), n);
+                }
+                let mut k = nodes;
+                k.sort_unstable();
+                face_b.insert(k, bodies[bb].partition[f.element]);
+            }
+            let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
+            for f in faces_a {
+                let mut matched = Vec::new();
+                let fnodes = mesh_a.face_nodes(*f);
+                // names the face by its nodes' coordinates, what the user can find in a viewer
+                let nonconforming = |why: String| {
+                    let at: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+                    invalid(
+                        key.clone(),
+                        format!(
+                            "interface faces do not match: the face of '{}' at {at:?} {why} on '{}'",
+                            spec.a, spec.b
+                        ),
+                    )
+                };
+                for &n in &fnodes {
+                    let p = mesh_a.nodes[n];
+                    let nb = node_b
+                        .get(&quant(&p))
+                        .ok_or_else(|| nonconforming(format!("has a node at {p:?} with no counterpart")))?;
+                    matched.push(*nb);
+                }
+                matched.sort_unstable();
+                let s2 = face_b.get(&matched).ok_or_else(|| nonconforming("has no conforming face".into()))?;
+                groups.entry((bodies[ba].partition[f.element], *s2)).or_default().push(*f);
+            }
+            if groups.values().map(Vec::len).sum::<usize>() != faces_b.len() {
+                return Err(invalid(
+                    key.clone(),
+                    format!(
+                        "interface faces do not match: '{}' and '{}' have different numbers of faces",
+                        spec.a, spec.b
+                    ),
+                ));
+            }
+            for ((s1, s2), faces) in groups {
+                let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
+                let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+                let nodes_b: Vec<usize> = coords.iter().map(|p| node_b[&quant(p)]).collect();
+                let mut sides = vec![side(s1, &nodes), side(s2, &nodes_b)];
+                sides[1].nodes = nodes_b.iter().map(|g| local_of[s2][g]).collect();
+                interfaces.push(Interface {
+                    name: spec.name.clone(),
+                    law,
+                    sides,
+                    gap0: vec![0.0; nodes.len()],
+                    area,
+                    normal,
+                    coords,
+                });
+            }
+        }
+        interface_index.insert(spec.name.clone(), first..interfaces.len());
+    }
+    Ok(interface_index)
+}
+
+/// Boundary conditions and loads onto the substructures' dofs; the load histories (the first is
+/// the constant one).
+fn boundary_and_loads<const D: usize>(
+    scene: &Scene,
+    r: &Resolver,
+    bodies: &[Body<D>],
+    local_of: &[HashMap<usize, usize>],
+    substructures: &mut [Substructure<D>],
+) -> Result<Vec<History>, SceneError> {
+    let mut histories = vec![History::constant()];
+    for (i, bc) in scene.boundary.iter().enumerate() {
+        let key = format!("boundary[{i}]");
+        let (bi, faces) = find_face_set(bodies, &format!("{key}.face"), &bc.face)?;
+        let mut comps: Vec<(usize, f64, f64)> = Vec::new(); // (component, static u, velocity)
+        if bc.clamped {
+            comps.extend((0..D).map(|c| (c, 0.0, 0.0)));
+        }
+        for (name, v) in bc.displacement.iter().flatten() {
+            let c = component_index(&format!("{key}.displacement.{name}"), name, D)?;
+            comps.push((c, r.get(&format!("{key}.displacement.{name}"), v)?, 0.0));
+        }
+        for (name, v) in bc.velocity.iter().flatten() {
+            let c = component_index(&format!("{key}.velocity.{name}"), name, D)?;
+            comps.push((c, 0.0, r.get(&format!("{key}.velocity.{name}"), v)?));
+        }
+        if comps.is_empty() {
+            return Err(invalid(key, "a boundary condition needs clamped = true, displacement or velocity"));
+        }
+        let history = histories.len();
+        histories.push(r.history(&format!("{key}.history"), &bc.history)?);
+        for f in faces {
+            let s = bodies[bi].partition[f.element];
+            for n in bodies[bi].mesh.face_nodes(*f) {
+                let l = local_of[s][&n];
+                for &(c, u, v) in &comps {
+                    let dof = l * D + c;
+                    let sub = &mut substructures[s];
+                    sub.fixed[dof] = true;
+                    sub.prescribed.retain(|p| p.dof != dof);
+                    sub.prescribed.push(PrescribedDof { dof, static_displacement: u, velocity: v, history });
+                }
+            }
+        }
+    }
+    for (i, load) in scene.loads.iter().enumerate() {
+        let key = format!("loads[{i}]");
+        let (bi, faces) = find_face_set(bodies, &format!("{key}.face"), &load.face)?;
+        let pressure = match &load.pressure {
+            Some(p) => Some(r.get(&format!("{key}.pressure"), p)?),
+            None => None,
+        };
+        let traction = match &load.traction {
+            Some(t) => Some(r.vector::<D>(&format!("{key}.traction"), t)?),
+            None => None,
+        };
+        if pressure.is_some() == traction.is_some() {
+            return Err(invalid(key, "a load needs exactly one of pressure or traction"));
+        }
+        let history = histories.len();
+        histories.push(r.history(&format!("{key}.history"), &load.history)?);
+        let mesh = &bodies[bi].mesh;
+        let mut per_sub: BTreeMap<usize, Vec<(usize, f64)>> = BTreeMap::new();
+        for f in faces {
+            let s = bodies[bi].partition[f.element];
+            let fnodes = mesh.face_nodes(*f);
+            let x: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh.nodes[n]).collect();
+            let (area, normal) = face_area_and_normal(&x, mesh.centroid(f.element));
+            let t = match (pressure, traction) {
+                (Some(p), _) => normal.map(|n| -p * n),
+                (_, Some(t)) => t,
+                _ => unreachable!("checked above"),
+            };
+            for (a, &n) in fnodes.iter().enumerate() {
+                for c in 0..D {
+                    per_sub.entry(s).or_default().push((local_of[s][&n] * D + c, area[a] * t[c]));
+                }
+            }
+        }
+        for (s, forces) in per_sub {
+            substructures[s].loads.push(NodalLoad { forces, history });
+        }
+    }
+    Ok(histories)
+}
+
+/// The scene's QoIs, each located on an interface node or a body's dof.
+fn quantities_of_interest<const D: usize>(
+    scene: &Scene,
+    r: &Resolver,
+    bodies: &[Body<D>],
+    interfaces: &[Interface<D>],
+    interface_index: &BTreeMap<String, std::ops::Range<usize>>,
+    substructures: &[Substructure<D>],
+    local_of: &[HashMap<usize, usize>],
+) -> Result<Vec<Qoi>, SceneError> {
+    let mut qois = Vec::new();
+    for (i, q) in scene.qoi.iter().enumerate() {
+        let key = format!("qoi[{i}]");
+        if scene.qoi[..i].iter().any(|o| o.name == q.name) {
+            return Err(invalid(format!("{key}.name"), format!("duplicate QoI name '{}'", q.name)));
+        }
+        let point = |q: &glissade_core::scene::QoiSpec| -> Result<[f64; D], SceneError> {
+            let p = q.point.as_ref().ok_or_else(|| invalid(format!("{key}.point"), "this QoI needs a point"))?;
+            r.vector::<D>(&format!("{key}.point"), p)
+        };
+        let component = |q: &glissade_core::scene::QoiSpec| -> Result<usize, SceneError> {
+            let c = q
+                .component
+                .as_deref()
+                .ok_or_else(|| invalid(format!("{key}.component"), "this QoI needs a component (x, y or z)"))?;
+            component_index(&format!("{key}.component"), c, D)
+        };
+        let target = match q.kind {
+            QoiKind::Slip | QoiKind::Force => {
+                let name = q
+                    .interface
+                    .as_ref()
+                    .ok_or_else(|| invalid(format!("{key}.interface"), "this QoI needs an interface"))?;
+                let range = interface_index
+                    .get(name)
+                    .ok_or_else(|| invalid(format!("{key}.interface"), format!("unknown interface '{name}'")))?
+                    .clone();
+                if q.kind == QoiKind::Force {
+                    QoiTarget::Force { interfaces: range, component: component(q)? }
+                } else {
+                    let p = point(q)?;
+                    let (mut best, mut dist) = ((0, 0), f64::INFINITY);
+                    for ii in range {
+                        for (j, c) in interfaces[ii].coords.iter().enumerate() {
+                            let d = distance(c, &p);
+                            if d < dist {
+                                (best, dist) = ((ii, j), d);
+                            }
+                        }
+                    }
+                    let h = min_spacing(&interfaces[best.0].coords);
+                    if dist > 0.5 * h + 1e-12 {
+                        return Err(invalid(
+                            format!("{key}.point"),
+                            format!("{p:?} is not on interface '{name}' (nearest node {dist:.3e} away)"),
+                        ));
+                    }
+                    // a component: the slip vector (tangential already) along an axis, signed
+                    let component = match q.component {
+                        Some(_) => Some(component(q)?),
+                        None => None,
+                    };
+                    QoiTarget::Slip { interface: best.0, node: best.1, component }
+                }
+            }
+            QoiKind::Displacement | QoiKind::Velocity => {
+                let name = q.body.as_ref().ok_or_else(|| invalid(format!("{key}.body"), "this QoI needs a body"))?;
+                let bi = bodies
+                    .iter()
+                    .position(|b| &b.name == name)
+                    .ok_or_else(|| invalid(format!("{key}.body"), format!("unknown body '{name}'")))?;
+                let p = point(q)?;
+                let c = component(q)?;
+                let mesh = &bodies[bi].mesh;
+                let (n, dist) = mesh
+                    .nodes
+                    .iter()
+                    .enumerate()
+                    .map(|(n, x)| (n, distance(x, &p)))
+                    .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
+                if dist > 1e-6 * bbox_size(mesh) {
+                    return Err(invalid(
+                        format!("{key}.point"),
+                        format!("{p:?} is not a node of body '{name}' (nearest {dist:.3e} away)"),
+                    ));
+                }
+                let s = (0..substructures.len())
+                    .find(|&s| substructures[s].body == bi && local_of[s].contains_key(&n))
+                    .expect("every node is in a substructure");
+                let dof = local_of[s][&n] * D + c;
+                if q.kind == QoiKind::Displacement {
+                    QoiTarget::Displacement { substructure: s, dof }
+                } else {
+                    QoiTarget::Velocity { substructure: s, dof }
+                }
+            }
+        };
+        qois.push(Qoi { name: q.name.clone(), target });
+    }
+    Ok(qois)
+}
+
+/// Every interface side's search directions, static and dynamic (docs/method.md 3), from the
+/// materials and sizes on either side; `factors`: the scene's k0 and tangential factors.
+fn set_search_directions<const D: usize>(
+    interfaces: &mut [Interface<D>],
+    substructures: &[Substructure<D>],
+    (k0_factor, tangential_factor): (f64, f64),
+    assembly_size: f64,
+    dt: f64,
+) {
+    for itf in interfaces.iter_mut() {
+        let normal = itf.mean_normal();
+        let h = itf.mesh_size();
+        for side in itf.sides.iter_mut() {
+            let young = substructures[side.substructure].material.young;
+            side.k_static = SearchDirection::isotropic(k0_factor * static_search_direction(young, assembly_size, h));
+            let sub = &substructures[side.substructure];
+            let k = k0_factor
+                * dynamic_search_direction(
+                    sub.material.impedance(),
+                    sub.material.bar_wave_speed(),
+                    sub.depth_along(&normal),
+                    dt,
+                );
+            // a contact's slip history converges at a rate set by k_t (docs/performance.md)
+            let tangential = match itf.law {
+                InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => k,
+                InterfaceLaw::Contact | InterfaceLaw::Friction { .. } => k * tangential_factor,
+            };
+            side.k_dynamic = SearchDirection { normal: k, tangential };
+        }
     }
 }
 
