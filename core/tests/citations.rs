@@ -1,6 +1,7 @@
 //! Every heading the sources and docs cite exists: a citation `docs/<name>.md, "Heading"` (comma
 //! optional, across comment lines too) must name the beginning of a heading of that file (after
-//! a section number such as `4.` or `4d.`), and the file must exist.
+//! a section number such as `4.` or `4d.`), a citation `docs/<name>.md 4d` a heading numbered
+//! so, and the file must exist.
 
 use std::path::{Path, PathBuf};
 
@@ -37,8 +38,15 @@ fn folded(text: &str) -> String {
     out
 }
 
-/// (doc file, cited heading) pairs in a text.
-fn citations(text: &str) -> Vec<(String, String)> {
+/// What a citation names in its doc: the beginning of a heading, or a section number.
+#[derive(Debug, PartialEq)]
+enum Cited {
+    Heading(String),
+    Section(String),
+}
+
+/// (doc file, what is cited) pairs in a text.
+fn citations(text: &str) -> Vec<(String, Cited)> {
     let mut found = Vec::new();
     let mut rest = text;
     while let Some(at) = rest.find("docs/") {
@@ -47,12 +55,33 @@ fn citations(text: &str) -> Vec<(String, String)> {
         let after = &rest[name.len()..];
         let Some(after) = after.strip_prefix(".md") else { continue };
         let after = after.strip_prefix(',').unwrap_or(after);
-        let Some(after) = after.strip_prefix(" \"") else { continue };
-        if let Some(end) = after.find('"') {
-            found.push((format!("{name}.md"), after[..end].split_whitespace().collect::<Vec<_>>().join(" ")));
+        let Some(after) = after.strip_prefix(' ') else { continue };
+        if let Some(quoted) = after.strip_prefix('"') {
+            if let Some(end) = quoted.find('"') {
+                let heading = quoted[..end].split_whitespace().collect::<Vec<_>>().join(" ");
+                found.push((format!("{name}.md"), Cited::Heading(heading)));
+            }
+            continue;
+        }
+        // a section number: digits and at most one letter (4, 11, 4d), not a year or a count
+        let word: String = after.chars().take_while(|c| c.is_ascii_alphanumeric()).collect();
+        let digits = word.chars().take_while(|c| c.is_ascii_digit()).count();
+        if (1..=2).contains(&digits)
+            && word.len() - digits <= 1
+            && word[digits..].chars().all(|c| c.is_ascii_lowercase())
+        {
+            found.push((format!("{name}.md"), Cited::Section(word)));
         }
     }
     found
+}
+
+/// The section numbers of a markdown file's numbered headings (`## 4d. Sliding`: `4d`).
+fn sections(text: &str) -> Vec<String> {
+    text.lines()
+        .filter(|l| l.starts_with('#'))
+        .filter_map(|l| l.trim_start_matches('#').trim().split_once(". ").map(|(n, _)| n.to_string()))
+        .collect()
 }
 
 /// The headings of a markdown file, without their #s and section numbers.
@@ -78,15 +107,19 @@ fn every_cited_heading_exists() {
     let mut checked = 0;
     for path in &all {
         let Ok(text) = std::fs::read_to_string(path) else { continue };
-        for (doc, heading) in citations(&folded(&text)) {
+        for (doc, cited) in citations(&folded(&text)) {
             let Ok(doc_text) = std::fs::read_to_string(root.join("docs").join(&doc)) else {
                 missing.push(format!("{}: docs/{doc} does not exist", path.display()));
                 continue;
             };
             checked += 1;
-            if !headings(&doc_text).iter().any(|h| h.starts_with(&heading)) {
+            let found = match &cited {
+                Cited::Heading(heading) => headings(&doc_text).iter().any(|h| h.starts_with(heading)),
+                Cited::Section(number) => sections(&doc_text).contains(number),
+            };
+            if !found {
                 missing.push(format!(
-                    "{}: docs/{doc} has no heading \"{heading}\"",
+                    "{}: docs/{doc} has no heading {cited:?}",
                     path.strip_prefix(&root).unwrap_or(path).display()
                 ));
             }
@@ -102,9 +135,22 @@ fn citations_are_found_across_comment_lines() {
     assert_eq!(
         citations(&folded(text)),
         vec![
-            ("performance.md".to_string(), "Locking, and the static search direction".to_string()),
-            ("a.md".to_string(), "B".to_string())
+            ("performance.md".to_string(), Cited::Heading("Locking, and the static search direction".to_string())),
+            ("a.md".to_string(), Cited::Heading("B".to_string()))
         ]
     );
     assert_eq!(headings("## 4d. Sliding\n### Time windows (x)\ntext"), vec!["Sliding", "Time windows (x)"]);
+}
+
+#[test]
+fn section_numbers_are_citations_and_years_are_not() {
+    let text = "docs/verification.md 4d (and docs/method.md, 3), docs/performance.md 2026 docs/a.md 100 docs/b.md x";
+    assert_eq!(
+        citations(text),
+        vec![
+            ("verification.md".to_string(), Cited::Section("4d".to_string())),
+            ("method.md".to_string(), Cited::Section("3".to_string()))
+        ]
+    );
+    assert_eq!(sections("## 4d. Sliding\n## 11. The discretisation error\n### Time windows"), vec!["4d", "11"]);
 }

@@ -6,7 +6,6 @@
 
 mod browser;
 mod calculix;
-mod citations;
 mod cli;
 mod common;
 mod discretisation;
