@@ -91,11 +91,22 @@ pub struct Surfaces {
 }
 
 /// The cross-validated error of each QoI's surface, relative to its spread over the done points.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CrossValidation {
+    /// done points the surfaces were fitted to
     pub points: usize,
     pub qoi: BTreeMap<String, SurfaceErrors>,
+    /// QoIs whose surface could not be fitted, and why
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub refused: BTreeMap<String, String>,
+}
+
+/// How a study with a target ended, and the errors it was judged on.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TargetOutcome {
+    /// Every QoI's cross-validated error within the target; false: the budget was spent first.
+    pub reached: bool,
+    pub validation: CrossValidation,
 }
 
 impl Surfaces {
@@ -216,6 +227,15 @@ impl AdaptiveDesign {
                 && !cv.qoi.is_empty()
                 && cv.qoi.values().all(|e| e.mean <= t)
         })
+    }
+
+    /// The outcome of a study with a target, once decided: reached, or `spent` (its budget
+    /// chosen and nothing left to solve) with the error it got. None without a target.
+    pub fn outcome(&self, surfaces: &Surfaces, spent: bool) -> Option<TargetOutcome> {
+        self.target?;
+        let validation = surfaces.cross_validate();
+        let reached = self.target_reached(&validation);
+        (reached || spent).then_some(TargetOutcome { reached, validation })
     }
 
     /// The surfaces of the done points among `chosen` (none before the initial points are chosen
