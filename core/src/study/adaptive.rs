@@ -343,7 +343,11 @@ mod tests {
     }
 
     /// The next point with the surfaces of `chosen`, read as plain processes.
-    fn next(d: &AdaptiveDesign, space: &ParameterSpace, chosen: &[(DesignPoint, Option<&BTreeMap<String, f64>>)]) -> Option<DesignPoint> {
+    fn next(
+        d: &AdaptiveDesign,
+        space: &ParameterSpace,
+        chosen: &[(DesignPoint, Option<&BTreeMap<String, f64>>)],
+    ) -> Option<DesignPoint> {
         d.next(chosen, &d.surfaces(space, &QoiReadings::default(), chosen))
     }
 
@@ -466,7 +470,12 @@ mod tests {
         let space = ParameterSpace::from_scene(&scene);
         let d = design(20);
         let chosen: Vec<DesignPoint> = (0..8)
-            .map(|i| DesignPoint::from_pairs([("f1", 0.1 + 0.0125 * i as f64), ("f2", 0.1 + 0.1 * ((i * 3) % 8) as f64 / 7.0)]))
+            .map(|i| {
+                DesignPoint::from_pairs([
+                    ("f1", 0.1 + 0.0125 * i as f64),
+                    ("f2", 0.1 + 0.1 * ((i * 3) % 8) as f64 / 7.0),
+                ])
+            })
             .collect();
         let values: Vec<BTreeMap<String, f64>> = chosen
             .iter()

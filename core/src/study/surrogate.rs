@@ -147,7 +147,16 @@ impl Surrogate {
         let centred: Vec<f64> = values.iter().map(|v| v - mean).collect();
         let alpha = solve(&factor, n, &centred);
         let signal_variance = (centred.iter().zip(&alpha).map(|(c, a)| c * a).sum::<f64>() / n as f64).max(0.0);
-        Some(Self { points: points.to_vec(), values: values.to_vec(), lengths, nugget, signal_variance, mean, factor, alpha })
+        Some(Self {
+            points: points.to_vec(),
+            values: values.to_vec(),
+            lengths,
+            nugget,
+            signal_variance,
+            mean,
+            factor,
+            alpha,
+        })
     }
 
     /// The length scale of each parameter (in units of its range).
@@ -333,7 +342,10 @@ impl QoiSurface {
     ) -> Result<Self, SurrogateError> {
         // (the components at the rows that have the norm: every surface fits the same points)
         let samples = |q: &str| -> Vec<(Vec<f64>, f64)> {
-            rows.iter().filter(|(_, v)| v.contains_key(qoi)).filter_map(|(x, v)| Some((x.clone(), *v.get(q)?))).collect()
+            rows.iter()
+                .filter(|(_, v)| v.contains_key(qoi))
+                .filter_map(|(x, v)| Some((x.clone(), *v.get(q)?)))
+                .collect()
         };
         let own = samples(qoi);
         let complete = !components.is_empty()
@@ -580,7 +592,11 @@ mod tests {
             rest.remove(i);
             let refit = Surrogate::with_lengths(&others, &rest, s.lengths.clone(), s.nugget).unwrap();
             let direct = refit.predict(&points[i]).mean;
-            assert!((loo[i].mean - direct).abs() < 1e-9 * (1.0 + direct.abs()), "{i}: {} against {direct}", loo[i].mean);
+            assert!(
+                (loo[i].mean - direct).abs() < 1e-9 * (1.0 + direct.abs()),
+                "{i}: {} against {direct}",
+                loo[i].mean
+            );
             // it does leave the point out: a residual, not the interpolated value
             assert!((loo[i].mean - values[i]).abs() > 1e-6, "{i}: {loo:?}");
         }

@@ -1222,12 +1222,8 @@ impl Coordinator {
         let point = apply(&entry.points[i], Transition::Complete { result, finished_seq: seq, tolerance })?;
         // a study with a target: judged with this point, in the same commit (so its outcome is
         // known when it ends)
-        let judged = entry
-            .record
-            .adaptive
-            .as_ref()
-            .filter(|a| a.target.is_some() && a.outcome.is_none())
-            .and_then(|a| {
+        let judged =
+            entry.record.adaptive.as_ref().filter(|a| a.target.is_some() && a.outcome.is_none()).and_then(|a| {
                 let mut points = entry.points.clone();
                 points[i] = point.clone();
                 let (outcome, _) = adaptive_step(entry, &points, false);
@@ -1426,7 +1422,11 @@ impl Coordinator {
 /// One step of an adaptive study over `points` (its points, with the latest change): the
 /// surfaces of the done ones fitted once, for the target's outcome if it is decided (reached,
 /// or the budget spent with nothing in flight) and, if `choose`, the next point.
-fn adaptive_step(entry: &StudyEntry, points: &[PointRecord], choose: bool) -> (Option<TargetOutcome>, Option<DesignPoint>) {
+fn adaptive_step(
+    entry: &StudyEntry,
+    points: &[PointRecord],
+    choose: bool,
+) -> (Option<TargetOutcome>, Option<DesignPoint>) {
     let Some(spec) = entry.record.adaptive.as_ref() else { return (None, None) };
     let design = spec.design();
     let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = points

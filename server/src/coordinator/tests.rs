@@ -1150,8 +1150,11 @@ fn cross_validation(c: &Coordinator, id: StudyId, n: usize) -> glissade_core::st
 /// A smooth law of f1 and f2 (a slip that slides everywhere, a displacement).
 fn smooth_law(p: &ParameterVector) -> BTreeMap<String, f64> {
     let (f1, f2) = (p.get("f1").unwrap(), p.get("f2").unwrap());
-    [("slip_A".to_string(), 1e-4 * (1.0 + 4.0 * (f1 - 0.1) + 3.0 * (f2 - 0.1))), ("middle_ux".to_string(), (9.0 * f1).sin() * f2)]
-        .into()
+    [
+        ("slip_A".to_string(), 1e-4 * (1.0 + 4.0 * (f1 - 0.1) + 3.0 * (f2 - 0.1))),
+        ("middle_ux".to_string(), (9.0 * f1).sin() * f2),
+    ]
+    .into()
 }
 
 /// With a target, an adaptive study stops as soon as the cross-validated mean error of every
@@ -1172,7 +1175,10 @@ fn an_adaptive_study_with_a_target_stops_once_its_surfaces_are_within_it() {
     let outcome = v.record.adaptive.as_ref().unwrap().outcome.clone().expect("decided");
     assert!(outcome.reached, "{outcome:?}");
     assert!(solved < 60 && solved == v.points.len(), "stopped before its budget: {solved}");
-    assert_eq!((v.state, v.progress.total, v.progress.done, v.progress.pending), (StudyState::Done, solved as u32, solved as u32, 0));
+    assert_eq!(
+        (v.state, v.progress.total, v.progress.done, v.progress.pending),
+        (StudyState::Done, solved as u32, solved as u32, 0)
+    );
     // judged on every point done, each QoI within the target, as computed apart
     assert_eq!(outcome.validation.points, solved);
     assert_eq!(outcome.validation, cross_validation(&c, id, solved));
