@@ -324,7 +324,7 @@ impl ResponseSurface {
 /// that know contact").
 #[derive(Debug, Clone)]
 pub enum QoiSurface {
-    Direct(ResponseSurface),
+    Direct(Box<ResponseSurface>),
     Components(Vec<ResponseSurface>),
 }
 
@@ -359,7 +359,7 @@ impl QoiSurface {
             return Ok(QoiSurface::Components(parts));
         }
         let surface = ResponseSurface::fit(space, names, &own)?;
-        Ok(QoiSurface::Direct(if norm { surface.non_negative() } else { surface }))
+        Ok(QoiSurface::Direct(Box::new(if norm { surface.non_negative() } else { surface })))
     }
 
     /// Points it was fitted to.
