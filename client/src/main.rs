@@ -144,19 +144,20 @@ enum Command {
 }
 
 #[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("adaptive_kind").args(["adaptive", "surface_accuracy"]).multiple(true)))]
 struct SubmitArgs {
     /// Scene file (TOML); its text is sent to the coordinator.
     scene: PathBuf,
     /// A swept parameter, NAME=START:STOP:COUNT, NAME=V1,V2,... or NAME=lhs:N:SEED (repeatable;
     /// the study is the product of the grids).
-    #[arg(long, value_name = "NAME=SPEC", required_unless_present_any = ["adaptive", "range"], conflicts_with = "adaptive")]
+    #[arg(long, value_name = "NAME=SPEC", required_unless_present_any = ["adaptive", "range"], conflicts_with = "adaptive_kind")]
     grid: Vec<String>,
     /// An adaptive study of N points instead of a grid: the first spread over the --range box,
     /// then each where the response surface is least sure (docs/surrogate.md)
     #[arg(long, value_name = "N", requires = "range")]
     adaptive: Option<u32>,
     /// The box of an adaptive study, NAME=LOW:HIGH (repeatable, one per swept parameter)
-    #[arg(long, value_name = "NAME=LOW:HIGH")]
+    #[arg(long, value_name = "NAME=LOW:HIGH", requires = "adaptive_kind")]
     range: Vec<String>,
     /// An adaptive study over the --range box that adds points until the cross-validated mean
     /// error of every QoI's surface is within this share of the QoI's spread (0.02: 2 %), or its
@@ -410,8 +411,6 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
             glissade_core::study::space::DEFAULT_MAX_POINTS,
         )
         .map_err(|e| anyhow!("--range / --adaptive / --surface-accuracy: {e}"))?;
-    } else if !args.range.is_empty() {
-        bail!("--range: the box of an adaptive study: give --adaptive N or --surface-accuracy SHARE too");
     } else {
         glissade_core::study::space::check_grid(&parsed, &args.grid).map_err(|e| anyhow!("--grid: {e}"))?;
     }
