@@ -144,20 +144,27 @@ enum Command {
 }
 
 #[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("adaptive_kind").args(["adaptive", "surface_accuracy"]).multiple(true)))]
 struct SubmitArgs {
     /// Scene file (TOML); its text is sent to the coordinator.
     scene: PathBuf,
     /// A swept parameter, NAME=START:STOP:COUNT, NAME=V1,V2,... or NAME=lhs:N:SEED (repeatable;
     /// the study is the product of the grids).
-    #[arg(long, value_name = "NAME=SPEC", required_unless_present_any = ["adaptive", "range"], conflicts_with = "adaptive")]
+    #[arg(long, value_name = "NAME=SPEC", required_unless_present_any = ["adaptive", "range"], conflicts_with = "adaptive_kind")]
     grid: Vec<String>,
     /// An adaptive study of N points instead of a grid: the first spread over the --range box,
     /// then each where the response surface is least sure (docs/surrogate.md)
     #[arg(long, value_name = "N", requires = "range")]
     adaptive: Option<u32>,
     /// The box of an adaptive study, NAME=LOW:HIGH (repeatable, one per swept parameter)
-    #[arg(long, value_name = "NAME=LOW:HIGH", requires = "adaptive")]
+    #[arg(long, value_name = "NAME=LOW:HIGH", requires = "adaptive_kind")]
     range: Vec<String>,
+    /// An adaptive study over the --range box that adds points until the cross-validated mean
+    /// error of every QoI's surface is within this share of the QoI's spread (0.02: 2 %), or its
+    /// budget (--adaptive N; default 100) is spent, and says which (`glissade show`); its points
+    /// are solved to --tol, default this / 30 (docs/surrogate.md, "Adaptive to a target")
+    #[arg(long, value_name = "SHARE", requires = "range")]
+    surface_accuracy: Option<f64>,
     /// Tolerance on the error indicator (default: the scene's).
     #[arg(long, value_name = "T")]
     tol: Option<f64>,
@@ -393,15 +400,17 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
     }
     // checked as the coordinator will, before connecting
     let (scene, parsed) = read_scene(&args.scene)?;
-    if let Some(budget) = args.adaptive {
+    if args.adaptive.is_some() || args.surface_accuracy.is_some() {
         let space = glissade_core::study::space::ParameterSpace::from_scene(&parsed);
+        let budget = args.adaptive.map_or(glissade_core::study::adaptive::TARGET_BUDGET, |n| n as usize);
         glissade_core::study::adaptive::AdaptiveDesign::parse(
             &args.range,
-            budget as usize,
+            budget,
+            args.surface_accuracy,
             &space,
             glissade_core::study::space::DEFAULT_MAX_POINTS,
         )
-        .map_err(|e| anyhow!("--range / --adaptive: {e}"))?;
+        .map_err(|e| anyhow!("--range / --adaptive / --surface-accuracy: {e}"))?;
     } else {
         glissade_core::study::space::check_grid(&parsed, &args.grid).map_err(|e| anyhow!("--grid: {e}"))?;
     }
@@ -446,6 +455,7 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
         refine_points: args.refine,
         refine_levels: args.refine_levels,
         surface_audit_points: args.surface_audit,
+        surface_accuracy: args.surface_accuracy,
     };
     let mut client = user(server).await?;
     let reply = client
@@ -688,6 +698,46 @@ fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
     )
 }
 
+/// `surface accuracy 2.0e-2 (mean error / spread, cross-validated): reached at 34 points of
+/// 100: slip_A mean 1.2e-2 largest 8.1e-2, ...`, then what the held-out points measured against
+/// the target where they did.
+fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAccuracy>) -> String {
+    let errors: Vec<String> = t
+        .qoi
+        .iter()
+        .map(|(q, e)| {
+            let above = if e.mean > t.surface_accuracy { " (ABOVE)" } else { "" };
+            format!("{q} mean {:.1e}{above} largest {:.1e}", e.mean, e.largest)
+        })
+        .chain(t.refused.iter().map(|(q, why)| format!("{q} not fitted: {why}")))
+        .collect();
+    let verdict = match t.outcome.as_str() {
+        "reached" => format!("REACHED at {} points (budget {})", t.points, t.budget),
+        "budget" => format!("NOT REACHED: the budget of {} points was spent; at {} points", t.budget, t.points),
+        _ => format!("not decided yet (budget {})", t.budget),
+    };
+    let mut line = format!(
+        "surface accuracy {:.1e} (mean error / spread, cross-validated): {verdict}{}{}",
+        t.surface_accuracy,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    );
+    if let Some(h) = held.filter(|h| h.validated > 0) {
+        let above: Vec<String> = h
+            .qoi
+            .iter()
+            .filter(|(_, e)| e.mean > t.surface_accuracy)
+            .map(|(q, e)| format!("{q} {:.1e}", e.mean))
+            .collect();
+        line.push_str(&if above.is_empty() {
+            format!("; the {} held-out points confirm it (every mean within the target)", h.validated)
+        } else {
+            format!("; the {} held-out points measure means ABOVE the target: {}", h.validated, above.join(", "))
+        });
+    }
+    line
+}
+
 /// `2 of 2 points re-solved at dt / 2 (study 3; 4.1 s, 0.8 x the study's 5.0 s): slip_A change
 /// 3.2e-2 error ~4.3e-2 (order 2 assumed), ...`
 fn discretisation_line(d: &v1::StudyDiscretisation) -> String {
@@ -769,6 +819,16 @@ fn study_json(s: &v1::Study) -> serde_json::Value {
         })),
         "refines": (s.refines != 0).then(|| serde_json::json!({"study_id": s.refines, "factor": s.refine_factor})),
         "held_out": s.held_out,
+        "target": s.target.as_ref().map(|t| serde_json::json!({
+            "surface_accuracy": t.surface_accuracy,
+            "budget": t.budget,
+            "outcome": (!t.outcome.is_empty()).then_some(&t.outcome),
+            "points": t.points,
+            "refused": t.refused,
+            "qoi": t.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
+                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.points,
+            }))).collect::<serde_json::Map<_, _>>(),
+        })),
         "surface_accuracy": s.surface_accuracy.as_ref().map(|a| serde_json::json!({
             "audit_study_id": a.audit_study_id,
             "tolerance": a.tolerance,
@@ -1066,6 +1126,9 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
         );
     } else if s.audit_of != 0 {
         outln!("  audits    study {} (its points re-solved cold at this tighter tolerance)", s.audit_of);
+    }
+    if let Some(t) = &s.target {
+        outln!("  target    {}", target_line(t, s.surface_accuracy.as_ref()));
     }
     if let Some(a) = &s.accuracy {
         outln!("  accuracy  {}", accuracy_line(a));

@@ -126,9 +126,18 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
         if m.scene.len() > MAX_SCENE_BYTES {
             return Err(Invalid(format!("scene: {} bytes, more than the {MAX_SCENE_BYTES} accepted", m.scene.len())));
         }
+        if let Some(t) = m.surface_accuracy {
+            glissade_core::study::adaptive::check_target(t).map_err(|e| Invalid(format!("surface_accuracy: {e}")))?;
+            if m.ranges.is_empty() {
+                return Err(Invalid(
+                    "surface_accuracy: a target is for an adaptive study: give its ranges (NAME=LOW:HIGH)".into(),
+                ));
+            }
+        }
         let adaptive = match (m.ranges.is_empty(), m.adaptive_points) {
             (true, 0) => None,
-            (false, 0) => {
+            // a target with no budget: the default budget (the coordinator's)
+            (false, 0) if m.surface_accuracy.is_none() => {
                 return Err(Invalid("ranges: give adaptive_points too (the study's number of points)".into()));
             }
             (true, _) => return Err(Invalid("adaptive_points: give the ranges (NAME=LOW:HIGH) too".into())),
@@ -188,6 +197,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             refine_levels: m.refine_levels,
             adaptive,
             surface_audit_points: m.surface_audit_points,
+            surface_accuracy: m.surface_accuracy,
             meshes: m.meshes.into_iter().map(|f| MeshUpload { file: f.file, data: f.data, sha256: f.sha256 }).collect(),
         })
     }
@@ -499,23 +509,36 @@ pub fn study(v: &StudyView) -> v1::Study {
             validated: a.validated,
             planned: a.planned,
             fitted: a.fitted,
-            qoi: a
-                .qoi
-                .iter()
-                .map(|(q, e)| {
-                    let points = e.count as u32;
-                    (
-                        q.clone(),
-                        v1::QoiSurfaceAccuracy { largest: e.largest, mean: e.mean, within_2sd: e.within_2sd, points },
-                    )
-                })
-                .collect(),
+            qoi: surface_errors(&a.qoi),
             refused: a.refused.clone().into_iter().collect(),
             work: a.work,
             work_cap: a.work_cap,
         }),
         held_out: r.held_out.is_some(),
+        target: r.adaptive.as_ref().and_then(|a| {
+            let outcome = a.outcome.as_ref();
+            Some(v1::StudyTarget {
+                surface_accuracy: a.target?,
+                budget: a.budget,
+                outcome: outcome.map_or("", |o| if o.reached { "reached" } else { "budget" }).into(),
+                points: outcome.map_or(0, |o| o.validation.points as u32),
+                qoi: outcome.map(|o| surface_errors(&o.validation.qoi)).unwrap_or_default(),
+                refused: outcome.map(|o| o.validation.refused.clone().into_iter().collect()).unwrap_or_default(),
+            })
+        }),
     }
+}
+
+/// Per QoI errors of a surface (held-out or cross-validated), relative to its spread.
+fn surface_errors(
+    qoi: &BTreeMap<String, glissade_core::study::holdout::SurfaceErrors>,
+) -> BTreeMap<String, v1::QoiSurfaceAccuracy> {
+    qoi.iter()
+        .map(|(q, e)| {
+            let points = e.count as u32;
+            (q.clone(), v1::QoiSurfaceAccuracy { largest: e.largest, mean: e.mean, within_2sd: e.within_2sd, points })
+        })
+        .collect()
 }
 
 pub fn event(e: &Event) -> v1::StudyEvent {

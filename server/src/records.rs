@@ -14,6 +14,7 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::study::adaptive::{AdaptiveDesign, TargetOutcome};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
 use glissade_proto::{ParameterVector, PointId, StudyId};
@@ -160,6 +161,23 @@ pub struct AdaptiveSpec {
     /// (name, low, high) per swept parameter, sorted by name.
     pub ranges: Vec<(String, f64, f64)>,
     pub budget: u32,
+    /// Stop before the budget once every QoI's surface is this good (a share of its spread).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target: Option<f64>,
+    /// How a study with a target ended (None while it runs): no point is chosen after it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outcome: Option<TargetOutcome>,
+}
+
+impl AdaptiveSpec {
+    /// Points still to be chosen: none once the target's outcome is decided.
+    pub fn unchosen(&self, chosen: u32) -> u32 {
+        if self.outcome.is_some() { 0 } else { self.budget.saturating_sub(chosen) }
+    }
+
+    pub fn design(&self) -> AdaptiveDesign {
+        AdaptiveDesign { ranges: self.ranges.clone(), budget: self.budget as usize, target: self.target }
+    }
 }
 
 /// Where a point is in its life.

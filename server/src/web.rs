@@ -254,6 +254,14 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         })),
         "refines": r.refines.map(|x| json!({"study_id": x.study.0, "factor": x.factor})),
         "held_out": r.held_out.is_some(),
+        "target": r.adaptive.as_ref().and_then(|a| Some(json!({
+            "surface_accuracy": a.target?, "budget": a.budget,
+            "outcome": a.outcome.as_ref().map(|o| if o.reached { "reached" } else { "budget" }),
+            "points": a.outcome.as_ref().map(|o| o.validation.points),
+            "qoi": a.outcome.as_ref().map(|o| o.validation.qoi.iter().map(|(q, e)| (q.clone(), json!({
+                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
+            }))).collect::<serde_json::Map<_, _>>()),
+        }))),
         "surface_accuracy": v.surface_accuracy.as_ref().map(|a| json!({
             "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "validated": a.validated,
             "planned": a.planned, "fitted": a.fitted, "work": a.work, "work_cap": a.work_cap, "refused": a.refused,
@@ -744,6 +752,22 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
             (format!("{state}: {} of {} done, {} running, {} pending, {} failed", p.done, p.total, p.leased, p.pending, p.failed))
         }
         p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
+        @if let Some((target, a)) = r.adaptive.as_ref().and_then(|a| Some((a.target?, a))) {
+            p #target {
+                (format!("surface accuracy target {target:.1e} (mean error / spread, cross-validated): "))
+                @match &a.outcome {
+                    None => (format!("not decided yet (budget {} points)", a.budget)),
+                    Some(o) => {
+                        @if o.reached { (format!("reached at {} points (budget {}): ", o.validation.points, a.budget)) }
+                        @else { (format!("NOT reached: the budget of {} points was spent; at {} points: ", a.budget, o.validation.points)) }
+                        @for (k, (q, e)) in o.validation.qoi.iter().enumerate() {
+                            @if k > 0 { ", " }
+                            (q) (format!(" mean {:.1e} largest {:.1e}", e.mean, e.largest))
+                        }
+                    }
+                }
+            }
+        }
         @if let Some(a) = &v.accuracy {
             p #accuracy {
                 (format!("measured accuracy: {} of {} points re-solved cold at {:.0e}: ", a.audited, a.planned, a.tolerance))

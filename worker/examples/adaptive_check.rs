@@ -12,7 +12,7 @@
 use std::collections::BTreeMap;
 
 use glissade_core::scene::Scene;
-use glissade_core::study::adaptive::AdaptiveDesign;
+use glissade_core::study::adaptive::{AdaptiveDesign, QoiReadings};
 use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::surrogate::ResponseSurface;
 use glissade_core::study::{PointRequest, SolvePoint, StudyResult};
@@ -68,12 +68,14 @@ fn main() {
     eprintln!("solving the Latin hypercube ({} points)", lhs.len());
     designs.push(("Latin hypercube".into(), lhs.iter().map(|p| (p.clone(), solve(p))).collect()));
     // adaptive: each point where the surface is least sure
-    let design = AdaptiveDesign { ranges: vec![("f1".into(), 0.1, 0.2), ("f2".into(), 0.1, 0.2)], budget };
+    let design =
+        AdaptiveDesign { ranges: vec![("f1".into(), 0.1, 0.2), ("f2".into(), 0.1, 0.2)], budget, target: None };
+    let readings = QoiReadings::of(&scene);
     let mut adaptive: Vec<Solved> = Vec::new();
     while adaptive.len() < budget {
         let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
             adaptive.iter().map(|(p, q)| (p.clone(), Some(q))).collect();
-        let Some(next) = design.next(&space, &chosen) else { break };
+        let Some(next) = design.next(&chosen, &design.surfaces(&space, &readings, &chosen)) else { break };
         eprintln!("adaptive point {}: {next}", adaptive.len() + 1);
         let q = solve(&next);
         adaptive.push((next, q));

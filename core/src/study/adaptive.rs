@@ -2,21 +2,139 @@
 //!
 //! A study of `budget` points over a box of parameter ranges first spreads `initial` points
 //! (each the candidate farthest from every point already chosen: a maximin design), then hands out
-//! the candidate where the response surface ([`ResponseSurface`]) is least sure: the largest
-//! standard deviation over the QoIs, each relative to the spread of its values. Candidates are a
-//! fixed quasi-random (Halton) set over the box; those closer than [`MIN_SEPARATION`] to a point
-//! already chosen (done, running or pending) are skipped, so pools asking at the same time get
-//! different points.
+//! the candidate where the response surface ([`QoiSurface`]: a norm from its components where the
+//! scene reports them) is least sure: the largest standard deviation over the QoIs, each relative
+//! to the spread of its values. Candidates are a fixed quasi-random (Halton) set over the box;
+//! those closer than [`MIN_SEPARATION`] to a point already chosen (done, running or pending) are
+//! skipped, so pools asking at the same time get different points.
+//!
+//! With a target (`--surface-accuracy`), the study stops before its budget once the surfaces'
+//! cross-validated error ([`Surfaces::cross_validate`]: leave-one-out, the measure of the surface
+//! audit) is within the target for every QoI (docs/surrogate.md, "Adaptive to a target").
 
 use std::collections::BTreeMap;
 
+use super::holdout::{self, SurfaceErrors};
 use super::space::{DesignPoint, ParameterSpace};
-use super::surrogate::ResponseSurface;
+use super::surrogate::QoiSurface;
+use crate::scene::{MIN_TOLERANCE, Scene};
 
 /// Candidates scored per choice.
 const CANDIDATES: usize = 1024;
 /// Closest a new point may be to a chosen one, in units of the box's sides (scaled coordinates).
 pub const MIN_SEPARATION: f64 = 0.02;
+/// The budget of a study with a target and no budget given.
+pub const TARGET_BUDGET: usize = 100;
+/// A point's tolerance per unit of the target ([`point_tolerance`]): measured, a point's QoIs
+/// are within about 3 x the tolerance of the largest |QoI| (docs/surrogate.md); this keeps the
+/// points' own error near a tenth of the surface's target.
+pub const TOLERANCE_PER_TARGET: f64 = 1.0 / 30.0;
+/// The loosest tolerance a target chooses: looser solves are not converged enough to be a
+/// point of any surface (the service itself accepts up to 1).
+pub const LOOSEST_TARGET_TOLERANCE: f64 = 1e-2;
+
+/// A surface accuracy target: a share of each QoI's spread, in (0, 1].
+pub fn check_target(target: f64) -> Result<f64, String> {
+    if target.is_finite() && target > 0.0 && target <= 1.0 {
+        Ok(target)
+    } else {
+        Err(format!(
+            "surface accuracy {target}: give the error aimed at as a share of each QoI's spread, above 0 and at most 1 (0.02: 2 %)"
+        ))
+    }
+}
+
+/// The tolerance the points of a study aiming at `target` are solved to: target x
+/// [`TOLERANCE_PER_TARGET`], within [MIN_TOLERANCE, LOOSEST_TARGET_TOLERANCE]. It assumes a QoI's
+/// spread over the box is of the order of its largest |value| (slips that stick somewhere: the
+/// spread is the largest value); a QoI that varies by a share r of its value needs r x this
+/// (give `--tol`).
+pub fn point_tolerance(target: f64) -> f64 {
+    (target * TOLERANCE_PER_TARGET).clamp(MIN_TOLERANCE, LOOSEST_TARGET_TOLERANCE)
+}
+
+/// How each QoI's surface is read: a norm (a slip without a component) never below zero, and
+/// from its signed components where the scene reports them; the components themselves are read
+/// through their norm, neither scored nor judged on their own (a component that stays near zero
+/// over the box has a spread of rounding errors).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct QoiReadings {
+    /// norm -> its components (empty: none reported)
+    norms: BTreeMap<String, Vec<String>>,
+}
+
+impl QoiReadings {
+    pub fn of(scene: &Scene) -> Self {
+        let norms = scene
+            .qoi
+            .iter()
+            .filter(|q| scene.qoi_is_norm(&q.name))
+            .map(|q| (q.name.clone(), scene.components_of(&q.name).into_iter().map(String::from).collect()))
+            .collect();
+        Self { norms }
+    }
+
+    fn is_component(&self, qoi: &str) -> bool {
+        self.norms.values().any(|c| c.iter().any(|c| c == qoi))
+    }
+}
+
+/// The surfaces of an adaptive study's done points, one per QoI read on its own.
+#[derive(Debug, Clone, Default)]
+pub struct Surfaces {
+    /// (QoI, its surface, its spread over the done points, its values there in the fitted order)
+    fitted: Vec<(String, QoiSurface, f64, Vec<f64>)>,
+    /// QoIs whose surface could not be fitted, and why
+    pub refused: BTreeMap<String, String>,
+    /// done points the surfaces were fitted to
+    pub points: usize,
+}
+
+/// The cross-validated error of each QoI's surface, relative to its spread over the done points.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CrossValidation {
+    /// done points the surfaces were fitted to
+    pub points: usize,
+    pub qoi: BTreeMap<String, SurfaceErrors>,
+    /// QoIs whose surface could not be fitted, and why
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub refused: BTreeMap<String, String>,
+}
+
+/// How a study with a target ended, and the errors it was judged on.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TargetOutcome {
+    /// Every QoI's cross-validated error within the target; false: the budget was spent first.
+    pub reached: bool,
+    pub validation: CrossValidation,
+}
+
+impl Surfaces {
+    /// Leave-one-out over the done points ([`QoiSurface::leave_one_out`]), measured as the
+    /// surface audit measures its held-out points ([`holdout::surface_errors`]). It overstates
+    /// the error of the whole surface a little: each point is predicted without itself, from a
+    /// sparser design than the study's.
+    pub fn cross_validate(&self) -> CrossValidation {
+        let qoi = self
+            .fitted
+            .iter()
+            .map(|(q, surface, spread, values)| {
+                let pairs: Vec<_> = surface.leave_one_out().into_iter().zip(values.iter().copied()).collect();
+                (q.clone(), holdout::surface_errors(&pairs, *spread))
+            })
+            .collect();
+        CrossValidation { points: self.points, qoi, refused: self.refused.clone() }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.fitted.is_empty()
+    }
+
+    /// The QoIs scored and judged, and whether each is read from its components.
+    pub fn qois(&self) -> impl Iterator<Item = (&str, bool)> {
+        self.fitted.iter().map(|(q, s, ..)| (q.as_str(), matches!(s, QoiSurface::Components(_))))
+    }
+}
 
 /// An adaptive study's box and budget.
 #[derive(Debug, Clone, PartialEq)]
@@ -24,15 +142,29 @@ pub struct AdaptiveDesign {
     /// (name, low, high) per swept parameter, sorted by name.
     pub ranges: Vec<(String, f64, f64)>,
     pub budget: usize,
+    /// Stop once the cross-validated mean error is within this share of every QoI's spread.
+    pub target: Option<f64>,
 }
 
 impl AdaptiveDesign {
     /// The design of `NAME=LOW:HIGH` ranges (parameters of `space`, inside their declared
     /// ranges) and a budget of at least 2 points and at most `max_points`.
-    pub fn parse(specs: &[String], budget: usize, space: &ParameterSpace, max_points: usize) -> Result<Self, String> {
+    /// A `target` ([`check_target`]) stops it earlier, when its surfaces are good enough.
+    pub fn parse(
+        specs: &[String],
+        budget: usize,
+        target: Option<f64>,
+        space: &ParameterSpace,
+        max_points: usize,
+    ) -> Result<Self, String> {
         if specs.is_empty() {
-            return Err("an adaptive study needs at least one range NAME=LOW:HIGH".into());
+            return Err(if target.is_some() {
+                "a surface accuracy target needs the box of an adaptive study: give ranges NAME=LOW:HIGH".into()
+            } else {
+                "an adaptive study needs at least one range NAME=LOW:HIGH".into()
+            });
         }
+        let target = target.map(check_target).transpose()?;
         if !(2..=max_points).contains(&budget) {
             return Err(format!("adaptive budget {budget}: give 2 to {max_points} points"));
         }
@@ -72,7 +204,7 @@ impl AdaptiveDesign {
             ));
         }
         ranges.sort_by(|a, b| a.0.cmp(&b.0));
-        Ok(Self { ranges, budget })
+        Ok(Self { ranges, budget, target })
     }
 
     /// Points spread before the surface chooses: 2 per parameter plus one, within the budget.
@@ -80,12 +212,74 @@ impl AdaptiveDesign {
         (2 * self.ranges.len() + 1).min(self.budget)
     }
 
-    /// The next point to solve, given the points chosen so far (`chosen`, with their QoIs where
-    /// they are done); None when every candidate is too close to a chosen point.
-    pub fn next(
+    /// Done points needed before the target is judged: twice the initial design (a surface of
+    /// fewer points can be flat by chance, every point sticking: its error would read zero).
+    pub fn validated_after(&self) -> usize {
+        2 * (2 * self.ranges.len() + 1)
+    }
+
+    /// Whether `cv` meets the target: enough points, every QoI fitted, each one's mean error
+    /// within the target. False without a target.
+    pub fn target_reached(&self, cv: &CrossValidation) -> bool {
+        self.target.is_some_and(|t| {
+            cv.points >= self.validated_after()
+                && cv.refused.is_empty()
+                && !cv.qoi.is_empty()
+                && cv.qoi.values().all(|e| e.mean <= t)
+        })
+    }
+
+    /// The outcome of a study with a target, once decided: reached, or `spent` (its budget
+    /// chosen and nothing left to solve) with the error it got. None without a target.
+    pub fn outcome(&self, surfaces: &Surfaces, spent: bool) -> Option<TargetOutcome> {
+        self.target?;
+        let validation = surfaces.cross_validate();
+        let reached = self.target_reached(&validation);
+        (reached || spent).then_some(TargetOutcome { reached, validation })
+    }
+
+    /// The surfaces of the done points among `chosen` (none before the initial points are chosen
+    /// and 2 are done: the initial points fill the box first).
+    pub fn surfaces(
         &self,
         space: &ParameterSpace,
+        readings: &QoiReadings,
         chosen: &[(DesignPoint, Option<&BTreeMap<String, f64>>)],
+    ) -> Surfaces {
+        let names: Vec<String> = self.ranges.iter().map(|(n, ..)| n.clone()).collect();
+        let rows: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = chosen
+            .iter()
+            .filter_map(|(p, q)| Some((names.iter().map(|n| p.get(n).unwrap_or(f64::NAN)).collect(), (*q)?)))
+            .collect();
+        let mut surfaces = Surfaces { points: rows.len(), ..Surfaces::default() };
+        if chosen.len() < self.initial() || rows.len() < 2 {
+            return surfaces;
+        }
+        let qois: std::collections::BTreeSet<&String> = rows.iter().flat_map(|(_, q)| q.keys()).collect();
+        for q in qois.into_iter().filter(|q| !readings.is_component(q)) {
+            let components: Vec<&str> =
+                readings.norms.get(q.as_str()).map(|c| c.iter().map(String::as_str).collect()).unwrap_or_default();
+            let norm = readings.norms.contains_key(q.as_str());
+            match QoiSurface::fit(space, &names, &rows, q, norm, &components) {
+                Ok(s) => {
+                    let values: Vec<f64> = rows.iter().filter_map(|(_, v)| v.get(q.as_str()).copied()).collect();
+                    surfaces.fitted.push((q.clone(), s, holdout::spread(values.iter().copied()), values));
+                }
+                Err(e) => {
+                    surfaces.refused.insert(q.clone(), e.to_string());
+                }
+            }
+        }
+        surfaces
+    }
+
+    /// The next point to solve, given the points chosen so far (`chosen`, with their QoIs where
+    /// they are done) and the `surfaces` of the done ones; None when every candidate is too
+    /// close to a chosen point.
+    pub fn next(
+        &self,
+        chosen: &[(DesignPoint, Option<&BTreeMap<String, f64>>)],
+        surfaces: &Surfaces,
     ) -> Option<DesignPoint> {
         let dim = self.ranges.len();
         let scaled = |p: &DesignPoint| -> Vec<f64> {
@@ -103,35 +297,17 @@ impl AdaptiveDesign {
         let point = |c: &[f64]| {
             DesignPoint::from_pairs(self.ranges.iter().zip(c).map(|((n, lo, hi), x)| (n.clone(), lo + x * (hi - lo))))
         };
-        // the surfaces of the QoIs, from the done points
-        let done: Vec<(&DesignPoint, &BTreeMap<String, f64>)> =
-            chosen.iter().filter_map(|(p, q)| Some((p, (*q)?))).collect();
-        let names: Vec<String> = self.ranges.iter().map(|(n, ..)| n.clone()).collect();
-        let mut surfaces = Vec::new();
-        if chosen.len() >= self.initial() && done.len() >= 2 {
-            let qois: std::collections::BTreeSet<&String> = done.iter().flat_map(|(_, q)| q.keys()).collect();
-            for q in qois {
-                let samples: Vec<(Vec<f64>, f64)> = done
-                    .iter()
-                    .filter_map(|(p, v)| {
-                        Some((names.iter().map(|n| p.get(n).unwrap_or(f64::NAN)).collect(), *v.get(q)?))
-                    })
-                    .collect();
-                let values: Vec<f64> = samples.iter().map(|(_, v)| *v).collect();
-                let spread =
-                    values.iter().cloned().fold(f64::MIN, f64::max) - values.iter().cloned().fold(f64::MAX, f64::min);
-                if let Ok(s) = ResponseSurface::fit(space, &names, &samples) {
-                    surfaces.push((s, if spread > 0.0 { spread } else { 1.0 }));
-                }
-            }
-        }
         let score = |c: &[f64]| -> f64 {
             if surfaces.is_empty() {
                 // the initial, space-filling points: farthest from every chosen one
                 return nearest(c);
             }
             let p = point(c);
-            surfaces.iter().filter_map(|(s, spread)| s.predict(&p).ok().map(|v| v.std / spread)).fold(0.0, f64::max)
+            surfaces
+                .fitted
+                .iter()
+                .filter_map(|(_, s, spread, _)| s.predict(&p).ok().map(|v| v.std / spread))
+                .fold(0.0, f64::max)
         };
         let best = free.into_iter().map(|c| (score(c), c)).max_by(|a, b| a.0.total_cmp(&b.0))?;
         Some(point(best.1))
@@ -163,7 +339,16 @@ mod tests {
     }
 
     fn design(budget: usize) -> AdaptiveDesign {
-        AdaptiveDesign { ranges: vec![("f1".into(), 0.1, 0.2), ("f2".into(), 0.1, 0.2)], budget }
+        AdaptiveDesign { ranges: vec![("f1".into(), 0.1, 0.2), ("f2".into(), 0.1, 0.2)], budget, target: None }
+    }
+
+    /// The next point with the surfaces of `chosen`, read as plain processes.
+    fn next(
+        d: &AdaptiveDesign,
+        space: &ParameterSpace,
+        chosen: &[(DesignPoint, Option<&BTreeMap<String, f64>>)],
+    ) -> Option<DesignPoint> {
+        d.next(chosen, &d.surfaces(space, &QoiReadings::default(), chosen))
     }
 
     #[test]
@@ -174,7 +359,7 @@ mod tests {
         for _ in 0..d.initial() {
             let with: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
                 chosen.iter().map(|p| (p.clone(), None)).collect();
-            let p = d.next(&space, &with).unwrap();
+            let p = next(&d, &space, &with).unwrap();
             for (_, v) in p.iter() {
                 assert!((0.1..=0.2).contains(&v), "{p}");
             }
@@ -189,7 +374,7 @@ mod tests {
         let values: Vec<BTreeMap<String, f64>> = chosen.iter().map(qoi).collect();
         let with: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
             chosen.iter().cloned().zip(values.iter().map(Some)).collect();
-        let next = d.next(&space, &with).unwrap();
+        let next = next(&d, &space, &with).unwrap();
         assert!(chosen.iter().all(|c| space.normalised_distance(c, &next) >= MIN_SEPARATION));
         let nearest_done = chosen.iter().map(|c| space.normalised_distance(c, &next)).fold(f64::INFINITY, f64::min);
         assert!(nearest_done > 0.1, "the least sure place is away from the points: {next} ({nearest_done})");
@@ -198,8 +383,8 @@ mod tests {
     #[test]
     fn points_asked_for_at_the_same_time_differ_and_a_full_box_gives_none() {
         let (d, space) = (design(4), space());
-        let a = d.next(&space, &[]).unwrap();
-        let b = d.next(&space, &[(a.clone(), None)]).unwrap();
+        let a = next(&d, &space, &[]).unwrap();
+        let b = next(&d, &space, &[(a.clone(), None)]).unwrap();
         assert!(space.normalised_distance(&a, &b) > MIN_SEPARATION);
         // every candidate taken: nothing left to give
         let all: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = (1..=CANDIDATES)
@@ -208,6 +393,106 @@ mod tests {
                 (DesignPoint::from_pairs([("f1", 0.1 + 0.1 * x), ("f2", 0.1 + 0.1 * y)]), None)
             })
             .collect();
-        assert_eq!(d.next(&space, &all), None);
+        assert_eq!(next(&d, &space, &all), None);
+    }
+
+    #[test]
+    fn a_target_is_a_share_of_the_spread_and_sets_the_points_tolerance() {
+        let space = space();
+        let ranges = vec!["f1=0.1:0.2".to_string()];
+        let parsed = AdaptiveDesign::parse(&ranges, 30, Some(0.02), &space, 1000).unwrap();
+        assert_eq!(parsed.target, Some(0.02));
+        for bad in [0.0, -0.01, 1.5, f64::NAN, f64::INFINITY] {
+            let e = AdaptiveDesign::parse(&ranges, 30, Some(bad), &space, 1000).unwrap_err();
+            assert!(e.contains("surface accuracy") && e.contains("at most 1"), "{bad}: {e}");
+        }
+        let e = AdaptiveDesign::parse(&[], 30, Some(0.02), &space, 1000).unwrap_err();
+        assert!(e.contains("target needs the box"), "{e}");
+        // the tolerance follows the target, within the bounds
+        assert!((point_tolerance(0.02) - 0.02 / 30.0).abs() < 1e-18);
+        assert!(point_tolerance(0.002) < point_tolerance(0.02));
+        assert_eq!(point_tolerance(1.0), LOOSEST_TARGET_TOLERANCE);
+        assert_eq!(point_tolerance(1e-12), MIN_TOLERANCE);
+    }
+
+    /// The target is judged on the cross-validated error: a smooth law reaches a loose target
+    /// once enough points are done, never before `validated_after`, and a tight one is not.
+    #[test]
+    fn the_target_is_judged_on_the_cross_validated_error_of_every_qoi() {
+        let space = space();
+        let law = |p: &DesignPoint| -> BTreeMap<String, f64> {
+            let (x, y) = ((p.get("f1").unwrap() - 0.1) / 0.1, (p.get("f2").unwrap() - 0.1) / 0.1);
+            [("smooth".to_string(), x + 0.5 * y), ("bent".to_string(), (3.0 * x).sin() * (2.0 * y).cos())].into()
+        };
+        let mut d = design(40);
+        d.target = Some(0.05);
+        let (mut chosen, mut values): (Vec<DesignPoint>, Vec<BTreeMap<String, f64>>) = (Vec::new(), Vec::new());
+        let mut reached_at = None;
+        while chosen.len() < 40 {
+            let with: Vec<_> = chosen.iter().cloned().zip(values.iter().map(Some)).collect();
+            let surfaces = d.surfaces(&space, &QoiReadings::default(), &with);
+            let cv = surfaces.cross_validate();
+            if d.target_reached(&cv) {
+                reached_at = Some((chosen.len(), cv));
+                break;
+            }
+            if chosen.len() >= 5 && chosen.len() < d.validated_after() {
+                assert!(!d.target_reached(&cv));
+            }
+            let p = d.next(&with, &surfaces).unwrap();
+            values.push(law(&p));
+            chosen.push(p);
+        }
+        let (n, cv) = reached_at.expect("a smooth law reaches 5 % within 40 points");
+        assert!(n >= d.validated_after(), "{n}");
+        assert_eq!(cv.qoi.keys().collect::<Vec<_>>(), ["bent", "smooth"]);
+        // by hand: the leave-one-out errors are those of refits without each point; here the
+        // plane, which any process fits, is far within it
+        assert!(cv.qoi["smooth"].mean < 0.01 && cv.qoi.values().all(|e| e.mean <= 0.05 && e.count == n), "{cv:?}");
+        // a target tighter than the errors reached is not met
+        let tight = AdaptiveDesign { target: Some(cv.qoi["bent"].mean / 2.0), ..d.clone() };
+        assert!(!tight.target_reached(&cv));
+        assert!(!design(40).target_reached(&cv), "no target, never reached");
+    }
+
+    /// A norm whose components the scene reports is scored and judged through them; the
+    /// components are not judged on their own.
+    #[test]
+    fn a_norm_is_read_from_its_components_and_they_are_not_judged_alone() {
+        let mut text = include_str!("../../../scenes/three-blocks-tiny.toml").to_owned();
+        for axis in ["x", "y"] {
+            text.push_str(&format!(
+                "\n[[qoi]]\nname = \"slip_A_{axis}\"\nkind = \"slip\"\ninterface = \"interface1\"\npoint = [0.0075, 0.0075, 0.06]\ncomponent = \"{axis}\"\n"
+            ));
+        }
+        let scene = Scene::parse(&text).unwrap();
+        let readings = QoiReadings::of(&scene);
+        let space = ParameterSpace::from_scene(&scene);
+        let d = design(20);
+        let chosen: Vec<DesignPoint> = (0..8)
+            .map(|i| {
+                DesignPoint::from_pairs([
+                    ("f1", 0.1 + 0.0125 * i as f64),
+                    ("f2", 0.1 + 0.1 * ((i * 3) % 8) as f64 / 7.0),
+                ])
+            })
+            .collect();
+        let values: Vec<BTreeMap<String, f64>> = chosen
+            .iter()
+            .map(|p| {
+                let (x, y) = (p.get("f1").unwrap() - 0.137, 1e-9 * p.get("f2").unwrap());
+                [("slip_A", x.hypot(y)), ("slip_A_x", x), ("slip_A_y", y), ("slip_B", x.abs() * 2.0)]
+                    .iter()
+                    .map(|(n, v)| (n.to_string(), *v))
+                    .collect()
+            })
+            .collect();
+        let with: Vec<_> = chosen.iter().cloned().zip(values.iter().map(Some)).collect();
+        let surfaces = d.surfaces(&space, &readings, &with);
+        assert_eq!(surfaces.qois().collect::<Vec<_>>(), [("slip_A", true), ("slip_B", false)]);
+        assert_eq!(surfaces.cross_validate().qoi.keys().collect::<Vec<_>>(), ["slip_A", "slip_B"]);
+        // without the scene's readings every QoI stands alone
+        let plain = d.surfaces(&space, &QoiReadings::default(), &with);
+        assert_eq!(plain.qois().count(), 4);
     }
 }

@@ -62,7 +62,7 @@ pub fn spread(values: impl IntoIterator<Item = f64>) -> f64 {
 }
 
 /// What the held-out points measured of one QoI's surface.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SurfaceErrors {
     /// largest |predicted mean - solved value| / spread
     pub largest: f64,

@@ -30,7 +30,9 @@ use crate::records::{
     SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, Tree};
-use glissade_core::study::adaptive::AdaptiveDesign;
+use glissade_core::study::adaptive::{
+    AdaptiveDesign, QoiReadings, TARGET_BUDGET, TargetOutcome, check_target, point_tolerance,
+};
 use glissade_core::study::space::DesignPoint;
 
 mod discretisation;
@@ -53,7 +55,7 @@ impl StudyEntry {
         let mut p = Progress { total: self.points.len() as u32, ..Progress::default() };
         // an adaptive study's points not chosen yet are pending too
         if let Some(a) = self.record.adaptive.as_ref().filter(|_| !self.record.cancelled) {
-            let unchosen = a.budget.saturating_sub(p.total);
+            let unchosen = a.unchosen(p.total);
             p.total += unchosen;
             p.pending += unchosen;
         }
@@ -353,8 +355,19 @@ impl Coordinator {
             )));
         }
         let scene_hash = scene.content_hash();
+        // an adaptive study with a target solves its points to the tolerance the target needs,
+        // unless told (core::study::adaptive::point_tolerance)
+        if let Some(target) = submission.surface_accuracy {
+            check_target(target).map_err(CoordError::Invalid)?;
+            if submission.adaptive.is_none() {
+                return Err(CoordError::Invalid(
+                    "surface_accuracy: a target is for an adaptive study: give its ranges (NAME=LOW:HIGH)".into(),
+                ));
+            }
+        }
+        let asked_tolerance = submission.tolerance.or(submission.surface_accuracy.map(point_tolerance));
         // the tolerance's one check
-        let tolerance = StudyEngine::new(&scene, submission.strategy, submission.tolerance)
+        let tolerance = StudyEngine::new(&scene, submission.strategy, asked_tolerance)
             .map_err(|e| CoordError::Invalid(e.to_string()))?
             .tolerance();
         let max_iterations = match submission.max_iterations {
@@ -378,10 +391,15 @@ impl Coordinator {
             }
             Some((ranges, budget)) => {
                 let space = ParameterSpace::from_scene(&scene);
-                let design = AdaptiveDesign::parse(ranges, *budget as usize, &space, self.config.max_points)
+                let target = submission.surface_accuracy;
+                let budget = match (*budget, target) {
+                    (0, Some(_)) => TARGET_BUDGET.min(self.config.max_points) as u32,
+                    (n, _) => n,
+                };
+                let design = AdaptiveDesign::parse(ranges, budget as usize, target, &space, self.config.max_points)
                     .map_err(CoordError::Invalid)?;
                 let names = design.ranges.iter().map(|(n, ..)| n.clone()).collect();
-                (names, Vec::new(), Some(AdaptiveSpec { ranges: design.ranges, budget: *budget }))
+                (names, Vec::new(), Some(AdaptiveSpec { ranges: design.ranges, budget, target, outcome: None }))
             }
         };
         for (i, point) in points.iter().enumerate() {
@@ -991,23 +1009,25 @@ impl Coordinator {
 
     /// Adds the next point of an adaptive study that has none pending, if its budget allows:
     /// where the response surface is least sure (core::study::adaptive). A box with no room left
-    /// ends the study at the points it has.
+    /// ends the study at the points it has. A study with a target first judges it (recorded once
+    /// decided: no point is chosen after).
     fn choose_adaptive_point(&self, entry: &mut StudyEntry) -> Result<(), CoordError> {
         let Some(spec) = entry.record.adaptive.clone() else { return Ok(()) };
-        if entry.points.len() >= spec.budget as usize {
+        let spent = entry.points.len() >= spec.budget as usize;
+        if spec.outcome.is_some() || (spent && spec.target.is_none()) {
             return Ok(());
         }
-        let design = AdaptiveDesign { ranges: spec.ranges.clone(), budget: spec.budget as usize };
-        let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = entry
-            .points
-            .iter()
-            .map(|p| {
-                let done = (p.state == PointState::Done).then(|| p.result.as_ref().map(|r| &r.qoi)).flatten();
-                (DesignPoint::from(BTreeMap::from(p.parameters.clone())), done)
-            })
-            .collect();
+        let (outcome, next) = adaptive_step(entry, &entry.points, !spent);
+        if let Some(outcome) = outcome {
+            let mut record = entry.record.clone();
+            record.adaptive = Some(AdaptiveSpec { outcome: Some(outcome), ..spec });
+            return self.commit(entry, Vec::new(), Some(record), Batch::new());
+        }
+        if spent {
+            return Ok(());
+        }
         let mut batch = Batch::new();
-        match design.next(entry.plan.space(), &chosen) {
+        match next {
             Some(next) => {
                 let parameters = crate::study::parameter_vector(&next);
                 let point = PointRecord {
@@ -1200,6 +1220,17 @@ impl Coordinator {
         };
         let tolerance = entry.record.tolerance;
         let point = apply(&entry.points[i], Transition::Complete { result, finished_seq: seq, tolerance })?;
+        // a study with a target: judged with this point, in the same commit (so its outcome is
+        // known when it ends)
+        let judged =
+            entry.record.adaptive.as_ref().filter(|a| a.target.is_some() && a.outcome.is_none()).and_then(|a| {
+                let mut points = entry.points.clone();
+                points[i] = point.clone();
+                let (outcome, _) = adaptive_step(entry, &points, false);
+                let mut record = entry.record.clone();
+                record.adaptive = Some(AdaptiveSpec { outcome: Some(outcome?), ..a.clone() });
+                Some(record)
+            });
         let mut batch = Batch::new();
         let keep = old.as_ref().is_none_or(|old| record.replaces(old, &current_version));
         if keep {
@@ -1207,7 +1238,7 @@ impl Coordinator {
             batch.put(Tree::SolutionFields, key.as_bytes(), compressed);
         }
         let kind = if converged { EventKind::Finished } else { EventKind::Failed };
-        self.commit(entry, vec![(point.clone(), Some(kind))], None, batch)?;
+        self.commit(entry, vec![(point.clone(), Some(kind))], judged, batch)?;
         tracing::debug!(
             check_ms = checked.as_secs_f64() * 1e3,
             compress_ms = (compressed_at - checked).as_secs_f64() * 1e3,
@@ -1388,6 +1419,37 @@ impl Coordinator {
 
 /// The record of an audit of `study` that re-solves points cold at [`AUDIT_TOLERANCE_RATIO`] of
 /// its tolerance (the iteration audit, the surface audit).
+/// One step of an adaptive study over `points` (its points, with the latest change): the
+/// surfaces of the done ones fitted once, for the target's outcome if it is decided (reached,
+/// or the budget spent with nothing in flight) and, if `choose`, the next point.
+fn adaptive_step(
+    entry: &StudyEntry,
+    points: &[PointRecord],
+    choose: bool,
+) -> (Option<TargetOutcome>, Option<DesignPoint>) {
+    let Some(spec) = entry.record.adaptive.as_ref() else { return (None, None) };
+    let design = spec.design();
+    let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = points
+        .iter()
+        .map(|p| {
+            let done = (p.state == PointState::Done).then(|| p.result.as_ref().map(|r| &r.qoi)).flatten();
+            (DesignPoint::from(BTreeMap::from(p.parameters.clone())), done)
+        })
+        .collect();
+    // (the stored scene parsed when it was submitted; a QoI of a scene that no longer parses
+    // is read on its own)
+    let readings = Scene::parse(&entry.record.scene).map(|s| QoiReadings::of(&s)).unwrap_or_default();
+    let surfaces = design.surfaces(entry.plan.space(), &readings, &chosen);
+    let in_flight = points.iter().any(|p| matches!(p.state, PointState::Pending | PointState::Leased { .. }));
+    let spent = points.len() >= spec.budget as usize && !in_flight;
+    let outcome = if spec.outcome.is_none() { design.outcome(&surfaces, spent) } else { None };
+    let next = (choose && outcome.is_none()).then(|| design.next(&chosen, &surfaces)).flatten();
+    if let Some(o) = &outcome {
+        tracing::info!(study = %entry.record.id, reached = o.reached, points = o.validation.points, "adaptive study: target judged");
+    }
+    (outcome, next)
+}
+
 fn cold_audit_record(study: &StudyRecord, id: StudyId, label: String) -> StudyRecord {
     StudyRecord {
         id,

@@ -53,6 +53,7 @@ fn submit_audited(
         refine_levels: 0,
         adaptive: None,
         surface_audit_points: Some(0),
+        surface_accuracy: None,
         meshes: vec![],
     };
     c.submit(submission).unwrap().0
@@ -73,6 +74,7 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         refine_levels: 0,
         adaptive: None,
         surface_audit_points: Some(0),
+        surface_accuracy: None,
         meshes: vec![],
     };
     match c.submit(submission) {
@@ -351,6 +353,7 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
         refine_levels: 0,
         adaptive: None,
         surface_audit_points: Some(0),
+        surface_accuracy: None,
         meshes: vec![],
     };
     let (listed, ..) = c.submit(listed).unwrap();
@@ -549,6 +552,7 @@ fn submit_refined(
         refine_levels,
         adaptive: None,
         surface_audit_points: Some(0),
+        surface_accuracy: None,
         meshes: vec![],
     };
     c.submit(submission).map(|r| r.0)
@@ -744,6 +748,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         refine_levels: 0,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
         surface_audit_points: Some(0),
+        surface_accuracy: None,
         meshes: vec![],
     };
     let (id, points, _) = c.submit(submission).unwrap();
@@ -802,6 +807,7 @@ fn joint_submission(meshes: Vec<MeshUpload>) -> Submission {
         refine_levels: 0,
         adaptive: None,
         surface_audit_points: Some(0),
+        surface_accuracy: None,
         meshes,
     }
 }
@@ -928,6 +934,7 @@ fn submit_held_out(
         refine_levels: 0,
         adaptive,
         surface_audit_points: held_out,
+        surface_accuracy: None,
         meshes: vec![],
     };
     c.submit(submission).unwrap().0
@@ -1081,6 +1088,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
         refine_levels: 0,
         adaptive: None,
         surface_audit_points: Some(0),
+        surface_accuracy: None,
         meshes: vec![],
     };
     let id = c.submit(submission).unwrap().0;
@@ -1101,4 +1109,160 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
     assert_eq!(fitted, 6);
     // the V's bottom within 10 % (the norm's own surface read 3.7e-6 here, 65 % high)
     assert!((p.mean - truth).abs() < 0.1 * truth, "{p:?} against {truth:e}");
+}
+
+/// An adaptive study of the tiny scene's f1 x f2 with a surface accuracy target (and no audit);
+/// `tolerance` None: the target's.
+fn submit_target(c: &Coordinator, target: f64, budget: u32, tolerance: Option<f64>) -> Result<StudyId, CoordError> {
+    let mut submission = submission_of_target(target);
+    submission.adaptive = Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], budget));
+    submission.tolerance = tolerance;
+    c.submit(submission).map(|(id, ..)| id)
+}
+
+/// Solves every point a pool is given with `law`, one at a time; the points solved.
+fn solve_all(c: &Coordinator, law: impl Fn(&ParameterVector) -> BTreeMap<String, f64>) -> usize {
+    let mut solved = 0;
+    while let Some(g) = c.lease("p").unwrap() {
+        let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &law(&g.parameters));
+        c.complete(done, file).unwrap();
+        solved += 1;
+    }
+    solved
+}
+
+/// The cross-validation of a target study's surfaces over its first `n` done points, computed
+/// apart from the coordinator (core's design over the points it recorded).
+fn cross_validation(c: &Coordinator, id: StudyId, n: usize) -> glissade_core::study::adaptive::CrossValidation {
+    let v = c.study(id, true).unwrap();
+    let scene = Scene::parse(TINY).unwrap();
+    let design = v.record.adaptive.as_ref().unwrap().design();
+    let rows: Vec<(DesignPoint, &BTreeMap<String, f64>)> = v.points[..n]
+        .iter()
+        .map(|p| (DesignPoint::from(BTreeMap::from(p.parameters.clone())), &p.result.as_ref().unwrap().qoi))
+        .collect();
+    let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
+        rows.iter().map(|(p, q)| (p.clone(), Some(*q))).collect();
+    let readings = glissade_core::study::adaptive::QoiReadings::of(&scene);
+    design.surfaces(&ParameterSpace::from_scene(&scene), &readings, &chosen).cross_validate()
+}
+
+/// A smooth law of f1 and f2 (a slip that slides everywhere, a displacement).
+fn smooth_law(p: &ParameterVector) -> BTreeMap<String, f64> {
+    let (f1, f2) = (p.get("f1").unwrap(), p.get("f2").unwrap());
+    [
+        ("slip_A".to_string(), 1e-4 * (1.0 + 4.0 * (f1 - 0.1) + 3.0 * (f2 - 0.1))),
+        ("middle_ux".to_string(), (9.0 * f1).sin() * f2),
+    ]
+    .into()
+}
+
+/// With a target, an adaptive study stops as soon as the cross-validated mean error of every
+/// QoI's surface is within it, not before, and says so with the errors; its points are solved to
+/// the tolerance the target sets.
+#[test]
+fn an_adaptive_study_with_a_target_stops_once_its_surfaces_are_within_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let id = submit_target(&c, 0.02, 60, None).unwrap();
+    let v = c.study(id, false).unwrap();
+    assert_eq!(v.record.tolerance, glissade_core::study::adaptive::point_tolerance(0.02));
+    assert_eq!(v.record.adaptive.as_ref().unwrap().target, Some(0.02));
+    assert_eq!((v.progress.total, v.progress.pending), (60, 60));
+    let solved = solve_all(&c, smooth_law);
+    let v = c.study(id, true).unwrap();
+    let outcome = v.record.adaptive.as_ref().unwrap().outcome.clone().expect("decided");
+    assert!(outcome.reached, "{outcome:?}");
+    assert!(solved < 60 && solved == v.points.len(), "stopped before its budget: {solved}");
+    assert_eq!(
+        (v.state, v.progress.total, v.progress.done, v.progress.pending),
+        (StudyState::Done, solved as u32, solved as u32, 0)
+    );
+    // judged on every point done, each QoI within the target, as computed apart
+    assert_eq!(outcome.validation.points, solved);
+    assert_eq!(outcome.validation, cross_validation(&c, id, solved));
+    assert_eq!(outcome.validation.qoi.keys().collect::<Vec<_>>(), ["middle_ux", "slip_A"]);
+    assert!(outcome.validation.qoi.values().all(|e| e.mean <= 0.02 && e.count == solved), "{outcome:?}");
+    // not before: one point fewer was not enough (or too few to judge)
+    let before = cross_validation(&c, id, solved - 1);
+    let design = v.record.adaptive.as_ref().unwrap().design();
+    assert!(!design.target_reached(&before), "{before:?}");
+    // the API says it
+    let t = crate::convert::study(&v).target.expect("a target");
+    assert_eq!((t.surface_accuracy, t.budget, t.outcome.as_str(), t.points), (0.02, 60, "reached", solved as u32));
+    // it survives a restart
+    drop(c);
+    let c = open(dir.path(), 60_000, 3);
+    assert_eq!(c.study(id, false).unwrap().record.adaptive.unwrap().outcome, Some(outcome));
+}
+
+/// A target the budget cannot reach: the study spends its budget and says so, with the errors
+/// it got.
+#[test]
+fn an_adaptive_study_whose_budget_is_too_small_for_its_target_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let id = submit_target(&c, 1e-3, 12, Some(1e-3)).unwrap();
+    assert_eq!(c.study(id, false).unwrap().record.tolerance, 1e-3, "a tolerance given wins");
+    assert_eq!(solve_all(&c, law), 12);
+    let v = c.study(id, true).unwrap();
+    let outcome = v.record.adaptive.as_ref().unwrap().outcome.clone().expect("decided at the budget");
+    assert!(!outcome.reached, "{outcome:?}");
+    assert_eq!(outcome.validation, cross_validation(&c, id, 12));
+    assert!(outcome.validation.qoi.values().any(|e| e.mean > 1e-3), "{outcome:?}");
+    assert_eq!((v.state, v.progress.done), (StudyState::Done, 12));
+    assert_eq!(crate::convert::study(&v).target.unwrap().outcome, "budget");
+}
+
+/// A target out of (0, 1], or without a box, is refused before anything is stored; the
+/// points' tolerance follows the target.
+#[test]
+fn a_bad_target_is_refused_and_the_tolerance_follows_the_target() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    for bad in [0.0, -0.02, 1.5, f64::NAN, f64::INFINITY] {
+        match submit_target(&c, bad, 20, None) {
+            Err(CoordError::Invalid(why)) => assert!(why.contains("surface accuracy"), "{bad}: {why}"),
+            other => panic!("{bad}: {other:?}"),
+        }
+    }
+    let mut grid = Submission { adaptive: None, grid: vec!["f1=0.1:0.2:3".into()], ..submission_of_target(0.02) };
+    match c.submit(grid.clone()) {
+        Err(CoordError::Invalid(why)) => assert!(why.contains("a target is for an adaptive study"), "{why}"),
+        other => panic!("{other:?}"),
+    }
+    grid.surface_accuracy = None;
+    c.submit(grid).unwrap();
+    assert_eq!(c.studies().len(), 1, "nothing stored of the refused ones");
+    let tolerance = |t| c.study(submit_target(&c, t, 20, None).unwrap(), false).unwrap().record.tolerance;
+    assert!(tolerance(0.001) < tolerance(0.01) && tolerance(0.01) < tolerance(0.1));
+    assert_eq!(tolerance(1.0), glissade_core::study::adaptive::LOOSEST_TARGET_TOLERANCE);
+    // no budget given: the default one
+    let mut default = submission_of_target(0.05);
+    default.adaptive = Some((default.adaptive.unwrap().0, 0));
+    let (_, points, _) = c.submit(default).unwrap();
+    assert_eq!(points as usize, glissade_core::study::adaptive::TARGET_BUDGET);
+}
+
+/// An adaptive study of 20 points of the tiny scene's f1 x f2 with a target and no audit.
+fn submission_of_target(target: f64) -> Submission {
+    Submission {
+        scene_text: TINY.into(),
+        grid: vec![],
+        points: vec![],
+        tolerance: None,
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Greedy,
+        label: String::new(),
+        audit_points: Some(0),
+        refine_points: Some(0),
+        refine_levels: 0,
+        adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 20)),
+        surface_accuracy: Some(target),
+        surface_audit_points: Some(0),
+        meshes: vec![],
+    }
 }

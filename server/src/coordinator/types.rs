@@ -187,6 +187,10 @@ pub struct Submission {
     pub refine_levels: u32,
     /// An adaptive study instead of `grid` / `points`: `NAME=LOW:HIGH` ranges and the budget.
     pub adaptive: Option<(Vec<String>, u32)>,
+    /// An adaptive study's target: stop once every QoI's cross-validated surface error is
+    /// within this share of its spread (its budget: `adaptive`'s, or
+    /// [`glissade_core::study::adaptive::TARGET_BUDGET`] where that is 0).
+    pub surface_accuracy: Option<f64>,
     /// Points held out of the study's response surface (None: [`default_surface_audit_points`];
     /// 0: none).
     pub surface_audit_points: Option<u32>,
