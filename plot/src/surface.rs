@@ -67,7 +67,11 @@ impl Field {
         if self.axes.len() != dims {
             return wrong(format!("{} axes for {dims} parameters", self.axes.len()));
         }
-        if self.axes.iter().any(|a| a.len() < 2 || a.windows(2).any(|w| !(w[1] > w[0]))) {
+        if self
+            .axes
+            .iter()
+            .any(|a| a.len() < 2 || a.windows(2).any(|w| w[1].partial_cmp(&w[0]) != Some(std::cmp::Ordering::Greater)))
+        {
             return wrong("an axis has fewer than 2 nodes or does not increase".into());
         }
         let count: usize = self.axes.iter().map(Vec::len).product();

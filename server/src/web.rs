@@ -498,7 +498,7 @@ fn surface_figure(surface: &glissade_plot::Surface) -> Markup {
     };
     let levels = svg.drawn.contours.iter().filter(|(_, s)| !s.is_empty()).count();
     html! {
-        svg class="surface" data-qoi=(qoi) data-points=(surface.points.len()) data-contours=(levels)
+        svg class="surface" data-qoi=(qoi) data-count=(surface.points.len()) data-contours=(levels)
             data-surface=(surface.field.is_ok()) width=(w) height=(h) xmlns="http://www.w3.org/2000/svg" {
             // plotters escapes the text it writes (glissade-plot's tests pin it)
             (PreEscaped(svg.text))
@@ -619,7 +619,8 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 figures
             }
             Err(e) => {
-                return refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}")).into_response();
+                return refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}"))
+                    .into_response();
             }
         }
     };
@@ -782,7 +783,7 @@ mod tests {
         // scattered points, as an adaptive study's
         let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5), (0.4, 0.6)];
         let svg = figure("ux", &points, &[]);
-        assert!(svg.starts_with("<svg class=\"surface\" data-qoi=\"ux\" data-points=\"6\""), "{svg}");
+        assert!(svg.starts_with("<svg class=\"surface\" data-qoi=\"ux\" data-count=\"6\""), "{svg}");
         assert!(svg.contains("data-surface=\"true\""), "a surface, not rings around the points");
         assert_eq!(svg.matches("<circle class=\"point\"").count(), 6);
         assert!(svg.contains("<title>a=0.1 b=0.3 ux = 4.0000e-1</title>"), "the value under the pointer: {svg}");
