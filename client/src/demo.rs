@@ -119,7 +119,7 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         csv,
         json: false,
         png,
-        size: (900, 700),
+        size: (1200, 560),
         at: Vec::new(),
     };
     surface(server, surface_args(Some("slip_A"), None, None)).await?;

@@ -3,6 +3,5 @@
 
 pub mod names;
 pub mod output;
-pub mod plot;
 pub mod progress;
 pub mod surface;

@@ -15,13 +15,14 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow, bail};
 use clap::{Parser, Subcommand};
 use glissade_cli::names::{describe_parameters, order_name, point_state_name, strategy_name, study_state_name};
-use glissade_cli::plot::{self, Axis, ConvergenceSeries, Surface};
 use glissade_cli::progress::WatchState;
 use glissade_cli::surface::{Predictions, SurfaceTable, parse_fixed};
+use glissade_core::scene::Scene;
 use glissade_core::scene::check_tolerance;
-use glissade_core::scene::{QoiKind, Scene};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::StrategyKind;
+use glissade_plot::study::Picture;
+use glissade_plot::{self as plot, ConvergenceSeries};
 use glissade_proto::auth::{Token, WithToken};
 use glissade_proto::v1::health_client::HealthClient;
 use glissade_proto::v1::user_client::UserClient;
@@ -232,8 +233,9 @@ struct SurfaceArgs {
     /// Draw the surface to a PNG file.
     #[arg(long, value_name = "FILE")]
     png: Option<PathBuf>,
-    /// Picture size, WIDTHxHEIGHT in pixels.
-    #[arg(long, value_name = "WxH", default_value = "900x700", value_parser = parse_size)]
+    /// Picture size, WIDTHxHEIGHT in pixels (two panels side by side: the mean and its standard
+    /// deviation).
+    #[arg(long, value_name = "WxH", default_value = "1200x560", value_parser = parse_size)]
     size: (u32, u32),
     /// Predict the QoIs at this point, with a standard deviation (repeatable): a Gaussian process
     /// fitted to the surface's points, e.g. --at f1=0.137,f2=0.151
@@ -889,23 +891,6 @@ async fn retry(server: &Server, id: u64) -> Result<()> {
     Ok(())
 }
 
-/// The unit of a QoI, from its kind.
-fn qoi_unit(scene: &Scene, name: &str) -> Option<String> {
-    let q = scene.qoi.iter().find(|q| q.name == name)?;
-    Some(
-        match q.kind {
-            QoiKind::Slip | QoiKind::Displacement => "m",
-            QoiKind::Velocity => "m/s",
-            QoiKind::Force => "N",
-        }
-        .to_owned(),
-    )
-}
-
-fn parameter_axis(scene: Option<&Scene>, name: &str) -> Axis {
-    Axis { name: name.to_owned(), unit: scene.and_then(|s| s.parameters.get(name)).and_then(|p| p.unit.clone()) }
-}
-
 /// Writes `text` to `path`, or to stdout for "-".
 fn write_output(path: &Path, text: &str) -> Result<()> {
     if path == Path::new("-") {
@@ -968,21 +953,24 @@ async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
         let Some(qoi) = &args.qoi else {
             bail!("--png: say which QoI to draw with --qoi (one of {})", reply.qoi.join(", "))
         };
-        let free: Vec<usize> =
-            (0..table.parameters.len()).filter(|&i| !fixed.iter().any(|(n, _)| *n == table.parameters[i])).collect();
-        let points: Vec<(Vec<f64>, f64)> =
-            table.values(0).into_iter().map(|(p, v)| (free.iter().map(|&i| p[i]).collect(), v)).collect();
         let fixed_text = fixed.iter().map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(", ");
-        let surface = Surface {
-            parameters: free.iter().map(|&i| parameter_axis(scene.as_ref(), &table.parameters[i])).collect(),
-            qoi: Axis { name: qoi.clone(), unit: scene.as_ref().and_then(|s| qoi_unit(s, qoi)) },
-            points,
-            title: format!(
-                "study {}: {qoi}{}",
-                args.study,
-                if fixed_text.is_empty() { String::new() } else { format!(" at {fixed_text}") }
-            ),
+        let title = format!(
+            "study {}: {qoi}{}",
+            args.study,
+            if fixed_text.is_empty() { String::new() } else { format!(" at {fixed_text}") }
+        );
+        // the surface of `--at`, fitted here to the same points
+        let rows: Vec<plot::study::Row> = reply.points.iter().map(|p| (&p.parameters, &p.qoi)).collect();
+        let picture = Picture {
+            scene: scene.as_ref(),
+            names: &reply.parameters,
+            swept: &study.parameters,
+            fixed: &fixed,
+            qoi,
+            resolution: table.resolution[0],
+            title,
         };
+        let surface = picture.surface(&rows);
         plot::surface_png(path, &surface, args.size).with_context(|| format!("--png {}", path.display()))?;
         eprintln!("wrote {} ({}x{})", path.display(), args.size.0, args.size.1);
     }

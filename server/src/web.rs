@@ -26,7 +26,7 @@ use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
 use glissade_proto::auth::Token;
 use glissade_proto::{ParameterVector, StudyId};
-use maud::{DOCTYPE, Markup, html};
+use maud::{DOCTYPE, Markup, PreEscaped, html};
 use serde_json::json;
 
 use crate::auth::Tokens;
@@ -373,7 +373,7 @@ fn surface(web: &Web, id: &str) -> Result<crate::coordinator::Surface, Refusal> 
 
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse}\
 td,th{padding:2px 8px;border-bottom:1px solid #ddd;text-align:right}th{cursor:pointer}\
-.surface{display:inline-block;margin:0 2em 2em 0}.cell:hover{stroke:#000}";
+.surface,.convergence{display:block;margin:0 0 2em 0}.point:hover{stroke:#000;stroke-width:2}";
 
 /// The study page's script: progress without reloading while the study runs (from the JSON at
 /// `data-api`, written with `textContent` only), and a sortable points table.
@@ -466,12 +466,6 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     page("glissade studies", body).into_response()
 }
 
-/// A colour on a blue-to-yellow scale for `t` in [0, 1].
-fn colour(t: f64) -> String {
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
-    format!("hsl({:.0},70%,{:.0}%)", 240.0 - 180.0 * t, 35.0 + 30.0 * t)
-}
-
 /// `name (unit)`, or the name alone when the scene gives it no unit.
 fn named(name: &str, units: &BTreeMap<String, String>) -> String {
     match units.get(name) {
@@ -480,203 +474,93 @@ fn named(name: &str, units: &BTreeMap<String, String>) -> String {
     }
 }
 
-/// One decimal: SVG coordinates.
-fn d1(x: f64) -> String {
-    format!("{x:.1}")
-}
+/// A response surface's picture on the page (glissade-plot's SVG, the one drawing of the CLI's
+/// PNG too), with a transparent circle over each point that names its value under the pointer.
+const SURFACE_SIZE: (u32, u32) = (960, 420);
+const CONVERGENCE_SIZE: (u32, u32) = (720, 420);
 
-/// The SVG of one QoI over the done points: a colour map of cells over two parameters with
-/// labelled contour lines, a curve over one. Each cell or dot carries its value (the tooltip
-/// under the pointer). `units` (the scene's, by name) label the axes.
-pub fn surface_svg(
-    parameters: &[String],
-    qoi: &str,
-    points: &[(Vec<f64>, f64)],
-    units: &BTreeMap<String, String>,
-) -> Markup {
-    let (w, h, m) = (420.0, 320.0, 40.0);
-    let inner = surface_content(parameters, qoi, points, units, (w, h, m));
-    html! {
-        svg class="surface" data-qoi=(qoi) width=(w) height=(h) xmlns="http://www.w3.org/2000/svg" {
-            text x=(m) y="16" { (named(qoi, units)) }
-            (inner)
-        }
+/// The picture of one QoI: the surface that answers `glissade surface --at`, over the box where
+/// it answers, or a line that says why there is none.
+fn surface_figure(surface: &glissade_plot::Surface) -> Markup {
+    let qoi = &surface.qoi.name;
+    let (w, h) = SURFACE_SIZE;
+    if surface.points.is_empty() {
+        return html! {
+            svg class="surface" data-qoi=(qoi) width=(w) height="60" xmlns="http://www.w3.org/2000/svg" {
+                text x="10" y="30" { (surface.qoi.label()) ": no point done yet" }
+            }
+        };
     }
-}
-
-fn surface_content(
-    parameters: &[String],
-    qoi: &str,
-    points: &[(Vec<f64>, f64)],
-    units: &BTreeMap<String, String>,
-    (w, h, m): (f64, f64, f64),
-) -> Markup {
-    if points.is_empty() {
-        return html! { text x="40" y="60" { "no point done yet" } };
-    }
-    let range = |k: usize| {
-        let lo = points.iter().map(|p| p.0[k]).fold(f64::INFINITY, f64::min);
-        let hi = points.iter().map(|p| p.0[k]).fold(f64::NEG_INFINITY, f64::max);
-        (lo, if hi > lo { hi } else { lo + 1.0 })
-    };
-    let (vlo, vhi) = {
-        let lo = points.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
-        let hi = points.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
-        (lo, if hi > lo { hi } else { lo + 1.0 })
+    let svg = match glissade_plot::surface_svg(surface, SURFACE_SIZE) {
+        Ok(svg) => svg,
+        Err(e) => return html! { p class="surface-error" { (surface.qoi.label()) ": " (e.to_string()) } },
     };
     let label = |x: &[f64]| {
-        parameters.iter().zip(x).map(|(n, v)| format!("{n}={}", parameter(*v))).collect::<Vec<_>>().join(" ")
-    };
-    let extremes = html! { text x=(w - 200.0) y="16" { (format!("{vlo:.3e} … {vhi:.3e}")) } };
-    if parameters.len() < 2 {
-        let (x0, x1) = range(0);
-        let mut sorted: Vec<&(Vec<f64>, f64)> = points.iter().collect();
-        sorted.sort_by(|a, b| a.0[0].total_cmp(&b.0[0]));
-        let xy = |x: f64, v: f64| {
-            (m + (x - x0) / (x1 - x0) * (w - 2.0 * m), h - m - (v - vlo) / (vhi - vlo) * (h - 2.0 * m))
-        };
-        let line: Vec<String> = sorted
+        surface
+            .parameters
             .iter()
-            .map(|(x, v)| {
-                let (px, py) = xy(x[0], *v);
-                format!("{px:.1},{py:.1}")
-            })
-            .collect();
-        return html! {
-            polyline fill="none" stroke="#36c" points=(line.join(" ")) {}
-            @for (x, v) in &sorted {
-                @let (px, py) = xy(x[0], *v);
-                circle class="cell" cx=(d1(px)) cy=(d1(py)) r="4" fill="#36c" data-value=(format!("{v:e}")) {
+            .zip(x)
+            .map(|(a, v)| format!("{}={}", a.name, parameter(*v)))
+            .collect::<Vec<_>>()
+            .join(" ")
+    };
+    let levels = svg.drawn.contours.iter().filter(|(_, s)| !s.is_empty()).count();
+    html! {
+        svg class="surface" data-qoi=(qoi) data-count=(surface.points.len()) data-contours=(levels)
+            data-surface=(surface.field.is_ok()) width=(w) height=(h) xmlns="http://www.w3.org/2000/svg" {
+            // plotters escapes the text it writes (glissade-plot's tests pin it)
+            (PreEscaped(svg.text))
+            @for ((x, v), (px, py)) in surface.points.iter().zip(&svg.drawn.markers) {
+                circle class="point" cx=(px) cy=(py) r="6" fill="#000" fill-opacity="0" {
                     title { (label(x)) " " (qoi) " = " (format!("{v:.4e}")) }
                 }
             }
-            @if let Some(p) = parameters.first() {
-                text x=(m) y=(h - 8.0) { (named(p, units)) " →" }
-            }
-            (extremes)
-        };
-    }
-    let ((x0, x1), (y0, y1)) = (range(0), range(1));
-    let distinct = |k: usize| {
-        let mut v: Vec<f64> = points.iter().map(|p| p.0[k]).collect();
-        v.sort_by(f64::total_cmp);
-        v.dedup();
-        v
-    };
-    let (xs, ys) = (distinct(0), distinct(1));
-    let (cw, ch) = ((w - 2.0 * m) / xs.len() as f64, (h - 2.0 * m) / ys.len() as f64);
-    // the top left corner of a cell
-    let px = |x: f64| m + (x - x0) / (x1 - x0) * (w - 2.0 * m - cw);
-    let py = |y: f64| h - m - ch - (y - y0) / (y1 - y0) * (h - 2.0 * m - ch);
-    // contours through the cells' centres, at 4 levels evenly between the extremes
-    let mut grid = vec![None; xs.len() * ys.len()];
-    for (x, v) in points {
-        let (i, j) = (xs.partition_point(|a| *a < x[0]), ys.partition_point(|b| *b < x[1]));
-        grid[j * xs.len() + i] = Some(*v);
-    }
-    let centre = |i: usize, j: usize| (px(xs[i]) + cw / 2.0, py(ys[j]) + ch / 2.0);
-    let contours: Vec<(usize, f64, Vec<Segment>)> = (1..=4)
-        .map(|k| {
-            let level = vlo + (vhi - vlo) * k as f64 / 5.0;
-            (k, level, contour(&grid, xs.len(), level, centre))
-        })
-        .filter(|(_, _, segments)| !segments.is_empty())
-        .collect();
-    html! {
-        @for (x, v) in points {
-            rect class="cell" x=(d1(px(x[0]))) y=(d1(py(x[1]))) width=(d1(cw)) height=(d1(ch))
-                fill=(colour((v - vlo) / (vhi - vlo))) data-value=(format!("{v:e}")) {
-                title { (label(x)) " " (qoi) " = " (format!("{v:.4e}")) }
-            }
         }
-        @for (k, level, segments) in &contours {
-            // neighbouring levels labelled on different segments: close lines' labels do not overlap
-            @let ((ax, ay), (bx, by)) = segments[(segments.len() / 2 + k) % segments.len()];
-            @let d: String = segments.iter().map(|((ax, ay), (bx, by))| format!("M{ax:.1} {ay:.1}L{bx:.1} {by:.1}")).collect();
-            path class="contour" data-level=(format!("{level:e}")) d=(d) fill="none" stroke="#000" stroke-width="0.8" pointer-events="none" {}
-            text class="contour-label" x=(d1((ax + bx) / 2.0)) y=(d1((ay + by) / 2.0)) font-size="10" stroke="#fff"
-                stroke-width="2" paint-order="stroke" pointer-events="none" { (format!("{level:.2e}")) }
-        }
-        text x=(m) y=(h - 8.0) { (named(&parameters[0], units)) " →" }
-        text x="4" y=(m - 4.0) { "↑ " (named(&parameters[1], units)) }
-        (extremes)
     }
 }
 
-type Vertex = (f64, f64);
-type Segment = (Vertex, Vertex);
-
-/// Marching squares: the segments of the line where the value is `level`, over a grid of `nx`
-/// columns (row-major, None where no point is done) whose node (i, j) is drawn at `at(i, j)`.
-/// Each square's crossings are linear along its edges; a saddle is split by the square's mean.
-fn contour(grid: &[Option<f64>], nx: usize, level: f64, at: impl Fn(usize, usize) -> Vertex) -> Vec<Segment> {
-    let mut segments = Vec::new();
-    let ny = grid.len().checked_div(nx).unwrap_or(0);
-    for j in 0..ny.saturating_sub(1) {
-        for i in 0..nx - 1 {
-            // the square's corners in turn around it; edge k joins corner k to corner k + 1
-            let nodes = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)];
-            let Some(v) = nodes.iter().map(|&(a, b)| grid[b * nx + a]).collect::<Option<Vec<f64>>>() else { continue };
-            let above = |x: f64| x >= level;
-            let crossings: Vec<Vertex> = (0..4)
-                .filter(|&k| above(v[k]) != above(v[(k + 1) % 4]))
-                .map(|k| {
-                    let (a, b) = (at(nodes[k].0, nodes[k].1), at(nodes[(k + 1) % 4].0, nodes[(k + 1) % 4].1));
-                    let t = (level - v[k]) / (v[(k + 1) % 4] - v[k]);
-                    (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1))
-                })
-                .collect();
-            match crossings[..] {
-                [p, q] => segments.push((p, q)),
-                // a saddle: if the middle is on corner 0's side, corners 1 and 3 are cut off
-                [p0, p1, p2, p3] if above(v.iter().sum::<f64>() / 4.0) == above(v[0]) => {
-                    segments.extend([(p0, p1), (p2, p3)])
-                }
-                [p0, p1, p2, p3] => segments.extend([(p3, p0), (p1, p2)]),
-                _ => {}
+/// Eta against the iterations of every point solved (log scale), as the paper's Figures 7 and
+/// 8, with the study's tolerance.
+fn convergence_figure(series: &[glissade_plot::ConvergenceSeries], tolerance: f64) -> Markup {
+    let (w, h) = CONVERGENCE_SIZE;
+    match glissade_plot::convergence_svg(series, Some(tolerance), "eta against iterations", CONVERGENCE_SIZE) {
+        Ok(text) => html! {
+            svg class="convergence" data-series=(series.iter().filter(|s| !s.history.is_empty()).count())
+                width=(w) height=(h) xmlns="http://www.w3.org/2000/svg" { (PreEscaped(text)) }
+        },
+        Err(_) => html! {
+            svg class="convergence" data-series="0" width=(w) height="60" xmlns="http://www.w3.org/2000/svg" {
+                text x="10" y="30" { "eta against iterations: no history yet" }
             }
-        }
+        },
     }
-    segments
 }
 
-/// Eta against the iterations of every point solved (log scale), as the paper's Figures 7 and 8.
-pub fn convergence_svg(histories: &[Vec<f64>]) -> Markup {
-    let (w, h, m) = (420.0, 320.0, 40.0);
-    let values = histories.iter().flatten().filter(|v| **v > 0.0 && v.is_finite());
-    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v.log10()), b.max(v.log10())));
-    let longest = histories.iter().map(Vec::len).max().unwrap_or(0);
-    let lines: Vec<String> = histories
+/// The pictures of every QoI of a study (a slice of it when `fixed`). Fitting a surface costs
+/// O(points^3): callers run this off the async threads.
+fn surface_figures(
+    s: &crate::coordinator::Surface,
+    scene: Option<&glissade_core::scene::Scene>,
+    fixed: &[(String, f64)],
+    resolution: &BTreeMap<String, f64>,
+) -> Vec<Markup> {
+    let parameters: Vec<BTreeMap<String, f64>> = s.rows.iter().map(|r| BTreeMap::from(r.parameters.clone())).collect();
+    let rows: Vec<glissade_plot::study::Row> = parameters.iter().zip(&s.rows).map(|(p, r)| (p, &r.qoi)).collect();
+    s.qoi
         .iter()
-        .filter(|h| h.len() >= 2)
-        .map(|history| {
-            let line: Vec<String> = history
-                .iter()
-                .enumerate()
-                .filter(|(_, v)| **v > 0.0 && v.is_finite())
-                .map(|(k, v)| {
-                    let x = m + k as f64 / (longest - 1) as f64 * (w - 2.0 * m);
-                    let y = h - m - (v.log10() - lo) / (hi - lo) * (h - 2.0 * m);
-                    format!("{x:.1},{y:.1}")
-                })
-                .collect();
-            line.join(" ")
+        .map(|qoi| {
+            let picture = glissade_plot::study::Picture {
+                scene,
+                names: &s.parameters,
+                swept: &s.parameters,
+                fixed,
+                qoi,
+                resolution: resolution.get(qoi).copied().unwrap_or(0.0),
+                title: String::new(),
+            };
+            surface_figure(&picture.surface(&rows))
         })
-        .collect();
-    html! {
-        svg class="convergence" width=(w) height=(h) xmlns="http://www.w3.org/2000/svg" {
-            text x=(m) y="16" { "eta against iterations" }
-            @if longest < 2 || lo >= hi {
-                text x="40" y="60" { "no history yet" }
-            } @else {
-                @for line in &lines {
-                    polyline class="history" fill="none" stroke="#36c" stroke-opacity="0.5" points=(line) {}
-                }
-                text x=(m) y=(h - 8.0) { (format!("iterations (0 … {}) →", longest - 1)) }
-                text x=(w - 140.0) y="16" { (format!("1e{lo:.0} … 1e{hi:.0}")) }
-            }
-        }
-    }
+        .collect()
 }
 
 async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
@@ -687,7 +571,7 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
         Ok(v) => v,
         Err(r) => return r.into_response(),
     };
-    let s = match surface(&web, &id) {
+    let mut s = match surface(&web, &id) {
         Ok(s) => s,
         Err(r) => return r.into_response(),
     };
@@ -708,33 +592,6 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     // a slice: `?fix=NAME=VALUE` keeps the points at that value and draws the others' curve
     let fixed =
         q.get("fix").and_then(|f| f.split_once('=')).and_then(|(n, v)| Some((n.to_owned(), v.parse::<f64>().ok()?)));
-    let free: Vec<String> =
-        s.parameters.iter().filter(|n| fixed.as_ref().is_none_or(|(f, _)| f != *n)).cloned().collect();
-    let here = format!("/studies/{}", r.id.0);
-    // the first value of the last parameter: a slice the page offers
-    let offered = s
-        .parameters
-        .last()
-        .filter(|_| s.parameters.len() >= 2 && fixed.is_none())
-        .and_then(|last| Some((last, s.rows.iter().find_map(|row| row.parameters.get(last))?)));
-    let surfaces: Vec<Markup> = s
-        .qoi
-        .iter()
-        .map(|qoi| {
-            let points: Vec<(Vec<f64>, f64)> = s
-                .rows
-                .iter()
-                .filter(|row| {
-                    fixed.as_ref().is_none_or(|(n, v)| row.parameters.get(n).is_some_and(|x| same_parameter(x, *v)))
-                })
-                .filter_map(|row| {
-                    let x: Option<Vec<f64>> = free.iter().map(|n| row.parameters.get(n)).collect();
-                    Some((x?, shown(*row.qoi.get(qoi)?, resolution[qoi])))
-                })
-                .collect();
-            surface_svg(&free, qoi, &points, &units)
-        })
-        .collect();
     // a slice that holds no point says which values there are
     let slice_miss = fixed
         .as_ref()
@@ -744,8 +601,44 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 s.rows.iter().map(|row| BTreeMap::from(row.parameters.clone())).collect();
             glissade_core::study::space::slice_miss(std::slice::from_ref(f), &points)
         });
-    let histories: Vec<Vec<f64>> =
-        v.points.iter().filter_map(|p| p.result.as_ref().map(|r| r.eta_history.clone())).collect();
+    let series: Vec<glissade_plot::ConvergenceSeries> = v
+        .points
+        .iter()
+        .filter_map(|p| {
+            let history = p.result.as_ref()?.eta_history.clone();
+            Some(glissade_plot::ConvergenceSeries { label: format!("#{}", p.id.0), history })
+        })
+        .collect();
+    let surfaces = if slice_miss.is_some() {
+        Vec::new()
+    } else {
+        // the surfaces' fits off the async threads; `s` comes back for the table
+        let fixed: Vec<(String, f64)> = fixed.iter().cloned().collect();
+        let scene = scene.clone();
+        let resolution = resolution.clone();
+        let drawn = tokio::task::spawn_blocking(move || {
+            let figures = surface_figures(&s, scene.as_ref(), &fixed, &resolution);
+            (figures, s)
+        })
+        .await;
+        match drawn {
+            Ok((figures, back)) => {
+                s = back;
+                figures
+            }
+            Err(e) => {
+                return refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}"))
+                    .into_response();
+            }
+        }
+    };
+    let here = format!("/studies/{}", r.id.0);
+    // the first value of the last parameter: a slice the page offers
+    let offered = s
+        .parameters
+        .last()
+        .filter(|_| s.parameters.len() >= 2 && fixed.is_none())
+        .and_then(|last| Some((last, s.rows.iter().find_map(|row| row.parameters.get(last))?)));
     let state = state_word(v.state);
     let body = html! {
         p #progress data-state=(state) data-api=(format!("/api/studies/{}", r.id.0)) {
@@ -841,7 +734,7 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                 tr { th { "point" } @for n in &r.parameters { th { (named(n, &units)) } } th { "pool" } th { "iterations" } th { "eta" } }
             }
         }
-        (convergence_svg(&histories))
+        (convergence_figure(&series, r.tolerance))
         p {
             "download: " a href=(format!("/api/studies/{}/surface.csv", r.id.0)) { "surface.csv" } ", "
             a href=(format!("/api/studies/{}", r.id.0)) { "study JSON" }
@@ -879,108 +772,97 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glissade_plot::study::{Picture, Row};
 
-    // the pictures as text, to search in
-    fn surface_svg(p: &[String], q: &str, points: &[(Vec<f64>, f64)], u: &BTreeMap<String, String>) -> String {
-        super::surface_svg(p, q, points, u).into_string()
-    }
-    fn convergence_svg(histories: &[Vec<f64>]) -> String {
-        super::convergence_svg(histories).into_string()
+    /// A scene of glissade-plot's tests: parameters a in [0, 1] and b in [0, 2] m/s, QoIs ux (m)
+    /// and slip (a norm).
+    const SCENE: &str = include_str!("../../plot/tests/two-parameters.toml");
+
+    /// The figure of `qoi` over points (a, b) with ux = a + b and slip = a b.
+    fn figure(qoi: &str, points: &[(f64, f64)], fixed: &[(String, f64)]) -> String {
+        let scene = glissade_core::scene::Scene::parse(SCENE).unwrap();
+        let data: Vec<(BTreeMap<String, f64>, BTreeMap<String, f64>)> = points
+            .iter()
+            .map(|&(a, b)| {
+                let p = BTreeMap::from([("a".to_owned(), a), ("b".to_owned(), b)]);
+                (p, BTreeMap::from([("ux".to_owned(), a + b), ("slip".to_owned(), a * b)]))
+            })
+            .collect();
+        let rows: Vec<Row> = data.iter().map(|(p, q)| (p, q)).collect();
+        let names = ["a".to_owned(), "b".to_owned()];
+        let picture = Picture {
+            scene: Some(&scene),
+            names: &names,
+            swept: &names,
+            fixed,
+            qoi,
+            resolution: 0.0,
+            title: String::new(),
+        };
+        surface_figure(&picture.surface(&rows)).into_string()
     }
 
     #[test]
-    fn an_11_by_11_study_draws_121_cells_and_one_parameter_a_curve() {
-        let names = vec!["f1".to_owned(), "f2".to_owned()];
-        let none = BTreeMap::new();
-        let mut points = Vec::new();
-        for i in 0..11 {
-            for j in 0..11 {
-                let (a, b) = (0.1 + 0.01 * i as f64, 0.1 + 0.01 * j as f64);
-                points.push((vec![a, b], a * b));
-            }
-        }
-        let svg = surface_svg(&names, "slip_A", &points, &none);
-        assert_eq!(svg.matches("class=\"cell\"").count(), 121);
-        assert!(svg.contains("<title>f1=0.1 f2=0.1 slip_A = 1.0000e-2</title>"), "the value under the pointer");
-        // every cell inside the picture
-        for part in svg.split("<rect class=\"cell\" x=\"").skip(1) {
-            let x: f64 = part.split('"').next().unwrap().parse().unwrap();
-            assert!((0.0..420.0).contains(&x), "{x}");
-        }
-        let curve = surface_svg(
-            &names[..1],
-            "slip_A",
-            &points[..11].iter().map(|(x, v)| (vec![x[1]], *v)).collect::<Vec<_>>(),
-            &none,
+    fn a_study_draws_its_surface_with_a_value_under_each_point() {
+        // scattered points, as an adaptive study's
+        let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5), (0.4, 0.6)];
+        let svg = figure("ux", &points, &[]);
+        assert!(svg.starts_with("<svg class=\"surface\" data-qoi=\"ux\" data-count=\"6\""), "{svg}");
+        assert!(svg.contains("data-surface=\"true\""), "a surface, not rings around the points");
+        assert_eq!(svg.matches("<circle class=\"point\"").count(), 6);
+        assert!(svg.contains("<title>a=0.1 b=0.3 ux = 4.0000e-1</title>"), "the value under the pointer: {svg}");
+        assert!(svg.contains("ux: standard deviation"), "the second panel");
+        let contours: usize =
+            svg.split("data-contours=\"").nth(1).and_then(|t| t.split('"').next()?.parse().ok()).unwrap();
+        assert!(contours >= 5, "{contours}");
+        // a slice: the curve over a at b = 1
+        let fixed = [("b".to_owned(), 1.0)];
+        let curve = figure("slip", &[(0.1, 1.0), (0.5, 1.0), (0.9, 1.0), (0.5, 0.3)], &fixed);
+        assert_eq!(curve.matches("<circle class=\"point\"").count(), 3, "{curve}");
+        assert!(curve.contains("mean ± 2 sd"));
+        // nothing done yet; one point: no surface, and why
+        assert!(figure("ux", &[], &[]).contains("ux [m]: no point done yet"));
+        let one = figure("ux", &[(0.5, 0.5)], &[]);
+        assert!(
+            one.contains("data-surface=\"false\"") && one.contains("no surface: a surface needs at least 2 points")
         );
-        assert!(curve.contains("<polyline") && curve.matches("<circle class=\"cell\"").count() == 11);
-        assert!(surface_svg(&names, "q", &[], &none).contains("no point done yet"));
-        // names are escaped
-        assert!(surface_svg(&names, "<b>", &points, &none).contains("&lt;b&gt;"));
-    }
-
-    /// The numbers of attribute `name` in every element of class `class`.
-    fn attributes(svg: &str, class: &str, name: &str) -> Vec<String> {
-        svg.split(&format!("class=\"{class}\""))
-            .skip(1)
-            .filter_map(|e| e.split(&format!(" {name}=\"")).nth(1)?.split('"').next().map(str::to_owned))
-            .collect()
     }
 
     #[test]
-    fn contour_lines_lie_where_the_surface_takes_their_level() {
-        let names = vec!["a".to_owned(), "b".to_owned()];
-        // v = a over an 11 x 11 grid: every contour is straight across, at its level's column
-        let grid: Vec<(Vec<f64>, f64)> =
-            (0..121).map(|k| (vec![0.1 * (k % 11) as f64, 0.1 * (k / 11) as f64], 0.1 * (k % 11) as f64)).collect();
-        let svg = surface_svg(&names, "v", &grid, &BTreeMap::new());
-        let levels = attributes(&svg, "contour", "data-level");
-        assert_eq!(levels.len(), 4, "{svg}");
-        assert_eq!(attributes(&svg, "contour-label", "x").len(), 4, "each labelled");
-        // the centres of the columns where v = 0 and v = 1 (the first and last cells)
-        let xs: Vec<f64> = attributes(&svg, "cell", "x").iter().map(|x| x.parse().unwrap()).collect();
-        let cw: f64 = attributes(&svg, "cell", "width")[0].parse().unwrap();
-        let (c0, c1) = (xs[0] + cw / 2.0, xs[10] + cw / 2.0);
-        for (level, d) in levels.iter().zip(attributes(&svg, "contour", "d")) {
-            let level: f64 = level.parse().unwrap();
-            let vertices: Vec<(f64, f64)> = d
-                .split(['M', 'L'])
-                .filter(|p| !p.is_empty())
-                .map(|p| p.split_once(' ').map(|(x, y)| (x.parse().unwrap(), y.parse().unwrap())).unwrap())
-                .collect();
-            assert_eq!(vertices.len(), 2 * 10, "a segment per row of squares: {d}");
-            for (x, y) in vertices {
-                assert!((x - (c0 + level * (c1 - c0))).abs() <= 0.06, "level {level}: x = {x}");
-                assert!((40.0..280.0).contains(&y), "{y}");
-            }
-        }
-        // a saddle, v = (a - 0.5)(b - 0.5): lines, none outside the picture
-        let saddle: Vec<(Vec<f64>, f64)> = grid.iter().map(|(x, _)| (x.clone(), (x[0] - 0.5) * (x[1] - 0.5))).collect();
-        let svg = surface_svg(&names, "v", &saddle, &BTreeMap::new());
-        assert_eq!(attributes(&svg, "contour", "d").len(), 4, "{svg}");
-        // a constant surface has no contour
-        let flat: Vec<(Vec<f64>, f64)> = grid.iter().map(|(x, _)| (x.clone(), 2.0)).collect();
-        assert!(!surface_svg(&names, "v", &flat, &BTreeMap::new()).contains("contour"));
+    fn a_hostile_qoi_name_stays_text() {
+        let hostile = "<script>alert(1)</script>";
+        let scene = glissade_core::scene::Scene::parse(&SCENE.replace("name = \"ux\"", &format!("name = '{hostile}'")))
+            .unwrap();
+        let data: Vec<(BTreeMap<String, f64>, BTreeMap<String, f64>)> = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0)]
+            .iter()
+            .map(|&(a, b)| {
+                (BTreeMap::from([("a".to_owned(), a), ("b".to_owned(), b)]), BTreeMap::from([(hostile.to_owned(), a)]))
+            })
+            .collect();
+        let rows: Vec<Row> = data.iter().map(|(p, q)| (p, q)).collect();
+        let names = ["a".to_owned(), "b".to_owned()];
+        let picture = Picture {
+            scene: Some(&scene),
+            names: &names,
+            swept: &names,
+            fixed: &[],
+            qoi: hostile,
+            resolution: 0.0,
+            title: String::new(),
+        };
+        let svg = surface_figure(&picture.surface(&rows)).into_string();
+        assert!(!svg.contains("<script"), "{svg}");
+        assert!(svg.contains("&lt;script&gt;alert(1)&lt;/script&gt;"), "{svg}");
     }
 
     #[test]
-    fn the_axes_carry_the_scenes_names_and_units() {
-        let names = vec!["pressure".to_owned(), "f1".to_owned()];
-        let units = BTreeMap::from([("pressure".to_owned(), "Pa".to_owned()), ("slip_A".to_owned(), "m".to_owned())]);
-        let points = vec![(vec![1e7, 0.1], 1e-5), (vec![2e7, 0.2], 2e-5)];
-        let svg = surface_svg(&names, "slip_A", &points, &units);
-        assert!(svg.contains(">slip_A (m)</text>"), "the title: {svg}");
-        assert!(svg.contains(">pressure (Pa) →</text>"), "the x axis: {svg}");
-        assert!(svg.contains(">↑ f1</text>"), "no unit, the name alone: {svg}");
-        let curve = surface_svg(&names[..1], "slip_A", &[(vec![1e7], 1e-5), (vec![2e7], 2e-5)], &units);
-        assert!(curve.contains(">pressure (Pa) →</text>") && curve.contains(">slip_A (m)</text>"), "{curve}");
-    }
-
-    #[test]
-    fn the_convergence_plot_draws_a_line_per_point() {
-        let histories = vec![vec![1.0, 0.1, 0.01], vec![0.5, 0.05], vec![]];
-        let svg = convergence_svg(&histories);
-        assert_eq!(svg.matches("class=\"history\"").count(), 2);
-        assert!(convergence_svg(&[]).contains("no history yet"));
+    fn the_convergence_plot_has_the_tolerance_line() {
+        let series = |h: &[Vec<f64>]| -> Vec<glissade_plot::ConvergenceSeries> {
+            h.iter().map(|h| glissade_plot::ConvergenceSeries { label: "#1".into(), history: h.clone() }).collect()
+        };
+        let svg = convergence_figure(&series(&[vec![1.0, 0.1, 0.01], vec![0.5, 0.05], vec![]]), 1e-2).into_string();
+        assert!(svg.contains("data-series=\"2\""), "{svg}");
+        assert!(svg.contains("tolerance"), "{svg}");
+        assert!(convergence_figure(&[], 1e-2).into_string().contains("no history yet"));
     }
 }

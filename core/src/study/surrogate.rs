@@ -266,6 +266,12 @@ impl ResponseSurface {
         &self.names
     }
 
+    /// (lowest, highest) of each parameter, in [`Self::names`] order: the box where
+    /// [`Self::predict_within`] answers.
+    pub fn bounds(&self) -> &[(f64, f64)] {
+        &self.bounds
+    }
+
     /// Points it was fitted to.
     pub fn len(&self) -> usize {
         self.process.len()
@@ -329,6 +335,19 @@ pub enum QoiSurface {
 }
 
 impl QoiSurface {
+    /// The surface of `qoi` as the scene defines it: never below zero for a norm, from its
+    /// components where the scene reports them. The one fit behind `glissade surface --at`, the
+    /// surface audit and the pictures.
+    pub fn of_scene(
+        scene: &crate::scene::Scene,
+        names: &[String],
+        rows: &[(Vec<f64>, &std::collections::BTreeMap<String, f64>)],
+        qoi: &str,
+    ) -> Result<Self, SurrogateError> {
+        let space = ParameterSpace::from_scene(scene);
+        Self::fit(&space, names, rows, qoi, scene.qoi_is_norm(qoi), &scene.components_of(qoi))
+    }
+
     /// The surface of `qoi` over `rows` (each: the values of `names`, in that order, and the
     /// point's QoIs): from its `components` (names of QoIs) where every row that has the norm has
     /// them all, else its own, never below zero if `norm`.
@@ -388,6 +407,26 @@ impl QoiSurface {
                         Prediction { mean, std }
                     })
                     .collect()
+            }
+        }
+    }
+
+    /// The parameters it is a surface over.
+    pub fn names(&self) -> &[String] {
+        match self {
+            QoiSurface::Direct(s) => s.names(),
+            QoiSurface::Components(parts) => parts.first().map_or(&[], |s| s.names()),
+        }
+    }
+
+    /// The box where [`Self::predict_within`] answers (of components: the union of theirs).
+    pub fn bounds(&self) -> Vec<(f64, f64)> {
+        match self {
+            QoiSurface::Direct(s) => s.bounds().to_vec(),
+            QoiSurface::Components(parts) => {
+                let mut parts = parts.iter().map(|s| s.bounds());
+                let first = parts.next().map(<[_]>::to_vec).unwrap_or_default();
+                parts.fold(first, |acc, b| acc.iter().zip(b).map(|(a, b)| (a.0.min(b.0), a.1.max(b.1))).collect())
             }
         }
     }

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 
 use glissade_core::scene::Scene;
 use glissade_core::study::holdout::{self, held_out_points};
-use glissade_core::study::space::{DesignPoint, ParameterSpace};
+use glissade_core::study::space::DesignPoint;
 use glissade_core::study::surrogate::{Prediction, QoiSurface};
 use glissade_proto::ParameterVector;
 
@@ -88,18 +88,16 @@ pub(super) fn predict(job: &Job) -> Predicted {
             return Predicted { fitted: 0, at, refused, unix_ms: now_unix_ms() };
         }
     };
-    let space = ParameterSpace::from_scene(&scene);
     let qois: std::collections::BTreeSet<&String> = job.rows.iter().flat_map(|(_, q)| q.keys()).collect();
     let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = job.rows.iter().map(|(x, q)| (x.clone(), q)).collect();
     for q in qois {
-        let surface =
-            match QoiSurface::fit(&space, &job.names, &points, q, scene.qoi_is_norm(q), &scene.components_of(q)) {
-                Ok(s) => s,
-                Err(e) => {
-                    refused.insert(q.clone(), e.to_string());
-                    continue;
-                }
-            };
+        let surface = match QoiSurface::of_scene(&scene, &job.names, &points, q) {
+            Ok(s) => s,
+            Err(e) => {
+                refused.insert(q.clone(), e.to_string());
+                continue;
+            }
+        };
         for (point, values) in job.at.iter().zip(&mut at) {
             match surface.predict(point) {
                 Ok(p) => {

@@ -15,7 +15,6 @@ fn predict(
     rows: &[SurfaceRow],
     at: &[BTreeMap<String, f64>],
 ) -> Result<Vec<PointPrediction>, CoordError> {
-    let space = ParameterSpace::from_scene(scene);
     let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = rows
         .iter()
         .filter_map(|r| {
@@ -25,7 +24,7 @@ fn predict(
         .collect();
     let mut surfaces = Vec::with_capacity(qoi.len());
     for q in qoi {
-        let surface = QoiSurface::fit(&space, names, &points, q, scene.qoi_is_norm(q), &scene.components_of(q))
+        let surface = QoiSurface::of_scene(scene, names, &points, q)
             .map_err(|e| CoordError::Precondition(format!("the surface of {q} cannot predict: {e}")))?;
         surfaces.push(surface);
     }

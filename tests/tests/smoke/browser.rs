@@ -56,15 +56,16 @@ fn a_browser_draws_the_study_page_and_follows_its_progress() -> anyhow::Result<(
         point_id: lease.point_id,
     }))?;
 
-    // A pool solves it; the same page then draws three colour maps of 9 cells and the table.
+    // A pool solves it; the same page then draws three response surfaces (mean and standard
+    // deviation) with their 9 points, and the table.
     let mut pool = start_pool(&url, "browser-pool", &pool_log);
     rt.block_on(async { watch(&mut user(&url).await?, id, |_| true).await })?;
     let done = rendered(&page);
     assert!(done.contains("done: 9 of 9 done"), "{done}");
-    assert_eq!(done.matches("class=\"cell\"").count(), 27, "{done}");
+    assert_eq!(done.matches("class=\"point\"").count(), 27, "{done}");
     assert_eq!(done.matches("<svg class=\"surface\"").count(), 3, "{done}");
     assert!(done.contains("<table id=\"points\">"), "{done}");
-    assert!(done.contains("class=\"contour\"") && done.contains(">slip_A (m)</text>"), "contours, units: {done}");
+    assert!(done.contains("slip_A: standard deviation") && done.contains("slip_A [m]"), "two panels, units: {done}");
 
     // A picture a person can open: target/study-page.png.
     let shot = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../target/study-page.png");

@@ -27,7 +27,7 @@ fn cli_demo_runs_a_study_and_draws_its_pictures() -> anyhow::Result<()> {
     assert!(stdout.contains("study 1 done: 9/9 done"), "{stdout}");
     assert!(stdout.contains("x less work than cold ones"), "{stdout}");
     assert!(stdout.lines().any(|l| l.split_whitespace().take(2).eq(["f1", "f2"])), "{stdout}");
-    assert_eq!(png_size(&out_dir.join("slip_A.png")), (900, 700));
+    assert_eq!(png_size(&out_dir.join("slip_A.png")), (1200, 560));
     assert_eq!(png_size(&out_dir.join("convergence.png")), (900, 600));
     let csv = std::fs::read_to_string(out_dir.join("surface.csv"))?;
     assert_eq!(csv.lines().next(), Some("f1,f2,middle_ux,slip_A,slip_B,iterations,eta,state"));
@@ -97,21 +97,21 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     // the table for people
     let out = glissade(Some(&url), &["surface", "1", "--qoi", "slip_A"]);
     assert_eq!(text(&out.stdout).lines().count(), 10, "{}", text(&out.stdout));
-    // the web page on the same port as gRPC: the study with a colour map of 9 cells per QoI, its
-    // table, downloads, and the JSON API
+    // the web page on the same port as gRPC: the study with each QoI's response surface (its 9
+    // points on top), its table, downloads, and the JSON API
     let (status, kind, page) = http_get(&addr, "/studies/1");
     assert_eq!((status, kind.as_str()), (200, "text/html; charset=utf-8"), "{page}");
-    assert_eq!(page.matches("class=\"cell\"").count(), 9 * 3, "{page}");
+    assert_eq!(page.matches("data-surface=\"true\"").count(), 3, "{page}");
+    assert_eq!(page.matches("<circle class=\"point\"").count(), 9 * 3, "{page}");
     assert!(page.contains("<table id=\"points\">") && page.contains("measured accuracy"), "{page}");
-    assert_eq!(page.matches("class=\"history\"").count(), 9, "a convergence line per point: {page}");
-    // labelled contour lines on the maps of QoIs that vary; the QoIs' units from the scene
-    assert!(page.matches("<path class=\"contour\"").count() >= 4, "{page}");
-    assert_eq!(page.matches("<path class=\"contour\"").count(), page.matches("class=\"contour-label\"").count());
-    assert!(page.contains(">slip_A (m)</text>") && page.contains(">middle_ux (m)</text>"), "{page}");
+    assert!(page.contains("<svg class=\"convergence\" data-series=\"9\""), "a convergence line per point: {page}");
+    // labelled contour lines on the maps; the QoIs' units from the scene
+    assert!(page.contains("slip_A [m]") && page.contains("middle_ux [m]"), "{page}");
+    assert!(page.contains("data-contours=\"7\""), "{page}");
     // a slice: the curves over f1 at f2 = 0.15, 3 points per QoI
     let (status, _, slice) = http_get(&addr, "/studies/1?fix=f2=0.15");
     assert_eq!(status, 200);
-    assert_eq!(slice.matches("<circle class=\"cell\"").count(), 3 * 3, "{slice}");
+    assert_eq!(slice.matches("<circle class=\"point\"").count(), 3 * 3, "{slice}");
     assert!(http_get(&addr, "/").2.contains("work cold"));
     let (status, kind, csv) = http_get(&addr, "/api/studies/1/surface.csv");
     assert_eq!((status, kind.as_str()), (200, "text/csv; charset=utf-8"));
@@ -145,7 +145,7 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     // pictures of the stated size: a colour map, a curve (one free parameter), the convergence
     for (args, size) in [
         (vec!["surface", "1", "--qoi", "slip_A", "--png", &path("map.png"), "--size", "640x480"], (640, 480)),
-        (vec!["surface", "1", "--qoi", "slip_B", "--fix", "f1=0.1", "--png", &path("curve.png")], (900, 700)),
+        (vec!["surface", "1", "--qoi", "slip_B", "--fix", "f1=0.1", "--png", &path("curve.png")], (1200, 560)),
         (vec!["convergence", "1", "--png", &path("conv.png"), "--size", "800x500"], (800, 500)),
     ] {
         let out = glissade(Some(&url), &args);

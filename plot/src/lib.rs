@@ -1,0 +1,243 @@
+//! glissade's pictures, drawn once by plotters for two backends: PNG files for the CLI
+//! (`glissade surface --png`, `glissade convergence --png`, the demo) and SVG text that the web
+//! page inlines. One colour map ([`colour::viridis`]), one contour routine ([`grid::Grid::contour`])
+//! and one convergence plot serve both.
+//!
+//! A response surface is pictured as the surface, not as its points: the Gaussian process that
+//! answers `glissade surface --at` ([`glissade_core::study::surrogate::QoiSurface`]), sampled on a
+//! regular grid over the box where it answers ([`study::picture`]). Over two parameters: a
+//! colour map of the mean with labelled contours and a second panel of the standard deviation,
+//! each with its colour bar, the design points on top; over one: the mean with a band of 2
+//! standard deviations and the points.
+//!
+//! Text (parameter, QoI and unit names, which users choose) reaches an SVG through plotters'
+//! SVG backend, which escapes `<`, `>`, `&` and quotes in text and attributes (a test pins it).
+
+pub mod colour;
+mod convergence;
+pub mod grid;
+pub mod study;
+mod surface;
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use plotters::prelude::*;
+
+pub use convergence::ConvergenceSeries;
+pub use surface::{Drawn, Field, Surface};
+
+/// A named axis: parameter or QoI, with its unit when the scene gives one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Axis {
+    pub name: String,
+    pub unit: Option<String>,
+}
+
+impl Axis {
+    pub fn new(name: impl Into<String>, unit: Option<String>) -> Self {
+        Self { name: name.into(), unit }
+    }
+
+    /// "name [unit]": the usual convention for axis labels; an empty unit counts as none.
+    pub fn label(&self) -> String {
+        match self.unit.as_deref() {
+            Some(unit) if !unit.is_empty() => format!("{} [{unit}]", self.name),
+            _ => self.name.clone(),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("nothing to plot: no points")]
+    NoPoints,
+    #[error("a surface needs at least one swept parameter")]
+    NoParameters,
+    #[error(
+        "a picture shows a surface over 1 or 2 parameters but this one varies {0}: fix the others with --fix NAME=VALUE"
+    )]
+    TooManyParameters(usize),
+    #[error("a point has {got} parameter values where the surface has {expected} parameters")]
+    DimensionMismatch { expected: usize, got: usize },
+    #[error("a parameter or QoI value is not finite (NaN or infinite)")]
+    NonFinite,
+    #[error("the sampled surface does not match its axes: {0}")]
+    Field(String),
+    #[error(
+        "picture size {0}x{1} out of range: from {min_w}x{min_h} to {max_w}x{max_h} pixels",
+        min_w = MIN_SIZE.0,
+        min_h = MIN_SIZE.1,
+        max_w = MAX_SIZE.0,
+        max_h = MAX_SIZE.1
+    )]
+    Size(u32, u32),
+    #[error("{}: pictures are written as PNG, give a file name ending in .png", .0.display())]
+    NotPng(PathBuf),
+    #[error("drawing failed: {0}")]
+    Draw(String),
+}
+
+impl<E: std::error::Error + Send + Sync> From<DrawingAreaErrorKind<E>> for PlotError {
+    fn from(e: DrawingAreaErrorKind<E>) -> Self {
+        PlotError::Draw(e.to_string())
+    }
+}
+
+/// Below this the fixed-size label areas and colour bars of two panels leave no room for the maps.
+pub const MIN_SIZE: (u32, u32) = (480, 320);
+/// Beyond this the bitmap (3 bytes a pixel, held in memory) gets unreasonable, and its byte count overflows
+/// plotters' u32 arithmetic long before memory runs out.
+pub const MAX_SIZE: (u32, u32) = (10_000, 10_000);
+
+/// The font family every text names; registered from the bundled DejaVu Sans.
+pub(crate) const FONT: &str = "sans-serif";
+
+/// Draws a response surface into a PNG file.
+pub fn surface_png(path: &Path, surface: &Surface, size: (u32, u32)) -> Result<Drawn, PlotError> {
+    surface.check()?;
+    check_target(path, size)?;
+    register_bundled_font()?;
+    let root = BitMapBackend::new(path, size).into_drawing_area();
+    let drawn = surface::draw(&root, surface, surface::Raster::Fine)?;
+    root.present()?;
+    Ok(drawn)
+}
+
+/// An SVG document (`<svg ...>...</svg>`) and what was drawn where.
+#[derive(Debug, Clone)]
+pub struct Svg {
+    pub text: String,
+    pub drawn: Drawn,
+}
+
+/// Draws a response surface as SVG text: a rectangle per cell of the sampled grid (a finer
+/// raster would weigh megabytes in a page), the same layout as the PNG.
+pub fn surface_svg(surface: &Surface, size: (u32, u32)) -> Result<Svg, PlotError> {
+    surface.check()?;
+    check_size(size)?;
+    register_bundled_font()?;
+    let mut text = String::new();
+    let drawn = {
+        let root = SVGBackend::with_string(&mut text, size).into_drawing_area();
+        let drawn = surface::draw(&root, surface, surface::Raster::Cells)?;
+        root.present()?;
+        drawn
+    };
+    Ok(Svg { text, drawn })
+}
+
+/// Draws eta against the iteration for each series into a PNG file (log scale; the tolerance
+/// as a dashed line).
+pub fn convergence_png(
+    path: &Path,
+    series: &[ConvergenceSeries],
+    tolerance: Option<f64>,
+    title: &str,
+    size: (u32, u32),
+) -> Result<(), PlotError> {
+    let lines = convergence::lines(series)?;
+    check_target(path, size)?;
+    register_bundled_font()?;
+    let root = BitMapBackend::new(path, size).into_drawing_area();
+    convergence::draw(&root, series, &lines, tolerance, title)?;
+    root.present()?;
+    Ok(())
+}
+
+/// As [`convergence_png`], as SVG text.
+pub fn convergence_svg(
+    series: &[ConvergenceSeries],
+    tolerance: Option<f64>,
+    title: &str,
+    size: (u32, u32),
+) -> Result<String, PlotError> {
+    let lines = convergence::lines(series)?;
+    check_size(size)?;
+    register_bundled_font()?;
+    let mut text = String::new();
+    {
+        let root = SVGBackend::with_string(&mut text, size).into_drawing_area();
+        convergence::draw(&root, series, &lines, tolerance, title)?;
+        root.present()?;
+    }
+    Ok(text)
+}
+
+/// Fails before anything is drawn, so that a bad path or size leaves no file behind.
+fn check_target(path: &Path, size: (u32, u32)) -> Result<(), PlotError> {
+    // the backend picks the image format from the extension
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        return Err(PlotError::NotPng(path.to_path_buf()));
+    }
+    check_size(size)
+}
+
+fn check_size(size: (u32, u32)) -> Result<(), PlotError> {
+    if !(MIN_SIZE.0..=MAX_SIZE.0).contains(&size.0) || !(MIN_SIZE.1..=MAX_SIZE.1).contains(&size.1) {
+        return Err(PlotError::Size(size.0, size.1));
+    }
+    Ok(())
+}
+
+/// With ab_glyph plotters knows no system fonts: text needs a font registered under the family it
+/// names (the SVG backend measures text with it too).
+fn register_bundled_font() -> Result<(), PlotError> {
+    static REGISTERED: OnceLock<bool> = OnceLock::new();
+    let ok = *REGISTERED.get_or_init(|| {
+        plotters::style::register_font(FONT, FontStyle::Normal, include_bytes!("../../assets/DejaVuSans.ttf")).is_ok()
+    });
+    if ok { Ok(()) } else { Err(PlotError::Draw("the bundled font DejaVuSans.ttf was rejected".into())) }
+}
+
+/// Smallest and largest of `values` (None when there are none).
+pub(crate) fn min_max(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    values.fold(None, |acc, v| match acc {
+        None => Some((v, v)),
+        Some((lo, hi)) => Some((lo.min(v), hi.max(v))),
+    })
+}
+
+/// A range with some width, so that plotters can map it: a single value gets ±10 % of itself, or ±1 at zero.
+pub(crate) fn pad_degenerate((lo, hi): (f64, f64)) -> (f64, f64) {
+    if hi > lo {
+        return (lo, hi);
+    }
+    let d = if lo != 0.0 { 0.1 * lo.abs() } else { 1.0 };
+    (lo - d, hi + d)
+}
+
+/// A tick label short enough for the label area at any scale (slips are micrometres, forces kilonewtons);
+/// a tick that is zero but for rounding reads 0.
+pub(crate) fn tick_label(v: f64, span: f64) -> String {
+    if v.abs() < 1e-9 * span { "0".into() } else { plotters::data::float::pretty_print_float(v, true) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The contents of an SVG's `<text>` elements, trimmed (plotters writes them on lines of their own).
+    pub(crate) fn texts(svg: &str) -> Vec<String> {
+        svg.split("<text")
+            .skip(1)
+            .filter_map(|t| Some(t.split_once('>')?.1.split("</text>").next()?.trim().to_owned()))
+            .collect()
+    }
+
+    #[test]
+    fn axis_label_has_the_unit_in_brackets() {
+        assert_eq!(Axis::new("slip_A", Some("m".into())).label(), "slip_A [m]");
+        assert_eq!(Axis::new("f1", None).label(), "f1");
+        assert_eq!(Axis::new("f1", Some(String::new())).label(), "f1");
+    }
+
+    #[test]
+    fn ranges_and_labels() {
+        assert_eq!(pad_degenerate((0.0, 0.0)), (-1.0, 1.0));
+        assert_eq!(pad_degenerate((2.0, 2.0)), (1.8, 2.2));
+        assert_eq!(tick_label(1e-20, 1.0), "0");
+        assert_eq!(min_max([3.0, -1.0, 2.0].into_iter()), Some((-1.0, 3.0)));
+        assert_eq!(min_max(std::iter::empty()), None);
+    }
+}
