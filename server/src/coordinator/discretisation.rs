@@ -206,9 +206,12 @@ fn seconds(e: &StudyEntry) -> f64 {
     e.points.iter().filter_map(|p| p.result.as_ref()).map(|r| r.wall_seconds).sum()
 }
 
+/// One point's QoIs, level by level, the study's own first.
+type Ladder<'a> = Vec<&'a BTreeMap<String, f64>>;
+
 /// The QoIs of each point of the first level that is done at every level, level by level, the
 /// study's own first; and how many points the levels plan.
-fn ladders<'a>(study: &'a StudyEntry, levels: &[&'a StudyEntry]) -> (Vec<Vec<&'a BTreeMap<String, f64>>>, usize) {
+fn ladders<'a>(study: &'a StudyEntry, levels: &[&'a StudyEntry]) -> (Vec<Ladder<'a>>, usize) {
     fn result<'a>(e: &'a StudyEntry, at: &ParameterVector) -> Option<&'a PointResult> {
         let p = e.points.iter().find(|p| p.state == PointState::Done && &p.parameters == at)?;
         p.result.as_ref()
@@ -237,7 +240,7 @@ struct Measured {
     below_tolerance: bool,
 }
 
-fn estimate(ladders: &[Vec<&BTreeMap<String, f64>>], name: &str, noise: f64) -> Measured {
+fn estimate(ladders: &[Ladder<'_>], name: &str, noise: f64) -> Measured {
     let finals: Vec<Vec<f64>> =
         ladders.iter().filter_map(|l| l.iter().map(|q| q.get(name).copied()).collect()).collect();
     let largest = |v: &[f64]| v.iter().fold(0.0f64, |s, x| s.max(x.abs()));
