@@ -566,9 +566,10 @@ fn submit_refined(
 /// The mesh level of a discretisation audit (asked for): the audit's points re-solved cold on
 /// the scene with every box's elements doubled along each axis at the study's steps, leased
 /// after the time levels; per QoI the mesh's change and error (order 2 assumed) beside the time
-/// step's, against a hand computation on a law second order in both, q = f1 1e-5 (1 + 0.5 dt^2
-/// + 0.2 h^2) (dt, h relative to the scene's), and its cost apart. A scene with a mesh-file body,
-/// or a mesh level past the scene size bound, is refused with the reason.
+/// step's, against a hand computation on a law second order in both,
+/// q = f1 1e-5 (1 + 0.5 dt^2 + 0.2 h^2) (dt, h relative to the scene's), and its cost apart. A
+/// scene with a mesh-file body, or a mesh level past the scene size bound, is refused with the
+/// reason.
 #[test]
 fn a_mesh_level_measures_the_mesh_error_beside_the_time_step() {
     let dir = tempfile::tempdir().unwrap();
