@@ -197,6 +197,10 @@ struct SubmitArgs {
     /// assumed) or 3 (dt / 2 and dt / 4, order observed)
     #[arg(long, value_name = "2|3", default_value_t = 2)]
     refine_levels: u32,
+    /// Those points also re-solved cold on the mesh refined once (box bodies: elements x 2 along
+    /// each axis; about 2^dim x a point or more): the mesh's error beside the time step's
+    #[arg(long)]
+    refine_mesh: bool,
     /// Points held out of the study's response surface (random in its box), solved cold at 1/100
     /// of the tolerance when pools are idle, against the surface's predictions made before: how
     /// good the surface is between the points (`glissade show`); default: 5 % of the points, at
@@ -456,6 +460,7 @@ async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
         audit_points: args.audit,
         refine_points: args.refine,
         refine_levels: args.refine_levels,
+        refine_mesh: args.refine_mesh,
         surface_audit_points: args.surface_audit,
         surface_accuracy: args.surface_accuracy,
     };
@@ -775,17 +780,46 @@ fn discretisation_line(d: &v1::StudyDiscretisation) -> String {
     )
 }
 
-/// Which of the two errors dominates, by the largest over the QoIs of each (None until both
-/// measured something).
+/// The mesh level's line: per QoI the change at h / 2 and the estimated error (None: no mesh
+/// level).
+fn mesh_line(d: &v1::StudyDiscretisation) -> Option<String> {
+    (d.mesh_study_id != 0).then_some(())?;
+    let errors: Vec<String> = d
+        .qoi
+        .iter()
+        .filter_map(|(q, e)| {
+            let how = if e.mesh_below_tolerance { " (below the iterations' noise)" } else { " (order 2 assumed)" };
+            Some(format!("{q} change {:.1e} error ~{:.1e}{how}", e.mesh_change?, e.mesh_error?))
+        })
+        .collect();
+    Some(format!(
+        "{} of {} points re-solved cold at h / {} (study {}; {:.1} s, {:.2} x the study's {:.1} s){}{}",
+        d.mesh_audited,
+        d.planned,
+        d.mesh_factor,
+        d.mesh_study_id,
+        d.mesh_work_seconds,
+        if d.study_seconds > 0.0 { d.mesh_work_seconds / d.study_seconds } else { 0.0 },
+        d.study_seconds,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    ))
+}
+
+/// Which of the errors dominates, by the largest over the QoIs of each (None until the
+/// iterations' and the time step's measured something; the mesh's where it did).
 fn dominant(a: &v1::StudyAccuracy, d: &v1::StudyDiscretisation) -> Option<String> {
-    let iterations =
-        a.qoi.values().map(|e| e.largest).fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))))?;
-    let step = d.qoi.values().map(|e| e.error).fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))))?;
-    Some(if step > iterations {
-        format!("the time step's error (~{step:.1e}) dominates the iterations' ({iterations:.1e})")
-    } else {
-        format!("the iterations' error ({iterations:.1e}) dominates the time step's (~{step:.1e})")
-    })
+    let largest = |v: &mut dyn Iterator<Item = f64>| v.fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
+    let mut errors = vec![
+        ("the iterations'", largest(&mut a.qoi.values().map(|e| e.largest))?),
+        ("the time step's", largest(&mut d.qoi.values().map(|e| e.error))?),
+    ];
+    if let Some(mesh) = largest(&mut d.qoi.values().filter_map(|e| e.mesh_error)) {
+        errors.push(("the mesh's", mesh));
+    }
+    errors.sort_by(|x, y| y.1.total_cmp(&x.1));
+    let others: Vec<String> = errors[1..].iter().map(|(who, e)| format!("{who} ({e:.1e})")).collect();
+    Some(format!("{} error (~{:.1e}) dominates {}", errors[0].0, errors[0].1, others.join(" and ")))
 }
 
 fn study_json(s: &v1::Study) -> serde_json::Value {
@@ -854,7 +888,14 @@ fn study_json(s: &v1::Study) -> serde_json::Value {
             "qoi": d.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
                 "change": e.change, "error": e.error, "order": (e.order > 0.0).then_some(e.order),
                 "order_assumed": e.order_assumed, "erratic": e.erratic, "below_tolerance": e.below_tolerance,
+                "mesh": e.mesh_change.map(|change| serde_json::json!({
+                    "change": change, "error": e.mesh_error, "below_tolerance": e.mesh_below_tolerance,
+                })),
             }))).collect::<serde_json::Map<_, _>>(),
+            "mesh": (d.mesh_study_id != 0).then(|| serde_json::json!({
+                "study_id": d.mesh_study_id, "factor": d.mesh_factor, "audited": d.mesh_audited,
+                "work_seconds": d.mesh_work_seconds,
+            })),
         })),
     })
 }
@@ -1106,7 +1147,8 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
     );
     outln!("  tolerance {:.1e}, at most {} iterations", s.tolerance, s.max_iterations);
     if s.refines != 0 {
-        outln!("  refines   study {} (its points re-solved with the time step / {})", s.refines, s.refine_factor);
+        let what = if s.refines_mesh { "the mesh h" } else { "the time step" };
+        outln!("  refines   study {} (its points re-solved with {what} / {})", s.refines, s.refine_factor);
     } else if s.held_out {
         outln!(
             "  audits    study {} (points held out of its surface, solved cold at this tighter tolerance)",
@@ -1126,6 +1168,9 @@ async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<(
     }
     if let Some(d) = &s.discretisation {
         outln!("  dt error  {}", discretisation_line(d));
+        if let Some(mesh) = mesh_line(d) {
+            outln!("  h error   {mesh}");
+        }
         if let Some(verdict) = s.accuracy.as_ref().and_then(|a| dominant(a, d)) {
             outln!("            {verdict}");
         }

@@ -252,7 +252,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             "work": a.work, "work_cap": a.work_cap,
             "qoi": a.qoi.iter().map(|(q, (l, m))| (q.clone(), json!({"largest": l, "mean": m}))).collect::<serde_json::Map<_, _>>(),
         })),
-        "refines": r.refines.map(|x| json!({"study_id": x.study.0, "factor": x.factor})),
+        "refines": r.refines.map(|x| json!({"study_id": x.study.0, "factor": x.factor, "refinement": x.refinement})),
         "held_out": r.held_out.is_some(),
         "target": r.adaptive.as_ref().and_then(|a| Some(json!({
             "surface_accuracy": a.target?, "budget": a.budget,
@@ -277,7 +277,11 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             "qoi": d.qoi.iter().map(|(q, e)| (q.clone(), json!({
                 "change": e.change, "error": e.error, "order": e.order, "order_assumed": e.order_assumed,
                 "erratic": e.erratic, "below_tolerance": e.below_tolerance,
+                "mesh": e.mesh.map(|m| json!({"change": m.change, "error": m.error, "below_tolerance": m.below_tolerance})),
             }))).collect::<serde_json::Map<_, _>>(),
+            "mesh": d.mesh.as_ref().map(|m| json!({
+                "study_id": m.study.0, "factor": m.factor, "audited": m.audited, "work_seconds": m.work_seconds,
+            })),
         })),
         "points": v.points.iter().map(point_json).collect::<Vec<_>>(),
         "running": v.points.iter().filter_map(|p| match &p.state {
@@ -713,6 +717,23 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
                         (format!(" (observed order {order:.2})"))
                     } @else {
                         " (order 2 assumed)"
+                    }
+                }
+            }
+            @if let Some(m) = &d.mesh {
+                p #mesh-discretisation {
+                    (format!(
+                        "mesh error: {} of {} points re-solved cold at h / {} ({:.1} s of solves, {:.2} x the study's): ",
+                        m.audited,
+                        d.planned,
+                        m.factor,
+                        m.work_seconds,
+                        if d.study_seconds > 0.0 { m.work_seconds / d.study_seconds } else { 0.0 },
+                    ))
+                    @for (k, (q, e)) in d.qoi.iter().filter_map(|(q, e)| Some((q, e.mesh?))).enumerate() {
+                        @if k > 0 { ", " }
+                        (q) (format!(" change {:.1e} error ~{:.1e}", e.change, e.error))
+                        @if e.below_tolerance { " (below the iterations' noise)" } @else { " (order 2 assumed)" }
                     }
                 }
             }

@@ -13,6 +13,8 @@ without it `run` says so and exits 3, `deck` still writes the deck.
   python3 tools/calculix/compare.py deck SCENE [--set NAME=VALUE]... --dt DT -o DECK.inp
   python3 tools/calculix/compare.py run SCENE [--set NAME=VALUE]... --ccx-dt DT --glissade-steps N
           [--tol T] [--worker PATH] [--workdir DIR] [--json OUT.json]
+  python3 tools/calculix/compare.py kt-limit RUN.json RUN.json... --glissade-json G.json
+  (--kt, --alpha and --contact set the deck's contact: docs/verification.md 12)
 
 What the deck models, and why (issue 29's measurements):
 - C3D8 elements (8-node hexahedra, ccx's default integration); glissade integrates the volumetric
@@ -23,6 +25,8 @@ What the deck models, and why (issue 29's measurements):
   surface-to-surface with fixed increments could hang: the dynamic step uses automatic increments
   capped at the step asked. The stick slope is an elastic slip glissade does not have (its stick
   is rigid): up to f p / kt where the interface sticks (docs/verification.md 12 says how much).
+  `--contact mortar` (and the other mortar kinds, HARD: Lagrange multipliers, a rigid stick)
+  writes ccx's mortar contact instead; ccx 2.20 crashes with it in a dynamic step.
 - A static step first (the prescribed displacements and the loads' values at t = 0, as glissade's
   static prestress stage), then an implicit dynamic step over the scene's duration, with ccx's
   default Hilber-Hughes-Taylor alpha = -0.05 (second order; it damps the highest modes a little);
@@ -260,7 +264,7 @@ def qoi_nodes(scene, mesh):
     return out
 
 
-def write_deck(scene, mesh, dt, kn, kt, alpha, title):
+def write_deck(scene, mesh, dt, kn, kt, alpha, title, contact="penalty"):
     """The CalculiX input deck (text)."""
     out = [f"*HEADING\n{title}"]
     out.append("*NODE, NSET=NALL")
@@ -294,7 +298,8 @@ def write_deck(scene, mesh, dt, kn, kt, alpha, title):
     made = set()
     for i, itf in enumerate(scene.interfaces):
         slave, master = surface(*itf["a"]), surface(*itf["b"])
-        out.append(f"*SURFACE INTERACTION, NAME=I_{i}\n*SURFACE BEHAVIOR, PRESSURE-OVERCLOSURE=LINEAR\n{fmt(kn)}")
+        behavior = "LINEAR\n" + fmt(kn) if contact == "penalty" else "HARD"
+        out.append(f"*SURFACE INTERACTION, NAME=I_{i}\n*SURFACE BEHAVIOR, PRESSURE-OVERCLOSURE={behavior}")
         if itf["friction"] > 0:
             out.append(f"*FRICTION\n{fmt(itf['friction'])}, {fmt(kt)}")
         # the slave: the side whose material expands less across the interface under the normal
@@ -302,7 +307,8 @@ def write_deck(scene, mesh, dt, kn, kt, alpha, title):
         # slave beyond the master's edge chatters in and out of contact)
         if scene.materials[scene.bodies[itf["b"][0]]["material"]][1] < scene.materials[scene.bodies[itf["a"][0]]["material"]][1]:
             slave, master = master, slave
-        out.append(f"*CONTACT PAIR, INTERACTION=I_{i}, TYPE=SURFACE TO SURFACE\n"
+        kind = "SURFACE TO SURFACE" if contact == "penalty" else contact.upper()
+        out.append(f"*CONTACT PAIR, INTERACTION=I_{i}, TYPE={kind}\n"
                    f"{slave}, {master}")
     qn = sorted({n for t in qoi_nodes(scene, mesh) for n in t})
     out.append("*NSET, NSET=N_QOI\n" + lines(qn))
@@ -436,6 +442,31 @@ def with_steps(text, steps):
     return "".join(out)
 
 
+def kt_limit(runs):
+    """ccx's QoI histories extrapolated to a rigid stick (kt -> infinity) from runs at several
+    stick slopes: the penalty's elastic slip is tau / kt, linear in 1 / kt while the contact
+    states stay those of the runs, so q(kt) = q_inf + c / kt; with two runs q_inf is the line's
+    value at 1 / kt = 0, with three the two stiffest give it and the two softest say how straight
+    the line is. Runs are `run --json` outputs of one scene and point; the histories are compared
+    at the coarsest run's times. Returns (kts, {qoi: (times, extrapolated, from the softest pair)})."""
+    runs = sorted(runs, key=lambda r: -r["kt"])
+    kts = [r["kt"] for r in runs]
+    if len(runs) < 2 or len(set(kts)) != len(kts):
+        raise SceneError("kt-limit: two or more runs at different --kt")
+    out = {}
+    for name in runs[0]["ccx"]:
+        hs = [(r["ccx"][name]["times"], r["ccx"][name]["values"]) for r in runs]
+        end = min(h[0][-1] for h in hs)
+        times = [t for t in min((h[0] for h in hs), key=len) if t <= end * (1 + 1e-12)]
+        vals = [[interpolate(h[0], h[1], t) for t in times] for h in hs]
+
+        def line(i, j):
+            xi, xj = 1.0 / kts[i], 1.0 / kts[j]
+            return [(vi * xj - vj * xi) / (xj - xi) for vi, vj in zip(vals[i], vals[j])]
+        out[name] = (times, line(0, 1), line(len(runs) - 2, len(runs) - 1))
+    return kts, out
+
+
 def child_cpu():
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
@@ -444,6 +475,11 @@ def child_cpu():
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
+    lim = sub.add_parser("kt-limit", help="ccx runs at several --kt extrapolated to a rigid stick, against glissade")
+    lim.add_argument("runs", nargs="+", metavar="RUN.json", help="`run --json` outputs at different --kt")
+    lim.add_argument("--glissade-json", required=True, metavar="FILE",
+                     help="a `glissade-worker solve --json` of the same scene and point, or a `run --json` "
+                     "(its glissade histories)")
     for name in ("deck", "run"):
         p = sub.add_parser(name)
         p.add_argument("scene")
@@ -452,6 +488,9 @@ def main():
         p.add_argument("--kt", type=float, default=3e13, help="friction stick slope, Pa/m (3e13)")
         p.add_argument("--alpha", type=float, default=-0.05,
                        help="ccx's Hilber-Hughes-Taylor alpha in [-1/3, 0] (-0.05; 0: Newmark average acceleration)")
+        p.add_argument("--contact", choices=["penalty", "mortar", "linmortar", "pgmortar", "pglinmortar"],
+                       default="penalty", help="penalty: surface-to-surface with slope --kn; the mortar kinds: "
+                       "ccx's mortar contact, HARD (Lagrange multipliers)")
         if name == "deck":
             p.add_argument("--dt", type=float, help="largest ccx increment (default: the scene's dt)")
             p.add_argument("-o", "--output", required=True)
@@ -473,6 +512,25 @@ def main():
                            help="read glissade's solve from this `glissade-worker solve --json` output "
                                 "instead of running it (its steps must be --glissade-steps)")
     args = ap.parse_args()
+    if args.cmd == "kt-limit":
+        try:
+            runs = [json.load(open(r)) for r in args.runs]
+            gl = json.load(open(args.glissade_json))
+            kts, lim = kt_limit(runs)
+            # a `run --json` carries glissade's histories too
+            gq, gsteps = (gl["qoi"], gl["time_steps"]) if "qoi" in gl else (gl["glissade"], gl["glissade_steps"])
+        except (OSError, json.JSONDecodeError, KeyError, SceneError) as e:
+            print(f"error: kt-limit: {e}", file=sys.stderr)
+            return 1
+        print(f"ccx at kt {', '.join(f'{k:g}' for k in kts)} Pa/m extrapolated to 1 / kt = 0 (the two stiffest), "
+              f"against glissade ({gsteps} steps); 'soft pair': the two softest's extrapolation")
+        print(f"{'QoI':<14} {'ccx kt->inf':>12} {'soft pair':>12} {'glissade':>12} {'final diff':>11} {'L2 diff':>9}")
+        for name, (times, stiff, soft) in lim.items():
+            g = gq[name]
+            kept = [(t, v) for t, v in zip(g["times"], g["values"]) if t <= times[-1] * (1 + 1e-9)]
+            l2, fin = compare(([t for t, _ in kept], [v for _, v in kept]), (times, stiff))
+            print(f"{name:<14} {stiff[-1]:12.4e} {soft[-1]:12.4e} {kept[-1][1]:12.4e} {100 * fin:10.2f}% {100 * l2:8.2f}%")
+        return 0
     try:
         text = open(args.scene).read()
         scene = Scene(text, parse_set(args.set))
@@ -489,7 +547,7 @@ def main():
     if args.cmd == "deck":
         dt = args.dt or scene_dt
         with open(args.output, "w") as f:
-            f.write(write_deck(scene, mesh, dt, args.kn, args.kt, args.alpha, title))
+            f.write(write_deck(scene, mesh, dt, args.kn, args.kt, args.alpha, title, args.contact))
         if args.summary:
             print(json.dumps(dict(nodes=len(mesh.nodes), elements=len(mesh.elements),
                                   qoi_nodes={q["name"]: n for q, n in zip(scene.qois, qoi_nodes(scene, mesh))})))
@@ -509,7 +567,7 @@ def main():
     work = args.workdir or tempfile.mkdtemp(prefix="glissade-ccx-")
     os.makedirs(work, exist_ok=True)
     with open(os.path.join(work, "deck.inp"), "w") as f:
-        f.write(write_deck(scene, mesh, dt, args.kn, args.kt, args.alpha, title))
+        f.write(write_deck(scene, mesh, dt, args.kn, args.kt, args.alpha, title, args.contact))
 
     dat = args.ccx_dat or os.path.join(work, "deck.dat")
     ccx_cpu = ccx_wall = float("nan")

@@ -1,9 +1,10 @@
 //! A study's discretisation audit: a few of its points re-solved cold on refined scenes (the
-//! time step halved, and quartered with 3 levels; core::refine writes the scenes), at the
-//! study's tolerance, when the pools have nothing else to do. Per QoI the finals of the levels,
-//! the study's own first, give Richardson's estimate of the error of the time step
-//! (core::refine::richardson, the rule the worker's `refine` command uses), beside the
-//! iteration audit's measure of the tolerance's (docs/verification.md 11).
+//! time step halved, and quartered with 3 levels; on request the box bodies' mesh refined once
+//! too; core::refine writes the scenes), at the study's tolerance, when the pools have nothing
+//! else to do. Per QoI the finals of the levels, the study's own first, give Richardson's
+//! estimate of the error of the time step and of the mesh (core::refine::richardson, the rule
+//! the worker's `refine` command uses), beside the iteration audit's measure of the tolerance's
+//! (docs/verification.md 11).
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -12,16 +13,20 @@ use glissade_core::scene::Scene;
 use glissade_core::text::one_line;
 use glissade_proto::{ParameterVector, StudyId};
 
-use super::{CoordError, Discretisation, MAX_REFINE_LEVELS, MAX_REFINE_POINTS, QoiDiscretisation, StudyEntry};
+use super::{
+    CoordError, Discretisation, MAX_REFINE_LEVELS, MAX_REFINE_POINTS, MeshError, MeshLevel, QoiDiscretisation,
+    StudyEntry,
+};
 use super::{DEFAULT_REFINE_POINTS, Submission};
 use crate::records::{PointResult, PointState, Refines, StudyRecord};
 
 /// The time step's divisor between two levels.
 const RATIO: u32 = 2;
 
-/// One refined level of a submission's audit: its divisor, scene text and hash, and the scene
-/// (meshes attached).
+/// One refined level of a submission's audit: what it refines and by how much, its scene text
+/// and hash, and the scene (meshes attached).
 pub(super) struct Level {
+    pub refinement: Refinement,
     pub factor: u32,
     pub text: String,
     pub hash: String,
@@ -64,22 +69,30 @@ pub(super) fn plan(
     let mut refined = Vec::new();
     for k in 1..levels {
         let factor = RATIO.pow(k);
-        match level(scene, factor, max_scene_bytes) {
+        match level(scene, Refinement::Time, factor, max_scene_bytes) {
             Ok(l) => refined.push(l),
-            Err(e) if submission.refine_points.is_none() => {
+            Err(e) if submission.refine_points.is_none() && !submission.refine_mesh => {
                 tracing::info!(error = %e, "no discretisation audit for this study");
                 return Ok((0, Vec::new()));
             }
             Err(e) => return Err(CoordError::Invalid(format!("refine_points: {e}"))),
         }
     }
+    // the mesh, asked for explicitly (a level costs about 2^dim x a point, and more): refused
+    // with the reason when it cannot be
+    if submission.refine_mesh {
+        refined.push(
+            level(scene, Refinement::Mesh, RATIO, max_scene_bytes)
+                .map_err(|e| CoordError::Invalid(format!("refine_mesh: {e}")))?,
+        );
+    }
     Ok((n, refined))
 }
 
 /// The scene of one level, within the bounds every submitted scene obeys.
-fn level(scene: &Scene, factor: u32, max_scene_bytes: u64) -> Result<Level, String> {
-    let dt = format!("the time step / {factor}");
-    let text = refined_scene_text(scene, Refinement::Time, factor as usize).map_err(|e| format!("{dt}: {e}"))?;
+fn level(scene: &Scene, refinement: Refinement, factor: u32, max_scene_bytes: u64) -> Result<Level, String> {
+    let dt = describe(refinement, factor);
+    let text = refined_scene_text(scene, refinement, factor as usize).map_err(|e| format!("{dt}: {e}"))?;
     let mut refined = Scene::parse(&text).map_err(|e| format!("{dt}: {}", one_line(&e.to_string())))?;
     refined
         .attach_mesh_bytes(scene.meshes.iter().map(|(f, b)| (f.clone(), b.clone())))
@@ -93,7 +106,15 @@ fn level(scene: &Scene, factor: u32, max_scene_bytes: u64) -> Result<Level, Stri
             max_scene_bytes >> 20
         ));
     }
-    Ok(Level { factor, hash: refined.content_hash(), text, scene: refined })
+    Ok(Level { refinement, factor, hash: refined.content_hash(), text, scene: refined })
+}
+
+/// A level in words: `the time step / 2`, `the mesh h / 2`.
+fn describe(refinement: Refinement, factor: u32) -> String {
+    match refinement {
+        Refinement::Time => format!("the time step / {factor}"),
+        Refinement::Mesh => format!("the mesh h / {factor}"),
+    }
 }
 
 /// `n` of `points` spread over the list: the first and the last, and evenly between (the
@@ -106,7 +127,7 @@ pub(super) fn spread(points: &[ParameterVector], n: usize) -> Vec<ParameterVecto
 pub(super) fn record(study: &StudyRecord, id: StudyId, level: &Level) -> StudyRecord {
     StudyRecord {
         id,
-        label: format!("discretisation audit of study {}: time step / {}", study.id, level.factor),
+        label: format!("discretisation audit of study {}: {}", study.id, describe(level.refinement, level.factor)),
         scene_hash: level.hash.clone(),
         scene: level.text.clone(),
         // more steps may take more iterations: the limit grows with them, within every solve's
@@ -121,74 +142,121 @@ pub(super) fn record(study: &StudyRecord, id: StudyId, level: &Level) -> StudyRe
         audit: None,
         adaptive: None,
         refined_by: Vec::new(),
-        refines: Some(Refines { study: study.id, refinement: Refinement::Time, factor: level.factor }),
+        refines: Some(Refines { study: study.id, refinement: level.refinement, factor: level.factor }),
         ..study.clone()
     }
 }
 
-/// What the levels (finest last) measured of `study`: per QoI, over the points done at every
-/// level and in the study, the change from the study's value to the first refined level's, and
+/// What the levels measured of `study`: per QoI, over the points done at every time level and
+/// in the study, the change from the study's value to the first refined level's, and
 /// Richardson's estimate of the study's error (core::refine::richardson), relative to the
-/// largest |final value| of the QoI over those points and levels.
+/// largest |final value| of the QoI over those points and levels; the same for the mesh level
+/// with its own points, where there is one.
 pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisation {
+    let refinement = |e: &StudyEntry| e.record.refines.map(|r| (r.refinement, r.factor));
+    // time levels finest last, as they were written
+    let time: Vec<&StudyEntry> =
+        levels.iter().copied().filter(|l| refinement(l).is_none_or(|(r, _)| r == Refinement::Time)).collect();
+    let mesh = levels.iter().copied().find(|l| refinement(l).is_some_and(|(r, _)| r == Refinement::Mesh));
+    let noise = NOISE_PER_TOLERANCE * study.record.tolerance;
+    let (time_ladders, planned) = ladders(study, &time);
+    let mesh_ladders = mesh.map(|m| ladders(study, &[m]).0);
+    let names: BTreeSet<&String> =
+        time_ladders.iter().chain(mesh_ladders.iter().flatten()).flat_map(|l| l[0].keys()).collect();
+    let mut qoi = BTreeMap::new();
+    for name in names {
+        let t = estimate(&time_ladders, name, noise);
+        let mut orders = t.orders;
+        // the mean over the points that observed one (not erratic, not within the noise)
+        orders.retain(|o| o.is_finite());
+        qoi.insert(
+            name.clone(),
+            QoiDiscretisation {
+                change: t.change,
+                error: t.error,
+                order: (!orders.is_empty()).then(|| orders.iter().sum::<f64>() / orders.len() as f64),
+                order_assumed: time.len() < 2,
+                erratic: t.erratic,
+                below_tolerance: t.below_tolerance,
+                mesh: mesh_ladders.as_ref().map(|l| {
+                    let m = estimate(l, name, noise);
+                    MeshError { change: m.change, error: m.error, below_tolerance: m.below_tolerance }
+                }),
+            },
+        );
+    }
+    Discretisation {
+        levels: time.iter().map(|l| (l.record.id, refinement(l).map_or(0, |(_, f)| f))).collect(),
+        audited: time_ladders.len() as u32,
+        planned: planned as u32,
+        work_seconds: time.iter().map(|l| seconds(l)).sum(),
+        study_seconds: seconds(study),
+        qoi,
+        mesh: mesh.map(|m| MeshLevel {
+            study: m.record.id,
+            factor: refinement(m).map_or(0, |(_, f)| f),
+            audited: mesh_ladders.as_ref().map_or(0, |l| l.len() as u32),
+            work_seconds: seconds(m),
+        }),
+    }
+}
+
+/// Wall seconds of a study's solved points.
+fn seconds(e: &StudyEntry) -> f64 {
+    e.points.iter().filter_map(|p| p.result.as_ref()).map(|r| r.wall_seconds).sum()
+}
+
+/// One point's QoIs, level by level, the study's own first.
+type Ladder<'a> = Vec<&'a BTreeMap<String, f64>>;
+
+/// The QoIs of each point of the first level that is done at every level, level by level, the
+/// study's own first; and how many points the levels plan.
+fn ladders<'a>(study: &'a StudyEntry, levels: &[&'a StudyEntry]) -> (Vec<Ladder<'a>>, usize) {
     fn result<'a>(e: &'a StudyEntry, at: &ParameterVector) -> Option<&'a PointResult> {
         let p = e.points.iter().find(|p| p.state == PointState::Done && &p.parameters == at)?;
         p.result.as_ref()
     }
-    // the QoIs of each audited point, level by level, the study's own first
-    let mut ladders: Vec<Vec<&BTreeMap<String, f64>>> = Vec::new();
-    let planned = levels.first().map_or(0, |l| l.points.len());
-    if let Some(first) = levels.first() {
-        for p in &first.points {
-            let ladder: Option<Vec<_>> = std::iter::once(study)
+    let Some(first) = levels.first() else { return (Vec::new(), 0) };
+    let ladders = first
+        .points
+        .iter()
+        .filter_map(|p| {
+            std::iter::once(study)
                 .chain(levels.iter().copied())
                 .map(|e| result(e, &p.parameters).map(|r| &r.qoi))
-                .collect();
-            ladders.extend(ladder);
-        }
+                .collect::<Option<Vec<_>>>()
+        })
+        .collect();
+    (ladders, first.points.len())
+}
+
+/// What ladders of levels of ratio 2 say of one QoI, relative to its largest |final| over them.
+struct Measured {
+    change: f64,
+    error: f64,
+    /// per point the observed order (NaN: none)
+    orders: Vec<f64>,
+    erratic: u32,
+    below_tolerance: bool,
+}
+
+fn estimate(ladders: &[Ladder<'_>], name: &str, noise: f64) -> Measured {
+    let finals: Vec<Vec<f64>> =
+        ladders.iter().filter_map(|l| l.iter().map(|q| q.get(name).copied()).collect()).collect();
+    let largest = |v: &[f64]| v.iter().fold(0.0f64, |s, x| s.max(x.abs()));
+    let scale = finals.iter().map(|f| largest(f)).fold(0.0f64, f64::max);
+    let scale = if scale > 0.0 { scale } else { 1.0 };
+    let mut m = Measured { change: 0.0, error: 0.0, orders: Vec::new(), erratic: 0, below_tolerance: true };
+    for f in &finals {
+        // the iterations' noise is relative to the QoI's scale, not to this point's: a QoI
+        // near zero here (a slip that sticks, 1e-21) is noise at every level, not erratic
+        let e = richardson(f, RATIO as usize, noise * scale / largest(f).max(f64::MIN_POSITIVE));
+        m.change = m.change.max((f[1] - f[0]).abs() / scale);
+        // richardson's errors are relative to this point's largest final: to the QoI's
+        m.error = m.error.max(e.error_first * largest(f) / scale);
+        m.erratic += e.erratic as u32;
+        m.below_tolerance &= e.below_tolerance;
+        m.orders.push(e.order.unwrap_or(f64::NAN));
     }
-    let seconds =
-        |e: &StudyEntry| e.points.iter().filter_map(|p| p.result.as_ref()).map(|r| r.wall_seconds).sum::<f64>();
-    let names: BTreeSet<&String> = ladders.iter().flat_map(|l| l[0].keys()).collect();
-    let noise = NOISE_PER_TOLERANCE * study.record.tolerance;
-    let mut qoi = BTreeMap::new();
-    for name in names {
-        let finals: Vec<Vec<f64>> =
-            ladders.iter().filter_map(|l| l.iter().map(|q| q.get(name).copied()).collect()).collect();
-        let largest = |v: &[f64]| v.iter().fold(0.0f64, |s, x| s.max(x.abs()));
-        let scale = finals.iter().map(|f| largest(f)).fold(0.0f64, f64::max);
-        let scale = if scale > 0.0 { scale } else { 1.0 };
-        let mut q = QoiDiscretisation {
-            change: 0.0,
-            error: 0.0,
-            order: None,
-            order_assumed: levels.len() < 2,
-            erratic: 0,
-            below_tolerance: true,
-        };
-        let mut orders = Vec::new();
-        for f in &finals {
-            // the iterations' noise is relative to the QoI's scale, not to this point's: a QoI
-            // near zero here (a slip that sticks, 1e-21) is noise at every level, not erratic
-            let e = richardson(f, RATIO as usize, noise * scale / largest(f).max(f64::MIN_POSITIVE));
-            q.change = q.change.max((f[1] - f[0]).abs() / scale);
-            // richardson's errors are relative to this point's largest final: to the QoI's
-            q.error = q.error.max(e.error_first * largest(f) / scale);
-            q.erratic += e.erratic as u32;
-            q.below_tolerance &= e.below_tolerance;
-            orders.push(e.order);
-        }
-        // the mean over the points that observed one (not erratic, not within the noise)
-        let observed: Vec<f64> = orders.iter().flatten().copied().collect();
-        q.order = (!observed.is_empty()).then(|| observed.iter().sum::<f64>() / observed.len() as f64);
-        qoi.insert(name.clone(), q);
-    }
-    Discretisation {
-        levels: levels.iter().map(|l| (l.record.id, l.record.refines.map_or(0, |r| r.factor))).collect(),
-        audited: ladders.len() as u32,
-        planned: planned as u32,
-        work_seconds: levels.iter().map(|l| seconds(l)).sum(),
-        study_seconds: seconds(study),
-        qoi,
-    }
+    m
 }

@@ -14,17 +14,22 @@ const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator {
     let store = Arc::new(SledStore::open(dir).unwrap());
-    let config = Config {
-        lease: Duration::from_millis(lease_ms),
-        max_attempts,
+    let config = Config { lease: Duration::from_millis(lease_ms), max_attempts, ..config(VERSION) };
+    Coordinator::open(store, config).unwrap()
+}
+
+/// The tests' coordinator configuration: the service's defaults, leases of a minute.
+fn config(version: &str) -> Config {
+    Config {
+        lease: Duration::from_millis(60_000),
+        max_attempts: 3,
         max_solution_bytes: 1 << 30,
         max_points: glissade_core::study::space::DEFAULT_MAX_POINTS,
         max_scene_bytes: crate::DEFAULT_MAX_SCENE_MIB << 20,
         max_pending: crate::DEFAULT_MAX_PENDING,
         point_budget: Duration::from_secs(86400),
-        solver_version: VERSION.into(),
-    };
-    Coordinator::open(store, config).unwrap()
+        solver_version: version.into(),
+    }
 }
 
 /// A study without an audit (the tests lease its points one by one).
@@ -51,6 +56,7 @@ fn submit_audited(
         audit_points,
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
@@ -72,6 +78,7 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         audit_points: None,
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
@@ -351,6 +358,7 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
         audit_points: Some(0),
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
@@ -550,12 +558,107 @@ fn submit_refined(
         audit_points: Some(0),
         refine_points,
         refine_levels,
+        refine_mesh: false,
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
         meshes: vec![],
     };
     c.submit(submission).map(|r| r.0)
+}
+
+/// The mesh level of a discretisation audit (asked for): the audit's points re-solved cold on
+/// the scene with every box's elements doubled along each axis at the study's steps, leased
+/// after the time levels; per QoI the mesh's change and error (order 2 assumed) beside the time
+/// step's, against a hand computation on a law second order in both,
+/// q = f1 1e-5 (1 + 0.5 dt^2 + 0.2 h^2) (dt, h relative to the scene's), and its cost apart. A
+/// scene with a mesh-file body, or a mesh level past the scene size bound, is refused with the
+/// reason.
+#[test]
+fn a_mesh_level_measures_the_mesh_error_beside_the_time_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let submission = |scene: &str, refine_mesh: bool| Submission {
+        scene_text: scene.into(),
+        grid: vec!["f1=0.1:0.2:3".into()],
+        points: vec![],
+        tolerance: Some(1e-3),
+        max_iterations: None,
+        strategy: InitStrategy::Cold,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: Some(0),
+        refine_points: None,
+        refine_levels: 0,
+        refine_mesh,
+        adaptive: None,
+        surface_accuracy: None,
+        surface_audit_points: Some(0),
+        meshes: vec![],
+    };
+    let id = c.submit(submission(TINY, true)).unwrap().0;
+    let view = c.study(id, false).unwrap();
+    let [time, mesh] = view.record.refined_by[..] else { panic!("{:?}", view.record.refined_by) };
+    let m = c.study(mesh, true).unwrap();
+    assert_eq!(
+        m.record.refines,
+        Some(crate::records::Refines { study: id, refinement: glissade_core::refine::Refinement::Mesh, factor: 2 })
+    );
+    assert!(m.record.label.contains("the mesh h / 2"), "{}", m.record.label);
+    assert_eq!((m.record.strategy, m.record.tolerance), (InitStrategy::Cold, 1e-3));
+    let refined = Scene::parse(&m.record.scene).unwrap();
+    assert_eq!(refined.time.steps, 50);
+    assert!(refined.bodies.iter().all(|b| b.elements == Some(vec![4, 4, 8])), "{:?}", refined.bodies);
+    let f1: Vec<f64> = m.points.iter().map(|p| p.parameters.get("f1").unwrap()).collect();
+    assert_eq!(f1, [0.1, 0.2]);
+    let mut order = Vec::new();
+    while let Some(grant) = c.lease("p").unwrap() {
+        order.push(grant.study);
+        let s = Scene::parse(&grant.scene_text).unwrap();
+        let dt = 50.0 / s.time.steps as f64;
+        let h = 2.0 / s.bodies[0].elements.as_ref().unwrap()[0] as f64;
+        let f = grant.parameters.get("f1").unwrap();
+        let qoi = [("slip_A".to_string(), f * 1e-5 * (1.0 + 0.5 * dt * dt + 0.2 * h * h))].into();
+        let (done, file) = solution_file_with_qoi(&grant, grant.tolerance / 2.0, true, &qoi);
+        c.complete(done, file).unwrap();
+    }
+    assert_eq!(order, [vec![id; 3], vec![time; 2], vec![mesh; 2]].concat());
+    let d = c.study(id, false).unwrap().discretisation.expect("measured");
+    assert_eq!(d.levels, [(time, 2)]);
+    assert_eq!(d.mesh, Some(MeshLevel { study: mesh, factor: 2, audited: 2, work_seconds: 1.0 }));
+    assert_eq!((d.work_seconds, d.study_seconds), (1.0, 1.5));
+    // by hand at f1 = 0.2: 3.4e-6 at (dt, h), 2.65e-6 at dt / 2, 3.1e-6 at h / 2; the errors
+    // 4/3 of the changes (order 2 assumed)
+    let a = &d.qoi["slip_A"];
+    assert!((a.change - 0.75 / 3.4).abs() < 1e-9 && (a.error - 1.0 / 3.4).abs() < 1e-9, "{a:?}");
+    let e = a.mesh.expect("the mesh's");
+    assert!((e.change - 0.3 / 3.4).abs() < 1e-9 && (e.error - 0.4 / 3.4).abs() < 1e-9 && !e.below_tolerance, "{e:?}");
+
+    // refused with the reason: a mesh-file body; a mesh level past the scene size bound (here
+    // the time level's size: that level passes, the mesh's does not)
+    let joint = joint_submission(vec![joint_mesh(JOINT_MESH.to_vec(), "")]);
+    match c.submit(Submission { refine_mesh: true, refine_points: Some(1), ..joint }) {
+        Err(CoordError::Invalid(m)) => assert!(m.contains("refine_mesh") && m.contains("mesh file"), "{m}"),
+        other => panic!("must be refused: {other:?}"),
+    }
+    let tiny = Scene::parse(TINY).unwrap();
+    let bound = glissade_core::refine::refined_scene(&tiny, glissade_core::refine::Refinement::Time, 2)
+        .unwrap()
+        .size()
+        .unwrap()
+        .bytes();
+    let small = tempfile::tempdir().unwrap();
+    let c = Coordinator::open(
+        Arc::new(SledStore::open(small.path()).unwrap()),
+        Config { max_scene_bytes: bound, ..config(VERSION) },
+    )
+    .unwrap();
+    assert!(c.submit(submission(TINY, false)).is_ok());
+    match c.submit(submission(TINY, true)) {
+        Err(CoordError::Invalid(m)) => assert!(m.contains("refine_mesh: the mesh h / 2") && m.contains("MiB"), "{m}"),
+        other => panic!("must be refused: {other:?}"),
+    }
 }
 
 /// A refined level whose points are stored (an earlier study's audit, the same scene and points)
@@ -746,6 +849,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         audit_points: None,
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
         surface_audit_points: Some(0),
         surface_accuracy: None,
@@ -805,6 +909,7 @@ fn joint_submission(meshes: Vec<MeshUpload>) -> Submission {
         audit_points: Some(0),
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
@@ -932,6 +1037,7 @@ fn submit_held_out(
         audit_points: Some(0),
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive,
         surface_audit_points: held_out,
         surface_accuracy: None,
@@ -1086,6 +1192,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
         audit_points: Some(0),
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
@@ -1260,6 +1367,7 @@ fn submission_of_target(target: f64) -> Submission {
         audit_points: Some(0),
         refine_points: Some(0),
         refine_levels: 0,
+        refine_mesh: false,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 20)),
         surface_accuracy: Some(target),
         surface_audit_points: Some(0),

@@ -185,6 +185,9 @@ pub struct Submission {
     pub refine_points: Option<u32>,
     /// Levels of that discretisation audit, the study's own included (0: 2).
     pub refine_levels: u32,
+    /// The discretisation audit's points also re-solved on the mesh refined once (box bodies'
+    /// elements x 2 along each axis, the study's time step), cold.
+    pub refine_mesh: bool,
     /// An adaptive study instead of `grid` / `points`: `NAME=LOW:HIGH` ranges and the budget.
     pub adaptive: Option<(Vec<String>, u32)>,
     /// An adaptive study's target: stop once every QoI's cross-validated surface error is
@@ -264,6 +267,20 @@ pub struct Discretisation {
     pub work_seconds: f64,
     pub study_seconds: f64,
     pub qoi: BTreeMap<String, QoiDiscretisation>,
+    /// The mesh level, where one was asked for.
+    pub mesh: Option<MeshLevel>,
+}
+
+/// The discretisation audit's mesh level: its points re-solved cold with the box bodies'
+/// elements x `factor` along each axis, at the study's time step.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshLevel {
+    pub study: StudyId,
+    pub factor: u32,
+    /// Points solved on it (and by the study) so far, of the audit's `planned`.
+    pub audited: u32,
+    /// Wall seconds of its solves done.
+    pub work_seconds: f64,
 }
 
 /// One QoI's discretisation error over the audited points, relative to the largest |final
@@ -281,6 +298,20 @@ pub struct QoiDiscretisation {
     /// points whose changes are erratic
     pub erratic: u32,
     /// every point's last change within the iterations' noise
+    pub below_tolerance: bool,
+    /// The mesh's part, with a mesh level: the same measures for h / 2 (order 2 assumed).
+    pub mesh: Option<MeshError>,
+}
+
+/// One QoI's change and estimated error with the mesh refined once (two levels: the order 2 of
+/// linear elements' displacements assumed), relative as [`QoiDiscretisation`]'s.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshError {
+    /// largest |q(h / 2) - q(h)|
+    pub change: f64,
+    /// largest |q(h) - Richardson's extrapolation| (4/3 of the change)
+    pub error: f64,
+    /// every point's change within the iterations' noise
     pub below_tolerance: bool,
 }
 

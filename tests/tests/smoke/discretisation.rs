@@ -1,6 +1,7 @@
 //! A study's discretisation audit on a real coordinator with a real pool: its point re-solved
-//! with the time step halved and quartered, and what the study reports (the API, `glissade
-//! show`, the web page) is what `glissade-worker refine` measures on the same point.
+//! with the time step halved and quartered, and on the mesh refined once, and what the study
+//! reports (the API, `glissade show`, the web page) is what `glissade-worker refine` measures on
+//! the same point.
 
 use crate::common::*;
 
@@ -19,6 +20,7 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
             audit_points: Some(1),
             refine_points: Some(1),
             refine_levels: 3,
+            refine_mesh: true,
             ..grid_request(&["f1=0.2"], TOL)
         };
         let id = client.submit_study(request).await?.into_inner().study_id;
@@ -26,11 +28,11 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
         let s = study(&mut client, id).await?;
         let d = s.discretisation.clone().expect("a discretisation audit");
         let audit = s.accuracy.clone().expect("an iteration audit").audit_study_id;
-        for level in d.level_study_ids.iter().chain([&audit]) {
+        for level in d.level_study_ids.iter().chain([&audit, &d.mesh_study_id]) {
             watch(&mut client, *level, |_| true).await?;
         }
         let mut levels = Vec::new();
-        for level in &d.level_study_ids {
+        for level in d.level_study_ids.iter().chain([&d.mesh_study_id]) {
             levels.push(study(&mut client, *level).await?);
         }
         anyhow::Ok((study(&mut client, id).await?, levels))
@@ -38,16 +40,19 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
     let logs = || format!("server:\n{}\npool:\n{}", log_of(&server_log), log_of(&pool_log));
     let d = measured.discretisation.clone().expect("measured");
     assert_eq!((d.audited, d.planned, &d.factors), (1, 1, &vec![2, 4]), "{d:?}\n{}", logs());
-    for (level, factor) in levels.iter().zip([2, 4]) {
+    assert_eq!((d.mesh_factor, d.mesh_audited), (2, 1), "{d:?}");
+    for (level, (factor, mesh)) in levels.iter().zip([(2, false), (4, false), (2, true)]) {
         assert_eq!(
-            (level.refines, level.refine_factor, level.audit_of),
-            (measured.study_id, factor, measured.study_id)
+            (level.refines, level.refine_factor, level.audit_of, level.refines_mesh),
+            (measured.study_id, factor, measured.study_id, mesh)
         );
         assert_eq!(level.points[0].state, v1::PointState::Done as i32, "{level:?}");
         assert_ne!(level.scene_hash, measured.scene_hash);
     }
-    // the refined solves cost more than the study's own: 2 and 4 times its steps
+    // the refined solves cost more than the study's own: 2 and 4 times its steps, 8 times its
+    // elements
     assert!(d.work_seconds > d.study_seconds && d.study_seconds > 0.0, "{d:?}");
+    assert!(d.mesh_work_seconds > d.study_seconds, "{d:?}");
 
     // the same point on the refinement command: the same levels, the same estimates
     let out =
@@ -55,7 +60,7 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
             command(&workspace_bin("glissade-worker"))
                 .arg("refine")
                 .arg(shipped_scene("three-blocks-tiny.toml"))
-                .args(["--set", "f1=0.2", "--tol", &TOL.to_string(), "--dt", "1,2,4", "--json"]),
+                .args(["--set", "f1=0.2", "--tol", &TOL.to_string(), "--dt", "1,2,4", "--h", "1,2", "--json"]),
             LIMIT,
         );
     assert!(out.status.success(), "refine: {}", text(&out.stderr));
@@ -83,13 +88,30 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
             None => assert_eq!(reported.order, 0.0, "{name}"),
         }
     }
+    // the mesh ladder (h, h / 2) is the mesh level's
+    for q in ladders[1]["qois"].as_array().expect("the h ladder's qois") {
+        let name = q["name"].as_str().expect("name");
+        let finals: Vec<f64> = q["finals"].as_array().expect("finals").iter().map(|v| v.as_f64().unwrap()).collect();
+        let service = [measured.points[0].qoi[name], levels[2].points[0].qoi[name]];
+        for (a, b) in finals.iter().zip(service) {
+            assert!(close(*a, b), "{name}: refine --h {finals:?}, service {service:?}");
+        }
+        let reported = &d.qoi[name];
+        let scale = finals.iter().fold(0.0f64, |s, x| s.max(x.abs()));
+        let (change, error) = (reported.mesh_change.expect("mesh"), reported.mesh_error.expect("mesh"));
+        assert!(close(change, (finals[1] - finals[0]).abs() / scale), "{name}: {reported:?}");
+        assert!(close(error, q["error_first"].as_f64().unwrap()), "{name}: {reported:?} {q}");
+        assert_eq!(reported.mesh_below_tolerance, q["below_tolerance"].as_bool().unwrap(), "{name}");
+    }
 
     // `glissade show` and the web page show it beside the iteration accuracy
     let out = glissade(Some(&url), &["show", &measured.study_id.to_string()]);
     assert!(out.status.success(), "show: {}", text(&out.stderr));
     let shown = text(&out.stdout);
     assert!(
-        shown.contains("  accuracy  ") && shown.contains("  dt error  1 of 1 points re-solved at dt / 2 and dt / 4"),
+        shown.contains("  accuracy  ")
+            && shown.contains("  dt error  1 of 1 points re-solved at dt / 2 and dt / 4")
+            && shown.contains("  h error   1 of 1 points re-solved cold at h / 2"),
         "{shown}"
     );
     // (which error dominates is said once the iteration audit measured something: the demo's test;
@@ -97,9 +119,11 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
     let (status, _, page) = http_get(&addr, &format!("/studies/{}", measured.study_id));
     assert_eq!(status, 200);
     assert!(page.contains("id=\"discretisation\"") && page.contains("re-solved at dt / 2 and dt / 4"), "{page}");
+    assert!(page.contains("id=\"mesh-discretisation\"") && page.contains("re-solved cold at h / 2"), "{page}");
     let (_, _, json) = http_get(&addr, &format!("/api/studies/{}", measured.study_id));
     let json: serde_json::Value = serde_json::from_str(&json)?;
     assert_eq!(json["discretisation"]["factors"], serde_json::json!([2, 4]), "{json}");
+    assert_eq!(json["discretisation"]["mesh"]["factor"], serde_json::json!(2), "{json}");
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }
