@@ -6,7 +6,7 @@ use plotters::data::float::pretty_print_float;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use crate::{FONT, PlotError, min_max};
+use crate::{FONT, PlotError, draw_legend, min_max};
 
 /// eta per iteration of one design point.
 #[derive(Debug, Clone, PartialEq)]
@@ -112,13 +112,7 @@ where
         }
     }
     if legend {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.3))
-            .label_font((FONT, 13))
-            .draw()?;
+        draw_legend(&mut chart)?;
     }
     Ok(())
 }

@@ -93,6 +93,20 @@ pub const MAX_SIZE: (u32, u32) = (10_000, 10_000);
 /// The font family every text names; registered from the bundled DejaVu Sans.
 pub(crate) const FONT: &str = "sans-serif";
 
+/// The series' legend of a chart, in the one style every picture uses.
+pub(crate) fn draw_legend<'a, DB: DrawingBackend + 'a, CT: plotters::coord::CoordTranslate>(
+    chart: &mut ChartContext<'a, DB, CT>,
+) -> Result<(), PlotError> {
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK.mix(0.3))
+        .label_font((FONT, 13))
+        .draw()?;
+    Ok(())
+}
+
 /// Draws a response surface into a PNG file.
 pub fn surface_png(path: &Path, surface: &Surface, size: (u32, u32)) -> Result<Drawn, PlotError> {
     surface.check()?;

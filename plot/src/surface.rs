@@ -8,7 +8,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::colour::on_bar;
 use crate::grid::{Grid, Segment, contour_levels};
-use crate::{Axis, FONT, PlotError, min_max, pad_degenerate, tick_label};
+use crate::{Axis, FONT, PlotError, draw_legend, min_max, pad_degenerate, tick_label};
 
 /// A surface sampled on a regular grid over its box.
 #[derive(Debug, Clone, PartialEq)]
@@ -451,13 +451,7 @@ where
         .draw_series(surface.points.iter().map(|p| Circle::new((p.0[0], p.1), 4, BLACK.filled())))?
         .label("design points")
         .legend(|(x, y)| Circle::new((x + 10, y), 4, BLACK.filled()));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK.mix(0.3))
-        .label_font((FONT, 13))
-        .draw()?;
+    draw_legend(&mut chart)?;
     Ok(surface.points.iter().map(|p| chart.backend_coord(&(p.0[0], p.1))).collect())
 }
 
