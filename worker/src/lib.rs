@@ -9,6 +9,7 @@
 //! study engine (parameter space, warm starts, ordering) live in `glissade_core`.
 
 pub mod comm;
+pub mod contact_activity;
 pub mod element;
 pub mod explicit;
 pub mod gmsh;

@@ -522,6 +522,9 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             println!("  fields written to {} (open {} in ParaView)", f.h5, f.xdmf);
         }
     }
+    for w in s.contact.iter().filter_map(|c| c.warning()) {
+        eprintln!("warning: {w}");
+    }
     if let Some(why) = s.shortfall() {
         eprintln!("error: not converged: {why}");
     }

@@ -7,6 +7,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::comm::Communicator;
+use crate::contact_activity::{ContactActivity, contact_activity};
 use crate::latin::{
     FieldHistory, LatinSolver, Operators, SolveOptions, SolverError, StageReport, Timings, WindowCheck,
 };
@@ -87,6 +88,9 @@ pub struct SolveSummary {
     pub time_steps: usize,
     pub parameters: ParameterValues,
     pub qoi: BTreeMap<String, QoiJson>,
+    /// what each frictional interface's contact did: whether it chatters while it slides
+    /// (`chatter`, docs/verification.md 4d)
+    pub contact: Vec<ContactActivity>,
     pub timings: Timings,
 }
 
@@ -351,6 +355,11 @@ fn solve_dim<const D: usize>(
         time_steps: model.steps,
         parameters: values,
         qoi,
+        contact: if comm.rank() == 0 {
+            contact_activity(&model.interfaces, &report.solution.dynamic, model.dt)
+        } else {
+            Vec::new()
+        },
         timings: report.timings.clone(),
     };
     *cache = Some(Box::new(Cached { key, model, operators }));

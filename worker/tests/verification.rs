@@ -2234,3 +2234,66 @@ fn the_prestress_is_converged_tight_enough_for_the_dynamics_it_starts() {
     assert!(e <= 2e-4, "QoI histories {e} from a solve at 1e-8");
     assert!(e <= 2.0 * r.dynamic.error_estimate, "estimate {} for an error {e}", r.dynamic.error_estimate);
 }
+
+/// A copper block of our own pushed along a rigid floor by a traction that grows with f, so that
+/// it slides at any f: above f = 1 the sliding is ill-posed (docs/verification.md 4d) and the
+/// solve says so with its evidence; below, it slides as well and is not flagged.
+#[test]
+fn sliding_above_friction_one_is_reported_ill_posed() {
+    use glissade_worker::run::{SolveRequest, solve_scene};
+    const COPPER_BLOCK: &str = r#"
+dimension = 2
+[time]
+duration = 3e-4
+steps = 100
+[parameters]
+f = { default = 0.6, min = 0.0, max = 20.0 }
+push = { default = 7.2e6, min = 0.0, max = 1e9 }
+[materials.cu]
+E = 120e9
+nu = 0.34
+rho = 8900
+[[bodies]]
+name = "block"
+material = "cu"
+size = [0.016, 0.008]
+elements = [4, 2]
+substructures = [2, 1]
+[[interfaces]]
+name = "floor"
+a = "block.y-"
+b = "wall"
+law = "friction"
+friction = "f"
+[[loads]]
+face = "block.y+"
+pressure = 3e6
+[[loads]]
+face = "block.x-"
+traction = ["push", 0]
+history = [[0, 0], [3e-4, 1]]
+[[qoi]]
+name = "slip"
+kind = "slip"
+interface = "floor"
+point = [0.008, 0]
+"#;
+    let scene = Scene::parse(COPPER_BLOCK).expect("scene");
+    for f in [0.6, 1.5] {
+        // the push reaches 12 f MPa: twice what a rigid block needs to slide
+        let set = vec![("f".to_string(), f), ("push".to_string(), 12e6 * f)];
+        let o = solve_scene(&scene, &SolveRequest { set, ..SolveRequest::default() }, None).expect("solve");
+        assert!(o.summary.converged, "f = {f}");
+        let [a] = &o.summary.contact[..] else { panic!("one frictional interface: {:?}", o.summary.contact) };
+        eprintln!("f = {f}: {a:?}");
+        assert_eq!((a.interface.as_str(), a.friction, a.rigid_wall), ("floor", f, true));
+        assert_eq!(a.contact_nodes, 5, "the floor's 5 nodes, the one both pieces share counted once");
+        assert!(a.first_slip_time.is_some_and(|t| t > 0.0 && t < 3e-4), "it slides: {a:?}");
+        assert!(o.summary.qoi["slip"].final_value > 1e-5, "it slides");
+        assert_eq!(a.ill_posed, f > 1.0);
+        match a.warning() {
+            Some(w) => assert!(f > 1.0 && w.contains("'floor'") && w.contains("ill-posed") && w.contains("1.5"), "{w}"),
+            None => assert!(f < 1.0),
+        }
+    }
+}

@@ -1,0 +1,273 @@
+//! What a frictional contact did while it slid, read from a converged solution, and the one
+//! case where the solver knows its answer cannot converge under refinement: an elastic body
+//! sliding on a rigid wall with a friction coefficient above 1 (docs/verification.md 4d).
+
+use glissade_core::field::{InterfaceField, StageSolution};
+use serde::Serialize;
+
+use crate::model::{Interface, InterfaceLaw};
+
+/// A node counts as closed when its compressive traction exceeds this share of the interface's
+/// largest: below it, a grazing node's round-off would count as landings.
+const CLOSED_SHARE: f64 = 1e-6;
+
+/// A node slides when its tangential relative velocity exceeds this share of the interface's
+/// largest.
+const SLIDING_SHARE: f64 = 1e-3;
+
+/// Above this friction coefficient, an elastic half-space sliding on a rigid plane admits
+/// surface waves that grow at a rate proportional to their wavenumber, whatever Poisson's ratio
+/// (0 < nu < 1/2): the continuum problem is ill-posed, and every refinement of the mesh resolves
+/// faster-growing waves (docs/verification.md 4d, where the determinant's root is derived; the
+/// tests below find it).
+pub const ILL_POSED_FRICTION: f64 = 1.0;
+
+/// What one frictional interface's contact did over the dynamic stage (its pieces between
+/// substructures summed).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ContactActivity {
+    pub interface: String,
+    pub friction: f64,
+    /// against a rigid wall (where `ILL_POSED_FRICTION` is derived), not between two bodies
+    pub rigid_wall: bool,
+    /// nodes in contact at some step
+    pub contact_nodes: usize,
+    /// the first time a node in contact slides (s), if one does
+    pub first_slip_time: Option<f64>,
+    /// landings of nodes that had lifted off, once the interface slides (summed over nodes)
+    pub landings_while_sliding: usize,
+    /// the interface's largest total normal force over the sliding phase against its mean there
+    pub peak_normal_force_ratio: f64,
+    /// it slides on a rigid wall with a friction coefficient above `ILL_POSED_FRICTION`
+    pub ill_posed: bool,
+}
+
+impl ContactActivity {
+    /// The warning a user reads, with its evidence.
+    pub fn warning(&self) -> Option<String> {
+        self.ill_posed.then(|| {
+            format!(
+                "interface '{}' slides on a rigid wall at friction {}: above {} the sliding of an elastic body is ill-posed \
+                 (surface waves grow at a rate proportional to their wavenumber, docs/verification.md 4d), so this answer \
+                 moves as the mesh and the time step are refined and no tolerance bounds that; while it slid its contact \
+                 nodes lifted off and landed {} times, the total normal force peaking at {:.1} x its mean",
+                self.interface,
+                self.friction,
+                ILL_POSED_FRICTION,
+                self.landings_while_sliding,
+                self.peak_normal_force_ratio
+            )
+        })
+    }
+}
+
+/// The contact activity of every frictional interface of a dynamic solution (levels 0..=steps),
+/// one entry per interface name in the model's order.
+pub fn contact_activity<const D: usize>(
+    interfaces: &[Interface<D>],
+    dynamic: &StageSolution,
+    dt: f64,
+) -> Vec<ContactActivity> {
+    // per interface name: the activity, the total normal force per level, and the nodes in
+    // contact by position (a node shared by two pieces counted once)
+    let mut out: Vec<(ContactActivity, Vec<f64>, Vec<[u64; D]>)> = Vec::new();
+    for (itf, field) in interfaces.iter().zip(&dynamic.interfaces) {
+        let InterfaceLaw::Friction { coefficient } = itf.law else { continue };
+        let piece = Piece::read(itf, field);
+        let first_slip = piece.first_slip();
+        let entry = match out.iter_mut().find(|(a, ..)| a.interface == itf.name) {
+            Some(e) => e,
+            None => {
+                out.push((
+                    ContactActivity {
+                        interface: itf.name.clone(),
+                        friction: coefficient,
+                        rigid_wall: itf.sides.len() == 1,
+                        contact_nodes: 0,
+                        first_slip_time: None,
+                        landings_while_sliding: 0,
+                        peak_normal_force_ratio: 0.0,
+                        ill_posed: false,
+                    },
+                    vec![0.0; piece.levels],
+                    Vec::new(),
+                ));
+                out.last_mut().expect("just pushed")
+            }
+        };
+        let (a, total, nodes) = entry;
+        for j in piece.contact_nodes() {
+            let at: [u64; D] = std::array::from_fn(|c| itf.coords[j][c].to_bits());
+            if !nodes.contains(&at) {
+                nodes.push(at);
+            }
+        }
+        a.contact_nodes = nodes.len();
+        a.landings_while_sliding += first_slip.map_or(0, |f| piece.landings_from(f));
+        a.first_slip_time = match (a.first_slip_time, first_slip.map(|s| s as f64 * dt)) {
+            (Some(x), Some(y)) => Some(x.min(y)),
+            (x, y) => x.or(y),
+        };
+        for (t, p) in total.iter_mut().zip(piece.normal_force()) {
+            *t += p;
+        }
+    }
+    out.into_iter()
+        .map(|(mut a, total, _)| {
+            if let Some(t) = a.first_slip_time {
+                // the total normal force over the sliding phase: its peak against its mean
+                let phase = &total[((t / dt).round() as usize).min(total.len())..];
+                let mean = phase.iter().sum::<f64>() / phase.len().max(1) as f64;
+                let peak = phase.iter().cloned().fold(0.0, f64::max);
+                a.peak_normal_force_ratio = if mean > 0.0 { peak / mean } else { 0.0 };
+                a.ill_posed = a.rigid_wall && a.friction > ILL_POSED_FRICTION;
+            }
+            a
+        })
+        .collect()
+}
+
+/// One interface's histories, node by node: the compressive traction on side 1 (its normal
+/// points towards side 2) and the norm of the tangential relative velocity.
+struct Piece<'a> {
+    n: usize,
+    levels: usize,
+    area: &'a [f64],
+    pressure: Vec<f64>,
+    sliding: Vec<f64>,
+    closed_at: f64,
+    sliding_at: f64,
+}
+
+impl<'a> Piece<'a> {
+    fn read<const D: usize>(itf: &'a Interface<D>, field: &InterfaceField) -> Self {
+        let n = itf.n_nodes();
+        let levels = if n == 0 { 0 } else { field.hat[0].force.len() / (n * D) };
+        let at = |v: &[f64], step: usize, j: usize| -> [f64; D] { std::array::from_fn(|c| v[(step * n + j) * D + c]) };
+        let dot = |a: &[f64; D], b: &[f64; D]| (0..D).map(|c| a[c] * b[c]).sum::<f64>();
+        let mut pressure = vec![0.0; levels * n];
+        let mut sliding = vec![0.0; levels * n];
+        for step in 0..levels {
+            for j in 0..n {
+                let normal = &itf.normal[j];
+                pressure[step * n + j] = -dot(&at(&field.hat[0].force, step, j), normal);
+                let w1 = at(&field.hat[0].velocity, step, j);
+                let w2 = field.hat.get(1).map_or([0.0; D], |h| at(&h.velocity, step, j));
+                let rel: [f64; D] = std::array::from_fn(|c| w2[c] - w1[c]);
+                let rn = dot(&rel, normal);
+                let t: [f64; D] = std::array::from_fn(|c| rel[c] - rn * normal[c]);
+                sliding[step * n + j] = dot(&t, &t).sqrt();
+            }
+        }
+        let closed_at = CLOSED_SHARE * pressure.iter().cloned().fold(0.0, f64::max);
+        let sliding_at = SLIDING_SHARE * sliding.iter().cloned().fold(0.0, f64::max);
+        Self { n, levels, area: &itf.area, pressure, sliding, closed_at, sliding_at }
+    }
+
+    fn closed(&self, step: usize, j: usize) -> bool {
+        self.closed_at > 0.0 && self.pressure[step * self.n + j] > self.closed_at
+    }
+
+    /// The first step at which a node in contact slides.
+    fn first_slip(&self) -> Option<usize> {
+        (0..self.levels).find(|&s| {
+            self.sliding_at > 0.0
+                && (0..self.n).any(|j| self.closed(s, j) && self.sliding[s * self.n + j] > self.sliding_at)
+        })
+    }
+
+    /// The nodes in contact at some level.
+    fn contact_nodes(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..self.n).filter(|&j| (0..self.levels).any(|s| self.closed(s, j)))
+    }
+
+    /// Landings after `first` of nodes that had been in contact before: a node's first landing
+    /// (an edge rolling onto the wall) is not a lift-off's end.
+    fn landings_from(&self, first: usize) -> usize {
+        (0..self.n)
+            .map(|j| {
+                let landings =
+                    (first.max(1)..self.levels).filter(|&s| self.closed(s, j) && !self.closed(s - 1, j)).count();
+                let was_closed = (0..first.max(1)).any(|s| self.closed(s, j));
+                if was_closed { landings } else { landings.saturating_sub(1) }
+            })
+            .sum()
+    }
+
+    /// The total normal force at each level.
+    fn normal_force(&self) -> Vec<f64> {
+        (0..self.levels)
+            .map(|s| (0..self.n).map(|j| self.area[j] * self.pressure[s * self.n + j].max(0.0)).sum())
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use num_complex::Complex64;
+
+    /// The determinant of a plane-strain surface wave exp(k (i x + c t) - k alpha y), c in units
+    /// of the shear wave speed, in an elastic half-space y > 0 sliding on a rigid plane with its
+    /// contact held (u_y = 0) and Coulomb's law perturbed (sigma_xy = -f sigma_yy); `side` is
+    /// the wave's direction against the sliding (docs/verification.md 4d). Re c > 0 grows.
+    fn determinant(c: Complex64, friction: f64, nu: f64, side: f64) -> Complex64 {
+        let kappa = (1.0 - 2.0 * nu) / (2.0 * (1.0 - nu));
+        let x = c * c;
+        let (ap, as_) = ((1.0 + kappa * x).sqrt(), (1.0 + x).sqrt());
+        Complex64::i() * side * ap * x + friction * (2.0 + x - 2.0 * ap * as_)
+    }
+
+    /// Roots with Re c > 0 found by Newton's method from a grid of starts, both directions.
+    fn growing_waves(friction: f64, nu: f64) -> Vec<Complex64> {
+        let mut roots = Vec::new();
+        for side in [1.0, -1.0] {
+            for a in 1..=15 {
+                for b in -12..=12 {
+                    let mut c = Complex64::new(0.2 * a as f64, 0.25 * b as f64);
+                    for _ in 0..100 {
+                        let d = determinant(c, friction, nu, side);
+                        let h = 1e-7;
+                        let slope = (determinant(c + h, friction, nu, side) - d) / h;
+                        let step = d / slope;
+                        c -= step;
+                        if !c.is_finite() || step.norm() < 1e-14 {
+                            break;
+                        }
+                    }
+                    if c.is_finite() && c.re > 1e-6 && determinant(c, friction, nu, side).norm() < 1e-10 {
+                        roots.push(c);
+                    }
+                }
+            }
+        }
+        roots
+    }
+
+    #[test]
+    fn the_neutral_surface_wave_sits_at_friction_one_whatever_poisson() {
+        // at c = i sqrt(2): alpha_s = i, 2 + x - 2 alpha_p alpha_s = -2 i alpha_p, and the
+        // determinant is -2 i alpha_p (side + f): zero for f = 1 against the sliding
+        let c = Complex64::new(0.0, 2f64.sqrt());
+        for nu in [0.1, 0.25, 0.33, 0.45, 0.4999] {
+            assert!(determinant(c, ILL_POSED_FRICTION, nu, -1.0).norm() < 1e-12, "nu {nu}");
+            assert!(determinant(c, 0.9, nu, -1.0).norm() > 1e-2, "nu {nu}");
+        }
+    }
+
+    #[test]
+    fn surface_waves_grow_above_friction_one_and_not_below() {
+        for nu in [0.2, 0.33, 0.45] {
+            for f in [0.2, 0.5, 0.9, 0.99] {
+                assert!(growing_waves(f, nu).is_empty(), "f {f}, nu {nu}: {:?}", growing_waves(f, nu));
+            }
+            let mut rate = 0.0;
+            for f in [1.05, 1.5, 2.0] {
+                let roots = growing_waves(f, nu);
+                let fastest = roots.iter().map(|c| c.re).fold(0.0, f64::max);
+                assert!(fastest > rate, "f {f}, nu {nu}: the growth rate rises with f: {roots:?}");
+                rate = fastest;
+            }
+        }
+    }
+}
