@@ -88,8 +88,8 @@ pub struct SolveSummary {
     pub time_steps: usize,
     pub parameters: ParameterValues,
     pub qoi: BTreeMap<String, QoiJson>,
-    /// what each frictional interface's contact did: whether it chatters while it slides
-    /// (`chatter`, docs/verification.md 4d)
+    /// what each frictional interface's contact did while it slid, and whether that sliding is
+    /// ill-posed (`contact_activity`, docs/verification.md 4d); rank 0's only
     pub contact: Vec<ContactActivity>,
     pub timings: Timings,
 }
