@@ -285,6 +285,11 @@ pub struct SolverSpec {
     /// absent, as `time_window`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub window_check: Option<bool>,
+    /// a whole-interval solve iterates on to a tenth of its tolerance and compares the two
+    /// answers (docs/method.md, "Two tolerances"); absent: false. Left out of the serialised
+    /// form when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub whole_interval_check: Option<bool>,
 }
 
 /// Without `time_window`, a scene with a friction interface and more than this many steps is
@@ -330,6 +335,7 @@ impl Default for SolverSpec {
             warm_tolerance_ratio: default_warm_tolerance_ratio(),
             time_window: None,
             window_check: None,
+            whole_interval_check: None,
         }
     }
 }

@@ -497,10 +497,13 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         if let Some(c) = &s.window_check {
             // the solve's own estimate cannot see an error that grows from window to window
             println!(
-                "  checked in windows of {} and {} steps: {} passes, {:.1} sweeps; the answers {} by {:.2e} on '{}' \
+                "  checked {}: {} passes, {:.1} sweeps; the answers {} by {:.2e} on '{}' \
                  (the answer returned iterated to {:.1e})",
-                c.windows[0],
-                c.windows[1],
+                if c.whole_interval() {
+                    "by iterating on, 10 x tighter".to_string()
+                } else {
+                    format!("in windows of {} and {} steps", c.windows[0], c.windows[1])
+                },
                 c.passes,
                 c.sweeps,
                 if c.outcome == glissade_worker::latin::CheckOutcome::Agreed { "agree" } else { "part" },

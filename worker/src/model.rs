@@ -226,6 +226,8 @@ pub struct SolverSettings {
     pub time_window: usize,
     /// a solve in time windows is checked against another windowing (latin/window_check.rs)
     pub window_check: bool,
+    /// a whole-interval solve is checked by iterating on to a tenth of its tolerance
+    pub whole_interval_check: bool,
 }
 
 /// The whole decomposed problem of one design point.
@@ -290,6 +292,7 @@ impl<const D: usize> Model<D> {
             warm_tolerance_ratio: st.warm_tolerance_ratio,
             time_window: scene.window_steps(),
             window_check: st.window_check.unwrap_or(true),
+            whole_interval_check: st.whole_interval_check.unwrap_or(false),
         };
 
         let mut materials = BTreeMap::new();

@@ -28,6 +28,7 @@ use local_stage::{GapRule, NodeInput, apply_law};
 use macro_problem::{MacroError, MacroProblem};
 use relaxation::Relaxation;
 use stopping::{ErrorEstimator, UnitScales};
+use window_check::Tightening;
 pub use window_check::{CheckOutcome, WindowCheck};
 
 /// Tolerance of each time window relative to the asked one (docs/method.md, "Time windows").
@@ -47,7 +48,7 @@ pub const STALL_PER_STEP: usize = 4;
 /// dynamics' initial state, and its error comes out of them amplified (a wall's normal force
 /// 4,000 x the static stage's eta: docs/performance.md, "The prestress's error"), while a static
 /// iteration costs one step.
-pub const STATIC_TOLERANCE_RATIO: f64 = 1e-5;
+pub const STATIC_TOLERANCE_RATIO: f64 = 1e-7;
 /// Below this the static stage's eta stalls on round-off: no tighter than it.
 pub const STATIC_TOLERANCE_FLOOR: f64 = 1e-12;
 /// The static stage may iterate this many times the iteration limit (no more times than there
@@ -750,6 +751,13 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 // the last window sees the whole histories: it may spend what the others left
                 budget: (windows > 1 && window.steps.end == steps && !m.qois.is_empty())
                     .then_some((window_tolerance.0, earlier.as_slice())),
+                // the solve's own windowing, when it is the whole interval (a windowed solve's
+                // check iterates in another windowing and checks itself: window_check.rs)
+                tighten: stage == Stage::Dynamic
+                    && windows == 1
+                    && begin.window == m.settings.time_window
+                    && m.settings.whole_interval_check
+                    && !m.qois.is_empty(),
             };
             let end = self.iterate_window(begin, rule, fields, timings, options, &window)?;
             let mut part = end.report;
@@ -762,7 +770,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             spent.push(end.errors.iter().zip(&end.scales).map(|(e, s)| e * s).collect());
             report.scales = end.scales.clone();
+            let check = part.window_check.take();
             report.append(part, window.steps.len() as f64 / steps as f64, floors.is_some() && stalled.is_empty());
+            report.window_check = report.window_check.take().or(check);
             if report.converged && window.steps.end == steps && windows > 1 && !m.qois.is_empty() {
                 // The whole histories are known: the windows' errors together must fit
                 // share.0 of each. If they do not, the first stalled window is iterated again
@@ -821,7 +831,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     ) -> Result<WindowEnd, SolverError> {
         let m = self.model;
         let StageStart { stage, u0, statics, .. } = *begin;
-        let WindowRule { tolerance, estimate_tolerance, stall_at, floors, budget } = rule;
+        let WindowRule { mut tolerance, mut estimate_tolerance, stall_at, floors, budget, tighten } = rule;
+        let mut tightening = tighten.then(|| Tightening::new(tolerance));
+        // the QoIs of the last iteration, kept where the tightening compares them
+        let mut current: Vec<Vec<f64>> = Vec::new();
         let settings = &m.settings;
         let progress = options.progress.as_deref();
         let mut report = StageReport::default();
@@ -841,7 +854,11 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             .iter()
             .map(|itf| window.steps.start * itf.n_nodes() * D..window.steps.end * itf.n_nodes() * D)
             .collect();
-        for iteration in 1..=stage.iteration_limit(m) {
+        let mut limit = stage.iteration_limit(m);
+        for iteration in 1.. {
+            if iteration > limit {
+                break;
+            }
             let t = Instant::now();
             // `previous` holds every value once; only the window's change (a copy of the whole
             // interval per iteration would cost O(steps) in a window's loop)
@@ -919,6 +936,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     .collect();
                 let estimate = estimator.update(&series, &scales, eta);
                 relaxation.update(&series, &scales);
+                if tightening.is_some() {
+                    current.clone_from(&series);
+                }
                 if options.trace_qois {
                     report.qoi_trace.push(series);
                 }
@@ -945,7 +965,19 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 })
             };
             if eta <= tolerance && (report.error_estimate <= estimate_tolerance || within_budget()) {
-                report.converged = true;
+                if let Some(t) = tightening.as_mut() {
+                    let names: Vec<&str> = m.qois.iter().map(|q| q.name.as_str()).collect();
+                    if let Some(next) = t.reached(tolerance, &current, &names, estimator.scales()) {
+                        // on, a tenth tighter; the first time, with iterations to spare
+                        if t.check.passes == 1 {
+                            limit = iteration + stage.iteration_limit(m);
+                        }
+                        (tolerance, estimate_tolerance) = (next, estimate_tolerance * next / tolerance);
+                        continue;
+                    }
+                    report.error_estimate = t.check.discrepancy;
+                }
+                report.converged = tightening.as_ref().is_none_or(|t| t.check.outcome == CheckOutcome::Agreed);
                 break;
             }
             if stall_at.is_some_and(|at| iteration >= at) && eta <= tolerance {
@@ -955,6 +987,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         }
         report.worst_interface = worst.map(|i| m.interfaces[i].name.clone());
         report.relaxation = relaxation.mu();
+        if let Some(t) = tightening {
+            report.window_check = t.end(&mut report);
+        }
         Ok(WindowEnd { report, bases: bases_end, errors: estimator.errors(), scales: estimator.scales().to_vec() })
     }
 
@@ -1258,6 +1293,8 @@ struct WindowRule<'a> {
     /// for the last window: the share of each whole QoI history all windows may spend, and what
     /// the earlier ones spent (absolute)
     budget: Option<(f64, &'a [f64])>,
+    /// a whole-interval solve checked by iterating on (docs/method.md, "Two tolerances")
+    tighten: bool,
 }
 
 /// How a time window's iterations ended: the report, the gap rule's bases at the window's end,

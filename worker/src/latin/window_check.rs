@@ -23,7 +23,8 @@ pub const AIM: f64 = 0.3;
 /// What the check of a windowed solve found.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct WindowCheck {
-    /// steps per window of the solve and of the other windowing
+    /// steps per window of the solve and of the other windowing ([0, 0]: a whole-interval
+    /// solve iterated on, [`Tightening`])
     pub windows: [usize; 2],
     /// passes over the interval the check iterated
     pub passes: usize,
@@ -59,16 +60,14 @@ impl WindowCheck {
     pub fn diagnosis(&self, tolerance: f64, pass: &str) -> String {
         if self.outcome == CheckOutcome::PassNotConverged {
             let measured = if self.passes > 0 && !self.qoi.is_empty() {
-                format!(
-                    "iterated in windows of {} and of {} steps, the answers parted by {:.2e} on '{}', and ",
-                    self.windows[0], self.windows[1], self.discrepancy, self.qoi
-                )
+                format!("{}, the answers parted by {:.2e} on '{}', and ", self.how(), self.discrepancy, self.qoi)
             } else {
                 String::new()
             };
             return format!(
-                "checking the windowed solve: {measured}a pass to {:.1e} did not converge ({pass}); a looser tolerance, \
+                "checking the {} solve: {measured}a pass to {:.1e} did not converge ({pass}); a looser tolerance, \
                  or solver.window_check = false to take the first answer unchecked",
+                if self.whole_interval() { "whole-interval" } else { "windowed" },
                 self.iteration_tolerance
             );
         }
@@ -76,13 +75,30 @@ impl WindowCheck {
             self.distances.iter().filter(|(_, d)| **d <= tolerance).map(|(q, d)| format!("'{q}' {d:.1e}")).collect();
         let others = if agreeing.is_empty() { String::new() } else { format!("; within it: {}", agreeing.join(", ")) };
         format!(
-            "sensitive: iterated in windows of {} and of {} steps, the last two answers part by {:.2e} on '{}' \
+            "sensitive: {}, the last two answers part by {:.2e} on '{}' \
              (the tighter iterated to {:.1e}, the tolerance {tolerance:.1e}{others}): this QoI moves with the iteration \
-             error far more than the tolerance allows, as those of a chattering or fluttering contact do; \
+             error far more than the tolerance allows, as the forces of a contact that lifts off and lands do; \
              a looser tolerance, leaving this QoI out (a slip is often determined where a contact force is \
              not), or solver.window_check = false to take the first answer, off by about that much",
-            self.windows[0], self.windows[1], self.discrepancy, self.qoi, self.iteration_tolerance
+            self.how(),
+            self.discrepancy,
+            self.qoi,
+            self.iteration_tolerance
         )
+    }
+
+    /// The check iterated a whole-interval solve on rather than another windowing.
+    pub fn whole_interval(&self) -> bool {
+        self.windows == [0, 0]
+    }
+
+    /// What the two answers compared are.
+    pub fn how(&self) -> String {
+        if self.whole_interval() {
+            "iterated on over the whole interval, 10 x tighter each time".to_string()
+        } else {
+            format!("iterated in windows of {} and of {} steps", self.windows[0], self.windows[1])
+        }
     }
 }
 
@@ -266,16 +282,103 @@ fn worst(distances: &BTreeMap<String, f64>) -> (f64, String) {
 /// Each QoI's distance between two answers, relative to the larger of its norm in `scales` (the
 /// stopping test's, floored) and its own.
 fn distances(a: &[QoiSeries], b: &[QoiSeries], scales: &[f64]) -> BTreeMap<String, f64> {
+    distances_of(a.iter().zip(b).map(|(x, y)| (x.name.as_str(), &x.values[..], &y.values[..])), scales)
+}
+
+/// [`distances`] of (name, one answer's history, the other's), QoI by QoI.
+fn distances_of<'a>(
+    pairs: impl Iterator<Item = (&'a str, &'a [f64], &'a [f64])>,
+    scales: &[f64],
+) -> BTreeMap<String, f64> {
     let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
-    a.iter()
-        .zip(b)
+    pairs
         .enumerate()
-        .map(|(q, (x, y))| {
-            let diff = norm(&mut x.values.iter().zip(&y.values).map(|(p, r)| p - r));
-            let scale = scales.get(q).copied().unwrap_or(0.0).max(norm(&mut x.values.iter().copied()));
-            (x.name.clone(), if diff == 0.0 { 0.0 } else { diff / scale })
+        .map(|(q, (name, x, y))| {
+            let diff = norm(&mut x.iter().zip(y).map(|(p, r)| p - r));
+            let scale = scales.get(q).copied().unwrap_or(0.0).max(norm(&mut x.iter().copied()));
+            (name.to_string(), if diff == 0.0 { 0.0 } else { diff / scale })
         })
         .collect()
+}
+
+/// A whole-interval solve checked by iterating on (docs/method.md, "Two tolerances"). The
+/// stopping test reads the error from the rate at which the QoIs still change, which a contact
+/// that lifts off and lands while it slides fools by 30 x and more; iterated on to a tenth of
+/// the tolerance, the same sequence of iterates shows how far its answer at the tolerance was:
+/// where the two part by more than the tolerance, on again, [`CHECK_ROUNDS`] pairs at most. The
+/// cost is the iterations from the tolerance to a tenth of it; no windowing to iterate again.
+pub(super) struct Tightening {
+    asked: f64,
+    /// the pairs have ended the check (else the iterations ran out on the way)
+    over: bool,
+    looser: Option<Vec<Vec<f64>>>,
+    pub(super) check: WindowCheck,
+}
+
+impl Tightening {
+    pub(super) fn new(asked: f64) -> Self {
+        Self {
+            asked,
+            over: false,
+            looser: None,
+            check: WindowCheck { iteration_tolerance: asked, ..Default::default() },
+        }
+    }
+
+    /// The iterations reached `tolerance` with the QoIs `current`: the tolerance to iterate on
+    /// to, or `None` when the check is over (`check.outcome` says how; `passes` counts the
+    /// tightenings, kept by the caller).
+    pub(super) fn reached(
+        &mut self,
+        tolerance: f64,
+        current: &[Vec<f64>],
+        names: &[&str],
+        scales: &[f64],
+    ) -> Option<f64> {
+        if let Some(looser) = &self.looser {
+            let pairs = names.iter().zip(looser).zip(current).map(|((n, a), b)| (*n, &a[..], &b[..]));
+            self.check.distances = distances_of(pairs, scales);
+            (self.check.discrepancy, self.check.qoi) = worst(&self.check.distances);
+            tracing::info!(
+                tolerance,
+                discrepancy = self.check.discrepancy,
+                qoi = self.check.qoi,
+                "whole-interval check: a pair compared"
+            );
+            if self.check.discrepancy <= self.asked {
+                self.check.outcome = CheckOutcome::Agreed;
+                self.over = true;
+                return None;
+            }
+        }
+        // (no tighter than a scene may ask: below it the iterations stall on round-off)
+        let next = (tolerance * TIGHTER).max(MIN_TOLERANCE);
+        if self.check.passes >= CHECK_ROUNDS || next >= tolerance {
+            self.check.outcome = CheckOutcome::Parted;
+            self.over = true;
+            return None;
+        }
+        self.looser = Some(current.to_vec());
+        self.check.iteration_tolerance = next;
+        self.check.passes += 1;
+        Some(next)
+    }
+
+    /// The check's record for the stage's report once its iterations ended (none if they never
+    /// reached the asked tolerance): where the limit ran out on the way to a tighter one, that
+    /// pass did not converge.
+    pub(super) fn end(mut self, report: &mut StageReport) -> Option<WindowCheck> {
+        if self.check.passes == 0 {
+            return None;
+        }
+        if !self.over {
+            self.check.outcome = CheckOutcome::PassNotConverged;
+            report.error_estimate = report.error_estimate.max(self.check.discrepancy);
+        }
+        self.check.iterations = report.iterations;
+        self.check.sweeps = report.iterations as f64;
+        Some(self.check)
+    }
 }
 
 #[cfg(test)]
