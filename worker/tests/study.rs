@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use std::process::Command;
 
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
-use glissade_core::scene::Scene;
+use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::{Greedy, LexicographicAscending, LexicographicDescending, OrderingPolicy};
 use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::{MemoryStore, SolutionStore, StoredSolution};
@@ -45,6 +45,7 @@ fn fresh_store(scene: &Scene) -> MemoryStore {
 }
 
 fn options(strategy: InitStrategy, tolerance: f64) -> StudyOptions {
+    let tolerance = Tolerance::new("tolerance", tolerance).expect("a tolerance");
     StudyOptions { strategy, tolerance: Some(tolerance), max_iterations: None, scale: None }
 }
 

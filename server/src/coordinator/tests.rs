@@ -8,6 +8,7 @@ use glissade_core::study::surrogate::ResponseSurface;
 use super::*;
 use crate::store::SledStore;
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
+use glissade_core::scene::Tolerance;
 
 const TINY: &str = include_str!("../../../scenes/three-blocks-tiny.toml");
 const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -32,6 +33,10 @@ fn config(version: &str) -> Config {
     }
 }
 
+fn tolerance(t: f64) -> Tolerance {
+    Tolerance::new("tolerance", t).unwrap()
+}
+
 /// A study without an audit (the tests lease its points one by one).
 fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy) -> StudyId {
     submit_audited(c, grid, tolerance, strategy, Some(0))
@@ -48,7 +53,7 @@ fn submit_audited(
         scene_text: TINY.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
         points: vec![],
-        tolerance: Some(tolerance),
+        tolerance: Some(self::tolerance(tolerance)),
         max_iterations: None,
         strategy,
         order: OrderKind::Asc,
@@ -350,7 +355,7 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
         scene_text: TINY.into(),
         grid: vec![],
         points: vec![ParameterVector::try_from(BTreeMap::from([("f1".to_string(), 0.12)])).unwrap()],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -550,7 +555,7 @@ fn submit_refined(
         scene_text: scene.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -583,7 +588,7 @@ fn a_mesh_level_measures_the_mesh_error_beside_the_time_step() {
         scene_text: scene.into(),
         grid: vec!["f1=0.1:0.2:3".into()],
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -841,7 +846,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         scene_text: TINY.into(),
         grid: vec![],
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Nearest,
         order: OrderKind::Greedy,
@@ -1029,7 +1034,7 @@ fn submit_held_out(
         scene_text: TINY.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -1184,7 +1189,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
         scene_text: scene,
         grid: vec!["f1=0.1:0.2:6".into()],
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
