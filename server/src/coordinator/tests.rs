@@ -9,6 +9,7 @@ use super::*;
 use crate::store::SledStore;
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
 use glissade_core::scene::Tolerance;
+use glissade_core::study::space::ParameterSpace;
 
 const TINY: &str = include_str!("../../../scenes/three-blocks-tiny.toml");
 const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -1228,7 +1229,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
 fn submit_target(c: &Coordinator, target: f64, budget: u32, tolerance: Option<f64>) -> Result<StudyId, CoordError> {
     let mut submission = submission_of_target(target);
     submission.adaptive = Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], budget));
-    submission.tolerance = tolerance;
+    submission.tolerance = tolerance.map(self::tolerance);
     c.submit(submission).map(|(id, ..)| id)
 }
 
