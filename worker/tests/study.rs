@@ -206,8 +206,13 @@ const CAP: usize = 600;
 /// One point of `scene` from cold, iterations capped at CAP per stage.
 fn point(scene: &Scene, set: &[(&str, f64)], tol: f64) -> PointRecord {
     let p = vec![DesignPoint::from_pairs(set.iter().copied())];
-    let opts =
-        StudyOptions { strategy: InitStrategy::Cold, tolerance: Some(tol), max_iterations: Some(CAP), scale: None };
+    let tolerance = Tolerance::new("tolerance", tol).expect("a tolerance");
+    let opts = StudyOptions {
+        strategy: InitStrategy::Cold,
+        tolerance: Some(tolerance),
+        max_iterations: Some(CAP),
+        scale: None,
+    };
     let r = run_study(
         scene,
         &p,
