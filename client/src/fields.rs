@@ -17,6 +17,7 @@ use glissade_worker::io::fields;
 use glissade_worker::run::{SolveRequest, solve_scene};
 
 use crate::{get_study, refused};
+use glissade_cli::names::describe_parameters;
 
 /// Largest solution file accepted from the coordinator (a paper-size scene's is about 100 MB).
 const MAX_SOLUTION_BYTES: u64 = 4 << 30;
@@ -155,7 +156,7 @@ pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
             summary.iterations
         );
     }
-    let from_text = crate::describe_parameters(&from.parameters);
+    let from_text = describe_parameters(&from.parameters);
     if args.json {
         let value = serde_json::json!({
             "parameters": target,
@@ -178,7 +179,7 @@ pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
         let statics = summary.iterations - dynamic;
         outln!(
             "point {}: {dynamic} iteration{} of the dynamic stage{} from {from_text}, eta {:.2e}",
-            crate::describe_parameters(&target),
+            describe_parameters(&target),
             if dynamic == 1 { "" } else { "s" },
             if statics > 0 { format!(" (and {statics} of the static one)") } else { String::new() },
             summary.error_indicator

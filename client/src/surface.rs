@@ -99,12 +99,8 @@ impl SurfaceTable {
 
     /// Parameters, QoIs, iterations, eta, state; a header line first.
     pub fn to_csv(&self) -> String {
-        let mut out = self.header().join(",") + "\n";
-        for row in &self.rows {
-            out += &self.cells(row, true).join(",");
-            out.push('\n');
-        }
-        out
+        let rows = self.rows.iter().map(|row| self.cells(row, true));
+        glissade_core::text::csv_table(std::iter::once(self.header()).chain(rows))
     }
 
     /// `{"scene_hash", "parameters", "qoi", "points": [{"parameters": {..}, "qoi": {..}, ...}]}`.

@@ -9,8 +9,7 @@
 
 use crate::gmsh::Msh;
 use crate::scene::{
-    BodySpec, InterfaceSpec, LawSpec, ParameterValues, Resolver, Scene, SceneError, Substructures, check_tolerance,
-    invalid,
+    BodySpec, InterfaceSpec, LawSpec, ParameterValues, Resolver, Scene, SceneError, Substructures, invalid,
 };
 
 /// The useful range of `solver.tangential_factor`: far outside it, the compliances overflow
@@ -74,7 +73,6 @@ impl Scene {
             return Err(invalid("solver.k0_factor", "must be > 0"));
         }
         let st = &self.solver;
-        check_tolerance("solver.tolerance", st.tolerance)?;
         if !(st.relaxation > 0.0 && st.relaxation <= 1.0) {
             return Err(invalid("solver.relaxation", "must be in (0, 1]"));
         }

@@ -48,6 +48,27 @@ pub fn check_tolerance(key: &str, tolerance: f64) -> Result<f64, SceneError> {
     }
 }
 
+/// An error-indicator tolerance that passed [`check_tolerance`]: checked once, where it enters
+/// (a submission, `--tol`, a stored study), and trusted from then on.
+#[derive(Debug, Clone, Copy, PartialEq, PartialOrd)]
+pub struct Tolerance(f64);
+
+impl Tolerance {
+    /// `tolerance` if [`check_tolerance`] accepts it; `key` names where it came from.
+    pub fn new(key: &str, tolerance: f64) -> Result<Self, SceneError> {
+        check_tolerance(key, tolerance).map(Self)
+    }
+
+    /// `asked`, or else the scene's own (checked as the scene parsed).
+    pub fn or_scene(asked: Option<Tolerance>, scene: &Scene) -> f64 {
+        asked.map_or(scene.solver.tolerance, Tolerance::get)
+    }
+
+    pub fn get(self) -> f64 {
+        self.0
+    }
+}
+
 /// The one rule for an iteration limit (a scene's `solver.max_iterations`, `--max-iter`, a
 /// submission): 1 to [`MAX_ITERATIONS`].
 pub fn check_max_iterations(key: &str, n: u64) -> Result<usize, SceneError> {

@@ -23,6 +23,22 @@ pub fn excerpt(text: &str, max: usize) -> String {
     format!("{kept}... ({} more characters)", total - max)
 }
 
+/// A CSV table (RFC 4180 quoting, by the `csv` crate), one record a line: the one writer of the
+/// study results, the CLI's surface and the web page's `surface.csv`.
+pub fn csv_table<R, F>(records: impl IntoIterator<Item = R>) -> String
+where
+    R: IntoIterator<Item = F>,
+    F: AsRef<[u8]>,
+{
+    let mut writer = csv::WriterBuilder::new().flexible(true).from_writer(Vec::new());
+    for record in records {
+        // (in memory, and every field is text: nothing can fail)
+        writer.write_record(record).expect("a CSV record in memory");
+    }
+    let bytes = writer.into_inner().expect("a CSV table in memory");
+    String::from_utf8(bytes).expect("CSV of UTF-8 fields")
+}
+
 /// Significant digits of a parameter's value printed for people ([`parameter`]).
 pub const PARAMETER_DIGITS: usize = 6;
 
@@ -80,6 +96,17 @@ pub fn wall_time(seconds: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_csv_table_quotes_only_what_rfc_4180_asks_to() {
+        let table = csv_table([
+            vec!["name", "value"],
+            vec!["plain", "1e-3"],
+            vec!["a, b", "say \"hi\""],
+            vec!["two\nlines", ""],
+        ]);
+        assert_eq!(table, "name,value\nplain,1e-3\n\"a, b\",\"say \"\"hi\"\"\"\n\"two\nlines\",\n");
+    }
 
     #[test]
     fn times_read_as_dates_and_durations() {

@@ -4,7 +4,7 @@
 
 use std::collections::BTreeMap;
 
-use glissade_core::scene::{MAX_MESH_BYTES, MAX_MESH_FILES};
+use glissade_core::scene::{MAX_MESH_BYTES, MAX_MESH_FILES, Tolerance};
 use glissade_core::text::{MAX_NAME_CHARS, excerpt, one_line};
 use glissade_proto::v1;
 use glissade_proto::{ParameterVector, PointId, StudyId};
@@ -163,9 +163,8 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             .enumerate()
             .map(|(i, p)| parameters(&format!("points[{i}]"), p.values))
             .collect::<Result<Vec<_>, _>>()?;
-        if let Some(t) = m.tolerance {
-            glissade_core::scene::check_tolerance("tolerance", t).map_err(|e| Invalid(e.to_string()))?;
-        }
+        let tolerance =
+            m.tolerance.map(|t| Tolerance::new("tolerance", t)).transpose().map_err(|e| Invalid(e.to_string()))?;
         if let Some(n) = m.max_iterations {
             glissade_core::scene::check_max_iterations("max_iterations", n.into())
                 .map_err(|e| Invalid(e.to_string()))?;
@@ -187,7 +186,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             scene_text: m.scene,
             grid: m.grid,
             points,
-            tolerance: m.tolerance,
+            tolerance,
             max_iterations: m.max_iterations,
             strategy: strategy(m.strategy, m.blend_neighbours)?,
             order: order(m.order)?,

@@ -105,28 +105,7 @@ pub async fn bind(
     listen: SocketAddr,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(SocketAddr, impl Future<Output = Result<()>>)> {
-    std::fs::create_dir_all(&options.data)
-        .with_context(|| format!("creating data directory {}", options.data.display()))?;
-    if options.lease < Duration::from_millis(50) {
-        anyhow::bail!("lease of {:?}: give at least 0.05 s", options.lease);
-    }
-    if options.max_attempts == 0 {
-        anyhow::bail!("max attempts 0: give at least 1");
-    }
-    for (name, value) in [
-        ("--max-points", options.max_points),
-        ("--max-pending", options.max_pending),
-        ("--max-connections", options.max_connections),
-    ] {
-        if value == 0 {
-            anyhow::bail!("{name} 0: give at least 1");
-        }
-    }
-    if options.tokens.is_none() && !listen.ip().is_loopback() && !options.open {
-        anyhow::bail!(
-            "listening on {listen} without tokens would let anyone who reaches it submit, cancel or falsify results: give --user-token-file and --pool-token-file (README, Service), listen on 127.0.0.1, or pass --open on a network where every host is trusted"
-        );
-    }
+    check_options(&options, listen)?;
     let store = SledStore::open(&options.data).context("opening the database")?;
     let config = Config {
         lease: options.lease,
@@ -170,51 +149,11 @@ pub async fn bind(
             .context("TLS certificate and key")?;
     }
     let serve = async move {
-        // Leases of pools that stopped answering expire even while no pool asks for work.
-        let expiry = {
-            let c = coordinator.clone();
-            let tick = (c.config().lease / 4).clamp(Duration::from_millis(20), Duration::from_secs(1));
-            tokio::spawn(async move {
-                loop {
-                    tokio::time::sleep(tick).await;
-                    let c = c.clone();
-                    match tokio::task::spawn_blocking(move || c.expire_leases()).await {
-                        Ok(Ok(_)) => {}
-                        Ok(Err(e)) => tracing::error!(error = %e, "expiring leases"),
-                        Err(e) => tracing::error!(error = %e, "expiring leases panicked"),
-                    }
-                }
-            })
-        };
+        let expiry = spawn_lease_expiry(coordinator.clone());
         let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
-        let mut routes =
-            tonic::service::Routes::new(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
-                .add_service(standard_health)
-                .add_service(InterceptedService::new(
-                    // SubmitStudy carries the scene's mesh files: raised from gRPC's 4 MiB to their
-                    // bound and 4 MiB (the token is checked on the headers, before the body is read)
-                    UserServer::new(user::UserService { coordinator: coordinator.clone() })
-                        .max_decoding_message_size(convert::MAX_SUBMISSION_BYTES),
-                    auth::RequireToken::users(tokens.as_ref()),
-                ))
-                .add_service(InterceptedService::new(
-                    // a pool's messages are a chunk of at most 1 MiB plus a small header: a bigger one is
-                    // refused as it is decoded, not after
-                    PoolServer::new(pool::PoolService::new(coordinator.clone(), metrics.clone()))
-                        .max_decoding_message_size(glissade_proto::CHUNK_BYTES + (64 << 10)),
-                    auth::RequireToken::pools(tokens.as_ref()),
-                ))
-                .add_service(reflection_v1)
-                .add_service(reflection_v1alpha);
-        // the web page and its JSON API on the same port, over HTTP/1.1
-        // (tonic's own fallback answers any path with a gRPC status in HTTP 200: ours says 404)
-        let grpc = std::mem::take(routes.axum_router_mut())
-            .fallback(web::not_found)
-            .layer(axum::middleware::from_fn(grpc_only));
-        // every request, gRPC or HTTP, counted by method and status for /metrics
-        *routes.axum_router_mut() = grpc
-            .merge(web::router(coordinator.clone(), metrics.clone(), tokens.as_ref(), tls))
-            .layer(axum::middleware::from_fn_with_state(metrics.clone(), metrics::count_requests));
+        let standard =
+            tonic::service::Routes::new(standard_health).add_service(reflection_v1).add_service(reflection_v1alpha);
+        let routes = routes(standard, &coordinator, &metrics, tokens.as_ref(), tls);
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
             conn::Incoming::new(listener, max_connections, idle),
             {
@@ -254,6 +193,86 @@ pub async fn bind(
         Ok(())
     };
     Ok((addr, serve))
+}
+
+/// The options `bind` refuses, before anything is opened (the data directory is created).
+fn check_options(options: &ServerOptions, listen: SocketAddr) -> Result<()> {
+    std::fs::create_dir_all(&options.data)
+        .with_context(|| format!("creating data directory {}", options.data.display()))?;
+    if options.lease < Duration::from_millis(50) {
+        anyhow::bail!("lease of {:?}: give at least 0.05 s", options.lease);
+    }
+    if options.max_attempts == 0 {
+        anyhow::bail!("max attempts 0: give at least 1");
+    }
+    for (name, value) in [
+        ("--max-points", options.max_points),
+        ("--max-pending", options.max_pending),
+        ("--max-connections", options.max_connections),
+    ] {
+        if value == 0 {
+            anyhow::bail!("{name} 0: give at least 1");
+        }
+    }
+    if options.tokens.is_none() && !listen.ip().is_loopback() && !options.open {
+        anyhow::bail!(
+            "listening on {listen} without tokens would let anyone who reaches it submit, cancel or falsify results: give --user-token-file and --pool-token-file (README, Service), listen on 127.0.0.1, or pass --open on a network where every host is trusted"
+        );
+    }
+    Ok(())
+}
+
+/// Leases of pools that stopped answering expire even while no pool asks for work.
+fn spawn_lease_expiry(c: Arc<Coordinator>) -> tokio::task::JoinHandle<()> {
+    let tick = (c.config().lease / 4).clamp(Duration::from_millis(20), Duration::from_secs(1));
+    tokio::spawn(async move {
+        loop {
+            tokio::time::sleep(tick).await;
+            let c = c.clone();
+            match tokio::task::spawn_blocking(move || c.expire_leases()).await {
+                Ok(Ok(_)) => {}
+                Ok(Err(e)) => tracing::error!(error = %e, "expiring leases"),
+                Err(e) => tracing::error!(error = %e, "expiring leases panicked"),
+            }
+        }
+    })
+}
+
+/// Every route of the port: the standard services already in `routes` (health, reflection), our
+/// gRPC services (each behind its token), then the web page and its JSON API over HTTP/1.1,
+/// every request counted for /metrics.
+fn routes(
+    mut routes: tonic::service::Routes,
+    coordinator: &Arc<Coordinator>,
+    metrics: &Arc<metrics::Metrics>,
+    tokens: Option<&auth::Tokens>,
+    tls: bool,
+) -> tonic::service::Routes {
+    routes = routes
+        .add_service(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
+        .add_service(InterceptedService::new(
+            // SubmitStudy carries the scene's mesh files: raised from gRPC's 4 MiB to their
+            // bound and 4 MiB (the token is checked on the headers, before the body is read)
+            UserServer::new(user::UserService { coordinator: coordinator.clone() })
+                .max_decoding_message_size(convert::MAX_SUBMISSION_BYTES),
+            auth::RequireToken::users(tokens),
+        ))
+        .add_service(InterceptedService::new(
+            // a pool's messages are a chunk of at most 1 MiB plus a small header: a bigger one is
+            // refused as it is decoded, not after
+            PoolServer::new(pool::PoolService::new(coordinator.clone(), metrics.clone()))
+                .max_decoding_message_size(glissade_proto::CHUNK_BYTES + (64 << 10)),
+            auth::RequireToken::pools(tokens),
+        ));
+    // the web page and its JSON API on the same port, over HTTP/1.1
+    // (tonic's own fallback answers any path with a gRPC status in HTTP 200: ours says 404)
+    let grpc =
+        std::mem::take(routes.axum_router_mut()).fallback(web::not_found).layer(axum::middleware::from_fn(grpc_only));
+    // every request, gRPC or HTTP, counted by method and status for /metrics
+    *routes.axum_router_mut() = grpc
+        .merge(web::router(coordinator.clone(), metrics.clone(), tokens, tls))
+        .layer(axum::middleware::from_fn_with_state(metrics.clone(), metrics::count_requests));
+    routes
 }
 
 /// The gRPC routes answer gRPC requests only: anything else (a browser's GET of a method's path)

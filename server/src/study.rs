@@ -12,13 +12,13 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
-use glissade_core::scene::Scene;
+use glissade_core::scene::{Scene, SceneError, Tolerance};
+use glissade_core::study::StartKind;
 use glissade_core::study::engine::{Start, StudyEngine};
 use glissade_core::study::order::OrderingPolicy;
 use glissade_core::study::space::{DesignPoint, ParameterSpace, submission_points};
 use glissade_core::study::store::{PointIndex, SolutionId, SolutionInfo, SolutionStore, StoreError, StoredSolution};
 use glissade_core::study::strategy::Initialisation;
-use glissade_core::study::{StartKind, StudyError};
 use glissade_proto::ParameterVector;
 
 use crate::records::{PointRecord, PointState, SolutionKey, SolutionOrigin, SolutionRecord, StudyRecord};
@@ -76,10 +76,11 @@ pub enum PointStart {
 }
 
 impl StudyPlan {
-    /// Fails only on a tolerance the engine refuses (submissions are checked before they are
-    /// stored).
-    pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Result<Self, StudyError> {
-        let engine = StudyEngine::new(scene, record.strategy, Some(record.tolerance))?;
+    /// Fails only on a stored tolerance out of range (a record is input too: a sled written by
+    /// another version).
+    pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Result<Self, SceneError> {
+        let tolerance = Tolerance::new("the study's tolerance", record.tolerance)?;
+        let engine = StudyEngine::new(scene, record.strategy, Some(tolerance));
         let full = points.iter().map(|p| design_point(engine.space(), &p.parameters)).collect();
         let answers_stored = record.refines.is_some();
         Ok(Self { policy: record.order.policy(engine.space()), engine, full, answers_stored })

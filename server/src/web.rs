@@ -359,14 +359,15 @@ async fn api_surface_csv(
         Ok(s) => s,
         Err(r) => return r.into_response(),
     };
-    let mut out = s.parameters.iter().chain(&s.qoi).cloned().collect::<Vec<_>>().join(",") + ",state\n";
-    for r in &s.rows {
+    let header: Vec<String> = s.parameters.iter().chain(&s.qoi).cloned().chain(["state".to_owned()]).collect();
+    let rows = s.rows.iter().map(|r| {
         let mut fields: Vec<String> =
             s.parameters.iter().map(|n| r.parameters.get(n).map_or(String::new(), |v| v.to_string())).collect();
         fields.extend(s.qoi.iter().map(|q| r.qoi.get(q).map_or(String::new(), |v| format!("{v:e}"))));
         fields.push(point_state_word(&r.state).to_owned());
-        out += &(fields.join(",") + "\n");
-    }
+        fields
+    });
+    let out = glissade_core::text::csv_table(std::iter::once(header).chain(rows));
     ([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response()
 }
 

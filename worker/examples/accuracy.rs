@@ -21,7 +21,7 @@ use clap::Parser;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use glissade_core::scene::Scene;
+use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::LexicographicAscending;
 use glissade_core::study::space::{DesignPoint, ParameterSpace};
 use glissade_core::study::store::MemoryStore;
@@ -100,7 +100,8 @@ fn solve(args: &Args, scene_path: &Path, tol: f64, warm: bool) -> Sample {
     let mut store = MemoryStore::new(space).expect("store");
     let (points, strategy) =
         if warm { (vec![q, p.clone()], InitStrategy::Nearest) } else { (vec![p.clone()], InitStrategy::Cold) };
-    let options = StudyOptions { strategy, tolerance: Some(tol), max_iterations: Some(5000), scale: None };
+    let tolerance = Tolerance::new("tolerance", tol).expect("a tolerance");
+    let options = StudyOptions { strategy, tolerance: Some(tolerance), max_iterations: Some(5000), scale: None };
     // P sorts after Q (checked below), so the ascending order solves Q first
     let result = run_study(
         &scene,

@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Parser;
 
-use glissade_core::scene::Scene;
+use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::MemoryStore;
@@ -74,7 +74,8 @@ fn run(
     let space = ParameterSpace::from_scene(scene);
     let mut store = MemoryStore::new(space.clone()).expect("store");
     let mut policy = order.policy(&space);
-    let options = StudyOptions { strategy, tolerance: Some(tol), max_iterations: Some(max_iter), scale: None };
+    let tolerance = Tolerance::new("tolerance", tol).expect("a tolerance");
+    let options = StudyOptions { strategy, tolerance: Some(tolerance), max_iterations: Some(max_iter), scale: None };
     let label = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let mut progress = |r: &glissade_core::study::PointRecord, done: usize, total: usize| {
         if done == 1 || done.is_multiple_of(10) || done == total {

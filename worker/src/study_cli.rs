@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 
-use glissade_core::scene::Scale;
+use glissade_core::scene::{Scale, Tolerance};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::MemoryStore;
@@ -78,9 +78,7 @@ pub fn study(args: StudyArgs) -> Result<bool> {
     let space = ParameterSpace::from_scene(&scene);
     let axes = args.grid.iter().map(|g| GridAxis::parse(g, &space)).collect::<Result<Vec<_>, _>>()?;
     let points = design_points(&axes, args.max_points)?;
-    if let Some(t) = args.tol {
-        glissade_core::scene::check_tolerance("--tol", t)?;
-    }
+    let tolerance = args.tol.map(|t| Tolerance::new("--tol", t)).transpose()?;
     let kind = args.strategy.unwrap_or(StrategyKind::DEFAULT);
     let k = args.k.unwrap_or_else(|| kind.default_neighbours());
     if k == 0 {
@@ -92,7 +90,7 @@ pub fn study(args: StudyArgs) -> Result<bool> {
     }
     let strategy = kind.with_neighbours(k);
     let order = args.order;
-    let options = StudyOptions { strategy, tolerance: args.tol, max_iterations: args.max_iter, scale: args.scale };
+    let options = StudyOptions { strategy, tolerance, max_iterations: args.max_iter, scale: args.scale };
     let mut store = MemoryStore::new(space.clone())?;
     let mut policy = order.policy(&space);
     let swept: Vec<String> = axes.iter().map(|a| a.name.clone()).collect();

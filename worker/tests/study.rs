@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use std::process::Command;
 
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
-use glissade_core::scene::Scene;
+use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::{Greedy, LexicographicAscending, LexicographicDescending, OrderingPolicy};
 use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::{MemoryStore, SolutionStore, StoredSolution};
@@ -45,6 +45,7 @@ fn fresh_store(scene: &Scene) -> MemoryStore {
 }
 
 fn options(strategy: InitStrategy, tolerance: f64) -> StudyOptions {
+    let tolerance = Tolerance::new("tolerance", tolerance).expect("a tolerance");
     StudyOptions { strategy, tolerance: Some(tolerance), max_iterations: None, scale: None }
 }
 
@@ -205,8 +206,13 @@ const CAP: usize = 600;
 /// One point of `scene` from cold, iterations capped at CAP per stage.
 fn point(scene: &Scene, set: &[(&str, f64)], tol: f64) -> PointRecord {
     let p = vec![DesignPoint::from_pairs(set.iter().copied())];
-    let opts =
-        StudyOptions { strategy: InitStrategy::Cold, tolerance: Some(tol), max_iterations: Some(CAP), scale: None };
+    let tolerance = Tolerance::new("tolerance", tol).expect("a tolerance");
+    let opts = StudyOptions {
+        strategy: InitStrategy::Cold,
+        tolerance: Some(tolerance),
+        max_iterations: Some(CAP),
+        scale: None,
+    };
     let r = run_study(
         scene,
         &p,

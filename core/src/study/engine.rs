@@ -13,12 +13,12 @@
 use std::collections::BTreeSet;
 
 use crate::field::InterfaceSolution;
-use crate::scene::{Scene, check_tolerance};
+use crate::scene::{Scene, Tolerance};
 
 use super::space::{DesignPoint, ParameterSpace};
 use super::store::{SolutionId, SolutionInfo, SolutionStore, StoreError};
 use super::strategy::{InitSource, InitStrategy, Initialisation, initialise, interface_law_parameters};
-use super::{SAME_POINT, StartKind, StudyError};
+use super::{SAME_POINT, StartKind};
 
 /// The version of the solver this build runs (every crate of the workspace shares it).
 pub const SOLVER_VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -44,15 +44,13 @@ pub struct StudyEngine {
 
 impl StudyEngine {
     /// The engine of a study of `scene` by `strategy` at `tolerance` (None: the scene's).
-    pub fn new(scene: &Scene, strategy: InitStrategy, tolerance: Option<f64>) -> Result<Self, StudyError> {
-        let tolerance = tolerance.unwrap_or(scene.solver.tolerance);
-        check_tolerance("tolerance", tolerance).map_err(|_| StudyError::Tolerance(tolerance))?;
-        Ok(Self {
+    pub fn new(scene: &Scene, strategy: InitStrategy, tolerance: Option<Tolerance>) -> Self {
+        Self {
             space: ParameterSpace::from_scene(scene),
             law_parameters: interface_law_parameters(scene),
             strategy,
-            tolerance,
-        })
+            tolerance: Tolerance::or_scene(tolerance, scene),
+        }
     }
 
     pub fn space(&self) -> &ParameterSpace {
@@ -204,7 +202,7 @@ mod tests {
     #[test]
     fn a_stored_point_answers_only_at_this_tolerance_or_tighter_and_by_this_solver_version() {
         let scene = Scene::parse(SCENE).unwrap();
-        let engine = StudyEngine::new(&scene, InitStrategy::Nearest, Some(1e-4)).unwrap();
+        let engine = StudyEngine::new(&scene, InitStrategy::Nearest, Some(tolerance(1e-4)));
         let point = engine.space().defaults();
         let mut store = MemoryStore::new(engine.space().clone()).unwrap();
         // nothing stored: cold
@@ -232,21 +230,30 @@ mod tests {
         store.insert(stored(&point, 8e-5, true, SOLVER_VERSION)).unwrap();
         assert!(matches!(engine.start(&store, &point, None, SOLVER_VERSION).unwrap(), Start::Answer(i) if i.id == 5));
         // a cold study reads nothing
-        let cold = StudyEngine::new(&scene, InitStrategy::Cold, Some(1e-4)).unwrap();
+        let cold = StudyEngine::new(&scene, InitStrategy::Cold, Some(tolerance(1e-4)));
         assert!(matches!(
             cold.start(&store, &point, None, SOLVER_VERSION).unwrap(),
             Start::Solve { kind: StartKind::Cold, .. }
         ));
     }
 
+    fn tolerance(t: f64) -> Tolerance {
+        Tolerance::new("tolerance", t).unwrap()
+    }
+
     #[test]
-    fn the_tolerance_is_checked_once_here() {
+    fn a_tolerance_is_checked_where_it_enters_and_the_scene_s_stands_in_for_none() {
         let scene = Scene::parse(SCENE).unwrap();
         // beyond the floor and the ceiling too: 1e-30 and 5e-324 held a pool for ever (issue 28)
         for t in [0.0, -1e-3, f64::NAN, f64::INFINITY, 1e-30, 5e-324, 2.0] {
-            assert!(matches!(StudyEngine::new(&scene, InitStrategy::Nearest, Some(t)), Err(StudyError::Tolerance(_))));
+            let e = Tolerance::new("--tol", t).unwrap_err().to_string();
+            assert!(e.starts_with("--tol: must be a number from 1e-10 to 1"), "{t}: {e}");
         }
-        assert_eq!(StudyEngine::new(&scene, InitStrategy::Nearest, None).unwrap().tolerance(), scene.solver.tolerance);
+        for t in [1e-10, 2e-4, 1.0] {
+            assert_eq!(tolerance(t).get().to_bits(), t.to_bits());
+        }
+        assert_eq!(StudyEngine::new(&scene, InitStrategy::Nearest, None).tolerance(), scene.solver.tolerance);
+        assert_eq!(StudyEngine::new(&scene, InitStrategy::Nearest, Some(tolerance(3e-5))).tolerance(), 3e-5);
     }
 
     #[test]

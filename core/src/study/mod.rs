@@ -27,7 +27,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use crate::field::InterfaceSolution;
-use crate::scene::{Scale, Scene};
+use crate::scene::{Scale, Scene, Tolerance};
 
 use engine::{SOLVER_VERSION, Start, StudyEngine, solve_or_retry_cold};
 use order::OrderingPolicy;
@@ -45,8 +45,6 @@ pub enum StudyError {
     Space(#[from] SpaceError),
     #[error(transparent)]
     Store(#[from] StoreError),
-    #[error("--tol: must be a number from {min:e} to {max}, got {0:e}", min = crate::scene::MIN_TOLERANCE, max = crate::scene::MAX_TOLERANCE)]
-    Tolerance(f64),
     #[error("ordering policy chose point {index} of {pending} pending")]
     Policy { index: usize, pending: usize },
 }
@@ -56,7 +54,7 @@ pub enum StudyError {
 pub struct StudyOptions {
     pub strategy: InitStrategy,
     /// error-indicator tolerance (None: the scene's)
-    pub tolerance: Option<f64>,
+    pub tolerance: Option<Tolerance>,
     /// LATIN iterations per stage (None: the scene's)
     pub max_iterations: Option<usize>,
     pub scale: Option<Scale>,
@@ -292,51 +290,44 @@ impl StudyResult {
             names.dedup();
             names
         };
-        let mut out = String::from("index,sequence");
-        for p in &self.parameters {
-            out += &format!(",{p}");
-        }
-        out += ",status,converged,iterations,static_iterations,eta,tolerance,wall_seconds";
-        for q in &qoi_names {
-            out += &format!(",{q}");
-        }
-        out += ",started_from,source_ids,source_distance,error\n";
-        for r in self.by_index() {
-            out += &format!("{},{}", r.index, r.sequence);
-            for p in &self.parameters {
-                out += &format!(",{}", r.point.get(p).map_or(String::new(), |v| v.to_string()));
-            }
+        let fixed = ["status", "converged", "iterations", "static_iterations", "eta", "tolerance", "wall_seconds"];
+        let last = ["started_from", "source_ids", "source_distance", "error"];
+        let header: Vec<String> = ["index", "sequence"]
+            .iter()
+            .map(|s| s.to_string())
+            .chain(self.parameters.iter().cloned())
+            .chain(fixed.iter().map(|s| s.to_string()))
+            .chain(qoi_names.iter().cloned())
+            .chain(last.iter().map(|s| s.to_string()))
+            .collect();
+        let rows = self.by_index().into_iter().map(|r| {
             let status = serde_json::to_value(r.status).ok().and_then(|v| v.as_str().map(String::from));
-            out += &format!(
-                ",{},{},{},{},{},{},{:.6}",
-                status.unwrap_or_default(),
-                r.converged,
-                r.iterations,
-                r.static_iterations,
-                r.eta.map_or(String::new(), |e| format!("{e:.6e}")),
-                r.tolerance,
-                r.wall_seconds
-            );
-            for q in &qoi_names {
-                out += &format!(",{}", r.qoi.get(q).map_or(String::new(), |v| format!("{v:.10e}")));
-            }
             let ids: Vec<String> = r.sources.iter().map(|s| s.id.to_string()).collect();
             let distance =
                 r.sources.iter().map(|s| s.distance).fold(None, |m: Option<f64>, d| Some(m.map_or(d, |m| m.min(d))));
-            out += &format!(
-                ",{},{},{},{}\n",
-                csv_field(&r.started_from()),
-                ids.join(" "),
-                distance.map_or(String::new(), |d| format!("{d:.6}")),
-                csv_field(r.error.as_deref().unwrap_or(""))
-            );
-        }
-        out
+            [r.index.to_string(), r.sequence.to_string()]
+                .into_iter()
+                .chain(self.parameters.iter().map(|p| r.point.get(p).map_or(String::new(), |v| v.to_string())))
+                .chain([
+                    status.unwrap_or_default(),
+                    r.converged.to_string(),
+                    r.iterations.to_string(),
+                    r.static_iterations.to_string(),
+                    r.eta.map_or(String::new(), |e| format!("{e:.6e}")),
+                    r.tolerance.to_string(),
+                    format!("{:.6}", r.wall_seconds),
+                ])
+                .chain(qoi_names.iter().map(|q| r.qoi.get(q).map_or(String::new(), |v| format!("{v:.10e}"))))
+                .chain([
+                    r.started_from(),
+                    ids.join(" "),
+                    distance.map_or(String::new(), |d| format!("{d:.6}")),
+                    r.error.clone().unwrap_or_default(),
+                ])
+                .collect::<Vec<String>>()
+        });
+        crate::text::csv_table(std::iter::once(header).chain(rows))
     }
-}
-
-fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) { format!("\"{}\"", s.replace('"', "\"\"")) } else { s.to_string() }
 }
 
 /// What a study asks of the solver for one point.
@@ -395,7 +386,7 @@ pub fn run_study(
     solver: &mut dyn SolvePoint,
     progress: &mut dyn FnMut(&PointRecord, usize, usize),
 ) -> Result<StudyResult, StudyError> {
-    let engine = StudyEngine::new(scene, options.strategy, options.tolerance)?;
+    let engine = StudyEngine::new(scene, options.strategy, options.tolerance);
     if points.is_empty() {
         return Err(SpaceError::EmptyGrid.into());
     }

@@ -8,6 +8,8 @@ use glissade_core::study::surrogate::ResponseSurface;
 use super::*;
 use crate::store::SledStore;
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
+use glissade_core::scene::Tolerance;
+use glissade_core::study::space::ParameterSpace;
 
 const TINY: &str = include_str!("../../../scenes/three-blocks-tiny.toml");
 const VERSION: &str = env!("CARGO_PKG_VERSION");
@@ -32,6 +34,10 @@ fn config(version: &str) -> Config {
     }
 }
 
+fn tolerance(t: f64) -> Tolerance {
+    Tolerance::new("tolerance", t).unwrap()
+}
+
 /// A study without an audit (the tests lease its points one by one).
 fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy) -> StudyId {
     submit_audited(c, grid, tolerance, strategy, Some(0))
@@ -48,7 +54,7 @@ fn submit_audited(
         scene_text: TINY.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
         points: vec![],
-        tolerance: Some(tolerance),
+        tolerance: Some(self::tolerance(tolerance)),
         max_iterations: None,
         strategy,
         order: OrderKind::Asc,
@@ -350,7 +356,7 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
         scene_text: TINY.into(),
         grid: vec![],
         points: vec![ParameterVector::try_from(BTreeMap::from([("f1".to_string(), 0.12)])).unwrap()],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -550,7 +556,7 @@ fn submit_refined(
         scene_text: scene.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -583,7 +589,7 @@ fn a_mesh_level_measures_the_mesh_error_beside_the_time_step() {
         scene_text: scene.into(),
         grid: vec!["f1=0.1:0.2:3".into()],
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -841,7 +847,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         scene_text: TINY.into(),
         grid: vec![],
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Nearest,
         order: OrderKind::Greedy,
@@ -1029,7 +1035,7 @@ fn submit_held_out(
         scene_text: TINY.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -1184,7 +1190,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
         scene_text: scene,
         grid: vec!["f1=0.1:0.2:6".into()],
         points: vec![],
-        tolerance: Some(1e-3),
+        tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Asc,
@@ -1223,7 +1229,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
 fn submit_target(c: &Coordinator, target: f64, budget: u32, tolerance: Option<f64>) -> Result<StudyId, CoordError> {
     let mut submission = submission_of_target(target);
     submission.adaptive = Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], budget));
-    submission.tolerance = tolerance;
+    submission.tolerance = tolerance.map(self::tolerance);
     c.submit(submission).map(|(id, ..)| id)
 }
 

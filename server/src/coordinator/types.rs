@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use glissade_core::scene::Tolerance;
 use glissade_core::study::holdout::SurfaceErrors;
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
@@ -174,7 +175,7 @@ pub struct Submission {
     pub scene_text: String,
     pub grid: Vec<String>,
     pub points: Vec<ParameterVector>,
-    pub tolerance: Option<f64>,
+    pub tolerance: Option<Tolerance>,
     pub max_iterations: Option<u32>,
     pub strategy: InitStrategy,
     pub order: OrderKind,

@@ -33,8 +33,12 @@ use crate::comm::Serial;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
-use glissade_core::scene::{MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, Scene, mesh_digest};
+use glissade_core::scene::{
+    MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, ParameterValues, Scene, Tolerance, check_max_iterations,
+    mesh_digest,
+};
 use glissade_core::study::engine::solve_or_retry_cold;
+use glissade_proto::ParameterVector;
 
 pub mod delivery;
 pub mod ranks;
@@ -598,6 +602,42 @@ pub fn available_memory() -> Option<u64> {
     Some(kib.saturating_mul(1024))
 }
 
+/// What a lease asks of the solver, converted and checked once, at the pool's edge: the swept
+/// parameters (names and finite values: the domain type), the tolerance and the iteration limit.
+#[derive(Debug, Clone, PartialEq)]
+struct Asked {
+    parameters: ParameterVector,
+    tolerance: Tolerance,
+    max_iterations: usize,
+}
+
+impl TryFrom<&v1::Lease> for Asked {
+    type Error = anyhow::Error;
+
+    fn try_from(lease: &v1::Lease) -> Result<Self> {
+        Ok(Self {
+            parameters: ParameterVector::try_from(lease.parameters.clone()).context("the lease's parameters")?,
+            tolerance: Tolerance::new("the lease's tolerance", lease.tolerance)?,
+            max_iterations: check_max_iterations("the lease's max_iterations", lease.max_iterations.into())?,
+        })
+    }
+}
+
+impl Asked {
+    /// The solver's request: the swept parameters as `--set` pairs.
+    fn request(&self, init_parameters: Option<ParameterValues>) -> SolveRequest {
+        SolveRequest {
+            set: self.parameters.iter().map(|(k, v)| (k.to_owned(), v)).collect(),
+            tolerance: Some(self.tolerance.get()),
+            max_iterations: Some(self.max_iterations),
+            scale: None,
+            record_fields: false,
+            progress: Some(Default::default()),
+            init_parameters,
+        }
+    }
+}
+
 /// The job of a lease: the scene parsed and its size checked against `memory` (bytes), the
 /// request built, the warm start read and checked.
 fn prepare(
@@ -619,8 +659,9 @@ fn prepare(
     }
     // the coordinator's checks at submit (core::check), again: a scene from an older
     // coordinator, or one whose rules changed since
-    let set: Vec<(String, f64)> = lease.parameters.iter().map(|(k, v)| (k.clone(), *v)).collect();
-    scene.check_meshes().and_then(|()| scene.check_point(&scene.parameter_values(&set)?)).context("scene")?;
+    let asked = Asked::try_from(lease)?;
+    let request = asked.request(None);
+    scene.check_meshes().and_then(|()| scene.check_point(&scene.parameter_values(&request.set)?)).context("scene")?;
     let size = scene.size().context("scene")?;
     if let Some(memory) = memory
         && size.bytes() > memory
@@ -653,15 +694,7 @@ fn prepare(
             }
         }
     };
-    let request = SolveRequest {
-        set: lease.parameters.iter().map(|(k, v)| (k.clone(), *v)).collect(),
-        tolerance: Some(lease.tolerance),
-        max_iterations: Some(lease.max_iterations as usize),
-        scale: None,
-        record_fields: false,
-        progress: Some(Default::default()),
-        init_parameters,
-    };
+    let request = SolveRequest { init_parameters, ..request };
     let init_bytes = if init.is_some() { init_bytes } else { Vec::new() };
     Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init, warm_start_dropped })
 }
@@ -725,5 +758,40 @@ pub fn solution_meta(scene: &Scene, outcome: &SolveOutcome) -> SolutionMeta {
         iterations: s.iterations,
         tolerance: s.tolerance,
         qoi: s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lease(parameters: &[(&str, f64)], tolerance: f64, max_iterations: u32) -> v1::Lease {
+        v1::Lease {
+            parameters: parameters.iter().map(|&(k, v)| (k.to_owned(), v)).collect(),
+            tolerance,
+            max_iterations,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_lease_is_checked_at_the_edge_and_its_numbers_reach_the_solver_bit_for_bit() {
+        let asked = Asked::try_from(&lease(&[("f2", 0.1 + 0.2), ("f1", -1e-300)], 2e-4, 77)).unwrap();
+        let request = asked.request(None);
+        // name order, every bit kept
+        assert_eq!(request.set.len(), 2);
+        assert_eq!((request.set[0].0.as_str(), request.set[0].1.to_bits()), ("f1", (-1e-300f64).to_bits()));
+        assert_eq!((request.set[1].0.as_str(), request.set[1].1.to_bits()), ("f2", (0.1f64 + 0.2).to_bits()));
+        assert_eq!((request.tolerance, request.max_iterations), (Some(2e-4), Some(77)));
+        for (bad, needle) in [
+            (lease(&[("f1", f64::NAN)], 2e-4, 77), "not finite"),
+            (lease(&[(" ", 0.1)], 2e-4, 77), "empty"),
+            (lease(&[("f1", 0.1)], 0.0, 77), "tolerance"),
+            (lease(&[("f1", 0.1)], 1e-30, 77), "tolerance"),
+            (lease(&[("f1", 0.1)], 2e-4, 0), "max_iterations"),
+        ] {
+            let e = format!("{:#}", Asked::try_from(&bad).unwrap_err());
+            assert!(e.contains(needle), "{e}");
+        }
     }
 }

@@ -40,6 +40,8 @@ enum Message {
 pub enum RanksError {
     #[error("job message from rank 0 is malformed: {0}")]
     Malformed(&'static str),
+    #[error("job message from rank 0 does not decode: {0}")]
+    Decode(#[from] prost::DecodeError),
     #[error("job message from rank 0: {0}")]
     Scene(#[from] glissade_core::scene::SceneError),
     #[error("job message from rank 0: {0}")]
@@ -122,148 +124,148 @@ fn ignore_termination_signals() {
     }
 }
 
-// Byte layout: a tag byte (0 stop, 1 job); a job then holds the scene text, the `--set` pairs,
-// the tolerance and iteration limit (floats as their bits: every rank must solve the same
-// numbers), the scale, whether fields are recorded, the warm start's parameters, and the
-// warm-start file bytes up to the end. `encode` takes the request apart field by field, so a new
-// field of `SolveRequest` does not compile until it travels too.
+// The job message on the wire: protobuf (prost), so the framing, the bounds checks of a
+// truncated message and the float bits (fixed64: every rank must solve the same numbers) are
+// prost's. `encode` takes the request apart field by field, so a new field of `SolveRequest` does
+// not compile until it travels too.
+
+/// A message from rank 0. The kind is never implied by an absence: an empty or cut message is an
+/// error, not a stop.
+#[derive(Clone, PartialEq, prost::Message)]
+struct Wire {
+    #[prost(oneof = "WireKind", tags = "1, 2")]
+    kind: Option<WireKind>,
+}
+
+#[derive(Clone, PartialEq, prost::Oneof)]
+enum WireKind {
+    #[prost(message, tag = "1")]
+    Job(WireJob),
+    #[prost(bool, tag = "2")]
+    Stop(bool),
+}
+
+#[derive(Clone, PartialEq, prost::Message)]
+struct WireJob {
+    #[prost(string, tag = "1")]
+    scene_text: String,
+    #[prost(message, repeated, tag = "2")]
+    meshes: Vec<WireMesh>,
+    /// the `--set` pairs, in their order
+    #[prost(message, repeated, tag = "3")]
+    set: Vec<WireParameter>,
+    #[prost(double, optional, tag = "4")]
+    tolerance: Option<f64>,
+    #[prost(uint64, optional, tag = "5")]
+    max_iterations: Option<u64>,
+    /// 0: the scene's, 1: single, 2: multi
+    #[prost(uint32, tag = "6")]
+    scale: u32,
+    #[prost(bool, tag = "7")]
+    record_fields: bool,
+    /// every rank must stop at the same tolerance, which depends on where the init is from
+    #[prost(message, optional, tag = "8")]
+    init_parameters: Option<WireParameters>,
+    /// the warm start's solution file (empty: cold)
+    #[prost(bytes = "vec", tag = "9")]
+    init_bytes: Vec<u8>,
+}
+
+#[derive(Clone, PartialEq, prost::Message)]
+struct WireMesh {
+    #[prost(string, tag = "1")]
+    file: String,
+    #[prost(bytes = "vec", tag = "2")]
+    bytes: Vec<u8>,
+}
+
+#[derive(Clone, PartialEq, prost::Message)]
+struct WireParameter {
+    #[prost(string, tag = "1")]
+    name: String,
+    #[prost(double, tag = "2")]
+    value: f64,
+}
+
+/// A present but possibly empty list (None and no parameters differ).
+#[derive(Clone, PartialEq, prost::Message)]
+struct WireParameters {
+    #[prost(message, repeated, tag = "1")]
+    values: Vec<WireParameter>,
+}
+
+fn wire_parameters<'a>(pairs: impl Iterator<Item = (&'a String, &'a f64)>) -> Vec<WireParameter> {
+    pairs.map(|(name, &value)| WireParameter { name: name.clone(), value }).collect()
+}
 
 fn encode(message: &Message) -> Vec<u8> {
-    let mut out = Vec::new();
-    match message {
-        Message::Stop => out.push(0),
+    use prost::Message as _;
+    let kind = match message {
+        Message::Stop => WireKind::Stop(true),
         Message::Job { scene_text, meshes, request, init_bytes } => {
             // progress is counted on each rank for itself
             let SolveRequest { set, tolerance, max_iterations, scale, record_fields, progress: _, init_parameters } =
                 request;
-            out.push(1);
-            put_bytes(&mut out, scene_text.as_bytes());
-            out.extend((meshes.len() as u64).to_le_bytes());
-            for (file, bytes) in meshes {
-                put_bytes(&mut out, file.as_bytes());
-                put_bytes(&mut out, bytes);
-            }
-            put_pairs(&mut out, set.iter().map(|(k, v)| (k.as_str(), *v)));
-            put_option(&mut out, tolerance.map(f64::to_bits));
-            put_option(&mut out, max_iterations.map(|n| n as u64));
-            out.push(match scale {
-                None => 0,
-                Some(Scale::Single) => 1,
-                Some(Scale::Multi) => 2,
-            });
-            out.push(u8::from(*record_fields));
-            // every rank must stop at the same tolerance, which depends on where the init is from
-            match init_parameters {
-                None => out.push(0),
-                Some(values) => {
-                    out.push(1);
-                    put_pairs(&mut out, values.iter().map(|(k, v)| (k.as_str(), *v)));
-                }
-            }
-            out.extend_from_slice(init_bytes);
+            WireKind::Job(WireJob {
+                scene_text: scene_text.clone(),
+                meshes: meshes
+                    .iter()
+                    .map(|(file, bytes)| WireMesh { file: file.clone(), bytes: bytes.clone() })
+                    .collect(),
+                set: wire_parameters(set.iter().map(|(k, v)| (k, v))),
+                tolerance: *tolerance,
+                max_iterations: max_iterations.map(|n| n as u64),
+                scale: match scale {
+                    None => 0,
+                    Some(Scale::Single) => 1,
+                    Some(Scale::Multi) => 2,
+                },
+                record_fields: *record_fields,
+                init_parameters: init_parameters.as_ref().map(|v| WireParameters { values: wire_parameters(v.iter()) }),
+                init_bytes: init_bytes.clone(),
+            })
         }
-    }
-    out
+    };
+    Wire { kind: Some(kind) }.encode_to_vec()
 }
 
 fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
-    let mut reader = Reader(bytes);
-    match reader.take(1)?[0] {
-        0 => Ok(Message::Stop),
-        1 => {
-            let scene_text = reader.string()?;
-            let count = reader.u64()? as usize;
-            let mut meshes = Vec::with_capacity(count.min(glissade_core::scene::MAX_MESH_FILES));
-            for _ in 0..count {
-                let file = reader.string()?;
-                let n = reader.u64()? as usize;
-                meshes.push((file, reader.take(n)?.to_vec()));
-            }
-            let set = reader.pairs()?;
-            let tolerance = reader.option()?.map(f64::from_bits);
-            let max_iterations = reader.option()?.map(|n| n as usize);
-            let scale = match reader.take(1)?[0] {
-                0 => None,
-                1 => Some(Scale::Single),
-                2 => Some(Scale::Multi),
-                _ => return Err(RanksError::Malformed("bad scale")),
-            };
-            let record_fields = match reader.take(1)?[0] {
-                0 => false,
-                1 => true,
-                _ => return Err(RanksError::Malformed("bad flag")),
-            };
-            let init_parameters = match reader.take(1)?[0] {
-                0 => None,
-                1 => Some(reader.pairs()?.into_iter().collect()),
-                _ => return Err(RanksError::Malformed("bad option flag")),
-            };
-            let request =
-                SolveRequest { set, tolerance, max_iterations, scale, record_fields, progress: None, init_parameters };
-            Ok(Message::Job { scene_text, meshes, request, init_bytes: reader.0.to_vec() })
-        }
-        _ => Err(RanksError::Malformed("unknown message kind")),
+    use prost::Message as _;
+    let job = match Wire::decode(bytes)?.kind {
+        Some(WireKind::Job(job)) => job,
+        Some(WireKind::Stop(true)) => return Ok(Message::Stop),
+        Some(WireKind::Stop(false)) | None => return Err(RanksError::Malformed("neither a job nor a stop")),
+    };
+    if job.meshes.len() > glissade_core::scene::MAX_MESH_FILES {
+        return Err(RanksError::Malformed("too many mesh files"));
     }
-}
-
-fn put_bytes(out: &mut Vec<u8>, bytes: &[u8]) {
-    out.extend((bytes.len() as u64).to_le_bytes());
-    out.extend_from_slice(bytes);
-}
-
-/// A count, then (name, f64 bits) pairs.
-fn put_pairs<'a>(out: &mut Vec<u8>, pairs: impl ExactSizeIterator<Item = (&'a str, f64)>) {
-    out.extend((pairs.len() as u64).to_le_bytes());
-    for (name, value) in pairs {
-        put_bytes(out, name.as_bytes());
-        out.extend(value.to_bits().to_le_bytes());
-    }
-}
-
-fn put_option(out: &mut Vec<u8>, value: Option<u64>) {
-    match value {
-        None => out.push(0),
-        Some(v) => {
-            out.push(1);
-            out.extend(v.to_le_bytes());
-        }
-    }
-}
-
-struct Reader<'a>(&'a [u8]);
-
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Result<&'a [u8], RanksError> {
-        if self.0.len() < n {
-            return Err(RanksError::Malformed("truncated"));
-        }
-        let (head, rest) = self.0.split_at(n);
-        self.0 = rest;
-        Ok(head)
-    }
-    fn u64(&mut self) -> Result<u64, RanksError> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
-    }
-    fn string(&mut self) -> Result<String, RanksError> {
-        let n = self.u64()? as usize;
-        String::from_utf8(self.take(n)?.to_vec()).map_err(|_| RanksError::Malformed("text is not UTF-8"))
-    }
-    fn pairs(&mut self) -> Result<Vec<(String, f64)>, RanksError> {
-        let n = self.u64()? as usize;
-        let mut pairs = Vec::with_capacity(n.min(1024));
-        for _ in 0..n {
-            pairs.push((self.string()?, f64::from_bits(self.u64()?)));
-        }
-        Ok(pairs)
-    }
-
-    fn option(&mut self) -> Result<Option<u64>, RanksError> {
-        match self.take(1)?[0] {
-            0 => Ok(None),
-            1 => Ok(Some(self.u64()?)),
-            _ => Err(RanksError::Malformed("bad option flag")),
-        }
-    }
+    let pairs = |values: Vec<WireParameter>| values.into_iter().map(|p| (p.name, p.value));
+    let scale = match job.scale {
+        0 => None,
+        1 => Some(Scale::Single),
+        2 => Some(Scale::Multi),
+        _ => return Err(RanksError::Malformed("bad scale")),
+    };
+    let max_iterations = match job.max_iterations.map(usize::try_from) {
+        None => None,
+        Some(Ok(n)) => Some(n),
+        Some(Err(_)) => return Err(RanksError::Malformed("iteration limit out of range")),
+    };
+    let request = SolveRequest {
+        set: pairs(job.set).collect(),
+        tolerance: job.tolerance,
+        max_iterations,
+        scale,
+        record_fields: job.record_fields,
+        progress: None,
+        init_parameters: job.init_parameters.map(|p| pairs(p.values).collect()),
+    };
+    Ok(Message::Job {
+        scene_text: job.scene_text,
+        meshes: job.meshes.into_iter().map(|m| (m.file, m.bytes)).collect(),
+        request,
+        init_bytes: job.init_bytes,
+    })
 }
 
 #[cfg(test)]

@@ -1,0 +1,447 @@
+//! `glissade show`: one study in words (or JSON): its state, its audits' figures and its points.
+
+use anyhow::Result;
+use glissade_cli::names::{describe_parameters, order_name, point_state_name, strategy_name, study_state_name};
+use glissade_cli::outln;
+use glissade_core::scene::Scene;
+use glissade_proto::v1;
+
+use crate::{Server, get_study, user};
+
+pub(crate) async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<()> {
+    // the points always: the work line and the failures come from them (the scene: the QoIs' units)
+    let s = get_study(&mut user(server).await?, "show", study, true, true).await?;
+    if json {
+        let mut value = study_json(&s);
+        if points {
+            value["points"] = s.points.iter().map(point_json).collect();
+        }
+        outln!("{value}");
+        return Ok(());
+    }
+    describe(&s);
+    let p = s.progress.unwrap_or_default();
+    outln!(
+        "  progress  {} done, {} failed, {} running, {} pending{}; {} iterations in all",
+        p.done,
+        p.failed,
+        p.leased,
+        p.pending,
+        if p.cancelled > 0 { format!(", {} cancelled", p.cancelled) } else { String::new() },
+        p.iterations
+    );
+    work(&s);
+    if !points {
+        // why a point failed, without asking for every point
+        for point in s.points.iter().filter(|x| x.state == v1::PointState::Failed as i32) {
+            outln!("  failed    #{} {}: {}", point.point_id, describe_parameters(&point.parameters), point.error);
+        }
+        return Ok(());
+    }
+    point_lines(&s);
+    Ok(())
+}
+
+/// What the study is, how it was asked, and what its audits measured.
+fn describe(s: &v1::Study) {
+    let p = s.progress.unwrap_or_default();
+    outln!(
+        "study {}{}: {}",
+        s.study_id,
+        if s.label.is_empty() { String::new() } else { format!(" ({})", s.label) },
+        study_state_name(s.state)
+    );
+    outln!(
+        "  scene     {}{}",
+        if s.scene_title.is_empty() { String::new() } else { format!("{}, ", s.scene_title) },
+        s.scene_hash
+    );
+    outln!(
+        "  kind      {}, submitted {}{}",
+        s.kind,
+        glissade_core::text::utc_minute(s.created_unix_ms),
+        if s.finished_unix_ms > 0 {
+            format!(
+                ", finished {} (wall time {})",
+                glissade_core::text::utc_minute(s.finished_unix_ms),
+                glissade_core::text::wall_time((s.finished_unix_ms - s.created_unix_ms) as f64 / 1e3)
+            )
+        } else {
+            String::new()
+        }
+    );
+    outln!(
+        "  sweep     {} ({} points), strategy {}, order {}",
+        s.parameters.join(", "),
+        p.total,
+        strategy_name(s.strategy),
+        order_name(s.order)
+    );
+    outln!("  tolerance {:.1e}, at most {} iterations", s.tolerance, s.max_iterations);
+    if s.refines != 0 {
+        let what = if s.refines_mesh { "the mesh h" } else { "the time step" };
+        outln!("  refines   study {} (its points re-solved with {what} / {})", s.refines, s.refine_factor);
+    } else if s.held_out {
+        outln!(
+            "  audits    study {} (points held out of its surface, solved cold at this tighter tolerance)",
+            s.audit_of
+        );
+    } else if s.audit_of != 0 {
+        outln!("  audits    study {} (its points re-solved cold at this tighter tolerance)", s.audit_of);
+    }
+    if let Some(t) = &s.target {
+        outln!("  target    {}", target_line(t, s.surface_accuracy.as_ref()));
+    }
+    if let Some(a) = &s.accuracy {
+        outln!("  accuracy  {}", accuracy_line(a));
+    }
+    if let Some(a) = &s.surface_accuracy {
+        outln!("  surface   {}", surface_accuracy_line(a));
+    }
+    if let Some(d) = &s.discretisation {
+        outln!("  dt error  {}", discretisation_line(d));
+        if let Some(mesh) = mesh_line(d) {
+            outln!("  h error   {mesh}");
+        }
+        if let Some(verdict) = s.accuracy.as_ref().and_then(|a| dominant(a, d)) {
+            outln!("            {verdict}");
+        }
+    }
+}
+
+/// Cold against warm in work (dynamic iterations + static iterations / steps).
+fn work(s: &v1::Study) {
+    let mean = |warm: bool| {
+        let w: Vec<f64> = s
+            .points
+            .iter()
+            .filter(|x| x.state == v1::PointState::Done as i32 && !x.answered && x.started_from.is_some() == warm)
+            .map(|x| x.work)
+            .collect();
+        (!w.is_empty())
+            .then(|| glissade_core::study::WorkMean { work: w.iter().sum::<f64>() / w.len() as f64, points: w.len() })
+    };
+    let answered = s.points.iter().filter(|x| x.answered).count();
+    let work = match (mean(false), mean(true)) {
+        (Some(cold), Some(warm)) => Some(glissade_core::study::warm_against_cold(cold, warm)),
+        (Some(m), None) | (None, Some(m)) => Some(format!(
+            "{:.1} per point, every point solved {} ({} points)",
+            m.work,
+            if mean(false).is_some() { "cold" } else { "warm" },
+            m.points
+        )),
+        (None, None) => None,
+    };
+    match work {
+        Some(work) => outln!(
+            "  work      {work}{} (work: dynamic iterations + static iterations / time steps)",
+            if answered > 0 { format!("; {answered} answered from stored solutions") } else { String::new() }
+        ),
+        None if answered > 0 => outln!("  work      none: {answered} points answered from stored solutions"),
+        None => {}
+    }
+}
+
+/// One line a point: its parameters, state, iterations, eta, QoIs and where it started from.
+fn point_lines(s: &v1::Study) {
+    // QoIs below what the solves resolve read 0 (`--json` keeps them)
+    let scene = Scene::parse(&s.scene).ok();
+    let resolution = glissade_core::study::resolutions(s.tolerance, s.points.iter().map(|p| &p.qoi), |q| {
+        Some(scene.as_ref()?.unit(q)?.to_owned())
+    });
+    for point in &s.points {
+        let qoi: Vec<String> = point
+            .qoi
+            .iter()
+            .map(|(k, &v)| format!("{k}={:.6e}", glissade_core::study::shown(v, resolution[k])))
+            .collect();
+        let from = match &point.started_from {
+            _ if point.answered => "answered from a stored solution".to_owned(),
+            Some(f) => format!("from {}", describe_parameters(&f.parameters)),
+            None if point.state == v1::PointState::Done as i32 => "cold".to_owned(),
+            None => String::new(),
+        };
+        outln!(
+            "  #{:<4} {:<28} {:<9} {:>5} it  work {:>6.1}  eta {:.2e}  {}  {}{}",
+            point.point_id,
+            describe_parameters(&point.parameters),
+            point_state_name(point.state),
+            point.iterations,
+            point.work,
+            point.error_indicator,
+            qoi.join(" "),
+            from,
+            if point.error.is_empty() { String::new() } else { format!("  [{}]", point.error) }
+        );
+    }
+}
+
+pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
+    let p = s.progress.unwrap_or_default();
+    serde_json::json!({
+        "study_id": s.study_id,
+        "label": s.label,
+        "scene_hash": s.scene_hash,
+        "state": study_state_name(s.state),
+        "strategy": strategy_name(s.strategy),
+        "order": order_name(s.order),
+        "tolerance": s.tolerance,
+        "max_iterations": s.max_iterations,
+        "parameters": s.parameters,
+        "progress": {
+            "total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
+            "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations,
+        },
+        "created_unix_ms": s.created_unix_ms,
+        "finished_unix_ms": (s.finished_unix_ms > 0).then_some(s.finished_unix_ms),
+        "kind": s.kind,
+        "scene_title": s.scene_title,
+        "audit_of": (s.audit_of != 0).then_some(s.audit_of),
+        "accuracy": s.accuracy.as_ref().map(|a| serde_json::json!({
+            "audit_study_id": a.audit_study_id,
+            "tolerance": a.tolerance,
+            "audited": a.audited,
+            "planned": a.planned,
+            "work": a.work,
+            "work_cap": a.work_cap,
+            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({"largest": e.largest, "mean": e.mean})))
+                .collect::<serde_json::Map<_, _>>(),
+        })),
+        "refines": (s.refines != 0).then(|| serde_json::json!({"study_id": s.refines, "factor": s.refine_factor})),
+        "held_out": s.held_out,
+        "target": s.target.as_ref().map(|t| serde_json::json!({
+            "surface_accuracy": t.surface_accuracy,
+            "budget": t.budget,
+            "outcome": (!t.outcome.is_empty()).then_some(&t.outcome),
+            "points": t.points,
+            "refused": t.refused,
+            "qoi": t.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
+                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.points,
+            }))).collect::<serde_json::Map<_, _>>(),
+        })),
+        "surface_accuracy": s.surface_accuracy.as_ref().map(|a| serde_json::json!({
+            "audit_study_id": a.audit_study_id,
+            "tolerance": a.tolerance,
+            "validated": a.validated,
+            "planned": a.planned,
+            "fitted": a.fitted,
+            "work": a.work,
+            "work_cap": a.work_cap,
+            "refused": a.refused,
+            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
+                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.points,
+            }))).collect::<serde_json::Map<_, _>>(),
+        })),
+        "discretisation": s.discretisation.as_ref().map(|d| serde_json::json!({
+            "level_study_ids": d.level_study_ids,
+            "factors": d.factors,
+            "audited": d.audited,
+            "planned": d.planned,
+            "work_seconds": d.work_seconds,
+            "study_seconds": d.study_seconds,
+            "qoi": d.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
+                "change": e.change, "error": e.error, "order": (e.order > 0.0).then_some(e.order),
+                "order_assumed": e.order_assumed, "erratic": e.erratic, "below_tolerance": e.below_tolerance,
+                "mesh": e.mesh_change.map(|change| serde_json::json!({
+                    "change": change, "error": e.mesh_error, "below_tolerance": e.mesh_below_tolerance,
+                })),
+            }))).collect::<serde_json::Map<_, _>>(),
+            "mesh": (d.mesh_study_id != 0).then(|| serde_json::json!({
+                "study_id": d.mesh_study_id, "factor": d.mesh_factor, "audited": d.mesh_audited,
+                "work_seconds": d.mesh_work_seconds,
+            })),
+        })),
+    })
+}
+
+pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
+    serde_json::json!({
+        "point_id": p.point_id,
+        "parameters": p.parameters,
+        "state": point_state_name(p.state),
+        "attempts": p.attempts,
+        "pool_id": p.pool_id,
+        "iterations": p.iterations,
+        "work": p.work,
+        "error_indicator": p.error_indicator,
+        "qoi": p.qoi,
+        "answered": p.answered,
+        "wall_seconds": p.wall_seconds,
+        "started_from": p.started_from.as_ref().map(|s| serde_json::json!({
+            "scene_hash": s.scene_hash,
+            "parameters": s.parameters,
+            "study_id": s.study_id,
+            "point_id": s.point_id,
+        })),
+        "error": if p.error.is_empty() { None } else { Some(&p.error) },
+    })
+}
+
+/// `2 of 2 points re-solved cold at 1e-5 (study 2): slip_A largest 3.1e-4 mean 1.2e-4, ...`
+pub(crate) fn accuracy_line(a: &v1::StudyAccuracy) -> String {
+    let errors: Vec<String> =
+        a.qoi.iter().map(|(q, e)| format!("{q} largest {:.1e} mean {:.1e}", e.largest, e.mean)).collect();
+    let cost = if a.work_cap > 0.0 {
+        format!("; it cost {:.0} work of its cap {:.0}", a.work, a.work_cap)
+    } else {
+        String::new()
+    };
+    format!(
+        "{} of {} points re-solved cold at {:.0e} (study {}){}{}{cost}",
+        a.audited,
+        a.planned,
+        a.tolerance,
+        a.audit_study_id,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    )
+}
+
+/// `7 of 7 held-out points solved cold at 2e-6 (study 4) against the surface of 121 points:
+/// slip_A largest 1.3e-1 mean 5.0e-3 within 2 sd 86 %, ...`; errors relative to each QoI's spread.
+pub(crate) fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
+    let mut parts: Vec<String> = a
+        .qoi
+        .iter()
+        .map(|(q, e)| {
+            format!("{q} largest {:.1e} mean {:.1e} within 2 sd {:.0} %", e.largest, e.mean, e.within_2sd * 100.0)
+        })
+        .collect();
+    parts.extend(
+        a.refused
+            .iter()
+            .map(|(q, why)| format!("{} not predicted: {why}", if q.is_empty() { "the surface" } else { q })),
+    );
+    let cost = if a.work_cap > 0.0 {
+        format!("; it cost {:.0} work of its cap {:.0}", a.work, a.work_cap)
+    } else {
+        String::new()
+    };
+    format!(
+        "{} of {} held-out points solved cold at {:.0e} (study {}) against the surface of {} points{}{}{cost}",
+        a.validated,
+        a.planned,
+        a.tolerance,
+        a.audit_study_id,
+        a.fitted,
+        if parts.is_empty() { "" } else { ": " },
+        parts.join(", ")
+    )
+}
+
+/// `surface accuracy 2.0e-2 (mean error / spread, cross-validated): reached at 34 points of
+/// 100: slip_A mean 1.2e-2 largest 8.1e-2, ...`, then what the held-out points measured against
+/// the target where they did.
+pub(crate) fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAccuracy>) -> String {
+    let errors: Vec<String> = t
+        .qoi
+        .iter()
+        .map(|(q, e)| {
+            let above = if e.mean > t.surface_accuracy { " (ABOVE)" } else { "" };
+            format!("{q} mean {:.1e}{above} largest {:.1e}", e.mean, e.largest)
+        })
+        .chain(t.refused.iter().map(|(q, why)| format!("{q} not fitted: {why}")))
+        .collect();
+    let verdict = match t.outcome.as_str() {
+        "reached" => format!("REACHED at {} points (budget {})", t.points, t.budget),
+        "budget" => format!("NOT REACHED: the budget of {} points was spent; at {} points", t.budget, t.points),
+        _ => format!("not decided yet (budget {})", t.budget),
+    };
+    let mut line = format!(
+        "surface accuracy {:.1e} (mean error / spread, cross-validated): {verdict}{}{}",
+        t.surface_accuracy,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    );
+    if let Some(h) = held.filter(|h| h.validated > 0) {
+        let above: Vec<String> = h
+            .qoi
+            .iter()
+            .filter(|(_, e)| e.mean > t.surface_accuracy)
+            .map(|(q, e)| format!("{q} {:.1e}", e.mean))
+            .collect();
+        line.push_str(&if above.is_empty() {
+            format!("; the {} held-out points confirm it (every mean within the target)", h.validated)
+        } else {
+            format!("; the {} held-out points measure means ABOVE the target: {}", h.validated, above.join(", "))
+        });
+    }
+    line
+}
+
+/// `2 of 2 points re-solved at dt / 2 (study 3; 4.1 s, 0.8 x the study's 5.0 s): slip_A change
+/// 3.2e-2 error ~4.3e-2 (order 2 assumed), ...`
+pub(crate) fn discretisation_line(d: &v1::StudyDiscretisation) -> String {
+    let errors: Vec<String> = d
+        .qoi
+        .iter()
+        .map(|(q, e)| {
+            let how = if e.erratic > 0 {
+                format!(" (ERRATIC at {} point(s): an event moves with the step; no extrapolation)", e.erratic)
+            } else if e.below_tolerance {
+                " (below the iterations' noise)".to_string()
+            } else if e.order_assumed {
+                " (order 2 assumed)".to_string()
+            } else {
+                format!(" (observed order {:.2})", e.order)
+            };
+            format!("{q} change {:.1e} error ~{:.1e}{how}", e.change, e.error)
+        })
+        .collect();
+    let levels: Vec<String> = d.factors.iter().map(|f| format!("dt / {f}")).collect();
+    let studies: Vec<String> = d.level_study_ids.iter().map(|s| s.to_string()).collect();
+    format!(
+        "{} of {} points re-solved at {} (study {}; {:.1} s, {:.2} x the study's {:.1} s){}{}",
+        d.audited,
+        d.planned,
+        levels.join(" and "),
+        studies.join(", "),
+        d.work_seconds,
+        if d.study_seconds > 0.0 { d.work_seconds / d.study_seconds } else { 0.0 },
+        d.study_seconds,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    )
+}
+
+/// The mesh level's line: per QoI the change at h / 2 and the estimated error (None: no mesh
+/// level).
+pub(crate) fn mesh_line(d: &v1::StudyDiscretisation) -> Option<String> {
+    (d.mesh_study_id != 0).then_some(())?;
+    let errors: Vec<String> = d
+        .qoi
+        .iter()
+        .filter_map(|(q, e)| {
+            let how = if e.mesh_below_tolerance { " (below the iterations' noise)" } else { " (order 2 assumed)" };
+            Some(format!("{q} change {:.1e} error ~{:.1e}{how}", e.mesh_change?, e.mesh_error?))
+        })
+        .collect();
+    Some(format!(
+        "{} of {} points re-solved cold at h / {} (study {}; {:.1} s, {:.2} x the study's {:.1} s){}{}",
+        d.mesh_audited,
+        d.planned,
+        d.mesh_factor,
+        d.mesh_study_id,
+        d.mesh_work_seconds,
+        if d.study_seconds > 0.0 { d.mesh_work_seconds / d.study_seconds } else { 0.0 },
+        d.study_seconds,
+        if errors.is_empty() { "" } else { ": " },
+        errors.join(", ")
+    ))
+}
+
+/// Which of the errors dominates, by the largest over the QoIs of each (None until the
+/// iterations' and the time step's measured something; the mesh's where it did).
+pub(crate) fn dominant(a: &v1::StudyAccuracy, d: &v1::StudyDiscretisation) -> Option<String> {
+    let largest = |v: &mut dyn Iterator<Item = f64>| v.fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
+    let mut errors = vec![
+        ("the iterations'", largest(&mut a.qoi.values().map(|e| e.largest))?),
+        ("the time step's", largest(&mut d.qoi.values().map(|e| e.error))?),
+    ];
+    if let Some(mesh) = largest(&mut d.qoi.values().filter_map(|e| e.mesh_error)) {
+        errors.push(("the mesh's", mesh));
+    }
+    errors.sort_by(|x, y| y.1.total_cmp(&x.1));
+    let others: Vec<String> = errors[1..].iter().map(|(who, e)| format!("{who} ({e:.1e})")).collect();
+    Some(format!("{} error (~{:.1e}) dominates {}", errors[0].0, errors[0].1, others.join(" and ")))
+}

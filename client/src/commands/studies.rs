@@ -1,0 +1,95 @@
+//! `glissade studies`, `cancel` and `retry`: the list of studies, and what a user changes of one.
+
+use anyhow::Result;
+use glissade_cli::names::{strategy_name, study_state_name};
+use glissade_cli::outln;
+use glissade_proto::v1;
+
+use super::show::study_json;
+use crate::{Server, refused, user};
+
+pub(crate) async fn studies(server: &Server, json: bool) -> Result<()> {
+    let list = user(server)
+        .await?
+        .list_studies(v1::ListStudiesRequest {})
+        .await
+        .map_err(|s| refused("list studies", s))?
+        .into_inner()
+        .studies;
+    if json {
+        outln!("{}", serde_json::Value::Array(list.iter().map(study_json).collect()));
+        return Ok(());
+    }
+    if list.is_empty() {
+        outln!("no studies yet (glissade submit SCENE --grid ...)");
+        return Ok(());
+    }
+    outln!(
+        "{:>5}  {:<8}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8}  {:<20}  {:>8}  scene / label",
+        "id",
+        "kind",
+        "state",
+        "done/total",
+        "strategy",
+        "parameters",
+        "tol",
+        "submitted",
+        "wall"
+    );
+    for s in &list {
+        let p = s.progress.unwrap_or_default();
+        let wall = if s.finished_unix_ms > 0 {
+            glissade_core::text::wall_time((s.finished_unix_ms - s.created_unix_ms) as f64 / 1e3)
+        } else {
+            "-".to_owned()
+        };
+        let title =
+            [s.scene_title.as_str(), s.label.as_str()].iter().filter(|t| !t.is_empty()).cloned().collect::<Vec<_>>();
+        outln!(
+            "{:>5}  {:<8}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8.1e}  {:<20}  {:>8}  {}",
+            s.study_id,
+            s.kind,
+            study_state_name(s.state),
+            format!("{}/{}", p.done, p.total),
+            strategy_name(s.strategy),
+            s.parameters.join(","),
+            s.tolerance,
+            glissade_core::text::utc_minute(s.created_unix_ms),
+            wall,
+            title.join(" / ")
+        );
+    }
+    Ok(())
+}
+
+pub(crate) async fn cancel(server: &Server, id: u64) -> Result<()> {
+    let s = user(server)
+        .await?
+        .cancel_study(v1::CancelStudyRequest { study_id: id })
+        .await
+        .map_err(|s| refused(&format!("cancel {id}"), s))?
+        .into_inner();
+    let p = s.progress.unwrap_or_default();
+    outln!(
+        "study {id} {}: {} done, {} cancelled, {} still running",
+        study_state_name(s.state),
+        p.done,
+        p.cancelled,
+        p.leased
+    );
+    Ok(())
+}
+
+pub(crate) async fn retry(server: &Server, id: u64) -> Result<()> {
+    let r = user(server)
+        .await?
+        .retry_failed(v1::RetryFailedRequest { study_id: id })
+        .await
+        .map_err(|s| refused(&format!("retry {id}"), s))?
+        .into_inner();
+    outln!("study {id}: {} failed points back in the queue", r.requeued);
+    if r.kept > 0 {
+        outln!("{} failed points kept: their failure can only repeat ({})", r.kept, r.kept_because);
+    }
+    Ok(())
+}

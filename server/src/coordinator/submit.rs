@@ -1,0 +1,433 @@
+//! A submission's way in: every check made before the coordinator's lock ([`Admitted`]), then
+//! under it the study's records and its audits' written in one batch and entered in the state.
+
+use glissade_core::scene::{MeshFileError, Scene, SceneError, Tolerance, mesh_digest};
+use glissade_core::study::adaptive::{AdaptiveDesign, TARGET_BUDGET, check_target, point_tolerance};
+use glissade_core::study::space::ParameterSpace;
+use glissade_core::study::strategy::InitStrategy;
+use glissade_core::text::one_line;
+use glissade_proto::{ParameterVector, PointId, StudyId};
+
+use super::discretisation::{self, Level};
+use super::{
+    CoordError, Coordinator, EventKind, State, StudyEntry, Submission, cold_audit_record, default_audit_points,
+    default_surface_audit_points, held_out, now_unix_ms,
+};
+use crate::records::{
+    self, AdaptiveSpec, MeshRef, NEXT_STUDY_KEY, PointRecord, PointState, StudyRecord, encode, point_key, study_key,
+};
+use crate::store::{Batch, Tree};
+use crate::study::{SceneSolutions, StudyPlan};
+
+/// A study's swept parameter names, its points (none yet for an adaptive study) and its
+/// adaptive spec.
+type Design = (Vec<String>, Vec<ParameterVector>, Option<AdaptiveSpec>);
+
+/// A submission that passed every check: what [`Coordinator::submit`] stores.
+struct Admitted {
+    /// parsed, its meshes attached
+    scene: Scene,
+    scene_hash: String,
+    tolerance: f64,
+    max_iterations: u32,
+    names: Vec<String>,
+    points: Vec<ParameterVector>,
+    adaptive: Option<AdaptiveSpec>,
+    /// (digest, compressed bytes) of the meshes not stored yet
+    new_meshes: Vec<(String, Vec<u8>)>,
+    audit_points: usize,
+    /// points of each refined level
+    refine_points: usize,
+    refined: Vec<Level>,
+    held_out_points: usize,
+}
+
+impl Coordinator {
+    /// Stores a study and queues its points.
+    pub fn submit(&self, mut submission: Submission) -> Result<(StudyId, u32, String), CoordError> {
+        let mut admitted = self.admit(&mut submission)?;
+        let mut state = self.lock();
+        self.check_room(&state, &admitted)?;
+        let studies = admitted.records(submission, StudyId(state.next_study), now_unix_ms());
+        let next = studies.last().expect("the study itself").0.id.0 + 1;
+        self.store_studies(&admitted, &studies, next)?;
+        state.next_study = next;
+        let id = studies[0].0.id;
+        // an adaptive study's points are chosen as it runs: its budget
+        let n = studies[0].0.adaptive.as_ref().map_or(studies[0].1.len() as u32, |a| a.budget);
+        for (record, points) in studies {
+            self.enter_study(&mut state, &admitted, record, points)?;
+        }
+        drop(state);
+        self.work.notify_waiters();
+        Ok((id, n, admitted.scene_hash))
+    }
+
+    /// Every check of a submission, made before the lock: its scene with its meshes, its
+    /// numbers, its points and its audits. Takes the mesh uploads out of `submission`.
+    fn admit(&self, submission: &mut Submission) -> Result<Admitted, CoordError> {
+        let scene = self.admit_scene(submission)?;
+        let scene_hash = scene.content_hash();
+        // an adaptive study with a target solves its points to the tolerance the target needs,
+        // unless told (core::study::adaptive::point_tolerance)
+        if let Some(target) = submission.surface_accuracy {
+            check_target(target).map_err(CoordError::Invalid)?;
+            if submission.adaptive.is_none() {
+                return Err(CoordError::Invalid(
+                    "surface_accuracy: a target is for an adaptive study: give its ranges (NAME=LOW:HIGH)".into(),
+                ));
+            }
+        }
+        // (a submission's own tolerance was checked as it entered: convert.rs)
+        let derived = match (submission.tolerance, submission.surface_accuracy) {
+            (None, Some(target)) => Some(
+                Tolerance::new("surface_accuracy", point_tolerance(target))
+                    .map_err(|e| CoordError::Invalid(e.to_string()))?,
+            ),
+            _ => None,
+        };
+        let tolerance = Tolerance::or_scene(submission.tolerance.or(derived), &scene);
+        let max_iterations = match submission.max_iterations {
+            Some(n) => glissade_core::scene::check_max_iterations("max_iterations", n.into())
+                .map_err(|e| CoordError::Invalid(e.to_string()))? as u32,
+            // (the scene's was checked as it parsed)
+            None => scene.solver.max_iterations as u32,
+        };
+        let (names, points, adaptive) = self.design(submission, &scene)?;
+        if submission.strategy != InitStrategy::Cold {
+            // The index refuses scenes of too many parameters: say so now, not at the first lease.
+            SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
+                .map_err(|e| CoordError::Invalid(format!("strategy {}: {e}", submission.strategy.name())))?;
+        }
+        let new_meshes = self.new_meshes(&scene)?;
+        // (an adaptive study's points are not known yet: it has no audit)
+        let audit_points = match submission.audit_points {
+            None => default_audit_points(points.len()),
+            Some(n) => (n as usize).min(points.len()),
+        };
+        // the discretisation audit: its refined scenes written and checked now
+        let (refine_points, refined) =
+            discretisation::plan(submission, &scene, points.len(), self.config.max_scene_bytes)?;
+        // the surface audit: points held out of the study's response surface
+        let study_points = adaptive.as_ref().map_or(points.len(), |a| a.budget as usize);
+        let held_out_points = match submission.surface_audit_points {
+            None => default_surface_audit_points(study_points),
+            Some(0) => 0,
+            Some(_) if study_points > glissade_core::study::surrogate::MAX_POINTS => {
+                return Err(CoordError::Invalid(format!(
+                    "surface_audit_points: a response surface is fitted to at most {} points, this study has {study_points}",
+                    glissade_core::study::surrogate::MAX_POINTS
+                )));
+            }
+            Some(n) => (n as usize).min(study_points),
+        };
+        Ok(Admitted {
+            scene,
+            scene_hash,
+            tolerance,
+            max_iterations,
+            names,
+            points,
+            adaptive,
+            new_meshes,
+            audit_points,
+            refine_points,
+            refined,
+            held_out_points,
+        })
+    }
+
+    /// The submission's scene parsed, with its mesh files (each as announced, exactly those
+    /// named, bounded: core's one rule) and within the coordinator's size.
+    fn admit_scene(&self, submission: &mut Submission) -> Result<Scene, CoordError> {
+        let mut scene = Scene::parse(&submission.scene_text)
+            .map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
+        for m in &submission.meshes {
+            let actual = mesh_digest(&m.data);
+            if !m.sha256.is_empty() && m.sha256 != actual {
+                let e = MeshFileError::DigestMismatch { file: m.file.clone(), expected: m.sha256.clone(), actual };
+                return Err(CoordError::Invalid(format!("meshes: {}", one_line(&e.to_string()))));
+            }
+        }
+        let uploads = std::mem::take(&mut submission.meshes);
+        scene
+            .attach_mesh_bytes(uploads.into_iter().map(|m| (m.file, m.data)))
+            .map_err(|e| CoordError::Invalid(format!("meshes: {}", one_line(&e.to_string()))))?;
+        let size = scene.size().map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
+        if size.bytes() > self.config.max_scene_bytes {
+            return Err(CoordError::Invalid(format!(
+                "scene: a solve would need about {} MiB ({} dofs, {} steps, estimated from the text and meshes), more than the {} MiB accepted (glissade-server --max-scene-mib)",
+                size.bytes() >> 20,
+                size.dofs,
+                size.steps,
+                self.config.max_scene_bytes >> 20
+            )));
+        }
+        // What a pool checks before it solves, checked now (core::check): its message, at once.
+        scene.check_meshes().map_err(scene_refused)?;
+        Ok(scene)
+    }
+
+    /// The study's swept names and points (none yet for an adaptive study, whose spec comes
+    /// back instead), each point checked as a pool will check it.
+    fn design(&self, submission: &Submission, scene: &Scene) -> Result<Design, CoordError> {
+        let (names, points, adaptive) = match &submission.adaptive {
+            None => {
+                let (names, points) =
+                    crate::study::expand(scene, &submission.grid, &submission.points, self.config.max_points)
+                        .map_err(CoordError::Invalid)?;
+                (names, points, None)
+            }
+            Some(_) if !submission.grid.is_empty() || !submission.points.is_empty() => {
+                return Err(CoordError::Invalid("an adaptive study takes ranges, not a grid or points".into()));
+            }
+            Some((ranges, budget)) => {
+                let space = ParameterSpace::from_scene(scene);
+                let target = submission.surface_accuracy;
+                let budget = match (*budget, target) {
+                    (0, Some(_)) => TARGET_BUDGET.min(self.config.max_points) as u32,
+                    (n, _) => n,
+                };
+                let design = AdaptiveDesign::parse(ranges, budget as usize, target, &space, self.config.max_points)
+                    .map_err(CoordError::Invalid)?;
+                let names = design.ranges.iter().map(|(n, ..)| n.clone()).collect();
+                (names, Vec::new(), Some(AdaptiveSpec { ranges: design.ranges, budget, target, outcome: None }))
+            }
+        };
+        for (i, point) in points.iter().enumerate() {
+            check_point(scene, point).map_err(|e| {
+                CoordError::Invalid(format!("scene at point {i} ({}): {}", point_text(point), one_line(&e.to_string())))
+            })?;
+        }
+        if let Some(a) = &adaptive {
+            // an adaptive study's points are not known yet: every corner of its box
+            for corner in 0..1usize << a.ranges.len().min(12) {
+                let set: Vec<(String, f64)> = a
+                    .ranges
+                    .iter()
+                    .enumerate()
+                    .map(|(k, (n, lo, hi))| (n.clone(), if (corner >> k) & 1 == 1 { *hi } else { *lo }))
+                    .collect();
+                let values = scene.parameter_values(&set).map_err(scene_refused)?;
+                scene.check_point(&values).map_err(scene_refused)?;
+            }
+        }
+        Ok((names, points, adaptive))
+    }
+
+    /// The scene's mesh files not stored yet, compressed. Content-addressed: a mesh already
+    /// stored (another study's) is not stored again (two submissions racing store the same bytes
+    /// twice under one key: harmless). Compressed before the lock: it is the costly part.
+    fn new_meshes(&self, scene: &Scene) -> Result<Vec<(String, Vec<u8>)>, CoordError> {
+        let mut new_meshes = Vec::new();
+        for (file, digest) in &scene.mesh_digests {
+            if self.store.get(Tree::Meshes, digest.as_bytes())?.is_none() {
+                let compressed = records::encode_fields(&scene.meshes[file])
+                    .map_err(|e| CoordError::Invalid(format!("compressing mesh {file}: {e}")))?;
+                new_meshes.push((digest.clone(), compressed));
+            }
+        }
+        Ok(new_meshes)
+    }
+
+    /// Every user's pending points together (there is one user token) stay bounded.
+    fn check_room(&self, state: &State, admitted: &Admitted) -> Result<(), CoordError> {
+        let pending: usize = state.studies.values().map(|e| e.progress().pending as usize).sum();
+        let adding = admitted.adding();
+        if pending + adding > self.config.max_pending {
+            return Err(CoordError::Exhausted(format!(
+                "this study would add {adding} points to the {pending} pending, more than the {} the coordinator holds (glissade-server --max-pending): wait for studies to finish, or cancel some",
+                self.config.max_pending
+            )));
+        }
+        Ok(())
+    }
+
+    /// One batch: the scenes and meshes not stored yet, every study with its points, the next id.
+    fn store_studies(
+        &self,
+        admitted: &Admitted,
+        studies: &[(StudyRecord, Vec<PointRecord>)],
+        next: u64,
+    ) -> Result<(), CoordError> {
+        let mut batch = Batch::new();
+        let record = &studies[0].0;
+        if self.store.get(Tree::Scenes, admitted.scene_hash.as_bytes())?.is_none() {
+            batch.put(Tree::Scenes, admitted.scene_hash.as_bytes(), record.scene.as_bytes());
+        }
+        for level in &admitted.refined {
+            if self.store.get(Tree::Scenes, level.hash.as_bytes())?.is_none() {
+                batch.put(Tree::Scenes, level.hash.as_bytes(), level.text.as_bytes());
+            }
+        }
+        for (digest, compressed) in &admitted.new_meshes {
+            batch.put(Tree::Meshes, digest.as_bytes(), compressed.clone());
+        }
+        for (r, ps) in studies {
+            batch.put(Tree::Studies, study_key(r.id), encode(r));
+            for p in ps {
+                batch.put(Tree::Points, point_key(r.id, p.id), encode(p));
+            }
+        }
+        batch.put(Tree::Meta, NEXT_STUDY_KEY, next.to_be_bytes());
+        self.store.commit(batch)?;
+        Ok(())
+    }
+
+    /// A stored study in the coordinator's state, with its plan and its scene's index.
+    fn enter_study(
+        &self,
+        state: &mut State,
+        admitted: &Admitted,
+        record: StudyRecord,
+        points: Vec<PointRecord>,
+    ) -> Result<(), CoordError> {
+        // (a discretisation audit's level has its own, refined scene)
+        let scene = admitted.refined.iter().find(|l| l.hash == record.scene_hash).map_or(&admitted.scene, |l| &l.scene);
+        let plan = StudyPlan::new(scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        if !state.by_scene.contains_key(&record.scene_hash) {
+            // None for a scene of too many parameters: its studies are cold (checked at submit).
+            if let Ok(index) = SceneSolutions::new(record.scene_hash.clone(), plan.space().clone(), self.store.clone())
+            {
+                state.by_scene.insert(record.scene_hash.clone(), index);
+            }
+        }
+        let entry = StudyEntry { record, points, plan };
+        tracing::info!(study = %entry.record.id, points = entry.points.len(), scene = %admitted.scene_hash, audit_of = ?entry.record.audit_of, "study submitted");
+        self.emit(EventKind::Snapshot, &entry, None);
+        let id = entry.record.id;
+        state.studies.insert(id, entry);
+        // stored answers need no pool: a busy pool must not hold them up
+        self.answer_stored(state, id)
+    }
+}
+
+impl Admitted {
+    /// Points the study adds to the pending ones, its audits' included.
+    fn adding(&self) -> usize {
+        self.points.len()
+            + self.audit_points
+            + self.refine_points * self.refined.len()
+            + self.held_out_points
+            + self.adaptive.as_ref().map_or(0, |a| a.budget as usize)
+    }
+
+    /// The study's record with its pending points, then its audits' (ids from `id` on, in this
+    /// order: the iteration audit, the refined levels, the surface audit).
+    fn records(&mut self, submission: Submission, id: StudyId, created: i64) -> Vec<(StudyRecord, Vec<PointRecord>)> {
+        let audit_id = (self.audit_points > 0).then_some(StudyId(id.0 + 1));
+        let refined_ids: Vec<StudyId> =
+            (0..self.refined.len() as u64).map(|k| StudyId(id.0 + 1 + audit_id.is_some() as u64 + k)).collect();
+        let mut record = StudyRecord {
+            id,
+            label: submission.label,
+            scene_hash: self.scene_hash.clone(),
+            scene: submission.scene_text,
+            parameters: self.names.clone(),
+            tolerance: self.tolerance,
+            max_iterations: self.max_iterations,
+            strategy: submission.strategy,
+            order: submission.order,
+            created_unix_ms: created,
+            cancelled: false,
+            audit_of: None,
+            audit: audit_id,
+            adaptive: self.adaptive.clone(),
+            listed: !submission.points.is_empty(),
+            meshes: self
+                .scene
+                .meshes
+                .iter()
+                .map(|(file, bytes)| MeshRef {
+                    file: file.clone(),
+                    sha256: self.scene.mesh_digests[file].clone(),
+                    bytes: bytes.len() as u64,
+                })
+                .collect(),
+            refined_by: if self.refine_points > 0 { refined_ids.clone() } else { Vec::new() },
+            refines: None,
+            // set below, once the audits' records are written from this one
+            surface_audit: None,
+            held_out: None,
+        };
+        // The audit: points spread over the list, re-solved cold at a tighter tolerance.
+        let audit = audit_id.map(|audit_id| {
+            let chosen = discretisation::spread(&self.points, self.audit_points);
+            (cold_audit_record(&record, audit_id, format!("audit of study {id}")), pending(audit_id, chosen))
+        });
+        let refined_studies: Vec<(StudyRecord, Vec<PointRecord>)> = self
+            .refined
+            .iter()
+            .zip(&refined_ids)
+            .take(if self.refine_points > 0 { self.refined.len() } else { 0 })
+            .map(|(level, &rid)| {
+                (
+                    discretisation::record(&record, rid, level),
+                    pending(rid, discretisation::spread(&self.points, self.refine_points)),
+                )
+            })
+            .collect();
+        // The surface audit: points held out of the study's surface, solved as the audit's are.
+        let surface_audit = (self.held_out_points > 0)
+            .then(|| {
+                let sid = StudyId(id.0 + 1 + audit_id.is_some() as u64 + refined_studies.len() as u64);
+                let held = held_out::points(
+                    &record.parameters,
+                    &self.points,
+                    record.adaptive.as_ref(),
+                    self.held_out_points,
+                    id.0,
+                )
+                .into_iter()
+                // (the design's points passed this check; its box's may not everywhere)
+                .filter(|p| check_point(&self.scene, p).is_ok())
+                .collect();
+                let mut audit = cold_audit_record(&record, sid, format!("surface audit of study {id}"));
+                audit.held_out = Some(records::HeldOut::default());
+                (audit, pending(sid, held))
+            })
+            // (a box the design fills, a point with no swept parameter: nothing to hold out)
+            .filter(|(_, held)| !held.is_empty());
+        record.surface_audit = surface_audit.as_ref().map(|(r, _)| r.id);
+        let mut studies = vec![(record, pending(id, std::mem::take(&mut self.points)))];
+        studies.extend(audit);
+        studies.extend(refined_studies);
+        studies.extend(surface_audit);
+        studies
+    }
+}
+
+/// A study's points, pending.
+fn pending(study: StudyId, points: Vec<ParameterVector>) -> Vec<PointRecord> {
+    points
+        .into_iter()
+        .enumerate()
+        .map(|(i, parameters)| PointRecord {
+            study,
+            id: PointId(i as u64),
+            parameters,
+            state: PointState::Pending,
+            attempts: 0,
+            result: None,
+            error: None,
+            finished_seq: None,
+            finished_unix_ms: None,
+        })
+        .collect()
+}
+
+/// What a pool checks before it solves a point (core::check), checked at submit.
+fn check_point(scene: &Scene, point: &ParameterVector) -> Result<(), SceneError> {
+    let set: Vec<(String, f64)> = point.iter().map(|(n, v)| (n.to_owned(), v)).collect();
+    scene.check_point(&scene.parameter_values(&set)?)
+}
+
+/// `f1=0.1 f2=0.2`
+fn point_text(point: &ParameterVector) -> String {
+    point.iter().map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(" ")
+}
+
+/// A scene the checks refuse: its message, on one line.
+fn scene_refused(e: SceneError) -> CoordError {
+    CoordError::Invalid(format!("scene: {}", one_line(&e.to_string())))
+}
