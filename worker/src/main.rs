@@ -10,7 +10,8 @@ use serde::Serialize;
 
 use glissade_core::io::solution_file;
 use glissade_core::scene::{Scale, Scene, SceneError};
-use glissade_worker::comm::{Communicator, Mpi};
+use glissade_worker::comm::Communicator;
+use glissade_worker::mpi_comm::Mpi;
 use glissade_worker::io::fields;
 use glissade_worker::run::{SolveRequest, SolveSummary, solve_scene_on};
 

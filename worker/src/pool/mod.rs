@@ -37,6 +37,7 @@ use glissade_core::scene::{MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, S
 use glissade_core::study::engine::solve_or_retry_cold;
 
 pub mod delivery;
+#[cfg(feature = "mpi")]
 pub mod ranks;
 
 use delivery::{Delivery, Spool};

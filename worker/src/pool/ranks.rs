@@ -13,7 +13,8 @@ use mpi::point_to_point::{Destination, Source};
 use mpi::topology::Communicator as _;
 
 use super::{PointJob, PoolSolver};
-use crate::comm::{Communicator, Mpi};
+use crate::comm::Communicator;
+use crate::mpi_comm::Mpi;
 use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use glissade_core::io::solution_file;
 use glissade_core::scene::{Scale, Scene};
