@@ -6,8 +6,3 @@ pub mod io;
 #[cfg(feature = "mpi")]
 pub mod mpi_comm;
 pub mod pool;
-
-// Transitional: the solver's modules at their old paths, until the callers name glissade_solver.
-pub use glissade_solver::{
-    comm, element, explicit, gmsh, latin, mesh, model, monolithic, newmark, refine, run, search_direction, sparse,
-};

@@ -29,12 +29,12 @@ use tokio::sync::{oneshot, watch};
 use tonic::transport::Channel;
 use tonic::{Code, Status};
 
-use crate::comm::Serial;
-use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
 use glissade_core::scene::{MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, Scene, mesh_digest};
 use glissade_core::study::engine::solve_or_retry_cold;
+use glissade_solver::comm::Serial;
+use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 
 pub mod delivery;
 #[cfg(feature = "mpi")]
