@@ -841,14 +841,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             .collect();
         for iteration in 1..=stage.iteration_limit(m) {
             let t = Instant::now();
-            // `previous` holds every value once; only the window's change (a copy of the whole
-            // interval per iteration would cost O(steps) in a window's loop)
-            for ((f, p), at) in fields.iter().zip(it.previous.iter_mut()).zip(&at) {
-                for (side, old) in f.s.iter().zip(p.iter_mut()).filter(|(side, _)| !side.force.is_empty()) {
-                    old.force[at.clone()].copy_from_slice(&side.force[at.clone()]);
-                    old.velocity[at.clone()].copy_from_slice(&side.velocity[at.clone()]);
-                }
-            }
+            it.keep_previous(fields, &at);
             it.body.copy_from(&window.body);
             let body = &mut it.body;
             let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
@@ -877,16 +870,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             it.timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
             self.local_stage(stage, fields, window.steps.clone(), &window.bases, &mut it.bases);
-            // the last entry: a stop asked of any rank, summed with the errors so that all stop together
             let partial = &mut it.partial;
-            partial.clear();
-            partial.resize(2 * m.interfaces.len() + 1, 0.0);
-            for i in (0..m.interfaces.len()).filter(|&i| self.dist.owns_interface(i)) {
-                let (num, den) = interface_error(m, stage, i, &fields[i], window.steps.clone());
-                partial[2 * i] = num;
-                partial[2 * i + 1] = den;
-            }
-            partial[2 * m.interfaces.len()] = if progress.is_some_and(SolveProgress::stop_asked) { 1.0 } else { 0.0 };
+            let stop = progress.is_some_and(SolveProgress::stop_asked);
+            self.eta_parts(stage, fields, window.steps.clone(), stop, partial);
             let c = Instant::now();
             self.comm.sum_in_place(partial);
             if partial.pop().is_some_and(|stop| stop > 0.0) {
@@ -963,6 +949,27 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             errors: estimator.errors(),
             scales: estimator.scales().to_vec(),
         })
+    }
+
+    /// eta's numerator and denominator on every interface this rank owns (zeros elsewhere), then
+    /// the stop flag: a stop asked of any rank, summed with the errors so that all stop together.
+    fn eta_parts(
+        &self,
+        stage: Stage,
+        fields: &[InterfaceField],
+        steps: Range<usize>,
+        stop: bool,
+        parts: &mut Vec<f64>,
+    ) {
+        let m = self.model;
+        parts.clear();
+        parts.resize(2 * m.interfaces.len() + 1, 0.0);
+        for i in (0..m.interfaces.len()).filter(|&i| self.dist.owns_interface(i)) {
+            let (num, den) = interface_error(m, stage, i, &fields[i], steps.clone());
+            parts[2 * i] = num;
+            parts[2 * i + 1] = den;
+        }
+        parts[2 * m.interfaces.len()] = if stop { 1.0 } else { 0.0 };
     }
 
     /// Local stage over every interface and node, at the steps `steps`, from the gap rule's
@@ -1288,6 +1295,18 @@ struct Iterations<'r> {
 }
 
 impl<'r> Iterations<'r> {
+    /// Copies `fields`' `s` at the window's values `at` (per interface) into `previous`: it holds
+    /// every value once, and a copy of the whole interval per iteration would cost O(steps) in
+    /// a window's loop.
+    fn keep_previous(&mut self, fields: &[InterfaceField], at: &[Range<usize>]) {
+        for ((f, p), at) in fields.iter().zip(self.previous.iter_mut()).zip(at) {
+            for (side, old) in f.s.iter().zip(p.iter_mut()).filter(|(side, _)| !side.force.is_empty()) {
+                old.force[at.clone()].copy_from_slice(&side.force[at.clone()]);
+                old.velocity[at.clone()].copy_from_slice(&side.velocity[at.clone()]);
+            }
+        }
+    }
+
     fn new<const D: usize>(
         m: &Model<D>,
         fields: &[InterfaceField],
