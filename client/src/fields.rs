@@ -13,8 +13,8 @@ use glissade_core::study::space::{DesignPoint, ParameterSpace};
 use glissade_core::text::same_parameter;
 use glissade_proto::Assembler;
 use glissade_proto::v1;
+use glissade_solver::run::{SolveRequest, solve_scene};
 use glissade_worker::io::fields;
-use glissade_worker::run::{SolveRequest, solve_scene};
 
 use crate::{get_study, refused};
 use glissade_cli::names::describe_parameters;

@@ -18,7 +18,7 @@ use proptest::strategy::ValueTree;
 
 const TINY: &str = include_str!("../../scenes/three-blocks-tiny.toml");
 
-/// Two hexahedra in two physical volumes, MSH 4.1 ASCII (worker/src/gmsh.rs's test mesh).
+/// Two hexahedra in two physical volumes, MSH 4.1 ASCII (solver/src/gmsh.rs's test mesh).
 const TWO_HEXES: &str = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n\
 $PhysicalNames\n3\n2 1 \"left_end\"\n3 2 \"left\"\n3 3 \"right\"\n$EndPhysicalNames\n\
 $Entities\n0 0 1 2\n1 0 0 0 0 1 1 1 1 1 0\n\

@@ -10,9 +10,10 @@ use serde::Serialize;
 
 use glissade_core::io::solution_file;
 use glissade_core::scene::{Scale, Scene, SceneError};
-use glissade_worker::comm::{Communicator, Mpi};
+use glissade_solver::comm::Communicator;
+use glissade_solver::run::{SolveRequest, SolveSummary, solve_scene_on};
 use glissade_worker::io::fields;
-use glissade_worker::run::{SolveRequest, SolveSummary, solve_scene_on};
+use glissade_worker::mpi_comm::Mpi;
 
 mod study_cli;
 
@@ -37,7 +38,7 @@ Examples:
   glissade-worker solve scenes/bar-impact-1d.toml --fields out.h5   # then open out.xdmf in ParaView
 
 Exit status: 0 converged, 1 error (one line on stderr), 2 not converged within the iteration limit.
-Progress: RUST_LOG=glissade_worker=info (per solve) or =debug (per LATIN iteration).";
+Progress: RUST_LOG=glissade_worker=info (per solve) or glissade_solver=debug (per LATIN iteration).";
 
 #[derive(Subcommand)]
 enum Command {
@@ -97,7 +98,7 @@ struct RefineArgs {
 
 /// The refinement ladders of one design point, on this process.
 fn refine(args: RefineArgs) -> Result<bool> {
-    use glissade_worker::refine::{Refinement, check_factors, refined_scene, run_ladder};
+    use glissade_solver::refine::{Refinement, check_factors, refined_scene, run_ladder};
     let (scene, request) = args.point.read()?;
     let mut ladders = vec![(Refinement::Time, args.dt.clone())];
     if !args.h.is_empty() {
@@ -110,7 +111,7 @@ fn refine(args: RefineArgs) -> Result<bool> {
             refined_scene(&scene, *refinement, factor)?;
         }
     }
-    let comm = glissade_worker::comm::Serial;
+    let comm = glissade_solver::comm::Serial;
     let mut results = Vec::new();
     for (refinement, factors) in ladders {
         let what = match refinement {
@@ -506,7 +507,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
                 },
                 c.passes,
                 c.sweeps,
-                if c.outcome == glissade_worker::latin::CheckOutcome::Agreed { "agree" } else { "part" },
+                if c.outcome == glissade_solver::latin::CheckOutcome::Agreed { "agree" } else { "part" },
                 c.discrepancy,
                 c.qoi,
                 c.iteration_tolerance

@@ -13,7 +13,7 @@ use glissade_core::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, 
 use glissade_core::study::store::MemoryStore;
 use glissade_core::study::strategy::StrategyKind;
 use glissade_core::study::{PointRecord, StudyOptions, StudyResult, run_study};
-use glissade_worker::run::PointSolver;
+use glissade_solver::run::PointSolver;
 
 pub const STUDY_EXAMPLES: &str = "\
 Examples:

@@ -3,7 +3,7 @@
 
 use crate::common::*;
 
-/// Two tetrahedral blocks of `worker/tests/data/bar-tet.msh` glued, the top pressed by `p`.
+/// Two tetrahedral blocks of `solver/tests/data/bar-tet.msh` glued, the top pressed by `p`.
 const MESHED_BAR: &str = r#"
 dimension = 3
 [time]
@@ -46,7 +46,7 @@ component = "z"
 "#;
 
 fn mesh_bytes() -> Vec<u8> {
-    std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("../worker/tests/data/bar-tet.msh")).expect("test mesh")
+    std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("../solver/tests/data/bar-tet.msh")).expect("test mesh")
 }
 
 /// The scene and its mesh in `dir`: the path of the scene file.
@@ -117,7 +117,7 @@ fn a_meshed_scene_travels_with_its_files_and_survives_a_restart() -> anyhow::Res
     let other = dir.path().join("other");
     std::fs::create_dir(&other)?;
     std::fs::copy(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("../worker/tests/data/bar-hex.msh"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../solver/tests/data/bar-hex.msh"),
         other.join("bar.msh"),
     )?;
     assert_one_line_error(&fields(&["--meshes", other.to_str().unwrap()]), "are not the study's");

@@ -18,7 +18,7 @@ fn worker_warm_start_from_a_saved_solution_converges_within_two_windows() -> any
     assert_eq!(warm["scene_hash"], cold["scene_hash"]);
     let iterations = warm["iterations"].as_u64().unwrap();
     // the stopping test measures the contraction over two windows before it trusts a small change
-    let windows = 2 * glissade_worker::latin::stopping::WINDOW as u64 + 2;
+    let windows = 2 * glissade_solver::latin::stopping::WINDOW as u64 + 2;
     assert!(iterations <= windows, "warm start from the converged solution took {iterations} iterations");
 
     // Both runs satisfy the same tolerance, so their QoIs agree to about its size: allow 10x the

@@ -19,8 +19,8 @@ use std::path::{Path, PathBuf};
 
 use hdf5::types::VarLenUnicode;
 
-use crate::element::ElementKind;
-use crate::run::FieldOutput;
+use glissade_solver::element::ElementKind;
+use glissade_solver::run::FieldOutput;
 
 /// Errors of writing field output.
 #[derive(Debug, thiserror::Error)]
@@ -282,8 +282,8 @@ fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::latin::FieldHistory;
-    use crate::run::SubstructureMesh;
+    use glissade_solver::latin::FieldHistory;
+    use glissade_solver::run::SubstructureMesh;
 
     /// Two 2D substructures side by side, one quad each, sharing the nodes at x = 1.
     fn sample() -> FieldOutput {

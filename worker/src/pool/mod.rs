@@ -29,8 +29,6 @@ use tokio::sync::{oneshot, watch};
 use tonic::transport::Channel;
 use tonic::{Code, Status};
 
-use crate::comm::Serial;
-use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
 use glissade_core::scene::{
@@ -39,8 +37,11 @@ use glissade_core::scene::{
 };
 use glissade_core::study::engine::solve_or_retry_cold;
 use glissade_proto::ParameterVector;
+use glissade_solver::comm::Serial;
+use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 
 pub mod delivery;
+#[cfg(feature = "mpi")]
 pub mod ranks;
 
 use delivery::{Delivery, Spool};

@@ -13,10 +13,11 @@ use mpi::point_to_point::{Destination, Source};
 use mpi::topology::Communicator as _;
 
 use super::{PointJob, PoolSolver};
-use crate::comm::{Communicator, Mpi};
-use crate::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
+use crate::mpi_comm::Mpi;
 use glissade_core::io::solution_file;
 use glissade_core::scene::{Scale, Scene};
+use glissade_solver::comm::Communicator;
+use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 
 /// MPI tag of the job messages, apart from the solver's own messages.
 const JOB_TAG: i32 = 7001;

@@ -3,11 +3,11 @@
 //! Solves the neighbour Q cold, the point P at eta <= 1e-7 (reference) and at 2e-4 cold, then P
 //! warm-started from Q stopped after 2, 4, 6, ... iterations (each a fresh solve).
 //!
-//!   cargo run --release -p glissade-worker --example warm_trace -- SCENE Q_F1 Q_F2 P_F1 P_F2 QOI [MAX]
-//!   cargo run --release -p glissade-worker --example warm_trace -- scenes/three-blocks-tiny.toml 0.125 0.1 0.15 0.1 slip_A
+//!   cargo run --release -p glissade-solver --example warm_trace -- SCENE Q_F1 Q_F2 P_F1 P_F2 QOI [MAX]
+//!   cargo run --release -p glissade-solver --example warm_trace -- scenes/three-blocks-tiny.toml 0.125 0.1 0.15 0.1 slip_A
 
 use glissade_core::scene::Scene;
-use glissade_worker::run::{SolveRequest, solve_scene};
+use glissade_solver::run::{SolveRequest, solve_scene};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -25,7 +25,7 @@ fn main() {
         max_iterations,
         ..SolveRequest::default()
     };
-    let value = |o: &glissade_worker::run::SolveOutcome| o.summary.qoi[qoi].final_value;
+    let value = |o: &glissade_solver::run::SolveOutcome| o.summary.qoi[qoi].final_value;
     let neighbour = solve_scene(&scene, &request(q, 2e-4, None), None).expect("neighbour");
     let reference = value(&solve_scene(&scene, &request(p, 1e-7, None), None).expect("reference"));
     let cold = solve_scene(&scene, &request(p, 2e-4, None), None).expect("cold");

@@ -1,13 +1,13 @@
 //! The explicit reference (central differences, lumped mass, impulse contact with a wall:
-//! `glissade_worker::explicit`) against the LATIN solve of the same scene, QoI by QoI.
+//! `glissade_solver::explicit`) against the LATIN solve of the same scene, QoI by QoI.
 //!
-//! cargo run --release -p glissade-worker --example explicit_reference -- SCENE [SUBSTEPS] [NAME=VALUE]... [--explicit-only]
+//! cargo run --release -p glissade-solver --example explicit_reference -- SCENE [SUBSTEPS] [NAME=VALUE]... [--explicit-only]
 
 use anyhow::{Context, Result, bail};
 use glissade_core::scene::Scene;
-use glissade_worker::explicit;
-use glissade_worker::latin::{LatinSolver, SolveOptions};
-use glissade_worker::model::Model;
+use glissade_solver::explicit;
+use glissade_solver::latin::{LatinSolver, SolveOptions};
+use glissade_solver::model::Model;
 
 fn run<const D: usize>(scene: &Scene, set: &[(String, f64)], substeps: usize, explicit_only: bool) -> Result<()> {
     let values = scene.parameter_values(set)?;

@@ -117,7 +117,7 @@ impl ErrorEstimator {
                 .zip(prev)
                 .zip(self.scales.iter_mut())
                 .map(|((now, before), scale)| {
-                    let diff = norm(&now.iter().zip(before).map(|(a, b)| a - b).collect::<Vec<_>>());
+                    let diff = now.iter().zip(before).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
                     if *scale == 0.0 {
                         // everything of this unit just fell to zero: measure against before
                         *scale = norm(before);
@@ -127,7 +127,7 @@ impl ErrorEstimator {
                 .collect();
             self.changes.push(change);
         }
-        self.previous = Some(series.to_vec());
+        super::copy_rows(self.previous.get_or_insert_with(Vec::new), series);
         self.estimate()
     }
 

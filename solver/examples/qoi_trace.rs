@@ -5,11 +5,11 @@
 //! histories traced, and prints per iteration: eta and each QoI's relative L2 error over time
 //! against the reference (relative to the reference history's norm), as CSV.
 //!
-//!   cargo run --release -p glissade-worker --example qoi_trace -- SCENE "f1=0.15,f2=0.1" "f1=0.125,f2=0.1" [K0_FACTOR]
+//!   cargo run --release -p glissade-solver --example qoi_trace -- SCENE "f1=0.15,f2=0.1" "f1=0.125,f2=0.1" [K0_FACTOR]
 
 use glissade_core::scene::Scene;
-use glissade_worker::latin::{LatinSolver, SolveOptions, SolveReport};
-use glissade_worker::model::Model;
+use glissade_solver::latin::{LatinSolver, SolveOptions, SolveReport};
+use glissade_solver::model::Model;
 
 fn parse_point(s: &str) -> Vec<(String, f64)> {
     s.split(',')

@@ -1,13 +1,12 @@
 //! The multiparametric study (issue 4, docs/performance.md "Multiparametric study"): warm starts
-//! reach the cold solution, tolerance-aware reuse, the `study` command's bad input, and the
-//! stability of the solver at the extremes of the parameters.
+//! reach the cold solution, tolerance-aware reuse, and the stability of the solver at the
+//! extremes of the parameters (the `study` command's own tests: solver/tests/verification.rs).
 //!
-//! `cargo test -p glissade-worker --test study -- --nocapture` prints the measured values.
+//! `cargo test -p glissade-solver --test study -- --nocapture` prints the measured values.
 
 mod fixtures;
 
 use std::collections::BTreeMap;
-use std::process::Command;
 
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
 use glissade_core::scene::{Scene, Tolerance};
@@ -16,8 +15,8 @@ use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_
 use glissade_core::study::store::{MemoryStore, SolutionStore, StoredSolution};
 use glissade_core::study::strategy::{InitStrategy, initialise, interface_law_parameters};
 use glissade_core::study::{PointRecord, PointStatus, StartKind, StudyOptions, StudyResult, run_study};
-use glissade_worker::latin::stopping::NORM_FLOOR;
-use glissade_worker::run::PointSolver;
+use glissade_solver::latin::stopping::NORM_FLOOR;
+use glissade_solver::run::PointSolver;
 
 fn scene(text: &str) -> Scene {
     Scene::parse(text).expect("scene parses")
@@ -226,7 +225,7 @@ fn point(scene: &Scene, set: &[(&str, f64)], tol: f64) -> PointRecord {
     .records
     .remove(0);
     // the static stage may iterate STATIC_ITERATIONS_FACTOR times the cap (a step each), the dynamic the cap
-    assert!(r.iterations <= (glissade_worker::latin::STATIC_ITERATIONS_FACTOR + 1) * CAP);
+    assert!(r.iterations <= (glissade_solver::latin::STATIC_ITERATIONS_FACTOR + 1) * CAP);
     match r.status {
         PointStatus::Converged => {
             assert!(r.qoi.values().all(|v| v.is_finite()), "{set:?}: converged with a non-finite QoI {:?}", r.qoi);
@@ -398,75 +397,6 @@ fn extremes_of_load_and_prestress() {
 // ---------------------------------------------------------------------------------------------
 // The command line.
 
-fn worker(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_glissade-worker"))
-        .args(args)
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .expect("glissade-worker runs");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into(),
-        String::from_utf8_lossy(&out.stderr).into(),
-    )
-}
-
-#[test]
-fn study_command_refuses_bad_input_in_one_line() {
-    let tiny = "../scenes/three-blocks-tiny.toml";
-    for (args, needle) in [
-        (vec!["study", tiny], "no design points"),
-        (vec!["study", tiny, "--grid", "f1=0.2:0.1:0"], "f1=0.2:0.1:0"),
-        (vec!["study", tiny, "--grid", "f1=0.2:0.1:3"], "above STOP"),
-        (vec!["study", tiny, "--grid", "mu=0.1"], "no parameter 'mu'"),
-        (vec!["study", tiny, "--grid", "f1=NaN"], "not a finite number"),
-        (vec!["study", tiny, "--grid", "f1=0.1", "--tol", "0"], "--tol"),
-        (vec!["study", "no-such-scene.toml", "--grid", "f1=0.1"], "no-such-scene.toml"),
-    ] {
-        let (code, stdout, stderr) = worker(&args);
-        assert_eq!(code, 1, "{args:?}: {stderr}");
-        assert!(stdout.is_empty(), "{args:?}: {stdout}");
-        assert_eq!(stderr.trim().lines().count(), 1, "{args:?}: {stderr}");
-        assert!(stderr.starts_with("error: ") && stderr.contains(needle), "{args:?}: {stderr}");
-    }
-}
-
-#[test]
-fn study_command_writes_its_tables() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("run");
-    let (code, stdout, stderr) = worker(&[
-        "study",
-        "../scenes/three-blocks-tiny.toml",
-        "--grid",
-        "f1=0.15:0.2:2",
-        "--grid",
-        "f2=0.2",
-        "--strategy",
-        "previous",
-        "--order",
-        "desc",
-        "--tol",
-        "1e-3",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("2 points (2 converged") && stdout.contains("first point"), "{stdout}");
-    assert_eq!(stderr.lines().filter(|l| l.starts_with("[")).count(), 2, "one progress line per point: {stderr}");
-    let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
-    let lines: Vec<&str> = csv.lines().collect();
-    assert_eq!(lines.len(), 3);
-    assert!(lines[0].starts_with("index,sequence,f1,f2,pressure,prestress,status,converged,iterations"));
-    // descending: f1 = 0.2 first (cold), then f1 = 0.15 from it
-    assert!(lines[1].starts_with("0,1,0.15,0.2,") && lines[1].contains("previous #0"), "{csv}");
-    assert!(lines[2].starts_with("1,0,0.2,0.2,") && lines[2].contains(",cold,"), "{csv}");
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("results.json")).unwrap()).unwrap();
-    assert_eq!(json["summary"]["points"], 2);
-    assert_eq!(json["records"][1]["sources"][0]["id"], 0);
-}
-
 /// The stopping test keeps its word for warm starts as for cold ones: every QoI history is
 /// within 10 x the tolerance of the converged one (relative L2 over time), at two tolerances.
 /// The hard case of the tiny scene: f1 from 0.125 to 0.15 crosses into the stick regime of
@@ -474,7 +404,7 @@ fn study_command_writes_its_tables() {
 /// warm start's slip_A was 12 % off at 2e-4 (docs/performance.md).
 #[test]
 fn warm_starts_from_a_neighbour_are_as_accurate_as_cold_solves() {
-    use glissade_worker::run::{SolveOutcome, SolveRequest, solve_scene};
+    use glissade_solver::run::{SolveOutcome, SolveRequest, solve_scene};
     let at = |f1: f64, tolerance: f64| SolveRequest {
         set: vec![("f1".into(), f1), ("f2".into(), 0.1)],
         tolerance: Some(tolerance),

@@ -24,12 +24,14 @@ pub struct Relaxation {
     units: Vec<QoiUnit>,
     previous: Option<Vec<Vec<f64>>>,
     last_change: Option<Vec<f64>>,
+    /// this update's change (a buffer, swapped into `last_change`)
+    change: Vec<f64>,
     flips: usize,
 }
 
 impl Relaxation {
     pub fn new(mu: f64, units: Vec<QoiUnit>) -> Self {
-        Self { mu, units, previous: None, last_change: None, flips: 0 }
+        Self { mu, units, previous: None, last_change: None, change: Vec::new(), flips: 0 }
     }
 
     /// The coefficient for the next relaxation.
@@ -41,8 +43,9 @@ impl Relaxation {
     /// flip direction `FLIPS` times in a row, mu is lowered.
     pub fn update(&mut self, series: &[Vec<f64>], scales: &UnitScales) {
         let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
-        let change: Option<Vec<f64>> = self.previous.as_ref().map(|prev| {
-            let mut c = Vec::new();
+        let c = &mut self.change;
+        c.clear();
+        let changed = self.previous.as_ref().is_some_and(|prev| {
             for ((now, before), unit) in series.iter().zip(prev).zip(&self.units) {
                 // each QoI relative to its norm, a near-zero one to a floor of its unit's scale
                 let scale = norm(now).max(NORM_FLOOR * scales.of(*unit));
@@ -50,9 +53,10 @@ impl Relaxation {
                     c.extend(now.iter().zip(before).map(|(a, b)| (a - b) / scale));
                 }
             }
-            c
+            true
         });
-        if let (Some(c), Some(last)) = (&change, &self.last_change) {
+        if let (true, Some(last)) = (changed, &self.last_change) {
+            let c = &self.change;
             let (nc, nl) = (norm(c), norm(last));
             let cosine = if nc > 0.0 && nl > 0.0 {
                 c.iter().zip(last).map(|(a, b)| a * b).sum::<f64>() / (nc * nl)
@@ -66,8 +70,12 @@ impl Relaxation {
                 tracing::debug!(mu = self.mu, "iterates oscillate: relaxation lowered");
             }
         }
-        self.last_change = change;
-        self.previous = Some(series.to_vec());
+        if changed {
+            std::mem::swap(self.last_change.get_or_insert_with(Vec::new), &mut self.change);
+        } else {
+            self.last_change = None;
+        }
+        super::copy_rows(self.previous.get_or_insert_with(Vec::new), series);
     }
 }
 

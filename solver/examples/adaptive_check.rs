@@ -7,7 +7,7 @@
 //! (relative to the QoI's spread) and the share of reference points whose error is within 2
 //! standard deviations (calibration).
 //!
-//! cargo run --release -p glissade-worker --example adaptive_check -- SCENE REFERENCE.json [BUDGET]
+//! cargo run --release -p glissade-solver --example adaptive_check -- SCENE REFERENCE.json [BUDGET]
 
 use std::collections::BTreeMap;
 
@@ -16,7 +16,7 @@ use glissade_core::study::adaptive::{AdaptiveDesign, QoiReadings};
 use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::surrogate::ResponseSurface;
 use glissade_core::study::{PointRequest, SolvePoint, StudyResult};
-use glissade_worker::run::PointSolver;
+use glissade_solver::run::PointSolver;
 
 /// A design point and its QoIs.
 type Solved = (DesignPoint, BTreeMap<String, f64>);

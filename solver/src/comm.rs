@@ -1,16 +1,12 @@
 //! The communicator seam: the only way the solver core talks across processes.
 //!
 //! The numerics call these few operations; [`Serial`] makes a one-process run the P = 1 case of
-//! the same code, [`Mpi`] runs it over MPI ranks (rsmpi). Every sum the solver reduces has at
-//! most one non-zero contribution per entry, or two (the two sides of an interface), so results
-//! do not depend on the reduction order: P = 1, 2, 3, ... give bitwise identical iterates.
+//! the same code, `glissade_worker::mpi_comm::Mpi` runs it over MPI ranks (rsmpi). Every sum
+//! the solver reduces has at most one non-zero contribution per entry, or two (the two sides of
+//! an interface), so results do not depend on the reduction order: P = 1, 2, 3, ... give
+//! bitwise identical iterates.
 
 use std::collections::BTreeMap;
-
-use mpi::collective::SystemOperation;
-use mpi::point_to_point::{Destination, Source};
-use mpi::topology::{Communicator as _, SimpleCommunicator};
-use mpi::traits::{CommunicatorCollectives, Root};
 
 /// What the solver needs from a group of processes.
 pub trait Communicator {
@@ -43,42 +39,6 @@ impl Communicator for Serial {
         panic!("serial communicator has no rank {from} to receive from");
     }
     fn broadcast_bytes(&self, _bytes: &mut Vec<u8>) {}
-}
-
-/// MPI ranks of a communicator (usually the world).
-pub struct Mpi {
-    pub world: SimpleCommunicator,
-}
-
-impl Communicator for Mpi {
-    fn rank(&self) -> usize {
-        self.world.rank() as usize
-    }
-    fn size(&self) -> usize {
-        self.world.size() as usize
-    }
-    fn sum_in_place(&self, values: &mut [f64]) {
-        if self.size() > 1 && !values.is_empty() {
-            let send = values.to_vec();
-            self.world.all_reduce_into(&send[..], values, SystemOperation::sum());
-        }
-    }
-    fn send(&self, to: usize, values: &[f64]) {
-        self.world.process_at_rank(to as i32).send(values);
-    }
-    fn receive(&self, from: usize) -> Vec<f64> {
-        self.world.process_at_rank(from as i32).receive_vec::<f64>().0
-    }
-    fn broadcast_bytes(&self, bytes: &mut Vec<u8>) {
-        if self.size() == 1 {
-            return;
-        }
-        let root = self.world.process_at_rank(0);
-        let mut len = [bytes.len() as u64];
-        root.broadcast_into(&mut len[..]);
-        bytes.resize(len[0] as usize, 0);
-        root.broadcast_into(&mut bytes[..]);
-    }
 }
 
 /// Exchanges one message with each neighbour rank (the neighbour relation must be symmetric:

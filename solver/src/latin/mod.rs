@@ -718,6 +718,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             body: BodyQois::new(m),
         };
         let mut report = StageReport::default();
+        let mut it = Iterations::new(m, fields, timings, options);
         // Each window's error is carried to the end of the interval and adds to the later
         // windows' (a slip is a sum): the QoI estimate's tolerance is shared out between the
         // windows (a share by the square root of their number let the brass block's histories
@@ -759,7 +760,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     && m.settings.whole_interval_check
                     && !m.qois.is_empty(),
             };
-            let end = self.iterate_window(begin, rule, fields, timings, options, &window)?;
+            let end = self.iterate_window(begin, rule, &window, fields, &mut it)?;
             let mut part = end.report;
             if part.stalled {
                 // accepted for now: judged with the whole histories below
@@ -812,7 +813,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 hold_last_step(fields, steps, range.end, next.end);
             }
             window = Window { steps: next, states: Some(states), bases, body };
-            timings.linear_stage += t.elapsed().as_secs_f64();
+            it.timings.linear_stage += t.elapsed().as_secs_f64();
         }
     }
 
@@ -824,10 +825,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         &mut self,
         begin: &StageStart,
         rule: WindowRule,
-        fields: &mut [InterfaceField],
-        timings: &mut Timings,
-        options: &SolveOptions,
         window: &Window,
+        fields: &mut [InterfaceField],
+        it: &mut Iterations,
     ) -> Result<WindowEnd, SolverError> {
         let m = self.model;
         let StageStart { stage, u0, statics, .. } = *begin;
@@ -836,16 +836,14 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // the QoIs of the last iteration, kept where the tightening compares them
         let mut current: Vec<Vec<f64>> = Vec::new();
         let settings = &m.settings;
-        let progress = options.progress.as_deref();
+        let progress = it.options.progress.as_deref();
         let mut report = StageReport::default();
-        let mut previous: Vec<Vec<SideField>> = fields.iter().map(|f| f.s.clone()).collect();
         let stage_name = stage.name();
         let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect())
             .with_floors(floors.map(<[f64]>::to_vec).unwrap_or_default());
         // the interface with the largest share of eta at the last iteration
         let mut worst = None;
         let mut relaxation = Relaxation::new(settings.relaxation, m.qois.iter().map(|q| q.target.unit()).collect());
-        let mut bases_end = Vec::new();
         // the QoIs are followed up to the window's end (later steps are not computed yet)
         let known = window.steps.end + 1;
         // each interface's values of the window's steps: what an iteration changes
@@ -860,15 +858,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 break;
             }
             let t = Instant::now();
-            // `previous` holds every value once; only the window's change (a copy of the whole
-            // interval per iteration would cost O(steps) in a window's loop)
-            for ((f, p), at) in fields.iter().zip(previous.iter_mut()).zip(&at) {
-                for (side, old) in f.s.iter().zip(p.iter_mut()).filter(|(side, _)| !side.force.is_empty()) {
-                    old.force[at.clone()].copy_from_slice(&side.force[at.clone()]);
-                    old.velocity[at.clone()].copy_from_slice(&side.velocity[at.clone()]);
-                }
-            }
-            let mut body = window.body.clone();
+            it.keep_previous(fields, &at);
+            it.body.copy_from(&window.body);
+            let body = &mut it.body;
             let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
             let dynamic = stage == Stage::Dynamic;
             self.linear_stage(
@@ -881,7 +873,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             );
             // relaxation (mu = 1 at the first iteration), on the sides this rank computed
             if iteration > 1 {
-                for (i, (f, p)) in fields.iter_mut().zip(&previous).enumerate() {
+                for (i, (f, p)) in fields.iter_mut().zip(&it.previous).enumerate() {
                     for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
                         if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
                             side.relax_from(old, relaxation.mu(), at[i].clone());
@@ -891,56 +883,52 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             let c = Instant::now();
             self.dist.send_sides_to_owners(self.comm, m, fields, window.steps.clone());
-            timings.communication += c.elapsed().as_secs_f64();
-            timings.linear_stage += t.elapsed().as_secs_f64();
+            it.timings.communication += c.elapsed().as_secs_f64();
+            it.timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
-            bases_end = self.local_stage(stage, fields, window.steps.clone(), &window.bases);
-            // the last entry: a stop asked of any rank, summed with the errors so that all stop together
-            let mut partial = vec![0.0; 2 * m.interfaces.len() + 1];
-            for i in (0..m.interfaces.len()).filter(|&i| self.dist.owns_interface(i)) {
-                let (num, den) = interface_error(m, stage, i, &fields[i], window.steps.clone());
-                partial[2 * i] = num;
-                partial[2 * i + 1] = den;
-            }
-            partial[2 * m.interfaces.len()] = if progress.is_some_and(SolveProgress::stop_asked) { 1.0 } else { 0.0 };
+            self.local_stage(stage, fields, window.steps.clone(), &window.bases, &mut it.bases);
+            let partial = &mut it.partial;
+            let stop = progress.is_some_and(SolveProgress::stop_asked);
+            self.eta_parts(stage, fields, window.steps.clone(), stop, partial);
             let c = Instant::now();
-            self.comm.sum_in_place(&mut partial);
+            self.comm.sum_in_place(partial);
             if partial.pop().is_some_and(|stop| stop > 0.0) {
                 return Err(SolverError::Stopped { stage: stage_name, iteration });
             }
-            let eta = error_indicator_from_parts(&partial);
+            let eta = error_indicator_from_parts(partial);
             worst = (0..m.interfaces.len()).max_by(|&a, &b| partial[2 * a].total_cmp(&partial[2 * b]));
             self.dist.send_hats_to_sides(self.comm, m, fields, window.steps.clone());
-            timings.communication += c.elapsed().as_secs_f64();
-            timings.local_stage += t.elapsed().as_secs_f64();
+            it.timings.communication += c.elapsed().as_secs_f64();
+            it.timings.local_stage += t.elapsed().as_secs_f64();
             report.iterations = iteration;
             report.error_indicator = eta;
             report.history.push(eta);
             // The static stage is one step, converged far tighter than asked; the dynamic stage
             // stops on the QoIs' estimated error (stopping.rs).
             report.error_estimate = if dynamic {
-                let (series, scales) = self.qois_and_scales(fields, statics, body);
+                let scales = self.qoi_values(fields, statics, &it.body, &mut it.qois);
+                let series = &mut it.qois.values;
                 // a non-finite QoI would pass the estimate's comparisons (NaN changes): refuse it
                 // (a non-finite eta is reported below, as such)
                 if eta.is_finite()
-                    && let Some(q) = series.iter().find(|q| q.values[..known].iter().any(|v| !v.is_finite()))
+                    && let Some(q) = series.iter().position(|v| v[..known].iter().any(|v| !v.is_finite()))
                 {
-                    return Err(SolverError::NonFiniteQoi { stage: stage_name, iteration, qoi: q.name.clone() });
+                    return Err(SolverError::NonFiniteQoi {
+                        stage: stage_name,
+                        iteration,
+                        qoi: m.qois[q].name.clone(),
+                    });
                 }
-                let series: Vec<Vec<f64>> = series
-                    .into_iter()
-                    .map(|mut q| {
-                        q.values.truncate(known);
-                        q.values
-                    })
-                    .collect();
-                let estimate = estimator.update(&series, &scales, eta);
-                relaxation.update(&series, &scales);
+                for v in series.iter_mut() {
+                    v.truncate(known);
+                }
+                let estimate = estimator.update(series, &scales, eta);
+                relaxation.update(series, &scales);
                 if tightening.is_some() {
-                    current.clone_from(&series);
+                    current.clone_from(series);
                 }
-                if options.trace_qois {
-                    report.qoi_trace.push(series);
+                if it.options.trace_qois {
+                    report.qoi_trace.push(series.clone());
                 }
                 estimate
             } else {
@@ -990,23 +978,50 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         if let Some(t) = tightening {
             report.window_check = t.end(&mut report);
         }
-        Ok(WindowEnd { report, bases: bases_end, errors: estimator.errors(), scales: estimator.scales().to_vec() })
+        Ok(WindowEnd {
+            report,
+            bases: it.bases.clone(),
+            errors: estimator.errors(),
+            scales: estimator.scales().to_vec(),
+        })
+    }
+
+    /// eta's numerator and denominator on every interface this rank owns (zeros elsewhere), then
+    /// the stop flag: a stop asked of any rank, summed with the errors so that all stop together.
+    fn eta_parts(
+        &self,
+        stage: Stage,
+        fields: &[InterfaceField],
+        steps: Range<usize>,
+        stop: bool,
+        parts: &mut Vec<f64>,
+    ) {
+        let m = self.model;
+        parts.clear();
+        parts.resize(2 * m.interfaces.len() + 1, 0.0);
+        for i in (0..m.interfaces.len()).filter(|&i| self.dist.owns_interface(i)) {
+            let (num, den) = interface_error(m, stage, i, &fields[i], steps.clone());
+            parts[2 * i] = num;
+            parts[2 * i + 1] = den;
+        }
+        parts[2 * m.interfaces.len()] = if stop { 1.0 } else { 0.0 };
     }
 
     /// Local stage over every interface and node, at the steps `steps`, from the gap rule's
-    /// `bases` at the first of them ([`Self::initial_bases`] at t_0); returns the bases after the
-    /// last (empty for interfaces another rank owns).
+    /// `bases` at the first of them ([`Self::initial_bases`] at t_0); leaves the bases after the
+    /// last in `out` (empty for interfaces another rank owns).
     fn local_stage(
         &self,
         stage: Stage,
         fields: &mut [InterfaceField],
         steps: Range<usize>,
         bases: &[Vec<f64>],
-    ) -> Vec<Vec<f64>> {
+        out: &mut [Vec<f64>],
+    ) {
         let m = self.model;
         let half_dt = 0.5 * m.dt;
-        let mut out = vec![Vec::new(); m.interfaces.len()];
         for (i, itf) in m.interfaces.iter().enumerate() {
+            out[i].clear();
             if !self.dist.owns_interface(i) {
                 continue;
             }
@@ -1016,7 +1031,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let h2 = itf.sides.get(1).map_or(SearchDirection::isotropic(0.0), |s| stage.k(s).inverse());
             let f = &mut fields[i];
             // gap rule state: base = g(t_{n-1}) + dt/2 vn(t_{n-1})
-            let mut base = bases[i].clone();
+            let base = &mut out[i];
+            base.extend_from_slice(&bases[i]);
             let weight = match stage {
                 Stage::Static => 1.0,
                 Stage::Dynamic => half_dt,
@@ -1058,9 +1074,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     base[j] = gap + half_dt * vn;
                 }
             }
-            out[i] = base;
         }
-        out
     }
 
     /// The gap rule's bases at t_0 of a stage: the gap, and in dynamics the gap half a step on at
@@ -1135,7 +1149,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
         };
         self.linear_stage(Stage::Dynamic, &mut scratch, u0, Some(&mut record), 0..m.steps, None);
-        let series = self.qoi_series(fields, statics, body);
+        let series = self.qoi_series(fields, statics, &body);
         if let Some(h) = history.as_mut() {
             self.gather_field_history(h);
         }
@@ -1145,28 +1159,43 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// Every QoI's history from the local-stage fields (slips, forces) and the substructure
     /// values a linear stage recorded (displacements, velocities), reduced over ranks: one
     /// contribution per value, so every rank gets the same series.
-    fn qoi_series(&self, fields: &[InterfaceField], statics: Option<&StageSolution>, body: BodyQois) -> Vec<QoiSeries> {
-        self.qois_and_scales(fields, statics, body).0
-    }
-
-    /// [`Self::qoi_series`] and the interface fields' own scales, in one reduction.
-    fn qois_and_scales(
+    fn qoi_series(
         &self,
         fields: &[InterfaceField],
         statics: Option<&StageSolution>,
-        body: BodyQois,
-    ) -> (Vec<QoiSeries>, UnitScales) {
+        body: &BodyQois,
+    ) -> Vec<QoiSeries> {
+        let m = self.model;
+        let mut out = QoiValues::default();
+        self.qoi_values(fields, statics, body, &mut out);
+        let times: Vec<f64> = (0..=m.steps).map(|n| n as f64 * m.dt).collect();
+        m.qois
+            .iter()
+            .zip(out.values)
+            .map(|(qoi, values)| QoiSeries { name: qoi.name.clone(), times: times.clone(), values })
+            .collect()
+    }
+
+    /// [`Self::qoi_series`]'s values, into `out`'s buffers, and the interface fields' own scales,
+    /// in one reduction.
+    fn qoi_values(
+        &self,
+        fields: &[InterfaceField],
+        statics: Option<&StageSolution>,
+        body: &BodyQois,
+        out: &mut QoiValues,
+    ) -> UnitScales {
         let m = self.model;
         let len = m.steps + 1;
-        let mut body_values = body.values;
+        let QoiValues { blocks, values: series } = out;
+        blocks.clear();
         // Interface QoIs: computed by each interface's owner, as blocks of steps + 1 values
         // (one block per part for forces), then summed over ranks.
-        let mut blocks: Vec<f64> = Vec::new();
         for (q, qoi) in m.qois.iter().enumerate() {
             match qoi.target {
                 QoiTarget::Slip { interface, node, component } => {
                     if self.dist.owns_interface(interface) {
-                        blocks.extend(slip_history(m, &fields[interface], interface, node, component));
+                        slip_history(m, &fields[interface], interface, node, component, blocks);
                     } else {
                         blocks.extend(std::iter::repeat_n(0.0, len));
                     }
@@ -1186,7 +1215,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         blocks.extend((0..m.steps).map(|step| resultant(&fields[i].hat[0].force, step)));
                     }
                 }
-                _ => blocks.extend(std::mem::take(&mut body_values[q])),
+                _ => blocks.extend_from_slice(&body.values[q]),
             }
         }
         // Area-weighted sums of squares over every side, step and node of the local-stage
@@ -1209,8 +1238,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             blocks.extend(sums);
         }
-        self.comm.sum_in_place(&mut blocks);
-        let per_interface = blocks.split_off(blocks.len() - 5 * m.interfaces.len());
+        self.comm.sum_in_place(blocks);
+        let (blocks, per_interface) = blocks.split_at(blocks.len() - 5 * m.interfaces.len());
         let sums = per_interface.chunks(5).fold([0.0; 5], |mut acc, c| {
             for (a, x) in acc.iter_mut().zip(c) {
                 *a += x;
@@ -1218,24 +1247,23 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             acc
         });
         let scales = UnitScales::from_sums(&sums, m.steps, m.dt);
-        let times: Vec<f64> = (0..=m.steps).map(|n| n as f64 * m.dt).collect();
+        series.resize_with(m.qois.len(), Vec::new);
         let mut at = 0;
-        let mut series = Vec::with_capacity(m.qois.len());
-        for qoi in &m.qois {
+        for (qoi, values) in m.qois.iter().zip(series.iter_mut()) {
             let parts = match qoi.target {
                 QoiTarget::Force { ref interfaces, .. } => interfaces.len(),
                 _ => 1,
             };
-            let mut values = vec![0.0; len];
+            values.clear();
+            values.resize(len, 0.0);
             for part in blocks[at..at + parts * len].chunks(len) {
                 for (v, p) in values.iter_mut().zip(part) {
                     *v += p;
                 }
             }
-            series.push(QoiSeries { name: qoi.name.clone(), times: times.clone(), values });
             at += parts * len;
         }
-        (series, scales)
+        scales
     }
 }
 
@@ -1282,6 +1310,63 @@ struct Window {
     body: BodyQois,
 }
 
+/// A stage's iterations in progress: what the solve asks, its clock, and the buffers every
+/// iteration works in, allocated once per stage so that an iteration allocates nothing of the
+/// interval's size (issue 26; docs/performance.md, "An iteration that does not allocate").
+struct Iterations<'r> {
+    options: &'r SolveOptions,
+    timings: &'r mut Timings,
+    /// `s` as the last iteration left it, the relaxation's old values (each iteration copies
+    /// only its window's steps)
+    previous: Vec<Vec<SideField>>,
+    /// the body QoIs: the window's, then those this iteration's linear stage records
+    body: BodyQois,
+    /// per interface, the gap rule's bases after the last local stage
+    bases: Vec<Vec<f64>>,
+    /// per interface eta's numerator and denominator, then the stop flag: one reduction
+    partial: Vec<f64>,
+    /// every QoI's history ([`LatinSolver::qoi_values`])
+    qois: QoiValues,
+}
+
+impl<'r> Iterations<'r> {
+    /// Copies `fields`' `s` at the window's values `at` (per interface) into `previous`: it holds
+    /// every value once, and a copy of the whole interval per iteration would cost O(steps) in
+    /// a window's loop.
+    fn keep_previous(&mut self, fields: &[InterfaceField], at: &[Range<usize>]) {
+        for ((f, p), at) in fields.iter().zip(self.previous.iter_mut()).zip(at) {
+            for (side, old) in f.s.iter().zip(p.iter_mut()).filter(|(side, _)| !side.force.is_empty()) {
+                old.force[at.clone()].copy_from_slice(&side.force[at.clone()]);
+                old.velocity[at.clone()].copy_from_slice(&side.velocity[at.clone()]);
+            }
+        }
+    }
+
+    fn new<const D: usize>(
+        m: &Model<D>,
+        fields: &[InterfaceField],
+        timings: &'r mut Timings,
+        options: &'r SolveOptions,
+    ) -> Self {
+        Self {
+            options,
+            timings,
+            previous: fields.iter().map(|f| f.s.clone()).collect(),
+            body: BodyQois::new(m),
+            bases: vec![Vec::new(); m.interfaces.len()],
+            partial: Vec::with_capacity(2 * m.interfaces.len() + 1),
+            qois: QoiValues::default(),
+        }
+    }
+}
+
+/// The QoIs' histories, `[qoi][step]`, and the blocks of values they are reduced from.
+#[derive(Default)]
+struct QoiValues {
+    blocks: Vec<f64>,
+    values: Vec<Vec<f64>>,
+}
+
 /// When a time window's iterations stop: eta's and the QoI estimate's tolerances, the iteration
 /// from which a window whose eta has converged is accepted as stalled ([`STALL_ITERATIONS`]),
 /// and the norms each QoI is measured against at least.
@@ -1304,6 +1389,15 @@ struct WindowEnd {
     bases: Vec<Vec<f64>>,
     errors: Vec<f64>,
     scales: Vec<f64>,
+}
+
+/// Copies `from` into `to`, keeping `to`'s buffers where they are long enough.
+pub(crate) fn copy_rows(to: &mut Vec<Vec<f64>>, from: &[Vec<f64>]) {
+    to.resize_with(from.len(), Vec::new);
+    for (t, f) in to.iter_mut().zip(from) {
+        t.clear();
+        t.extend_from_slice(f);
+    }
 }
 
 /// Fills steps `from..to` of every field with its values at step `from - 1`: a cold start's next
@@ -1347,6 +1441,11 @@ impl BodyQois {
         Self { wanted, values: vec![vec![0.0; m.steps + 1]; m.qois.len()] }
     }
 
+    /// Takes `from`'s values (the QoIs recorded before a window) into this one's buffers.
+    fn copy_from(&mut self, from: &BodyQois) {
+        copy_rows(&mut self.values, &from.values);
+    }
+
     fn record(&mut self, s: usize, step: usize, u: &[f64], v: &[f64]) {
         for &(q, sub, dof, is_u) in &self.wanted {
             if sub == s {
@@ -1358,14 +1457,16 @@ impl BodyQois {
 
 /// Slip at an interface node: the tangential relative displacement (side b's less side a's)
 /// accumulated during the dynamics, integrated from the local-stage velocities with the
-/// trapezoidal rule; its norm, or its `component` along an axis, with its sign.
+/// trapezoidal rule; its norm, or its `component` along an axis, with its sign; appended to `out`
+/// (steps + 1 values).
 fn slip_history<const D: usize>(
     m: &Model<D>,
     f: &InterfaceField,
     interface: usize,
     node: usize,
     component: Option<usize>,
-) -> Vec<f64> {
+    out: &mut Vec<f64>,
+) {
     let itf = &m.interfaces[interface];
     let n = itf.n_nodes();
     let nrm = itf.normal[node];
@@ -1392,7 +1493,7 @@ fn slip_history<const D: usize>(
         rel
     };
     let mut slip = [0.0; D];
-    let mut out = vec![0.0];
+    out.push(0.0);
     let mut prev = tangential(None);
     for step in 0..m.steps {
         let cur = tangential(Some(step));
@@ -1405,7 +1506,6 @@ fn slip_history<const D: usize>(
         });
         prev = cur;
     }
-    out
 }
 
 /// The LATIN error indicator (docs/method.md 3), in parts: computed per interface by its owner

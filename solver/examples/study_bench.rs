@@ -3,7 +3,7 @@
 //! this process, and compares their iterations, wall time and QoI accuracy.
 //!
 //! ```sh
-//! cargo run --release -p glissade-worker --example study_bench -- scenes/three-blocks-small.toml \
+//! cargo run --release -p glissade-solver --example study_bench -- scenes/three-blocks-small.toml \
 //!     --grid f1=0.10:0.20:11 --grid f2=0.10:0.20:11 \
 //!     --run cold:asc:2e-4 --run previous:asc:2e-4 --run previous:desc:2e-4 \
 //!     --run nearest:greedy:2e-4 --run blend:greedy:2e-4 --run nearest:greedy:2e-5 \
@@ -27,7 +27,7 @@ use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_
 use glissade_core::study::store::MemoryStore;
 use glissade_core::study::strategy::InitStrategy;
 use glissade_core::study::{StudyOptions, StudyResult, run_study};
-use glissade_worker::run::PointSolver;
+use glissade_solver::run::PointSolver;
 
 #[derive(Parser)]
 struct Args {

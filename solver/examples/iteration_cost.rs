@@ -1,7 +1,7 @@
 //! Benchmark: cost of one LATIN iteration against one monolithic Newmark sweep on the same mesh,
 //! factorisation against solve time, and the memory of the stored interface fields.
 //!
-//! cargo run --release -p glissade-worker --example iteration_cost -- scenes/three-blocks-small.toml [ITERATIONS]
+//! cargo run --release -p glissade-solver --example iteration_cost -- scenes/three-blocks-small.toml [ITERATIONS]
 //!
 //! The monolithic reference handles perfect interfaces only, so it runs on the same mesh with the
 //! contact interfaces glued (its cost does not depend on the interface law).
@@ -9,9 +9,9 @@
 use std::time::Instant;
 
 use glissade_core::scene::{Scale, Scene};
-use glissade_worker::latin::{LatinSolver, SolveOptions};
-use glissade_worker::model::Model;
-use glissade_worker::monolithic;
+use glissade_solver::latin::{LatinSolver, SolveOptions};
+use glissade_solver::model::Model;
+use glissade_solver::monolithic;
 
 fn run<const D: usize>(scene: &Scene, iterations: usize) {
     let values = scene.parameter_values(&[]).expect("parameters");

@@ -3,13 +3,13 @@
 //! the fine solve warm from them, against the fine solve cold (docs/performance.md, "Refinement
 //! and the extremes").
 //!
-//! cargo run --release -p glissade-worker --example coarse_start -- SCENE R [NAME=VALUE]...
+//! cargo run --release -p glissade-solver --example coarse_start -- SCENE R [NAME=VALUE]...
 
 use anyhow::{Context, Result, bail};
 use glissade_core::field::{InterfaceSolution, SideField, StageSolution};
 use glissade_core::scene::Scene;
-use glissade_worker::latin::{LatinSolver, SolveOptions};
-use glissade_worker::model::Model;
+use glissade_solver::latin::{LatinSolver, SolveOptions};
+use glissade_solver::model::Model;
 
 fn refine_side(coarse: &SideField, ratio: usize, steps: usize) -> SideField {
     let per_step = coarse.force.len() / (steps / ratio);
