@@ -6,6 +6,7 @@ pub mod auth;
 mod conn;
 mod convert;
 mod coordinator;
+mod figures;
 mod health;
 mod metrics;
 mod pool;

@@ -2,7 +2,8 @@
 //! HTTP/2): the studies, each study with its progress and running points (updated while it runs),
 //! its measured accuracy, a response surface per QoI drawn on the server as SVG (a colour map with
 //! contour lines over two parameters, a curve over one; the value under the pointer; axes named
-//! with the scene's units), its points, and downloads. Nothing is fetched from elsewhere.
+//! with the scene's units; kept between loads until a point lands, figures.rs), its points, and
+//! downloads. Nothing is fetched from elsewhere.
 //!
 //! Every string a user gave (labels, parameter, QoI and unit names) reaches the page through
 //! maud, which escapes by construction; the page's script and style are files of this server
@@ -31,8 +32,10 @@ use serde_json::json;
 
 use crate::auth::Tokens;
 use crate::coordinator::{
-    AUDIT_WORK_FRACTION, CoordError, Coordinator, StudyState, StudyView, SurfaceSource, point_state_word, state_word,
+    AUDIT_WORK_FRACTION, CoordError, Coordinator, StudyState, StudyView, Surface, SurfaceSource, point_state_word,
+    state_word,
 };
+use crate::figures::{self, FigureCache};
 use crate::metrics::{self, Metrics};
 use crate::records::{PointRecord, PointState};
 use glissade_core::study::shown;
@@ -45,6 +48,8 @@ struct Web {
     token: Option<Token>,
     /// the login cookie is `Secure` (sent over https only) when the coordinator serves TLS
     secure_cookie: bool,
+    /// the surfaces' pictures of the last loads
+    figures: Arc<FigureCache>,
 }
 
 /// The cookie that carries the user token (hex-encoded: any printable token fits a cookie).
@@ -62,7 +67,8 @@ pub fn router(
     tokens: Option<&Tokens>,
     secure_cookie: bool,
 ) -> axum::Router {
-    let web = Web { coordinator, metrics, token: tokens.map(|t| t.user.clone()), secure_cookie };
+    let web =
+        Web { coordinator, metrics, token: tokens.map(|t| t.user.clone()), secure_cookie, figures: Arc::default() };
     axum::Router::new()
         .route("/", get(index))
         .route("/login", get(login_form).post(login))
@@ -371,7 +377,7 @@ async fn api_surface_csv(
     ([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], out).into_response()
 }
 
-fn surface(web: &Web, id: &str) -> Result<crate::coordinator::Surface, Refusal> {
+fn surface(web: &Web, id: &str) -> Result<Surface, Refusal> {
     let v = study(web, id, false)?;
     web.coordinator.surface(SurfaceSource::Study(v.record.id), &ParameterVector::default(), &[], &[]).map_err(failed)
 }
@@ -541,14 +547,14 @@ fn convergence_figure(series: &[glissade_plot::ConvergenceSeries], tolerance: f6
     }
 }
 
-/// The pictures of every QoI of a study (a slice of it when `fixed`). Fitting a surface costs
-/// O(points^3): callers run this off the async threads.
+/// The pictures of every QoI of a study (a slice of it when `fixed`), as SVG text. Fitting a
+/// surface costs O(points^3): callers run this off the async threads.
 fn surface_figures(
-    s: &crate::coordinator::Surface,
+    s: &Surface,
     scene: Option<&glissade_core::scene::Scene>,
     fixed: &[(String, f64)],
     resolution: &BTreeMap<String, f64>,
-) -> Vec<Markup> {
+) -> Vec<String> {
     let parameters: Vec<BTreeMap<String, f64>> = s.rows.iter().map(|r| BTreeMap::from(r.parameters.clone())).collect();
     let rows: Vec<glissade_plot::study::Row> = parameters.iter().zip(&s.rows).map(|(p, r)| (p, &r.qoi)).collect();
     s.qoi
@@ -563,25 +569,86 @@ fn surface_figures(
                 resolution: resolution.get(qoi).copied().unwrap_or(0.0),
                 title: String::new(),
             };
-            surface_figure(&picture.surface(&rows))
+            surface_figure(&picture.surface(&rows)).into_string()
         })
         .collect()
+}
+
+/// The pictures of a study's surfaces: those of the last load when none of the points'
+/// parameters and values changed since (figures.rs), else drawn again off the async threads.
+async fn cached_figures(
+    cache: &FigureCache,
+    study: StudyId,
+    s: &Arc<Surface>,
+    scene: &Option<glissade_core::scene::Scene>,
+    fixed: &[(String, f64)],
+    resolution: &BTreeMap<String, f64>,
+) -> Result<Arc<Vec<String>>, Refusal> {
+    let hash = figures::content_hash(s, fixed, resolution);
+    if let Some(kept) = cache.get(study, fixed, hash) {
+        return Ok(kept);
+    }
+    let (s, scene, fixed_owned, resolution) = (s.clone(), scene.clone(), fixed.to_vec(), resolution.clone());
+    let drawn = tokio::task::spawn_blocking(move || surface_figures(&s, scene.as_ref(), &fixed_owned, &resolution))
+        .await
+        .map_err(|e| refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}")))?;
+    let drawn = Arc::new(drawn);
+    cache.put(study, fixed, hash, drawn.clone());
+    Ok(drawn)
+}
+
+/// The slice a page shows (`?fix=NAME=VALUE`), the values there are when it holds no point, and
+/// the slice it offers when it shows the whole surface.
+struct Slicing {
+    fixed: Option<(String, f64)>,
+    miss: Option<String>,
+    offered: Option<(String, f64)>,
+}
+
+impl Slicing {
+    fn of(s: &Surface, q: &HashMap<String, String>) -> Slicing {
+        let fixed = q
+            .get("fix")
+            .and_then(|f| f.split_once('='))
+            .and_then(|(n, v)| Some((n.to_owned(), v.parse::<f64>().ok()?)));
+        let miss = fixed
+            .as_ref()
+            .filter(|(n, v)| !s.rows.iter().any(|row| row.parameters.get(n).is_some_and(|x| same_parameter(x, *v))))
+            .map(|f| {
+                let points: Vec<BTreeMap<String, f64>> =
+                    s.rows.iter().map(|row| BTreeMap::from(row.parameters.clone())).collect();
+                glissade_core::study::space::slice_miss(std::slice::from_ref(f), &points)
+            });
+        // the first value of the last parameter
+        let offered = s
+            .parameters
+            .last()
+            .filter(|_| s.parameters.len() >= 2 && fixed.is_none())
+            .and_then(|last| Some((last.clone(), s.rows.iter().find_map(|row| row.parameters.get(last))?)));
+        Slicing { fixed, miss, offered }
+    }
+
+    fn links(&self, here: &str) -> Markup {
+        html! {
+            @if let Some((name, value)) = &self.fixed {
+                p #slice { "slice at " (name) (format!(" = {} (", parameter(*value))) a href=(here) { "whole surface" } ")" }
+            } @else if let Some((last, value)) = &self.offered {
+                p { "slices: " a #slice-link href=(slice_link(here, last, *value)) { (last) (format!(" = {}", parameter(*value))) } }
+            }
+        }
+    }
 }
 
 async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
     if let Err(r) = check(&web, &headers, &q) {
         return page_refusal(r);
     }
-    let v = match study(&web, &id, true) {
-        Ok(v) => v,
+    let (v, s) = match study(&web, &id, true).and_then(|v| Ok((v, surface(&web, &id)?))) {
+        Ok(both) => both,
         Err(r) => return r.into_response(),
     };
-    let mut s = match surface(&web, &id) {
-        Ok(s) => s,
-        Err(r) => return r.into_response(),
-    };
+    let s = Arc::new(s);
     let r = &v.record;
-    let p = v.progress;
     // the units the scene gives its parameters and QoIs (it parsed when the study was submitted)
     let scene = glissade_core::scene::Scene::parse(&r.scene).ok();
     let units: BTreeMap<String, String> = r
@@ -594,18 +661,17 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     let resolution = glissade_core::study::resolutions(r.tolerance, s.rows.iter().map(|row| &row.qoi), |q| {
         scene.as_ref()?.unit(q).map(str::to_owned)
     });
-    // a slice: `?fix=NAME=VALUE` keeps the points at that value and draws the others' curve
-    let fixed =
-        q.get("fix").and_then(|f| f.split_once('=')).and_then(|(n, v)| Some((n.to_owned(), v.parse::<f64>().ok()?)));
-    // a slice that holds no point says which values there are
-    let slice_miss = fixed
-        .as_ref()
-        .filter(|(n, v)| !s.rows.iter().any(|row| row.parameters.get(n).is_some_and(|x| same_parameter(x, *v))))
-        .map(|f| {
-            let points: Vec<BTreeMap<String, f64>> =
-                s.rows.iter().map(|row| BTreeMap::from(row.parameters.clone())).collect();
-            glissade_core::study::space::slice_miss(std::slice::from_ref(f), &points)
-        });
+    let slicing = Slicing::of(&s, &q);
+    let figures = match &slicing.miss {
+        Some(_) => Arc::default(),
+        None => {
+            let fixed: Vec<(String, f64)> = slicing.fixed.iter().cloned().collect();
+            match cached_figures(&web.figures, r.id, &s, &scene, &fixed, &resolution).await {
+                Ok(f) => f,
+                Err(refusal) => return refusal.into_response(),
+            }
+        }
+    };
     let series: Vec<glissade_plot::ConvergenceSeries> = v
         .points
         .iter()
@@ -614,58 +680,66 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
             Some(glissade_plot::ConvergenceSeries { label: format!("#{}", p.id.0), history })
         })
         .collect();
-    let surfaces = if slice_miss.is_some() {
-        Vec::new()
-    } else {
-        // the surfaces' fits off the async threads; `s` comes back for the table
-        let fixed: Vec<(String, f64)> = fixed.iter().cloned().collect();
-        let scene = scene.clone();
-        let resolution = resolution.clone();
-        let drawn = tokio::task::spawn_blocking(move || {
-            let figures = surface_figures(&s, scene.as_ref(), &fixed, &resolution);
-            (figures, s)
-        })
-        .await;
-        match drawn {
-            Ok((figures, back)) => {
-                s = back;
-                figures
-            }
-            Err(e) => {
-                return refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}"))
-                    .into_response();
-            }
-        }
-    };
     let here = format!("/studies/{}", r.id.0);
-    // the first value of the last parameter: a slice the page offers
-    let offered = s
-        .parameters
-        .last()
-        .filter(|_| s.parameters.len() >= 2 && fixed.is_none())
-        .and_then(|last| Some((last, s.rows.iter().find_map(|row| row.parameters.get(last))?)));
     let state = state_word(v.state);
+    let p = v.progress;
     let body = html! {
         p #progress data-state=(state) data-api=(format!("/api/studies/{}", r.id.0)) {
             (format!("{state}: {} of {} done, {} running, {} pending, {} failed", p.done, p.total, p.leased, p.pending, p.failed))
         }
         p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
-        @if let Some((target, a)) = r.adaptive.as_ref().and_then(|a| Some((a.target?, a))) {
-            p #target {
-                (format!("surface accuracy target {target:.1e} (mean error / spread, cross-validated): "))
-                @match &a.outcome {
-                    None => (format!("not decided yet (budget {} points)", a.budget)),
-                    Some(o) => {
-                        @if o.reached { (format!("reached at {} points (budget {}): ", o.validation.points, a.budget)) }
-                        @else { (format!("NOT reached: the budget of {} points was spent; at {} points: ", a.budget, o.validation.points)) }
-                        @for (k, (q, e)) in o.validation.qoi.iter().enumerate() {
-                            @if k > 0 { ", " }
-                            (q) (format!(" mean {:.1e} largest {:.1e}", e.mean, e.largest))
-                        }
+        (target_paragraph(&v))
+        (audit_paragraphs(&v))
+        (slicing.links(&here))
+        @if let Some(miss) = &slicing.miss {
+            p #slice-miss { (miss) }
+        } @else {
+            @for svg in figures.iter() { (PreEscaped(svg)) }
+        }
+        // the running points: the script fills this table from the JSON while the study runs
+        @if v.state == StudyState::Active {
+            table #running {
+                caption { "running points" }
+                tr { th { "point" } @for n in &r.parameters { th { (named(n, &units)) } } th { "pool" } th { "iterations" } th { "eta" } }
+            }
+        }
+        (convergence_figure(&series, r.tolerance))
+        p {
+            "download: " a href=(format!("/api/studies/{}/surface.csv", r.id.0)) { "surface.csv" } ", "
+            a href=(format!("/api/studies/{}", r.id.0)) { "study JSON" }
+        }
+        (points_table(&v, &s.qoi, &units, &resolution))
+        script src="/static/study.js" {}
+    };
+    let title = if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
+    page(&title, body).into_response()
+}
+
+/// An adaptive study's surface accuracy target and what came of it.
+fn target_paragraph(v: &StudyView) -> Markup {
+    let Some((target, a)) = v.record.adaptive.as_ref().and_then(|a| Some((a.target?, a))) else { return html! {} };
+    html! {
+        p #target {
+            (format!("surface accuracy target {target:.1e} (mean error / spread, cross-validated): "))
+            @match &a.outcome {
+                None => (format!("not decided yet (budget {} points)", a.budget)),
+                Some(o) => {
+                    @if o.reached { (format!("reached at {} points (budget {}): ", o.validation.points, a.budget)) }
+                    @else { (format!("NOT reached: the budget of {} points was spent; at {} points: ", a.budget, o.validation.points)) }
+                    @for (k, (q, e)) in o.validation.qoi.iter().enumerate() {
+                        @if k > 0 { ", " }
+                        (q) (format!(" mean {:.1e} largest {:.1e}", e.mean, e.largest))
                     }
                 }
             }
         }
+    }
+}
+
+/// What the study's audits measured: the points' accuracy, the surface's between them, the time
+/// step's and the mesh's errors.
+fn audit_paragraphs(v: &StudyView) -> Markup {
+    html! {
         @if let Some(a) = &v.accuracy {
             p #accuracy {
                 (format!("measured accuracy: {} of {} points re-solved cold at {:.0e}: ", a.audited, a.planned, a.tolerance))
@@ -697,98 +771,91 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
             }
         }
         @if let Some(d) = &v.discretisation {
-            p #discretisation {
+            (discretisation_paragraphs(d))
+        }
+    }
+}
+
+fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {
+    html! {
+        p #discretisation {
+            (format!(
+                "discretisation error: {} of {} points re-solved at {} ({:.1} s of solves, {:.2} x the study's {:.1} s): ",
+                d.audited,
+                d.planned,
+                d.levels.iter().map(|(_, f)| format!("dt / {f}")).collect::<Vec<_>>().join(" and "),
+                d.work_seconds,
+                if d.study_seconds > 0.0 { d.work_seconds / d.study_seconds } else { 0.0 },
+                d.study_seconds
+            ))
+            @for (k, (q, e)) in d.qoi.iter().enumerate() {
+                @if k > 0 { ", " }
+                (q) (format!(" change {:.1e} error ~{:.1e}", e.change, e.error))
+                @if e.erratic > 0 {
+                    strong { (format!(" (erratic at {} point(s): an event moves with the step; no extrapolation)", e.erratic)) }
+                } @else if e.below_tolerance {
+                    " (below the iterations' noise)"
+                } @else if let Some(order) = e.order {
+                    (format!(" (observed order {order:.2})"))
+                } @else {
+                    " (order 2 assumed)"
+                }
+            }
+        }
+        @if let Some(m) = &d.mesh {
+            p #mesh-discretisation {
                 (format!(
-                    "discretisation error: {} of {} points re-solved at {} ({:.1} s of solves, {:.2} x the study's {:.1} s): ",
-                    d.audited,
+                    "mesh error: {} of {} points re-solved cold at h / {} ({:.1} s of solves, {:.2} x the study's): ",
+                    m.audited,
                     d.planned,
-                    d.levels.iter().map(|(_, f)| format!("dt / {f}")).collect::<Vec<_>>().join(" and "),
-                    d.work_seconds,
-                    if d.study_seconds > 0.0 { d.work_seconds / d.study_seconds } else { 0.0 },
-                    d.study_seconds
+                    m.factor,
+                    m.work_seconds,
+                    if d.study_seconds > 0.0 { m.work_seconds / d.study_seconds } else { 0.0 },
                 ))
-                @for (k, (q, e)) in d.qoi.iter().enumerate() {
+                @for (k, (q, e)) in d.qoi.iter().filter_map(|(q, e)| Some((q, e.mesh?))).enumerate() {
                     @if k > 0 { ", " }
                     (q) (format!(" change {:.1e} error ~{:.1e}", e.change, e.error))
-                    @if e.erratic > 0 {
-                        strong { (format!(" (erratic at {} point(s): an event moves with the step; no extrapolation)", e.erratic)) }
-                    } @else if e.below_tolerance {
-                        " (below the iterations' noise)"
-                    } @else if let Some(order) = e.order {
-                        (format!(" (observed order {order:.2})"))
-                    } @else {
-                        " (order 2 assumed)"
-                    }
-                }
-            }
-            @if let Some(m) = &d.mesh {
-                p #mesh-discretisation {
-                    (format!(
-                        "mesh error: {} of {} points re-solved cold at h / {} ({:.1} s of solves, {:.2} x the study's): ",
-                        m.audited,
-                        d.planned,
-                        m.factor,
-                        m.work_seconds,
-                        if d.study_seconds > 0.0 { m.work_seconds / d.study_seconds } else { 0.0 },
-                    ))
-                    @for (k, (q, e)) in d.qoi.iter().filter_map(|(q, e)| Some((q, e.mesh?))).enumerate() {
-                        @if k > 0 { ", " }
-                        (q) (format!(" change {:.1e} error ~{:.1e}", e.change, e.error))
-                        @if e.below_tolerance { " (below the iterations' noise)" } @else { " (order 2 assumed)" }
-                    }
+                    @if e.below_tolerance { " (below the iterations' noise)" } @else { " (order 2 assumed)" }
                 }
             }
         }
-        @if let Some((name, value)) = &fixed {
-            p #slice { "slice at " (name) (format!(" = {} (", parameter(*value))) a href=(here) { "whole surface" } ")" }
-        } @else if let Some((last, value)) = offered {
-            p { "slices: " a #slice-link href=(slice_link(&here, last, value)) { (last) (format!(" = {}", parameter(value))) } }
-        }
-        @if let Some(miss) = &slice_miss {
-            p #slice-miss { (miss) }
-        } @else {
-            @for svg in &surfaces { (svg) }
-        }
-        // the running points: the script fills this table from the JSON while the study runs
-        @if v.state == StudyState::Active {
-            table #running {
-                caption { "running points" }
-                tr { th { "point" } @for n in &r.parameters { th { (named(n, &units)) } } th { "pool" } th { "iterations" } th { "eta" } }
-            }
-        }
-        (convergence_figure(&series, r.tolerance))
-        p {
-            "download: " a href=(format!("/api/studies/{}/surface.csv", r.id.0)) { "surface.csv" } ", "
-            a href=(format!("/api/studies/{}", r.id.0)) { "study JSON" }
-        }
+    }
+}
+
+/// Every point of the study with its state, iterations, eta, QoIs and why it failed.
+fn points_table(
+    v: &StudyView,
+    qoi: &[String],
+    units: &BTreeMap<String, String>,
+    resolution: &BTreeMap<String, f64>,
+) -> Markup {
+    let parameters = &v.record.parameters;
+    html! {
         table #points {
             tr {
                 th { "point" }
-                @for n in &r.parameters { th { (named(n, &units)) } }
+                @for n in parameters { th { (named(n, units)) } }
                 th { "state" } th { "iterations" } th { "eta" }
-                @for qoi in &s.qoi { th { (named(qoi, &units)) } }
+                @for q in qoi { th { (named(q, units)) } }
                 th { "note" }
             }
             @for point in &v.points {
                 @let res = point.result.as_ref();
                 tr {
                     td { (point.id.0) }
-                    @for n in &r.parameters { td { @if let Some(x) = point.parameters.get(n) { (parameter(x)) } } }
+                    @for n in parameters { td { @if let Some(x) = point.parameters.get(n) { (parameter(x)) } } }
                     td { (point_state_word(&point.state)) }
                     td { @if let Some(r) = res { (r.iterations) } }
                     td { @if let Some(r) = res { (format!("{:.2e}", r.error_indicator)) } }
-                    @for qoi in &s.qoi {
-                        td { @if let Some(x) = res.and_then(|r| r.qoi.get(qoi)) { (format!("{:.4e}", shown(*x, resolution[qoi]))) } }
+                    @for q in qoi {
+                        td { @if let Some(x) = res.and_then(|r| r.qoi.get(q)) { (format!("{:.4e}", shown(*x, resolution[q]))) } }
                     }
                     // why it failed (or why its last attempt did)
                     td class="note" { @if let Some(e) = &point.error { (e) } }
                 }
             }
         }
-        script src="/static/study.js" {}
-    };
-    let title = if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
-    page(&title, body).into_response()
+    }
 }
 
 #[cfg(test)]
@@ -848,6 +915,74 @@ mod tests {
         assert!(
             one.contains("data-surface=\"false\"") && one.contains("no surface: a surface needs at least 2 points")
         );
+    }
+
+    /// A study's surface of points (a, b) with ux = a + b and slip = a b; `done` of them have values.
+    fn study_surface(points: &[(f64, f64)], done: usize) -> Surface {
+        let rows = points
+            .iter()
+            .enumerate()
+            .map(|(k, &(a, b))| crate::coordinator::SurfaceRow {
+                parameters: ParameterVector::from_pairs([("a", a), ("b", b)]).unwrap(),
+                qoi: if k < done {
+                    BTreeMap::from([("ux".to_owned(), a + b), ("slip".to_owned(), a * b)])
+                } else {
+                    BTreeMap::new()
+                },
+                iterations: 10,
+                error_indicator: 1e-4,
+                converged: k < done,
+                state: if k < done { PointState::Done } else { PointState::Pending },
+            })
+            .collect();
+        Surface {
+            scene_hash: String::new(),
+            parameters: vec!["a".into(), "b".into()],
+            qoi: vec!["slip".into(), "ux".into()],
+            rows,
+            predictions: Vec::new(),
+        }
+    }
+
+    #[tokio::test]
+    async fn a_second_load_draws_nothing_and_a_new_point_draws_again() {
+        let scene = Some(glissade_core::scene::Scene::parse(SCENE).unwrap());
+        let cache = FigureCache::default();
+        let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5)];
+        let resolution = BTreeMap::from([("ux".to_owned(), 0.0), ("slip".to_owned(), 0.0)]);
+        let load = |s: Surface, fixed: Vec<(String, f64)>| {
+            let (cache, scene, resolution) = (&cache, &scene, &resolution);
+            async move { cached_figures(cache, StudyId(3), &Arc::new(s), scene, &fixed, resolution).await.ok().unwrap() }
+        };
+        let first = load(study_surface(&points, 4), vec![]).await;
+        assert_eq!(cache.stats().0, 1);
+        // the same points again: the same pictures, not drawn again
+        let second = load(study_surface(&points, 4), vec![]).await;
+        assert!(Arc::ptr_eq(&first, &second));
+        assert_eq!(cache.stats().0, 1);
+        // the last point leased (its state only): nothing changes on the picture
+        let mut leased = study_surface(&points, 4);
+        leased.rows[4].state = PointState::Leased { pool: "p".into(), lease_id: 1, deadline_unix_ms: 0, init: None };
+        load(leased, vec![]).await;
+        assert_eq!(cache.stats().0, 1);
+        // it lands: drawn again, its value on the picture
+        let landed = load(study_surface(&points, 5), vec![]).await;
+        assert_eq!(cache.stats().0, 2);
+        assert!(landed.iter().any(|svg| svg.contains("a=0.9 b=1.5 ux = 2.4000e0")), "the new point's value");
+        assert!(first.iter().all(|svg| !svg.contains("a=0.9 b=1.5")));
+        // a point's value changes (a tighter re-solve replaces it): drawn again
+        let mut moved = study_surface(&points, 5);
+        moved.rows[0].qoi.insert("ux".into(), 0.41);
+        load(moved, vec![]).await;
+        assert_eq!(cache.stats().0, 3);
+        // a slice is kept apart from the whole surface
+        load(study_surface(&points, 5), vec![("b".into(), 1.5)]).await;
+        assert_eq!(cache.stats().0, 4);
+        load(study_surface(&points, 5), vec![("b".into(), 1.5)]).await;
+        assert_eq!(cache.stats().0, 4);
+        // each picture is the drawing of its points, as without a cache
+        let fresh = surface_figures(&study_surface(&points, 5), scene.as_ref(), &[], &resolution);
+        assert_eq!(*landed, fresh);
     }
 
     #[test]

@@ -88,3 +88,104 @@ fn a_surface_audit_reports_the_error_of_the_surface_at_held_out_solves() -> anyh
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }
+
+/// `--surface-accuracy` through the real CLI, coordinator and pool: a target that a few points
+/// reach stops the study there and says so; one they cannot reach spends the budget and says
+/// that. The outcome is checked against the cross-validation of the points the pool solved,
+/// recomputed here from the API's values (core's leave-one-out, the measure the coordinator
+/// judges with): reached at the first count of points where every QoI's mean error is within the
+/// target, not one point later.
+#[test]
+fn a_target_stops_an_adaptive_study_once_its_surfaces_are_within_it() -> anyhow::Result<()> {
+    use glissade_core::study::adaptive::{AdaptiveDesign, QoiReadings};
+    use glissade_core::study::space::{DesignPoint, ParameterSpace};
+    let dir = tempfile::tempdir()?;
+    let (server_log, pool_log) = (dir.path().join("server.log"), dir.path().join("pool.log"));
+    let (_server, addr) = start_server(&dir.path().join("db"), &server_log);
+    let url = format!("http://{addr}");
+    let mut pool = start_single_pool(&url, "pool", &pool_log);
+    let logs = || format!("server:\n{}\npool:\n{}", log_of(&server_log), log_of(&pool_log));
+    let scene_path = shipped_scene("three-blocks-tiny.toml");
+    let scene_text = std::fs::read_to_string(&scene_path)?;
+    let scene = glissade_core::scene::Scene::parse(&scene_text)?;
+    let space = ParameterSpace::from_scene(&scene);
+    let ranges = ["f1=0.1:0.2".to_owned(), "f2=0.1:0.2".to_owned()];
+    // (target, budget, extra arguments): a loose target at its own tolerance (target / 30), and
+    // one that 10 points cannot reach, at a given tolerance
+    let runs: [(f64, usize, &[&str]); 2] = [(0.25, 16, &[]), (1e-3, 10, &["--tol", "1e-3"])];
+    let mut outcomes = Vec::new();
+    for (target, budget, extra) in runs {
+        let (t, b) = (target.to_string(), budget.to_string());
+        let mut args =
+            vec!["submit", scene_path.to_str().expect("utf-8"), "--range", &ranges[0], "--range", &ranges[1]];
+        args.extend(["--surface-accuracy", &t, "--adaptive", &b, "--audit", "0", "--refine", "0", "--json"]);
+        args.extend(extra);
+        let out = glissade(Some(&url), &args);
+        assert!(out.status.success(), "{}\n{}", text(&out.stderr), logs());
+        let id = serde_json::from_slice::<serde_json::Value>(&out.stdout)?["study_id"].as_u64().expect("an id");
+        let (s, audit) = runtime().block_on(async {
+            let mut client = user(&url).await?;
+            watch(&mut client, id, |_| true).await?;
+            let audit = study(&mut client, id).await?.surface_accuracy.expect("a surface audit").audit_study_id;
+            watch(&mut client, audit, |_| true).await?;
+            anyhow::Ok((study(&mut client, id).await?, study(&mut client, audit).await?))
+        })?;
+        let reported = s.target.clone().expect("a target");
+        assert_eq!((reported.surface_accuracy, reported.budget as usize), (target, budget), "{reported:?}");
+        let tolerance = if extra.is_empty() { target / 30.0 } else { 1e-3 };
+        assert!((s.tolerance - tolerance).abs() <= 1e-12 * tolerance, "{} against {tolerance}", s.tolerance);
+        // the cross-validation after each point the pool solved (one pool: in the order chosen)
+        let mut done: Vec<&v1::PointStatus> =
+            s.points.iter().filter(|p| p.state == v1::PointState::Done as i32).collect();
+        done.sort_by_key(|p| p.point_id);
+        let design = AdaptiveDesign::parse(&ranges, budget, Some(target), &space, 1000).map_err(anyhow::Error::msg)?;
+        let points: Vec<(DesignPoint, std::collections::BTreeMap<String, f64>)> = done
+            .iter()
+            .map(|p| {
+                (
+                    DesignPoint::from_pairs(p.parameters.iter().map(|(n, v)| (n.clone(), *v))),
+                    p.qoi.clone().into_iter().collect(),
+                )
+            })
+            .collect();
+        let validation = |k: usize| {
+            let chosen: Vec<_> = points[..k].iter().map(|(p, q)| (p.clone(), Some(q))).collect();
+            design.surfaces(&space, &QoiReadings::of(&scene), &chosen).cross_validate()
+        };
+        let first_within = (design.validated_after()..=done.len()).find(|&k| design.target_reached(&validation(k)));
+        let n = done.len();
+        match reported.outcome.as_str() {
+            "reached" => assert_eq!(first_within, Some(n), "reached at the first point within, no point after"),
+            "budget" => assert_eq!((first_within, n), (None, budget), "never within, every point of the budget"),
+            other => panic!("outcome {other:?}: {reported:?}\n{}", logs()),
+        }
+        assert_eq!(reported.points as usize, n);
+        let expected = validation(n);
+        assert_eq!(reported.qoi.len(), expected.qoi.len(), "{reported:?}");
+        for (q, e) in &expected.qoi {
+            let r = &reported.qoi[q];
+            assert!((r.mean - e.mean).abs() <= 1e-9 * e.mean.max(1e-300), "{q}: {r:?} against {e:?}");
+            assert!((r.largest - e.largest).abs() <= 1e-9 * e.largest.max(1e-300), "{q}: {r:?} against {e:?}");
+        }
+        // its held-out points were leased after it (within their cost cap: a study this cheap
+        // affords few of them cold at 1/100 of its tolerance), and `show`, the web page and the
+        // API say the same
+        assert!(audit.held_out && audit.audit_of == id, "{audit:?}");
+        let shown = text(&glissade(Some(&url), &["show", &id.to_string()]).stdout);
+        let verdict = match reported.outcome.as_str() {
+            "reached" => format!("REACHED at {n} points (budget {budget})"),
+            _ => format!("NOT REACHED: the budget of {budget} points was spent; at {n} points"),
+        };
+        assert!(shown.contains(&verdict), "{shown}");
+        let (_, _, page) = http_get(&addr, &format!("/studies/{id}"));
+        assert!(page.contains("id=\"target\""), "{page}");
+        let (_, _, json) = http_get(&addr, &format!("/api/studies/{id}"));
+        let json: serde_json::Value = serde_json::from_str(&json)?;
+        assert_eq!(json["target"]["outcome"], reported.outcome.as_str(), "{json}");
+        outcomes.push(reported.outcome);
+    }
+    // each run ends its own way: a test of both
+    assert_eq!(outcomes, ["reached", "budget"], "{}", logs());
+    assert!(terminate(&mut pool.0).success());
+    Ok(())
+}

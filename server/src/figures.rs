@@ -1,0 +1,184 @@
+//! The web page's surface pictures, kept between loads: fitting a QoI's surface is O(points^3)
+//! (0.9 s for 400 points, docs/surrogate.md), and a page reloads every second while its study
+//! runs. A study's pictures are a function of its points' parameters and values, the slice shown
+//! and the resolution of each QoI (the scene is the study's own), so they are kept under a hash
+//! of exactly these: a point that lands changes the hash and the next load draws again, a load
+//! with nothing new draws nothing. Bounded in bytes, the least recently used dropped first.
+
+use std::collections::HashMap;
+use std::hash::{DefaultHasher, Hash, Hasher};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use glissade_proto::StudyId;
+
+use crate::coordinator::Surface;
+
+/// What the pictures of all studies may take (a picture is 0.3-0.5 MB of SVG, docs/surrogate.md).
+pub const MAX_BYTES: usize = 64 << 20;
+
+/// Which study and slice: each keeps only its latest pictures.
+type Slot = (StudyId, Vec<(String, u64)>);
+
+struct Entry {
+    hash: u64,
+    figures: Arc<Vec<String>>,
+    bytes: usize,
+    /// when it was last read (the cache's clock)
+    used: u64,
+}
+
+#[derive(Default)]
+struct Inner {
+    entries: HashMap<Slot, Entry>,
+    bytes: usize,
+    clock: u64,
+    draws: u64,
+}
+
+/// The pictures last drawn per study and slice.
+pub struct FigureCache {
+    max_bytes: usize,
+    inner: Mutex<Inner>,
+}
+
+impl Default for FigureCache {
+    fn default() -> Self {
+        FigureCache::new(MAX_BYTES)
+    }
+}
+
+/// What a study's pictures depend on besides its scene: every point's parameters and QoI values
+/// (not its state: a point leased draws the same as a point pending), the slice, the
+/// resolutions.
+pub fn content_hash(
+    surface: &Surface,
+    fixed: &[(String, f64)],
+    resolution: &std::collections::BTreeMap<String, f64>,
+) -> u64 {
+    let mut h = DefaultHasher::new();
+    surface.parameters.hash(&mut h);
+    surface.qoi.hash(&mut h);
+    for row in &surface.rows {
+        for (n, v) in row.parameters.iter() {
+            (n, v.to_bits()).hash(&mut h);
+        }
+        for (q, v) in &row.qoi {
+            (q, v.to_bits()).hash(&mut h);
+        }
+        // the end of a row, so that values cannot shift from one row to the next
+        u8::MAX.hash(&mut h);
+    }
+    for (n, v) in fixed {
+        (n, v.to_bits()).hash(&mut h);
+    }
+    for (q, r) in resolution {
+        (q, r.to_bits()).hash(&mut h);
+    }
+    h.finish()
+}
+
+impl FigureCache {
+    pub fn new(max_bytes: usize) -> Self {
+        FigureCache { max_bytes, inner: Mutex::new(Inner::default()) }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
+        // a panic while holding it leaves a consistent map (every change is one statement)
+        self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The pictures kept for `study` and `fixed` if they were drawn from content `hash`.
+    pub fn get(&self, study: StudyId, fixed: &[(String, f64)], hash: u64) -> Option<Arc<Vec<String>>> {
+        let mut inner = self.lock();
+        inner.clock += 1;
+        let now = inner.clock;
+        let entry = inner.entries.get_mut(&slot(study, fixed)).filter(|e| e.hash == hash)?;
+        entry.used = now;
+        Some(entry.figures.clone())
+    }
+
+    /// Keeps pictures just drawn from content `hash` (replacing that study's and slice's older
+    /// ones), then drops the least recently read until the whole fits the bound; pictures larger
+    /// than the bound alone are not kept.
+    pub fn put(&self, study: StudyId, fixed: &[(String, f64)], hash: u64, figures: Arc<Vec<String>>) {
+        let bytes: usize = figures.iter().map(String::len).sum();
+        let mut inner = self.lock();
+        inner.draws += 1;
+        inner.clock += 1;
+        let used = inner.clock;
+        if let Some(old) = inner.entries.remove(&slot(study, fixed)) {
+            inner.bytes -= old.bytes;
+        }
+        if bytes > self.max_bytes {
+            return;
+        }
+        while inner.bytes + bytes > self.max_bytes {
+            let Some(oldest) = inner.entries.iter().min_by_key(|(_, e)| e.used).map(|(k, _)| k.clone()) else { break };
+            if let Some(e) = inner.entries.remove(&oldest) {
+                inner.bytes -= e.bytes;
+            }
+        }
+        inner.bytes += bytes;
+        inner.entries.insert(slot(study, fixed), Entry { hash, figures, bytes, used });
+    }
+
+    /// How many times pictures were drawn (kept or not) and the bytes kept.
+    #[cfg(test)]
+    pub fn stats(&self) -> (u64, usize) {
+        let inner = self.lock();
+        (inner.draws, inner.bytes)
+    }
+}
+
+fn slot(study: StudyId, fixed: &[(String, f64)]) -> Slot {
+    (study, fixed.iter().map(|(n, v)| (n.clone(), v.to_bits())).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn figures(text: &str, bytes: usize) -> Arc<Vec<String>> {
+        Arc::new(vec![text.repeat(bytes / text.len().max(1))])
+    }
+
+    #[test]
+    fn pictures_are_kept_per_study_and_slice_until_their_content_changes() {
+        let cache = FigureCache::new(1000);
+        let (a, b) = (StudyId(1), StudyId(2));
+        let slice = [("f2".to_owned(), 0.1)];
+        assert!(cache.get(a, &[], 7).is_none());
+        cache.put(a, &[], 7, figures("a", 100));
+        cache.put(a, &slice, 7, figures("s", 100));
+        cache.put(b, &[], 7, figures("b", 100));
+        assert_eq!(cache.get(a, &[], 7).unwrap()[0], "a".repeat(100));
+        assert_eq!(cache.get(a, &slice, 7).unwrap()[0], "s".repeat(100));
+        // new content: the old pictures are no answer, and the new replace them
+        assert!(cache.get(a, &[], 8).is_none());
+        cache.put(a, &[], 8, figures("A", 100));
+        assert!(cache.get(a, &[], 7).is_none());
+        assert_eq!(cache.get(a, &[], 8).unwrap()[0], "A".repeat(100));
+        assert_eq!(cache.stats(), (4, 300));
+    }
+
+    #[test]
+    fn the_cache_stays_within_its_bound_dropping_the_least_recently_read() {
+        let cache = FigureCache::new(1000);
+        for k in 0..4 {
+            cache.put(StudyId(k), &[], 0, figures("x", 300));
+        }
+        // 4 x 300 > 1000: the first put is gone
+        assert_eq!(cache.stats().1, 900);
+        assert!(cache.get(StudyId(0), &[], 0).is_none());
+        // read 1, then add one more: 2 (read least recently) goes, 1 stays
+        assert!(cache.get(StudyId(1), &[], 0).is_some());
+        cache.put(StudyId(4), &[], 0, figures("x", 300));
+        assert!(cache.get(StudyId(1), &[], 0).is_some());
+        assert!(cache.get(StudyId(2), &[], 0).is_none());
+        assert_eq!(cache.stats().1, 900);
+        // a picture above the bound alone is drawn but not kept, and evicts nothing
+        cache.put(StudyId(9), &[], 0, figures("x", 2000));
+        assert!(cache.get(StudyId(9), &[], 0).is_none());
+        assert_eq!(cache.stats().1, 900);
+    }
+}

@@ -1,0 +1,159 @@
+#!/usr/bin/env python3
+"""The response surface's benchmark (docs/surrogate.md, "Benchmark"): studies run through the
+real service, their surfaces judged against a dense reference grid.
+
+Each design runs on a coordinator of its own (a fresh database: no study answers or warm-starts
+another's points) with one single-process pool. Once the study and its surface audit are done,
+the surface that `glissade surface --at` answers is read at every reference point off the design
+and compared with the reference's value: per QoI, the largest and mean |error| relative to the
+QoI's spread over the reference (the surface audit's measure, core::study::holdout), and the
+share within 2 predicted standard deviations; beside them the study's work (dynamic iterations +
+static iterations / steps, summed over its points), wall time, and what its own surface audit
+estimated.
+
+    python3 tools/surface_bench.py --bin target/release --scene S.toml --reference R.json \
+        --out DIR --qoi middle_ux,slip_A,slip_B -- 'NAME|submit arguments' ...
+
+e.g. 'cold 11 x 11|--grid f1=0.1:0.2:11 --grid f2=0.1:0.2:11 --strategy cold'. Only the
+standard library: no numpy.
+"""
+
+import argparse
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+
+
+def run(cmd, **kw):
+    out = subprocess.run(cmd, capture_output=True, text=True, **kw)
+    if out.returncode != 0:
+        sys.exit(f"{' '.join(cmd)} failed ({out.returncode}):\n{out.stdout}\n{out.stderr}")
+    return out.stdout
+
+
+class Service:
+    """A coordinator on a fresh database and one pool; both stopped (by their pid) on exit."""
+
+    def __init__(self, bin_dir, data, log_dir):
+        self.bin = bin_dir
+        self.server = subprocess.Popen(
+            ["nice", "-n", "10", f"{bin_dir}/glissade-server", "--listen", "127.0.0.1:0", "--data", data],
+            stdout=subprocess.PIPE, stderr=open(f"{log_dir}/server.log", "w"), text=True)
+        line = self.server.stdout.readline()
+        if not line.startswith("listening on "):
+            self.close()
+            sys.exit(f"glissade-server said {line!r}; see {log_dir}/server.log")
+        self.url = "http://" + line.split()[-1]
+        self.pool = subprocess.Popen(
+            ["nice", "-n", "10", f"{bin_dir}/glissade-worker", "pool", "--coordinator", self.url,
+             "--pool-id", "bench", "--spool", f"{log_dir}/spool"],
+            stdout=subprocess.DEVNULL, stderr=open(f"{log_dir}/pool.log", "w"))
+
+    def cli(self, *args):
+        return run([f"{self.bin}/glissade", *args, "--server", self.url])
+
+    def show(self, study, points=False):
+        return json.loads(self.cli("show", str(study), "--json", *(["--points"] if points else [])))
+
+    def close(self):
+        for p in (getattr(self, "pool", None), self.server):
+            if p is not None and p.poll() is None:
+                p.terminate()
+                try:
+                    p.wait(30)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+
+
+def finished(study):
+    return study["state"] in ("done", "cancelled", "failed")
+
+
+def measure(bin_dir, scene, reference, qois, name, args, out):
+    work_dir = os.path.join(out, name.replace(" ", "_"))
+    os.makedirs(work_dir, exist_ok=True)
+    service = Service(bin_dir, os.path.join(work_dir, "db"), work_dir)
+    try:
+        submitted = json.loads(service.cli("submit", scene, *shlex.split(args), "--audit", "0", "--refine", "0",
+                                           "--json"))
+        sid = submitted["study_id"]
+        while not finished(study := service.show(sid)):
+            time.sleep(1)
+        # then its surface audit (held-out points solved after the study)
+        audit = study.get("surface_accuracy")
+        while audit and not finished(service.show(audit["audit_study_id"])):
+            time.sleep(1)
+        study = service.show(sid, points=True)
+        points = [p for p in study["points"] if p["state"] == "done"]
+        params = study["parameters"]
+        design = [tuple(p["parameters"][n] for n in params) for p in points]
+        # reference points off the design (at a design point the surface interpolates its value)
+        off = [r for r in reference
+               if not any(all(abs(r["point"][n] - d[k]) < 1e-9 * max(1.0, abs(d[k])) for k, n in enumerate(params))
+                          for d in design)]
+        at = [",".join(f"{n}={r['point'][n]!r}" for n in params) for r in off]
+        ats = [a for x in at for a in ("--at", x)]
+        predicted = json.loads(service.cli("surface", str(sid), "--json", *ats))["points"]
+    finally:
+        service.close()
+    row = {
+        "name": name, "args": args, "study": sid, "points": len(points),
+        "work": sum(p["work"] or 0.0 for p in points),
+        "wall_s": (study["finished_unix_ms"] - study["created_unix_ms"]) / 1e3,
+        "tolerance": study["tolerance"], "target": study.get("target"),
+        "audit": study.get("surface_accuracy"), "judged_on": len(off), "qoi": {},
+    }
+    for q in qois:
+        values = [r["qoi"][q] for r in reference]
+        spread = max(values) - min(values)
+        errors, within = [], 0
+        for r, p in zip(off, predicted):
+            m = p["qoi"][q]
+            e = abs(m["mean"] - r["qoi"][q])
+            errors.append(e / spread)
+            within += e <= 2 * m["std"]
+        row["qoi"][q] = {"largest": max(errors), "mean": sum(errors) / len(errors), "within_2sd": within / len(off)}
+    return row
+
+
+def table(rows, qois):
+    lines = ["| design | points | work | wall (s) | QoI | largest / mean (truth) | within 2 sd | audit: largest / mean (mean / truth's) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        for k, q in enumerate(qois):
+            t = r["qoi"][q]
+            a = ((r["audit"] or {}).get("qoi") or {}).get(q)
+            audit = (f"{a['largest']:.3f} / {a['mean']:.4f} ({a['mean'] / t['mean']:.2f})" if a else "-")
+            head = (f"| {r['name']} | {r['points']} | {r['work']:.0f} | {r['wall_s']:.0f} |" if k == 0
+                    else "| | | | |")
+            lines.append(f"{head} {q} | {t['largest']:.3f} / {t['mean']:.4f} | {100 * t['within_2sd']:.0f} % | {audit} |")
+    return "\n".join(lines)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--bin", default="target/release")
+    ap.add_argument("--scene", required=True)
+    ap.add_argument("--reference", required=True, help="results.json of `glissade-worker study`")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--qoi", default="middle_ux,slip_A,slip_B")
+    ap.add_argument("designs", nargs="+", help="'NAME|submit arguments'")
+    a = ap.parse_args()
+    qois = a.qoi.split(",")
+    reference = json.load(open(a.reference))["records"]
+    os.makedirs(a.out, exist_ok=True)
+    rows = []
+    for d in a.designs:
+        name, args = d.split("|", 1)
+        started = time.time()
+        rows.append(measure(os.path.abspath(a.bin), a.scene, reference, qois, name, args, a.out))
+        print(f"{name}: {time.time() - started:.0f} s", file=sys.stderr)
+        json.dump(rows, open(os.path.join(a.out, "bench.json"), "w"), indent=1)
+    print(table(rows, qois))
+
+
+if __name__ == "__main__":
+    main()
