@@ -941,25 +941,11 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if !eta.is_finite() {
                 return Err(SolverError::NonFinite { stage: stage_name, iteration, eta });
             }
-            let within_budget = || {
-                budget.is_some_and(|(share, earlier)| {
-                    let errors = estimator.errors();
-                    !errors.is_empty()
-                        && errors
-                            .iter()
-                            .zip(estimator.scales())
-                            .zip(earlier)
-                            .all(|((e, s), before)| e * s + before <= share * s)
-                })
-            };
-            if eta <= tolerance && (report.error_estimate <= estimate_tolerance || within_budget()) {
+            if eta <= tolerance && (report.error_estimate <= estimate_tolerance || within_budget(budget, &estimator)) {
                 if let Some(t) = tightening.as_mut() {
-                    let names: Vec<&str> = m.qois.iter().map(|q| q.name.as_str()).collect();
-                    if let Some(next) = t.reached(tolerance, &current, &names, estimator.scales()) {
+                    if let Some(next) = t.reached(tolerance, &current, &m.qois, estimator.scales()) {
                         // on, a tenth tighter; the first time, with iterations to spare
-                        if t.check.passes == 1 {
-                            limit = iteration + stage.iteration_limit(m);
-                        }
+                        limit = if t.check.passes == 1 { iteration + stage.iteration_limit(m) } else { limit };
                         (tolerance, estimate_tolerance) = (next, estimate_tolerance * next / tolerance);
                         continue;
                     }
@@ -1398,6 +1384,16 @@ pub(crate) fn copy_rows(to: &mut Vec<Vec<f64>>, from: &[Vec<f64>]) {
         t.clear();
         t.extend_from_slice(f);
     }
+}
+
+/// The last window sees the whole histories: it may stop once every QoI's estimated error, with
+/// what the earlier windows spent (absolute), fits `share` of the QoI's norm.
+fn within_budget(budget: Option<(f64, &[f64])>, estimator: &ErrorEstimator) -> bool {
+    budget.is_some_and(|(share, earlier)| {
+        let errors = estimator.errors();
+        !errors.is_empty()
+            && errors.iter().zip(estimator.scales()).zip(earlier).all(|((e, s), before)| e * s + before <= share * s)
+    })
 }
 
 /// Fills steps `from..to` of every field with its values at step `from - 1`: a cold start's next

@@ -332,11 +332,11 @@ impl Tightening {
         &mut self,
         tolerance: f64,
         current: &[Vec<f64>],
-        names: &[&str],
+        qois: &[crate::model::Qoi],
         scales: &[f64],
     ) -> Option<f64> {
         if let Some(looser) = &self.looser {
-            let pairs = names.iter().zip(looser).zip(current).map(|((n, a), b)| (*n, &a[..], &b[..]));
+            let pairs = qois.iter().zip(looser).zip(current).map(|((q, a), b)| (q.name.as_str(), &a[..], &b[..]));
             self.check.distances = distances_of(pairs, scales);
             (self.check.discrepancy, self.check.qoi) = worst(&self.check.distances);
             tracing::info!(
