@@ -40,9 +40,9 @@ fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
     (0..D).map(|i| a[i] * b[i]).sum()
 }
 
-/// Applies the interface law to one node: perfect (or a prestress's held jump), unilateral
-/// contact, or contact with Coulomb friction (stick trial, then the tangential force scaled back
-/// to the cone f |F_n|), on the search direction E+: F^ - F = k (W^ - W), k with a normal and a
+/// Applies the interface law to one node: perfect (or a prestress's held jump), or unilateral
+/// contact with Coulomb friction ([`coulomb_contact`], frictionless for `Contact`), on the
+/// search direction E+: F^ - F = k (W^ - W), k with a normal and a
 /// tangential value: the law is solved on the normal and the tangential parts apart, each with
 /// its own scalar h.
 pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRule) -> NodeOutput<D> {
@@ -75,38 +75,8 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
                 }
             }
         }
-        InterfaceLaw::Contact | InterfaceLaw::Friction { .. } => {
-            // free relative velocity: what W^2 - W^1 would be with F^ = 0
-            let (hf1, hf2) = (h1.apply(n, &x.f1), h2.apply(n, &x.f2));
-            let mut rel = [0.0; D];
-            for i in 0..D {
-                rel[i] = (x.w2[i] - x.w1[i]) - (hf2[i] - hf1[i]);
-            }
-            let rel_n = dot(&rel, n);
-            // A closed gap (base <= 0) is clipped at zero: contact then holds on the velocity level
-            // (n.(W^2 - W^1) = 0), without the spurious rebound that closing the trapezoidal gap
-            // exactly would give; penetration stays below dt/2 times the approach velocity.
-            let trial_gap = gap.base.max(0.0) + gap.weight * rel_n;
-            if trial_gap <= 0.0 {
-                // contact: the normal force closes the gap exactly
-                let f1n = trial_gap / (gap.weight * (h1.normal + h2.normal));
-                let mu = match law {
-                    InterfaceLaw::Friction { coefficient } => coefficient,
-                    _ => 0.0,
-                };
-                // stick trial T from zero relative tangential velocity
-                let mut t = [0.0; D];
-                for i in 0..D {
-                    t[i] = (rel[i] - rel_n * n[i]) / (h1.tangential + h2.tangential);
-                }
-                let t_norm = dot(&t, &t).sqrt();
-                let threshold = mu * f1n.abs();
-                let scale = if t_norm <= threshold { 1.0 } else { threshold / t_norm };
-                for i in 0..D {
-                    f1h[i] = f1n * n[i] + scale * t[i];
-                }
-            }
-        }
+        InterfaceLaw::Contact => f1h = coulomb_contact(x, 0.0, gap),
+        InterfaceLaw::Friction { coefficient } => f1h = coulomb_contact(x, coefficient, gap),
     }
     let f2h: [f64; D] = std::array::from_fn(|i| -f1h[i]);
     let d1 = h1.apply(n, &std::array::from_fn(|i| f1h[i] - x.f1[i]));
@@ -117,6 +87,43 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
         w2: std::array::from_fn(|i| x.w2[i] + d2[i]),
         f2: f2h,
     }
+}
+
+/// Unilateral contact with Coulomb friction of coefficient `mu` (0: frictionless) at one node:
+/// the force on side 1. Where the trial gap closes, the normal force closes it exactly; the
+/// tangential force is the stick trial's, scaled back to the cone mu |F_n| where it lies outside
+/// (sliding); where the gap opens, no force.
+fn coulomb_contact<const D: usize>(x: &NodeInput<D>, mu: f64, gap: GapRule) -> [f64; D] {
+    let (h1, h2) = (x.h1, x.h2);
+    let n = &x.normal;
+    let mut f1h = [0.0; D];
+    // free relative velocity: what W^2 - W^1 would be with F^ = 0
+    let (hf1, hf2) = (h1.apply(n, &x.f1), h2.apply(n, &x.f2));
+    let mut rel = [0.0; D];
+    for i in 0..D {
+        rel[i] = (x.w2[i] - x.w1[i]) - (hf2[i] - hf1[i]);
+    }
+    let rel_n = dot(&rel, n);
+    // A closed gap (base <= 0) is clipped at zero: contact then holds on the velocity level
+    // (n.(W^2 - W^1) = 0), without the spurious rebound that closing the trapezoidal gap
+    // exactly would give; penetration stays below dt/2 times the approach velocity.
+    let trial_gap = gap.base.max(0.0) + gap.weight * rel_n;
+    if trial_gap <= 0.0 {
+        // contact: the normal force closes the gap exactly
+        let f1n = trial_gap / (gap.weight * (h1.normal + h2.normal));
+        // stick trial T from zero relative tangential velocity
+        let mut t = [0.0; D];
+        for i in 0..D {
+            t[i] = (rel[i] - rel_n * n[i]) / (h1.tangential + h2.tangential);
+        }
+        let t_norm = dot(&t, &t).sqrt();
+        let threshold = mu * f1n.abs();
+        let scale = if t_norm <= threshold { 1.0 } else { threshold / t_norm };
+        for i in 0..D {
+            f1h[i] = f1n * n[i] + scale * t[i];
+        }
+    }
+    f1h
 }
 
 #[cfg(test)]
