@@ -2,6 +2,8 @@
 //! case where the solver knows its answer cannot converge under refinement: an elastic body
 //! sliding on a rigid wall with a friction coefficient above 1 (docs/verification.md 4d).
 
+use std::collections::BTreeSet;
+
 use glissade_core::field::{InterfaceField, StageSolution};
 use serde::Serialize;
 
@@ -70,7 +72,7 @@ pub fn contact_activity<const D: usize>(
 ) -> Vec<ContactActivity> {
     // per interface name: the activity, the total normal force per level, and the nodes in
     // contact by position (a node shared by two pieces counted once)
-    let mut out: Vec<(ContactActivity, Vec<f64>, Vec<[u64; D]>)> = Vec::new();
+    let mut out: Vec<(ContactActivity, Vec<f64>, BTreeSet<[u64; D]>)> = Vec::new();
     for (itf, field) in interfaces.iter().zip(&dynamic.interfaces) {
         let InterfaceLaw::Friction { coefficient } = itf.law else { continue };
         let piece = Piece::read(itf, field);
@@ -90,18 +92,13 @@ pub fn contact_activity<const D: usize>(
                         ill_posed: false,
                     },
                     vec![0.0; piece.levels],
-                    Vec::new(),
+                    BTreeSet::new(),
                 ));
                 out.last_mut().expect("just pushed")
             }
         };
         let (a, total, nodes) = entry;
-        for j in piece.contact_nodes() {
-            let at: [u64; D] = std::array::from_fn(|c| itf.coords[j][c].to_bits());
-            if !nodes.contains(&at) {
-                nodes.push(at);
-            }
-        }
+        nodes.extend(piece.contact_nodes().map(|j| std::array::from_fn(|c| itf.coords[j][c].to_bits())));
         a.contact_nodes = nodes.len();
         a.landings_while_sliding += first_slip.map_or(0, |f| piece.landings_from(f));
         a.first_slip_time = match (a.first_slip_time, first_slip.map(|s| s as f64 * dt)) {

@@ -833,8 +833,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let StageStart { stage, u0, statics, .. } = *begin;
         let WindowRule { mut tolerance, mut estimate_tolerance, stall_at, floors, budget, tighten } = rule;
         let mut tightening = tighten.then(|| Tightening::new(tolerance));
-        // the QoIs of the last iteration, kept where the tightening compares them
-        let mut current: Vec<Vec<f64>> = Vec::new();
         let settings = &m.settings;
         let progress = it.options.progress.as_deref();
         let mut report = StageReport::default();
@@ -924,9 +922,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 }
                 let estimate = estimator.update(series, &scales, eta);
                 relaxation.update(series, &scales);
-                if tightening.is_some() {
-                    current.clone_from(series);
-                }
                 if it.options.trace_qois {
                     report.qoi_trace.push(series.clone());
                 }
@@ -943,7 +938,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             if eta <= tolerance && (report.error_estimate <= estimate_tolerance || within_budget(budget, &estimator)) {
                 if let Some(t) = tightening.as_mut() {
-                    if let Some(next) = t.reached(tolerance, &current, &m.qois, estimator.scales()) {
+                    if let Some(next) = t.reached(tolerance, &it.qois.values, &m.qois, estimator.scales()) {
                         // on, a tenth tighter; the first time, with iterations to spare
                         limit = if t.check.passes == 1 { iteration + stage.iteration_limit(m) } else { limit };
                         (tolerance, estimate_tolerance) = (next, estimate_tolerance * next / tolerance);
