@@ -1934,6 +1934,25 @@ fn a_windowed_solve_is_checked_against_another_windowing() {
     assert!(e < 2e-4, "checked QoI histories {e} from the whole interval at 1e-8");
     assert!(e <= 3.0 * checked.dynamic.error_estimate, "estimate {} for an error {e}", checked.dynamic.error_estimate);
     assert_eq!(checked.dynamic.sweeps, unchecked.dynamic.sweeps + check.sweeps);
+    assert_eq!(check.floor, None, "every pass converged where it was aimed");
+
+    // Where a pass cannot be iterated as far as it is aimed (here a window's limit of 100
+    // iterations: the pass at 7e-9 runs out), it is tried again at the geometric mean of that
+    // and its partner's tolerance, and the check goes on from there rather than failing.
+    let mut limited = titanium("[solver]");
+    limited.settings.max_iterations = 100;
+    let floored = solve(&limited, false);
+    let check = floored.dynamic.window_check.as_ref().expect("a windowed solve is checked");
+    let e = largest_history_difference(&floored, &reference);
+    eprintln!("limited to 100 iterations a window: {check:?}, error {e:.2e}");
+    let floor = check.floor.expect("a pass ran out of iterations");
+    assert!(check.iteration_tolerance > floor, "the answer returned is the retry's, looser than the floor");
+    assert!(floored.converged(), "{}", floored.dynamic.diagnosis(2e-4));
+    assert!(
+        e < 2e-4 && e <= 3.0 * floored.dynamic.error_estimate,
+        "error {e}, estimate {}",
+        floored.dynamic.error_estimate
+    );
 }
 
 /// Where the windowings keep parting however tight their iterations (the titanium block at

@@ -512,6 +512,11 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
                 c.qoi,
                 c.iteration_tolerance
             );
+            if let Some(floor) = c.floor {
+                println!(
+                    "  a pass did not converge at {floor:.1e} (its iterations stall short of it) and was tried again looser"
+                );
+            }
         }
         for c in s.contact.iter().filter(|c| c.landings_while_sliding > 0) {
             // evidence, not a verdict: answers with impacts while sliding converge slowly in dt and h

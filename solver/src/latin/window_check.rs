@@ -19,6 +19,9 @@ pub const CHECK_ROUNDS: usize = 3;
 pub const TIGHTER: f64 = 0.1;
 /// Where a pair parts, the next one's looser member is aimed at this share of the tolerance.
 pub const AIM: f64 = 0.3;
+/// Where a pass does not converge at a tolerance (its iterations stall short of it, the floor),
+/// no looser member of a later pair is aimed within this factor above it.
+pub const FLOOR_STEP: f64 = 3.0;
 
 /// What the check of a windowed solve found.
 #[derive(Debug, Clone, Default, Serialize)]
@@ -39,6 +42,10 @@ pub struct WindowCheck {
     pub distances: BTreeMap<String, f64>,
     /// the tolerance the answer returned (the last pair's tighter member) was iterated to
     pub iteration_tolerance: f64,
+    /// the loosest tolerance a pass did not converge at (its iterations stalled short of it),
+    /// where one did not: each such pass was tried again, looser
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub floor: Option<f64>,
     pub outcome: CheckOutcome,
 }
 
@@ -120,30 +127,31 @@ impl<const D: usize> LatinSolver<'_, D> {
         let windows = [first, first + first.div_ceil(2)];
         let quiet = SolveOptions { record_fields: false, trace_qois: false, ..options.clone() };
         let mut pass = Pass { start: &start, prestress, fields, check: WindowCheck { windows, ..Default::default() } };
+        let mut run = PassRun { scales: report.scales.clone(), report, timings, quiet: &quiet };
         // the looser member of the pair and its iteration tolerance: first the solve itself
         let mut looser = self.answer(&pass, &quiet);
         let mut loose = tolerance;
-        let mut scales = report.scales.clone();
-        let mut fresh = false;
+        // where the last pair's tighter member was iterated to, while a fresh looser one is wanted
+        let mut fresh_below = None;
         for _ in 0..CHECK_ROUNDS {
-            if fresh {
+            if let Some(tight) = fresh_below.take() {
                 // a fresh looser member (the last tighter one was predicted too far off)
-                let Some(answer) =
-                    self.check_pass(&mut pass, windows[0], loose, report, &mut scales, timings, &quiet)?
-                else {
+                let Some((answer, at)) = self.pass_to(&mut pass, windows[0], loose, tight, &mut run)? else {
                     break;
                 };
-                looser = answer;
+                (looser, loose) = (answer, at);
             }
             // (no tighter than a scene may ask: below it the iterations stall on round-off)
-            let tight = (loose * TIGHTER).max(MIN_TOLERANCE);
-            pass.check.iteration_tolerance = tight;
-            let Some(answer) = self.check_pass(&mut pass, windows[1], tight, report, &mut scales, timings, &quiet)?
-            else {
+            let aim = (loose * TIGHTER).max(MIN_TOLERANCE);
+            if aim >= loose {
+                break;
+            }
+            let Some((answer, tight)) = self.pass_to(&mut pass, windows[1], aim, loose, &mut run)? else {
                 break;
             };
             let check = &mut pass.check;
-            check.distances = distances(&looser, &answer, &scales);
+            check.iteration_tolerance = tight;
+            check.distances = distances(&looser, &answer, &run.scales);
             (check.discrepancy, check.qoi) = worst(&check.distances);
             tracing::info!(
                 loose,
@@ -154,30 +162,58 @@ impl<const D: usize> LatinSolver<'_, D> {
             );
             // the looser member's error is about the distance, the tighter's is less: the
             // distance bounds the answer returned, the tighter one
-            report.error_estimate = check.discrepancy;
+            run.report.error_estimate = check.discrepancy;
             if check.discrepancy <= tolerance {
                 check.outcome = CheckOutcome::Agreed;
                 break;
             }
-            if tight <= MIN_TOLERANCE {
-                break;
-            }
             // The error grows about as the iteration tolerance (measured in docs/performance.md,
             // "Two windowings"): the next pair's looser member at the tolerance whose error is
-            // predicted at AIM of the asked one; the tighter member just iterated when it is
-            // predicted there already.
-            let wanted = (loose * AIM * tolerance / check.discrepancy).max(loose * 1e-4).max(MIN_TOLERANCE);
-            fresh = wanted < tight;
-            if fresh {
+            // predicted at AIM of the asked one, above the floor; the tighter member just
+            // iterated when it is predicted there already.
+            let floor = check.floor.map_or(MIN_TOLERANCE, |floor| floor * FLOOR_STEP);
+            let wanted = (loose * AIM * tolerance / check.discrepancy).max(loose * 1e-4).max(floor);
+            if wanted < tight {
+                fresh_below = Some(tight);
                 loose = wanted;
             } else {
-                looser = answer;
-                loose = tight;
+                (looser, loose) = (answer, tight);
             }
         }
+        let report = run.report;
         report.converged &= pass.check.outcome == CheckOutcome::Agreed;
         report.window_check = Some(pass.check);
         Ok(())
+    }
+
+    /// A pass to `tolerance`; where it does not converge there (its iterations stall short of
+    /// it: the floor), once more at the geometric mean of that and `ceiling`, the tolerance of
+    /// the member it is compared with (so never the same answer). The answer and the tolerance
+    /// it was iterated to, or `None` when neither converged: the check is over, the report says
+    /// so.
+    fn pass_to(
+        &mut self,
+        pass: &mut Pass,
+        window: usize,
+        tolerance: f64,
+        ceiling: f64,
+        run: &mut PassRun,
+    ) -> Result<Option<(Vec<QoiSeries>, f64)>, SolverError> {
+        let retry = (tolerance * ceiling).sqrt();
+        let mut estimate = 0.0;
+        for at in [tolerance, retry] {
+            match self.check_pass(pass, window, at, run)? {
+                Ok(answer) => return Ok(Some((answer, at))),
+                Err(e) => estimate = e,
+            }
+            pass.check.floor = Some(pass.check.floor.map_or(at, |floor| floor.max(at)));
+            pass.check.iteration_tolerance = at;
+        }
+        // what the check measured before stays the estimate of the answer returned
+        run.report.converged = false;
+        run.report.error_estimate = estimate.max(pass.check.discrepancy);
+        pass.check.outcome = CheckOutcome::PassNotConverged;
+        Ok(None)
     }
 
     /// The QoIs of the fields a pass left.
@@ -189,20 +225,17 @@ impl<const D: usize> LatinSolver<'_, D> {
 
     /// One pass of the check: the prestress converged again for `tolerance` (from its last
     /// solution: it costs a step per iteration), then the dynamic stage from where the solve
-    /// started, in windows of `window` steps; its QoIs, or `None` when it did not converge
-    /// (then `report` says so with the pass's own diagnosis).
-    #[allow(clippy::too_many_arguments)]
+    /// started, in windows of `window` steps; its QoIs, or its error estimate when it did not
+    /// converge (the report keeps the pass's history, for its diagnosis).
     fn check_pass(
         &mut self,
         pass: &mut Pass,
         window: usize,
         tolerance: f64,
-        report: &mut StageReport,
-        scales: &mut [f64],
-        timings: &mut Timings,
-        quiet: &SolveOptions,
-    ) -> Result<Option<Vec<QoiSeries>>, SolverError> {
+        run: &mut PassRun,
+    ) -> Result<Result<Vec<QoiSeries>, f64>, SolverError> {
         let CheckStart { init, initial, .. } = *pass.start;
+        let PassRun { report, scales, timings, quiet } = run;
         if let Some(before) = pass.prestress.take() {
             let mut again = self.iterate_prestress(before.solution, tolerance, false, timings, quiet)?;
             again.report.iterations += before.report.iterations;
@@ -210,11 +243,7 @@ impl<const D: usize> LatinSolver<'_, D> {
             let converged = again.report.converged;
             *pass.prestress = Some(again);
             if !converged {
-                report.converged = false;
-                report.error_estimate = report.error_estimate.max(pass.check.discrepancy);
-                pass.check.outcome = CheckOutcome::PassNotConverged;
-                pass.check.iteration_tolerance = tolerance;
-                return Ok(None);
+                return Ok(Err(report.error_estimate));
             }
             // the dynamic fields a cold start holds, or a warm one moves, follow the prestress
             let moved = self.dynamic_start(init, pass.prestress.as_ref())?;
@@ -254,14 +283,9 @@ impl<const D: usize> LatinSolver<'_, D> {
         report.windows_stalled += outcome.windows_stalled;
         report.windows_redone += outcome.windows_redone;
         if !outcome.converged {
-            // what the check measured before stays the estimate of the answer returned
-            report.converged = false;
-            report.error_estimate = outcome.error_estimate.max(check.discrepancy);
-            check.outcome = CheckOutcome::PassNotConverged;
-            check.iteration_tolerance = tolerance;
-            return Ok(None);
+            return Ok(Err(outcome.error_estimate));
         }
-        Ok(Some(self.answer(pass, quiet)))
+        Ok(Ok(self.answer(pass, quiet)))
     }
 }
 
@@ -272,6 +296,14 @@ struct Pass<'a, 'b> {
     prestress: &'b mut Option<Prestress>,
     fields: &'b mut [InterfaceField],
     check: WindowCheck,
+}
+
+/// What the passes add their work to, the QoIs' scales they measure with, and how they run.
+struct PassRun<'r> {
+    report: &'r mut StageReport,
+    scales: Vec<f64>,
+    timings: &'r mut Timings,
+    quiet: &'r SolveOptions,
 }
 
 /// The largest of the QoIs' distances ([`distances`]), and the QoI it is on.
