@@ -2,7 +2,7 @@
 //! case where the solver knows its answer cannot converge under refinement: an elastic body
 //! sliding on a rigid wall with a friction coefficient above 1 (docs/verification.md 4d).
 
-use std::collections::BTreeSet;
+use std::collections::BTreeMap;
 
 use glissade_core::field::{InterfaceField, StageSolution};
 use serde::Serialize;
@@ -70,58 +70,62 @@ pub fn contact_activity<const D: usize>(
     dynamic: &StageSolution,
     dt: f64,
 ) -> Vec<ContactActivity> {
-    // per interface name: the activity, the total normal force per level, and the nodes in
-    // contact by position (a node shared by two pieces counted once)
-    let mut out: Vec<(ContactActivity, Vec<f64>, BTreeSet<[u64; D]>)> = Vec::new();
+    // the pieces of each frictional interface (cut by the substructures), by name in the
+    // model's order
+    let mut named: Vec<(&Interface<D>, f64, Vec<(&Interface<D>, Piece)>)> = Vec::new();
     for (itf, field) in interfaces.iter().zip(&dynamic.interfaces) {
         let InterfaceLaw::Friction { coefficient } = itf.law else { continue };
-        let piece = Piece::read(itf, field);
-        let first_slip = piece.first_slip();
-        let entry = match out.iter_mut().find(|(a, ..)| a.interface == itf.name) {
-            Some(e) => e,
-            None => {
-                out.push((
-                    ContactActivity {
-                        interface: itf.name.clone(),
-                        friction: coefficient,
-                        rigid_wall: itf.sides.len() == 1,
-                        contact_nodes: 0,
-                        first_slip_time: None,
-                        landings_while_sliding: 0,
-                        peak_normal_force_ratio: 0.0,
-                        ill_posed: false,
-                    },
-                    vec![0.0; piece.levels],
-                    BTreeSet::new(),
-                ));
-                out.last_mut().expect("just pushed")
-            }
-        };
-        let (a, total, nodes) = entry;
-        nodes.extend(piece.contact_nodes().map(|j| std::array::from_fn(|c| itf.coords[j][c].to_bits())));
-        a.contact_nodes = nodes.len();
-        a.landings_while_sliding += first_slip.map_or(0, |f| piece.landings_from(f));
-        a.first_slip_time = match (a.first_slip_time, first_slip.map(|s| s as f64 * dt)) {
-            (Some(x), Some(y)) => Some(x.min(y)),
-            (x, y) => x.or(y),
-        };
+        let piece = (itf, Piece::read(itf, field));
+        match named.iter_mut().find(|(first, ..)| first.name == itf.name) {
+            Some((.., pieces)) => pieces.push(piece),
+            None => named.push((itf, coefficient, vec![piece])),
+        }
+    }
+    named.into_iter().map(|(itf, friction, pieces)| activity(itf, friction, &pieces, dt)).collect()
+}
+
+/// One interface's activity from its pieces; a node two pieces share (at a cut between
+/// substructures) is one node, its landings counted once.
+fn activity<const D: usize>(
+    itf: &Interface<D>,
+    friction: f64,
+    pieces: &[(&Interface<D>, Piece)],
+    dt: f64,
+) -> ContactActivity {
+    let first_slip = pieces.iter().filter_map(|(_, p)| p.first_slip()).min();
+    // landings of each node in contact, by its position
+    let mut nodes: BTreeMap<[u64; D], usize> = BTreeMap::new();
+    let mut total = vec![0.0; pieces.iter().map(|(_, p)| p.levels).max().unwrap_or(0)];
+    for (piece_of, piece) in pieces {
+        for j in piece.contact_nodes() {
+            let at = std::array::from_fn(|c| piece_of.coords[j][c].to_bits());
+            let landings = first_slip.map_or(0, |f| piece.landings_of(j, f));
+            let count = nodes.entry(at).or_default();
+            *count = (*count).max(landings);
+        }
         for (t, p) in total.iter_mut().zip(piece.normal_force()) {
             *t += p;
         }
     }
-    out.into_iter()
-        .map(|(mut a, total, _)| {
-            if let Some(t) = a.first_slip_time {
-                // the total normal force over the sliding phase: its peak against its mean
-                let phase = &total[((t / dt).round() as usize).min(total.len())..];
-                let mean = phase.iter().sum::<f64>() / phase.len().max(1) as f64;
-                let peak = phase.iter().cloned().fold(0.0, f64::max);
-                a.peak_normal_force_ratio = if mean > 0.0 { peak / mean } else { 0.0 };
-                a.ill_posed = a.rigid_wall && a.friction > ILL_POSED_FRICTION;
-            }
-            a
-        })
-        .collect()
+    let mut a = ContactActivity {
+        interface: itf.name.clone(),
+        friction,
+        rigid_wall: itf.sides.len() == 1,
+        contact_nodes: nodes.len(),
+        first_slip_time: first_slip.map(|s| s as f64 * dt),
+        landings_while_sliding: nodes.values().sum(),
+        peak_normal_force_ratio: 0.0,
+        ill_posed: false,
+    };
+    if let Some(first) = first_slip {
+        // the total normal force over the sliding phase: its peak against its mean
+        let phase = &total[first.min(total.len())..];
+        let mean = phase.iter().sum::<f64>() / phase.len().max(1) as f64;
+        let peak = phase.iter().cloned().fold(0.0, f64::max);
+        a.peak_normal_force_ratio = if mean > 0.0 { peak / mean } else { 0.0 };
+        a.ill_posed = a.rigid_wall && a.friction > ILL_POSED_FRICTION;
+    }
+    a
 }
 
 /// One interface's histories, node by node: the compressive traction on side 1 (its normal
@@ -178,17 +182,12 @@ impl<'a> Piece<'a> {
         (0..self.n).filter(|&j| (0..self.levels).any(|s| self.closed(s, j)))
     }
 
-    /// Landings after `first` of nodes that had been in contact before: a node's first landing
-    /// (an edge rolling onto the wall) is not a lift-off's end.
-    fn landings_from(&self, first: usize) -> usize {
-        (0..self.n)
-            .map(|j| {
-                let landings =
-                    (first.max(1)..self.levels).filter(|&s| self.closed(s, j) && !self.closed(s - 1, j)).count();
-                let was_closed = (0..first.max(1)).any(|s| self.closed(s, j));
-                if was_closed { landings } else { landings.saturating_sub(1) }
-            })
-            .sum()
+    /// Node `j`'s landings after `first`, if it had been in contact before: a node's first
+    /// landing (an edge rolling onto the wall) is not a lift-off's end.
+    fn landings_of(&self, j: usize, first: usize) -> usize {
+        let landings = (first.max(1)..self.levels).filter(|&s| self.closed(s, j) && !self.closed(s - 1, j)).count();
+        let was_closed = (0..first.max(1)).any(|s| self.closed(s, j));
+        if was_closed { landings } else { landings.saturating_sub(1) }
     }
 
     /// The total normal force at each level.
