@@ -72,7 +72,7 @@ pub fn contact_activity<const D: usize>(
 ) -> Vec<ContactActivity> {
     // the pieces of each frictional interface (cut by the substructures), by name in the
     // model's order
-    let mut named: Vec<(&Interface<D>, f64, Vec<(&Interface<D>, Piece)>)> = Vec::new();
+    let mut named: Vec<(&Interface<D>, f64, Vec<Cut<D>>)> = Vec::new();
     for (itf, field) in interfaces.iter().zip(&dynamic.interfaces) {
         let InterfaceLaw::Friction { coefficient } = itf.law else { continue };
         let piece = (itf, Piece::read(itf, field));
@@ -89,7 +89,7 @@ pub fn contact_activity<const D: usize>(
 fn activity<const D: usize>(
     itf: &Interface<D>,
     friction: f64,
-    pieces: &[(&Interface<D>, Piece)],
+    pieces: &[Cut<D>],
     dt: f64,
 ) -> ContactActivity {
     let first_slip = pieces.iter().filter_map(|(_, p)| p.first_slip()).min();
@@ -127,6 +127,9 @@ fn activity<const D: usize>(
     }
     a
 }
+
+/// A piece of an interface and its histories.
+type Cut<'a, const D: usize> = (&'a Interface<D>, Piece<'a>);
 
 /// One interface's histories, node by node: the compressive traction on side 1 (its normal
 /// points towards side 2) and the norm of the tangential relative velocity.
