@@ -2,6 +2,7 @@
 //! their machinery (no MPI, HDF5, faer, tokio or tonic).
 //!
 //! - [`scene`]: what is solved (bodies, interfaces, loads, QoIs, declared parameters);
+//! - [`contact`]: what a frictional contact did while it slid (evidence beside an answer);
 //! - [`field`]: interface force and velocity fields, the solutions a study stores;
 //! - [`io`]: the solution file format and atomic, durable file writes;
 //! - [`refine`]: refinement ladders (dt / 2, h / 2): the refined scene and Richardson's estimate;
@@ -10,6 +11,7 @@
 //! - [`text`]: bounded, single-line text for messages that quote user input.
 
 pub mod check;
+pub mod contact;
 pub mod field;
 pub mod gmsh;
 pub mod io;

@@ -2,6 +2,7 @@
 
 pub mod auth;
 pub mod chunks;
+pub mod contact;
 pub mod domain;
 
 pub use chunks::{Assembler, CHUNK_BYTES, ChunkError, chunks};

@@ -4,6 +4,7 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::contact::{ContactActivity, MAX_CONTACT_REPORTS};
 use glissade_core::scene::{MAX_MESH_BYTES, MAX_MESH_FILES, Tolerance};
 use glissade_core::text::{MAX_NAME_CHARS, excerpt, one_line};
 use glissade_proto::v1;
@@ -311,6 +312,11 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
         if !(m.work.is_finite() && m.work >= 0.0 && m.work <= m.iterations as f64) {
             return Err(Invalid(format!("work must be in 0..=iterations, got {}", m.work)));
         }
+        if m.contact.len() > MAX_CONTACT_REPORTS {
+            return Err(Invalid(format!("contact: at most {MAX_CONTACT_REPORTS} interfaces, got {}", m.contact.len())));
+        }
+        let contact =
+            m.contact.into_iter().map(ContactActivity::try_from).collect::<Result<Vec<_>, _>>().map_err(Invalid)?;
         Ok(Completion {
             pool: pool_id(&m.pool_id)?,
             lease_id: m.lease_id,
@@ -324,6 +330,7 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
             eta_history: m.eta_history,
             work: m.work,
             started_cold: m.started_cold,
+            contact,
         })
     }
 }
@@ -428,6 +435,7 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
         lease_deadline_unix_ms: deadline,
         eta_history: r.map(|r| r.eta_history.clone()).unwrap_or_default(),
         work: r.map_or(0.0, |r| r.work),
+        contact: r.map(|r| r.contact.iter().map(Into::into).collect()).unwrap_or_default(),
     }
 }
 
@@ -625,5 +633,34 @@ mod tests {
         assert_eq!(strategy(v1::InitStrategy::Nearest as i32, 0).unwrap(), InitStrategy::Nearest);
         assert!(strategy(v1::InitStrategy::Linear as i32, 9).unwrap_err().0.contains("at most 8"));
         assert!(strategy(99, 0).is_err());
+    }
+
+    /// A pool's contact reports are checked like the rest of its completion: a report no solver
+    /// makes, or more of them than any scene has interfaces, is refused before it is kept.
+    #[test]
+    fn a_completion_with_a_contact_report_no_solver_makes_is_refused() {
+        let report = v1::ContactActivity {
+            interface: "floor".into(),
+            friction: 1.2,
+            rigid_wall: true,
+            contact_nodes: 9,
+            first_slip_time: Some(2e-4),
+            landings_while_sliding: 4,
+            peak_normal_force_ratio: 3.0,
+            ill_posed: true,
+        };
+        let header = |contact: Vec<v1::ContactActivity>| v1::CompletePointHeader {
+            pool_id: "p".into(),
+            iterations: 5,
+            contact,
+            ..Default::default()
+        };
+        let kept = Completion::try_from(header(vec![report.clone()])).expect("a report the solver makes");
+        assert_eq!(kept.contact.len(), 1);
+        assert!(kept.contact[0].ill_posed);
+        let spoilt = v1::ContactActivity { peak_normal_force_ratio: f64::INFINITY, ..report.clone() };
+        assert!(Completion::try_from(header(vec![spoilt])).unwrap_err().0.contains("finite"));
+        let too_many = vec![report; MAX_CONTACT_REPORTS + 1];
+        assert!(Completion::try_from(header(too_many)).unwrap_err().0.contains("at most"));
     }
 }

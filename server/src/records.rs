@@ -14,6 +14,7 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::contact::ContactActivity;
 use glissade_core::study::adaptive::{AdaptiveDesign, TargetOutcome};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
@@ -227,6 +228,10 @@ pub struct PointResult {
     /// Dynamic iterations + static iterations / steps (0 in records written before it existed).
     #[serde(default)]
     pub work: f64,
+    /// What each frictional interface's contact did while it slid (none in records written
+    /// before it existed).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub contact: Vec<ContactActivity>,
 }
 
 /// One design point of a study.
@@ -275,6 +280,10 @@ pub struct SolutionRecord {
     /// Size of the solution file, and of its zstd compression as stored.
     pub file_bytes: u64,
     pub stored_bytes: u64,
+    /// What each frictional interface's contact did while it slid: a point this solution
+    /// answers carries it (none in records written before it existed).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub contact: Vec<ContactActivity>,
 }
 
 impl SolutionRecord {

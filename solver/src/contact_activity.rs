@@ -4,8 +4,8 @@
 
 use std::collections::BTreeMap;
 
+pub use glissade_core::contact::{ContactActivity, ILL_POSED_FRICTION};
 use glissade_core::field::{InterfaceField, StageSolution};
-use serde::Serialize;
 
 use crate::model::{Interface, InterfaceLaw};
 
@@ -16,52 +16,6 @@ const CLOSED_SHARE: f64 = 1e-6;
 /// A node slides when its tangential relative velocity exceeds this share of the interface's
 /// largest.
 const SLIDING_SHARE: f64 = 1e-3;
-
-/// Above this friction coefficient, an elastic half-space sliding on a rigid plane admits
-/// surface waves that grow at a rate proportional to their wavenumber, whatever Poisson's ratio
-/// (0 < nu < 1/2): the continuum problem is ill-posed, and every refinement of the mesh resolves
-/// faster-growing waves (docs/verification.md 4d, where the determinant's root is derived; the
-/// tests below find it).
-pub const ILL_POSED_FRICTION: f64 = 1.0;
-
-/// What one frictional interface's contact did over the dynamic stage (its pieces between
-/// substructures summed).
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ContactActivity {
-    pub interface: String,
-    pub friction: f64,
-    /// against a rigid wall (where `ILL_POSED_FRICTION` is derived), not between two bodies
-    pub rigid_wall: bool,
-    /// nodes in contact at some step
-    pub contact_nodes: usize,
-    /// the first time a node in contact slides (s), if one does
-    pub first_slip_time: Option<f64>,
-    /// landings of nodes that had lifted off, once the interface slides (summed over nodes)
-    pub landings_while_sliding: usize,
-    /// the interface's largest total normal force over the sliding phase against its mean there
-    pub peak_normal_force_ratio: f64,
-    /// it slides on a rigid wall with a friction coefficient above `ILL_POSED_FRICTION`
-    pub ill_posed: bool,
-}
-
-impl ContactActivity {
-    /// The warning a user reads, with its evidence.
-    pub fn warning(&self) -> Option<String> {
-        self.ill_posed.then(|| {
-            format!(
-                "interface '{}' slides on a rigid wall at friction {}: above {} the sliding of an elastic body is ill-posed \
-                 (surface waves grow at a rate proportional to their wavenumber, docs/verification.md 4d), so this answer \
-                 moves as the mesh and the time step are refined and no tolerance bounds that; while it slid its contact \
-                 nodes lifted off and landed {} times, the total normal force peaking at {:.1} x its mean",
-                self.interface,
-                self.friction,
-                ILL_POSED_FRICTION,
-                self.landings_while_sliding,
-                self.peak_normal_force_ratio
-            )
-        })
-    }
-}
 
 /// The contact activity of every frictional interface of a dynamic solution (levels 0..=steps),
 /// one entry per interface name in the model's order.
@@ -86,12 +40,7 @@ pub fn contact_activity<const D: usize>(
 
 /// One interface's activity from its pieces; a node two pieces share (at a cut between
 /// substructures) is one node, its landings counted once.
-fn activity<const D: usize>(
-    itf: &Interface<D>,
-    friction: f64,
-    pieces: &[Cut<D>],
-    dt: f64,
-) -> ContactActivity {
+fn activity<const D: usize>(itf: &Interface<D>, friction: f64, pieces: &[Cut<D>], dt: f64) -> ContactActivity {
     let first_slip = pieces.iter().filter_map(|(_, p)| p.first_slip()).min();
     // landings of each node in contact, by its position
     let mut nodes: BTreeMap<[u64; D], usize> = BTreeMap::new();

@@ -3,6 +3,7 @@
 use anyhow::Result;
 use glissade_cli::names::{describe_parameters, order_name, point_state_name, strategy_name, study_state_name};
 use glissade_cli::outln;
+use glissade_core::contact::ContactActivity;
 use glissade_core::scene::Scene;
 use glissade_proto::v1;
 
@@ -31,6 +32,7 @@ pub(crate) async fn show(server: &Server, study: u64, points: bool, json: bool) 
         p.iterations
     );
     work(&s);
+    ill_posed(&s);
     if !points {
         // why a point failed, without asking for every point
         for point in s.points.iter().filter(|x| x.state == v1::PointState::Failed as i32) {
@@ -142,7 +144,32 @@ fn work(s: &v1::Study) {
     }
 }
 
-/// One line a point: its parameters, state, iterations, eta, QoIs and where it started from.
+/// The points whose sliding is ill-posed (docs/verification.md 4d): no tolerance bounds how far
+/// their answers move as the mesh and the time step are refined, and a user reading the
+/// surface should know which they are.
+fn ill_posed(s: &v1::Study) {
+    let flagged: Vec<(&v1::PointStatus, String)> = s
+        .points
+        .iter()
+        .filter_map(|p| {
+            let warning = p.contact.iter().find_map(|c| ContactActivity::try_from(c.clone()).ok()?.warning())?;
+            Some((p, warning))
+        })
+        .collect();
+    let Some((_, first)) = flagged.first() else { return };
+    const LISTED: usize = 10;
+    let listed: Vec<String> = flagged
+        .iter()
+        .take(LISTED)
+        .map(|(p, _)| format!("#{} {}", p.point_id, describe_parameters(&p.parameters)))
+        .collect();
+    let more = if flagged.len() > LISTED { format!(" and {} more", flagged.len() - LISTED) } else { String::new() };
+    outln!("  warning   {} of {} points slide ill-posed: {}{more}", flagged.len(), s.points.len(), listed.join(", "));
+    outln!("            the first: {first}");
+}
+
+/// One line a point: its parameters, state, iterations, eta, QoIs and where it started from
+/// (and a line for each contact that landed while it slid, or slid ill-posed).
 fn point_lines(s: &v1::Study) {
     // QoIs below what the solves resolve read 0 (`--json` keeps them)
     let scene = Scene::parse(&s.scene).ok();
@@ -173,6 +200,16 @@ fn point_lines(s: &v1::Study) {
             from,
             if point.error.is_empty() { String::new() } else { format!("  [{}]", point.error) }
         );
+        for c in point.contact.iter().filter(|c| c.landings_while_sliding > 0 || c.ill_posed) {
+            outln!(
+                "        contact '{}'{}: slides from {:.3e} s, {} landings while it slid, normal force peaking at {:.1} x its mean",
+                c.interface,
+                if c.ill_posed { " ILL-POSED (sliding on a rigid wall above friction 1)" } else { "" },
+                c.first_slip_time.unwrap_or(0.0),
+                c.landings_while_sliding,
+                c.peak_normal_force_ratio
+            );
+        }
     }
 }
 
@@ -274,6 +311,16 @@ pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
             "point_id": s.point_id,
         })),
         "error": if p.error.is_empty() { None } else { Some(&p.error) },
+        "contact": p.contact.iter().map(|c| serde_json::json!({
+            "interface": c.interface,
+            "friction": c.friction,
+            "rigid_wall": c.rigid_wall,
+            "contact_nodes": c.contact_nodes,
+            "first_slip_time": c.first_slip_time,
+            "landings_while_sliding": c.landings_while_sliding,
+            "peak_normal_force_ratio": c.peak_normal_force_ratio,
+            "ill_posed": c.ill_posed,
+        })).collect::<Vec<_>>(),
     })
 }
 

@@ -799,6 +799,7 @@ impl Coordinator {
             answered: true,
             eta_history: Vec::new(),
             work: 0.0,
+            contact: answer.contact.clone(),
         };
         let point = apply(&entry.points[i], Transition::Answer { result, finished_seq: seq })?;
         self.commit(entry, vec![(point, Some(EventKind::Finished))], None, Batch::new())?;
@@ -910,6 +911,7 @@ impl Coordinator {
             stored_unix_ms: now_unix_ms(),
             file_bytes: file.len() as u64,
             stored_bytes: compressed.len() as u64,
+            contact: c.contact.clone(),
         };
         let converged = meta.converged && c.error_indicator <= entry.record.tolerance;
         let result = PointResult {
@@ -923,6 +925,7 @@ impl Coordinator {
             answered: false,
             eta_history: c.eta_history.clone(),
             work: c.work,
+            contact: c.contact.clone(),
         };
         let tolerance = entry.record.tolerance;
         let point = apply(&entry.points[i], Transition::Complete { result, finished_seq: seq, tolerance })?;
@@ -993,6 +996,7 @@ impl Coordinator {
             answered: false,
             eta_history: Vec::new(),
             work: 0.0,
+            contact: Vec::new(),
         };
         let point = apply(&entry.points[i], Transition::Fail { result, error: f.error.clone() })?;
         self.commit(entry, vec![(point.clone(), Some(EventKind::Failed))], None, Batch::new())?;

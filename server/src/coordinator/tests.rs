@@ -207,6 +207,16 @@ fn solution_file_with_qoi(
         eta_history: vec![1.0, eta],
         work: 8.0,
         started_cold: false,
+        contact: vec![glissade_core::contact::ContactActivity {
+            interface: "floor".into(),
+            friction: 0.3,
+            rigid_wall: true,
+            contact_nodes: 5,
+            first_slip_time: Some(1e-4),
+            landings_while_sliding: 3,
+            peak_normal_force_ratio: 2.5,
+            ill_posed: false,
+        }],
     };
     (completion, bytes)
 }
@@ -228,8 +238,11 @@ fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
     let grant = c.lease("p").unwrap().unwrap();
     assert!(grant.init.is_none(), "nothing stored yet: cold");
     let (done, bytes) = solution_file(&grant, 5e-4, true);
+    let contact = done.contact.clone();
     assert_eq!(c.complete(done, bytes.clone()).unwrap().state, PointState::Done);
     assert_eq!(c.solution_bytes(&SolutionSelector::Point(a, PointId(0))).unwrap(), bytes);
+    // the contact's evidence is kept with the point and its solution
+    assert_eq!(state_of(&c, a, 0).result.unwrap().contact, contact);
 
     // same point, same version, looser tolerance: answered at once
     let b = submit(&c, &["f1=0.15"], 1e-3, InitStrategy::Nearest);
@@ -239,6 +252,7 @@ fn a_stored_solution_answers_only_its_solver_version_within_the_tolerance() {
     let r = answered.result.unwrap();
     assert!(r.answered && r.iterations == 0 && r.error_indicator == 5e-4, "{r:?}");
     assert_eq!(r.started_from.unwrap().study, Some(a));
+    assert_eq!(r.contact, contact, "an answer carries its solution's evidence");
     // a tighter tolerance continues from it, the stored file's bytes as they came
     let tight = submit(&c, &["f1=0.15"], 1e-4, InitStrategy::Nearest);
     let grant = c.lease("p").unwrap().unwrap();

@@ -180,6 +180,7 @@ mod tests {
             answered: false,
             eta_history: Vec::new(),
             work: 12.0,
+            contact: Vec::new(),
         }
     }
 

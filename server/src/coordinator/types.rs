@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use glissade_core::contact::ContactActivity;
 use glissade_core::scene::Tolerance;
 use glissade_core::study::holdout::SurfaceErrors;
 use glissade_core::study::order::OrderKind;
@@ -385,6 +386,7 @@ pub struct Completion {
     pub work: f64,
     /// solved from cold in spite of the lease's warm start
     pub started_cold: bool,
+    pub contact: Vec<ContactActivity>,
 }
 
 /// A pool's failure report.

@@ -130,6 +130,7 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
             eta_history: Vec::new(),
             work: 1.0,
             started_cold: false,
+            contact: Vec::new(),
         };
         let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
         messages.extend(

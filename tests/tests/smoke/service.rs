@@ -633,3 +633,85 @@ fn a_pool_fails_a_point_too_big_for_its_memory_with_the_reason_and_lives_on() ->
     assert!(pool.0.try_wait()?.is_none(), "the pool exited: {}", log_of(&dir.path().join("pool.log")));
     Ok(())
 }
+
+/// A brass block of our own pushed along a rigid floor hard enough to slide at f = 0.5 and at
+/// f = 1.4: through a real pool and the coordinator, each point keeps what its contact did, and
+/// `glissade show` warns of the one whose sliding is ill-posed (above friction 1 on a rigid
+/// wall, docs/verification.md 4d), with the evidence, where a user reads the study.
+#[test]
+fn a_study_says_which_points_slide_ill_posed() -> anyhow::Result<()> {
+    const BRASS_BLOCK: &str = r#"
+dimension = 2
+[time]
+duration = 2.4e-4
+steps = 80
+[parameters]
+f = { default = 0.5, min = 0.0, max = 3.0 }
+[materials.brass]
+E = 100e9
+nu = 0.34
+rho = 8500
+[[bodies]]
+name = "block"
+material = "brass"
+size = [0.02, 0.01]
+elements = [4, 2]
+substructures = [2, 1]
+[[interfaces]]
+name = "floor"
+a = "block.y-"
+b = "wall"
+law = "friction"
+friction = "f"
+[[loads]]
+face = "block.y+"
+pressure = 2.5e6
+[[loads]]
+face = "block.x-"
+traction = [1.6e7, 0]
+history = [[0, 0], [2.4e-4, 1]]
+[[qoi]]
+name = "slip"
+kind = "slip"
+interface = "floor"
+point = [0.01, 0]
+"#;
+    let dir = tempfile::tempdir()?;
+    let scene = dir.path().join("brass.toml");
+    std::fs::write(&scene, BRASS_BLOCK)?;
+    let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
+    let url = format!("http://{addr}");
+    let _pool = start_single_pool(&url, "brass", &dir.path().join("pool.log"));
+    let scene = scene.to_str().expect("a UTF-8 path");
+    let out = glissade(
+        Some(&url),
+        &["submit", scene, "--grid", "f=0.5,1.4", "--strategy", "cold", "--surface-audit", "0", "--json"],
+    );
+    assert!(out.status.success(), "submit: {}", text(&out.stderr));
+    let id = serde_json::from_slice::<serde_json::Value>(&out.stdout)?["study_id"].as_u64().expect("study_id");
+    let done = runtime().block_on(async {
+        let mut client = user(&url).await?;
+        watch(&mut client, id, |_| true).await?;
+        study(&mut client, id).await
+    })?;
+    let pool_log = || log_of(&dir.path().join("pool.log"));
+    for p in &done.points {
+        assert_eq!(p.state, v1::PointState::Done as i32, "{p:?}\n{}", pool_log());
+        let [c] = &p.contact[..] else { panic!("one frictional interface: {p:?}") };
+        let f = p.parameters["f"];
+        assert_eq!((c.interface.as_str(), c.friction, c.rigid_wall), ("floor", f, true), "{c:?}");
+        assert!(c.first_slip_time.is_some_and(|t| t > 0.0) && c.contact_nodes == 5, "it slides: {c:?}");
+        assert_eq!(c.ill_posed, f > 1.0, "{c:?}");
+    }
+    let out = glissade(Some(&url), &["show", &id.to_string()]);
+    let shown = text(&out.stdout);
+    assert!(out.status.success(), "show: {}", text(&out.stderr));
+    assert!(shown.contains("warning   1 of 2 points slide ill-posed: #1 f=1.4"), "{shown}");
+    assert!(shown.contains("'floor' slides on a rigid wall at friction 1.4"), "{shown}");
+    let out = glissade(Some(&url), &["show", &id.to_string(), "--points", "--json"]);
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    let flags: Vec<bool> =
+        json["points"].as_array().expect("points").iter().map(|p| p["contact"][0]["ill_posed"] == true).collect();
+    assert_eq!(flags, [false, true], "{json}");
+    Ok(())
+}

@@ -65,6 +65,7 @@ impl Delivery {
             eta_history: s.history.clone(),
             work: s.work(),
             started_cold,
+            contact: s.contact.iter().map(Into::into).collect(),
         };
         Delivery::Complete { header, bytes }
     }

@@ -1,0 +1,77 @@
+//! What a frictional contact did while it slid, as the solver reports it with every solve and
+//! the service keeps with every point: evidence a user reads beside the answer, and the one
+//! case where the solver knows its answer cannot converge under refinement (an elastic body
+//! sliding on a rigid wall above friction 1, docs/verification.md 4d). The solver computes it
+//! (glissade-solver's `contact_activity`).
+
+use serde::{Deserialize, Serialize};
+
+/// Most interfaces a report carries (a scene holds far fewer): bounds what a client may send.
+pub const MAX_CONTACT_REPORTS: usize = 1024;
+
+/// Above this friction coefficient, an elastic half-space sliding on a rigid plane admits
+/// surface waves that grow at a rate proportional to their wavenumber, whatever Poisson's ratio
+/// (0 < nu < 1/2): the continuum problem is ill-posed, and every refinement of the mesh resolves
+/// faster-growing waves (docs/verification.md 4d, where the determinant's root is derived; the
+/// tests below find it).
+pub const ILL_POSED_FRICTION: f64 = 1.0;
+
+/// What one frictional interface's contact did over the dynamic stage (its pieces between
+/// substructures summed).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ContactActivity {
+    pub interface: String,
+    pub friction: f64,
+    /// against a rigid wall (where `ILL_POSED_FRICTION` is derived), not between two bodies
+    pub rigid_wall: bool,
+    /// nodes in contact at some step
+    pub contact_nodes: usize,
+    /// the first time a node in contact slides (s), if one does
+    pub first_slip_time: Option<f64>,
+    /// landings of nodes that had lifted off, once the interface slides (summed over nodes)
+    pub landings_while_sliding: usize,
+    /// the interface's largest total normal force over the sliding phase against its mean there
+    pub peak_normal_force_ratio: f64,
+    /// it slides on a rigid wall with a friction coefficient above `ILL_POSED_FRICTION`
+    pub ill_posed: bool,
+}
+
+impl ContactActivity {
+    /// The warning a user reads, with its evidence.
+    pub fn warning(&self) -> Option<String> {
+        self.ill_posed.then(|| {
+            format!(
+                "interface '{}' slides on a rigid wall at friction {}: above {} the sliding of an elastic body is ill-posed \
+                 (surface waves grow at a rate proportional to their wavenumber, docs/verification.md 4d), so this answer \
+                 moves as the mesh and the time step are refined and no tolerance bounds that; while it slid its contact \
+                 nodes lifted off and landed {} times, the total normal force peaking at {:.1} x its mean",
+                self.interface,
+                self.friction,
+                ILL_POSED_FRICTION,
+                self.landings_while_sliding,
+                self.peak_normal_force_ratio
+            )
+        })
+    }
+}
+
+impl ContactActivity {
+    /// Whether it is a report the solver could have made: numbers finite and not negative, the
+    /// name a short single line.
+    pub fn check(&self) -> Result<(), String> {
+        let name = &self.interface;
+        if name.is_empty() || name.len() > 256 || name.chars().any(char::is_control) {
+            return Err("contact: an interface name must be 1 to 256 characters, on one line".into());
+        }
+        let numbers = [self.friction, self.peak_normal_force_ratio, self.first_slip_time.unwrap_or(0.0)];
+        if numbers.iter().any(|x| !x.is_finite() || *x < 0.0) {
+            return Err(format!("contact on '{name}': friction, times and ratios must be finite and not negative"));
+        }
+        if self.ill_posed && !(self.rigid_wall && self.friction > ILL_POSED_FRICTION) {
+            return Err(format!(
+                "contact on '{name}': ill_posed only on a rigid wall above friction {ILL_POSED_FRICTION}"
+            ));
+        }
+        Ok(())
+    }
+}
