@@ -133,17 +133,22 @@ impl<const D: usize> LatinSolver<'_, D> {
         let mut loose = tolerance;
         // where the last pair's tighter member was iterated to, while a fresh looser one is wanted
         let mut fresh_below = None;
+        // the looser member was iterated in the first windowing (else in the second, as the
+        // tighter member of the last pair)
+        let mut first_windowing = true;
         for _ in 0..CHECK_ROUNDS {
             if let Some(tight) = fresh_below.take() {
                 // a fresh looser member (the last tighter one was predicted too far off)
                 let Some((answer, at)) = self.pass_to(&mut pass, windows[0], loose, tight, &mut run)? else {
                     break;
                 };
-                (looser, loose) = (answer, at);
+                (looser, loose, first_windowing) = (answer, at, true);
             }
-            // (no tighter than a scene may ask: below it the iterations stall on round-off)
+            // (no tighter than a scene may ask: below it the iterations stall on round-off; there
+            // the two windowings are compared at the same tolerance, but one windowing never with
+            // itself)
             let aim = (loose * TIGHTER).max(MIN_TOLERANCE);
-            if aim >= loose {
+            if aim >= loose && !first_windowing {
                 break;
             }
             let Some((answer, tight)) = self.pass_to(&mut pass, windows[1], aim, loose, &mut run)? else {
@@ -177,7 +182,7 @@ impl<const D: usize> LatinSolver<'_, D> {
                 fresh_below = Some(tight);
                 loose = wanted;
             } else {
-                (looser, loose) = (answer, tight);
+                (looser, loose, first_windowing) = (answer, tight, false);
             }
         }
         let report = run.report;
@@ -201,7 +206,7 @@ impl<const D: usize> LatinSolver<'_, D> {
     ) -> Result<Option<(Vec<QoiSeries>, f64)>, SolverError> {
         let retry = (tolerance * ceiling).sqrt();
         let mut estimate = 0.0;
-        for at in [tolerance, retry] {
+        for at in [tolerance, retry].into_iter().take(if retry > tolerance { 2 } else { 1 }) {
             match self.check_pass(pass, window, at, run)? {
                 Ok(answer) => return Ok(Some((answer, at))),
                 Err(e) => estimate = e,
