@@ -6,8 +6,8 @@ Each design runs on a coordinator of its own (a fresh database: no study answers
 another's points) with one single-process pool. Once the study and its surface audit are done,
 the surface that `glissade surface --at` answers is read at every reference point off the design
 and compared with the reference's value: per QoI, the largest and mean |error| relative to the
-QoI's spread over the reference (the surface audit's measure, core::study::holdout), and the
-share within 2 predicted standard deviations; beside them the study's work (dynamic iterations +
+QoI's spread over the box (the study's values and the reference's: the surface audit's measure,
+core::study::holdout), and the share within 2 predicted standard deviations; beside them the study's work (dynamic iterations +
 static iterations / steps, summed over its points), wall time, and what its own surface audit
 estimated.
 
@@ -72,7 +72,7 @@ def finished(study):
     return study["state"] in ("done", "cancelled", "failed")
 
 
-def measure(bin_dir, scene, reference, qois, name, args, out):
+def measure(bin_dir, scene, reference, sets, qois, name, args, out):
     work_dir = os.path.join(out, name.replace(" ", "_"))
     os.makedirs(work_dir, exist_ok=True)
     service = Service(bin_dir, os.path.join(work_dir, "db"), work_dir)
@@ -105,26 +105,39 @@ def measure(bin_dir, scene, reference, qois, name, args, out):
         "wall_s": (study["finished_unix_ms"] - study["created_unix_ms"]) / 1e3,
         "tolerance": study["tolerance"], "target": study.get("target"),
         "audit": study.get("surface_accuracy"), "judged_on": len(off), "qoi": {},
+        # every number the errors come from, to judge again on another measure
+        "design_values": {q: [p["qoi"].get(q) for p in points] for q in qois},
+        "predicted": [{"at": r["point"], "reference": r["qoi"], "set": r["set"], "qoi": p["qoi"]}
+                      for r, p in zip(off, predicted)],
     }
-    for q in qois:
-        values = [r["qoi"][q] for r in reference]
-        spread = max(values) - min(values)
-        errors, within = [], 0
-        for r, p in zip(off, predicted):
-            m = p["qoi"][q]
-            e = abs(m["mean"] - r["qoi"][q])
-            errors.append(e / spread)
-            within += e <= 2 * m["std"]
-        row["qoi"][q] = {"largest": max(errors), "mean": sum(errors) / len(errors), "within_2sd": within / len(off)}
+    for name_set in sets:
+        row["qoi"][name_set] = judge(row, qois, name_set)
     return row
 
 
-def table(rows, qois):
-    lines = ["| design | points | work | wall (s) | QoI | largest / mean (truth) | within 2 sd | audit: largest / mean (mean / truth's) |",
+def judge(row, qois, name_set):
+    """Per QoI over the reference points of one set: largest and mean |error| relative to the
+    QoI's spread over the box (the study's values and the set's: the surface audit's measure),
+    and the share within 2 predicted standard deviations."""
+    judged = {}
+    pairs = [p for p in row["predicted"] if p["set"] == name_set]
+    for q in qois:
+        values = [p["reference"][q] for p in pairs] + [v for v in row["design_values"][q] if v is not None]
+        spread = max(values) - min(values)
+        errors = [abs(p["qoi"][q]["mean"] - p["reference"][q]) for p in pairs]
+        within = sum(e <= 2 * p["qoi"][q]["std"] for e, p in zip(errors, pairs))
+        judged[q] = {"largest": max(errors) / spread, "mean": sum(errors) / len(errors) / spread,
+                     "within_2sd": within / len(pairs), "count": len(pairs)}
+    return judged
+
+
+def table(rows, qois, name_set):
+    lines = [f"judged at the reference points of {name_set}",
+             "| design | points | work | wall (s) | QoI | largest / mean (truth) | within 2 sd | audit: largest / mean (mean / truth's) |",
              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         for k, q in enumerate(qois):
-            t = r["qoi"][q]
+            t = r["qoi"][name_set][q]
             a = ((r["audit"] or {}).get("qoi") or {}).get(q)
             audit = (f"{a['largest']:.3f} / {a['mean']:.4f} ({a['mean'] / t['mean']:.2f})" if a else "-")
             head = (f"| {r['name']} | {r['points']} | {r['work']:.0f} | {r['wall_s']:.0f} |" if k == 0
@@ -137,22 +150,24 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bin", default="target/release")
     ap.add_argument("--scene", required=True)
-    ap.add_argument("--reference", required=True, help="results.json of `glissade-worker study`")
+    ap.add_argument("--reference", required=True, action="append",
+                    help="results.json of `glissade-worker study` (repeatable: each set judged apart)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--qoi", default="middle_ux,slip_A,slip_B")
     ap.add_argument("designs", nargs="+", help="'NAME|submit arguments'")
     a = ap.parse_args()
     qois = a.qoi.split(",")
-    reference = json.load(open(a.reference))["records"]
+    reference = [dict(r, set=path) for path in a.reference for r in json.load(open(path))["records"]]
     os.makedirs(a.out, exist_ok=True)
     rows = []
     for d in a.designs:
         name, args = d.split("|", 1)
         started = time.time()
-        rows.append(measure(os.path.abspath(a.bin), a.scene, reference, qois, name, args, a.out))
+        rows.append(measure(os.path.abspath(a.bin), a.scene, reference, a.reference, qois, name, args, a.out))
         print(f"{name}: {time.time() - started:.0f} s", file=sys.stderr)
         json.dump(rows, open(os.path.join(a.out, "bench.json"), "w"), indent=1)
-    print(table(rows, qois))
+    for name_set in a.reference:
+        print(table(rows, qois, name_set))
 
 
 if __name__ == "__main__":

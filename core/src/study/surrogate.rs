@@ -266,6 +266,11 @@ impl ResponseSurface {
         &self.names
     }
 
+    /// The process's length scale of each parameter (in units of its range in the scene).
+    pub fn lengths(&self) -> &[f64] {
+        self.process.lengths()
+    }
+
     /// (lowest, highest) of each parameter, in [`Self::names`] order: the box where
     /// [`Self::predict_within`] answers.
     pub fn bounds(&self) -> &[(f64, f64)] {

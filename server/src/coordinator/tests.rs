@@ -1096,13 +1096,13 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
     let dir = tempfile::tempdir().unwrap();
     let c = open(dir.path(), 60_000, 3);
     pool(&c, "p", VERSION);
-    // 25 points: 5 % of them, at least 5, at most a quarter: 5 held out
+    // 25 points: 15, at most a quarter of them: 6 held out
     let id = submit_held_out(&c, &["f1=0.1:0.2:5", "f2=0.1:0.2:5"], None, None);
     let audit = c.study(id, false).unwrap().record.surface_audit.expect("a surface audit");
     let a = c.study(audit, true).unwrap();
     assert_eq!(
         (a.kind, a.record.audit_of, a.record.strategy, a.points.len()),
-        ("audit", Some(id), InitStrategy::Cold, 5)
+        ("audit", Some(id), InitStrategy::Cold, 6)
     );
     assert_eq!(a.record.tolerance, 1e-3 * AUDIT_TOLERANCE_RATIO);
     assert_eq!(a.record.held_out, Some(records::HeldOut { predicted: None }));
@@ -1119,12 +1119,12 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
         if g.study == audit {
             // predicted before any held-out point was solved, from the study's 25 points alone
             let predicted = c.study(audit, false).unwrap().record.held_out.unwrap().predicted.expect("predicted");
-            assert_eq!((predicted.fitted, predicted.at.len()), (25, 5));
+            assert_eq!((predicted.fitted, predicted.at.len()), (25, 6));
         }
         let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &law(&g.parameters));
         c.complete(done, file).unwrap();
     }
-    assert_eq!(order, [vec![id; 25], vec![audit; 5]].concat(), "the held-out points once the study has ended");
+    assert_eq!(order, [vec![id; 25], vec![audit; 6]].concat(), "the held-out points once the study has ended");
     // by hand: the surfaces of the 25 points, as `glissade surface` fits them
     let study = c.study(id, true).unwrap();
     let held = c.study(audit, true).unwrap();
@@ -1132,9 +1132,9 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
     let space = ParameterSpace::from_scene(&scene);
     let names = vec!["f1".to_string(), "f2".to_string()];
     let measured = study.surface_accuracy.expect("measured");
-    assert_eq!((measured.audit_study, measured.validated, measured.planned, measured.fitted), (audit, 5, 5, 25));
-    // its cost: 5 points of work 8 against a cap of half the study's 25 x 8
-    assert_eq!((measured.work, measured.work_cap), (40.0, 100.0));
+    assert_eq!((measured.audit_study, measured.validated, measured.planned, measured.fitted), (audit, 6, 6, 25));
+    // its cost: 6 points of work 8 against a cap of half the study's 25 x 8
+    assert_eq!((measured.work, measured.work_cap), (48.0, 100.0));
     for q in ["slip_A", "middle_ux"] {
         let xy = |p: &PointRecord| vec![p.parameters.get("f1").unwrap(), p.parameters.get("f2").unwrap()];
         let samples: Vec<(Vec<f64>, f64)> = study.points.iter().map(|p| (xy(p), law(&p.parameters)[q])).collect();
@@ -1153,8 +1153,8 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
         }
         let e = measured.qoi[q];
         assert!(largest > 0.0, "{q}: the held-out points are between the design's");
-        assert!((e.largest - largest).abs() < 1e-12 && (e.mean - sum / 5.0).abs() < 1e-12, "{q}: {e:?}");
-        assert_eq!((e.within_2sd, e.count), (within as f64 / 5.0, 5), "{q}");
+        assert!((e.largest - largest).abs() < 1e-12 && (e.mean - sum / 6.0).abs() < 1e-12, "{q}: {e:?}");
+        assert_eq!((e.within_2sd, e.count), (within as f64 / 6.0, 6), "{q}");
     }
 
     // an adaptive study: over its ranges (8 points: a quarter, 2 held out)
@@ -1376,7 +1376,7 @@ fn a_bad_target_is_refused_and_the_tolerance_follows_the_target() {
     assert_eq!(c.studies().len(), 1, "nothing stored of the refused ones");
     let tolerance = |t| c.study(submit_target(&c, t, 20, None).unwrap(), false).unwrap().record.tolerance;
     assert!(tolerance(0.001) < tolerance(0.01) && tolerance(0.01) < tolerance(0.1));
-    assert_eq!(tolerance(1.0), glissade_core::study::adaptive::LOOSEST_TARGET_TOLERANCE);
+    assert_eq!(tolerance(1.0), glissade_core::study::adaptive::point_tolerance(1.0));
     // no budget given: the default one
     let mut default = submission_of_target(0.05);
     default.adaptive = Some((default.adaptive.unwrap().0, 0));
