@@ -689,6 +689,7 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
         }
         p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
         (target_paragraph(&v))
+        (ill_posed_paragraph(&v))
         (audit_paragraphs(&v))
         (slicing.links(&here))
         @if let Some(miss) = &slicing.miss {
@@ -822,7 +823,27 @@ fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {
     }
 }
 
-/// Every point of the study with its state, iterations, eta, QoIs and why it failed.
+/// The points whose sliding is ill-posed (docs/verification.md 4d): their answers move as the
+/// mesh and the time step are refined whatever the tolerance, and the surface through them
+/// with them.
+fn ill_posed_paragraph(v: &StudyView) -> Markup {
+    let flagged: Vec<(u64, String)> = v
+        .points
+        .iter()
+        .filter_map(|p| Some((p.id.0, p.result.as_ref()?.contact.iter().find_map(|c| c.warning())?)))
+        .collect();
+    let Some((_, first)) = flagged.first() else { return html! {} };
+    let ids: Vec<String> = flagged.iter().map(|(id, _)| format!("#{id}")).collect();
+    html! {
+        p #ill-posed class="warning" {
+            (format!("warning: {} of {} points slide ill-posed ({}). ", flagged.len(), v.points.len(), ids.join(", ")))
+            (first)
+        }
+    }
+}
+
+/// Every point of the study with its state, iterations, eta, QoIs and why it failed (or how its
+/// contact slid ill-posed).
 fn points_table(
     v: &StudyView,
     qoi: &[String],
@@ -851,7 +872,12 @@ fn points_table(
                         td { @if let Some(x) = res.and_then(|r| r.qoi.get(q)) { (format!("{:.4e}", shown(*x, resolution[q]))) } }
                     }
                     // why it failed (or why its last attempt did)
-                    td class="note" { @if let Some(e) = &point.error { (e) } }
+                    td class="note" {
+                        @if let Some(e) = &point.error { (e) }
+                        @for c in res.iter().flat_map(|r| &r.contact).filter(|c| c.ill_posed) {
+                            (format!("ill-posed: '{}' slides on a rigid wall at friction {}", c.interface, c.friction))
+                        }
+                    }
                 }
             }
         }

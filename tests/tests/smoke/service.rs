@@ -713,5 +713,10 @@ point = [0.01, 0]
     let flags: Vec<bool> =
         json["points"].as_array().expect("points").iter().map(|p| p["contact"][0]["ill_posed"] == true).collect();
     assert_eq!(flags, [false, true], "{json}");
+    // and the web page, where the surface is read
+    let (status, _, page) = http_get(&addr, &format!("/studies/{id}"));
+    assert_eq!(status, 200, "{page}");
+    assert!(page.contains("warning: 1 of 2 points slide ill-posed (#1)"), "{page}");
+    assert!(page.contains("ill-posed: 'floor' slides on a rigid wall at friction 1.4"), "{page}");
     Ok(())
 }
