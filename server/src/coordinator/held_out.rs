@@ -7,11 +7,10 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_core::study::holdout::{self, held_out_points};
-use glissade_core::study::space::DesignPoint;
 use glissade_core::study::surrogate::{Prediction, QoiSurface};
-use glissade_proto::ParameterVector;
 
 use super::{StudyEntry, SurfaceAccuracy, audit_cost, now_unix_ms};
 use crate::records::{AdaptiveSpec, PointState, Predicted};
@@ -21,12 +20,12 @@ use crate::records::{AdaptiveSpec, PointState, Predicted};
 /// none at a design point, seeded by `seed` (the study's id: the same study, the same points).
 pub(super) fn points(
     names: &[String],
-    design: &[ParameterVector],
+    design: &[DesignPoint],
     adaptive: Option<&AdaptiveSpec>,
     n: usize,
     seed: u64,
-) -> Vec<ParameterVector> {
-    let coordinates = |p: &ParameterVector| -> Vec<f64> { names.iter().map(|k| p.get(k).unwrap_or(0.0)).collect() };
+) -> Vec<DesignPoint> {
+    let coordinates = |p: &DesignPoint| -> Vec<f64> { names.iter().map(|k| p.get(k).unwrap_or(0.0)).collect() };
     let design: Vec<Vec<f64>> = design.iter().map(coordinates).collect();
     let ranges: Vec<(f64, f64)> = match adaptive {
         Some(a) => names
@@ -42,7 +41,8 @@ pub(super) fn points(
     }
     held_out_points(&ranges, &design, n, seed)
         .into_iter()
-        .map(|x| crate::study::parameter_vector(&DesignPoint::from_pairs(names.iter().cloned().zip(x))))
+        // (coordinates inside the swept ranges, of the study's names: always a design point)
+        .filter_map(|x| DesignPoint::from_pairs(names.iter().cloned().zip(x)).ok())
         .collect()
 }
 
@@ -71,7 +71,7 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
             Some((x?, p.result.as_ref()?.qoi.clone()))
         })
         .collect();
-    let at = audit.points.iter().map(|p| DesignPoint::from(BTreeMap::from(p.parameters.clone()))).collect();
+    let at = audit.points.iter().map(|p| p.parameters.clone()).collect();
     Job { audit: audit.record.id, scene: study.record.scene.clone(), names, rows, at }
 }
 

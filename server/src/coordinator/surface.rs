@@ -1,7 +1,7 @@
 //! Reading what the coordinator stores: response surfaces over a study or a scene, and stored
 //! solutions' files and fields.
 
-use glissade_core::study::space::DesignPoint;
+use glissade_core::point::DesignPoint;
 use glissade_core::study::surrogate::QoiSurface;
 
 use super::*;
@@ -37,7 +37,8 @@ fn predict(
                     names.join(", ")
                 )));
             }
-            let p = DesignPoint::from(point.clone());
+            let p = DesignPoint::try_from(point.clone())
+                .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
             let predicted = surfaces
                 .iter()
                 .map(|s| s.predict_within(&p).map(|v| (v, s.len())))
@@ -52,7 +53,7 @@ impl Coordinator {
     pub fn surface(
         &self,
         source: SurfaceSource,
-        fixed: &ParameterVector,
+        fixed: &DesignPoint,
         qoi: &[String],
         predict_at: &[BTreeMap<String, f64>],
     ) -> Result<Surface, CoordError> {
