@@ -53,7 +53,7 @@ type QoiPredictions = BTreeMap<String, (f64, f64)>;
 /// fits run outside its lock: each is O(n^3) in the study's points).
 pub(super) struct Job {
     pub audit: glissade_proto::StudyId,
-    scene: String,
+    scene: std::sync::Arc<Scene>,
     names: Vec<String>,
     /// the study's done points: coordinates and QoIs
     rows: Vec<(Vec<f64>, BTreeMap<String, f64>)>,
@@ -72,7 +72,7 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
         })
         .collect();
     let at = audit.points.iter().map(|p| p.parameters.clone()).collect();
-    Job { audit: audit.record.id, scene: study.record.scene.clone(), names, rows, at }
+    Job { audit: audit.record.id, scene: std::sync::Arc::clone(&study.scene), names, rows, at }
 }
 
 /// The surface of each QoI of the study's points (as `glissade surface` fits it: norms never
@@ -81,17 +81,11 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
 pub(super) fn predict(job: &Job) -> Predicted {
     let mut refused = BTreeMap::new();
     let mut at = vec![BTreeMap::new(); job.at.len()];
-    let scene = match Scene::parse(&job.scene) {
-        Ok(s) => s,
-        Err(e) => {
-            refused.insert(String::new(), format!("the stored scene does not parse: {e}"));
-            return Predicted { fitted: 0, at, refused, unix_ms: now_unix_ms() };
-        }
-    };
+    let scene: &Scene = &job.scene;
     let qois: std::collections::BTreeSet<&String> = job.rows.iter().flat_map(|(_, q)| q.keys()).collect();
     let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = job.rows.iter().map(|(x, q)| (x.clone(), q)).collect();
     for q in qois {
-        let surface = match QoiSurface::of_scene(&scene, &job.names, &points, q) {
+        let surface = match QoiSurface::of_scene(scene, &job.names, &points, q) {
             Ok(s) => s,
             Err(e) => {
                 refused.insert(q.clone(), e.to_string());

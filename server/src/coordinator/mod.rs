@@ -45,6 +45,10 @@ struct StudyEntry {
     record: StudyRecord,
     points: Vec<PointRecord>,
     plan: StudyPlan,
+    /// The study's scene, parsed once where the study entered (its submission, or the reopening
+    /// of the database), without its mesh bytes: the study list, the checks of its points, its
+    /// QoIs' readings and its surfaces read it, none builds a mesh body.
+    scene: Arc<Scene>,
 }
 
 impl StudyEntry {
@@ -189,7 +193,7 @@ impl Coordinator {
                     Err(e) => tracing::warn!(study = %record.id, error = %e, "no warm starts for this scene"),
                 }
             }
-            state.studies.insert(record.id, StudyEntry { record, points, plan });
+            state.studies.insert(record.id, StudyEntry { record, points, plan, scene: Arc::new(scene) });
         }
         store.commit(batch)?;
         // The nearest-neighbour indexes, rebuilt from the records (the fields stay on disk).
@@ -346,7 +350,7 @@ impl Coordinator {
         StudyView {
             solving,
             kind,
-            scene_title: Scene::parse(&r.scene).ok().and_then(|s| s.title).unwrap_or_default(),
+            scene_title: entry.scene.title.clone().unwrap_or_default(),
             finished_unix_ms: (state != StudyState::Active)
                 .then(|| entry.points.iter().filter_map(|p| p.finished_unix_ms).max())
                 .flatten(),
@@ -460,11 +464,9 @@ impl Coordinator {
         if entry.record.cancelled {
             return Err(CoordError::Precondition(format!("study {id} is cancelled: its points are not retried")));
         }
-        // (parsed when the study was submitted; stored meshes are attached to a lease, not here:
-        // only the per-point check runs)
-        let scene = Scene::parse(&entry.record.scene).ok();
+        // (stored meshes are attached to a lease, not here: only the per-point check runs)
+        let scene = Arc::clone(&entry.scene);
         let bad_input = |i: usize| -> Option<String> {
-            let scene = scene.as_ref()?;
             let values = scene.parameter_values(&entry.plan.full[i]);
             values
                 .and_then(|v| scene.check_point(&v))
@@ -1143,9 +1145,7 @@ fn adaptive_step(
             (p.parameters.clone(), done)
         })
         .collect();
-    // (the stored scene parsed when it was submitted; a QoI of a scene that no longer parses
-    // is read on its own)
-    let readings = Scene::parse(&entry.record.scene).map(|s| QoiReadings::of(&s)).unwrap_or_default();
+    let readings = QoiReadings::of(&entry.scene);
     let surfaces = design.surfaces(entry.plan.space(), &readings, &chosen);
     let in_flight = points.iter().any(|p| matches!(p.state, PointState::Pending | PointState::Leased { .. }));
     let spent = points.len() >= spec.budget as usize && !in_flight;

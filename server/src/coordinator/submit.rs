@@ -292,7 +292,10 @@ impl Coordinator {
                 state.by_scene.insert(record.scene_hash.clone(), index);
             }
         }
-        let entry = StudyEntry { record, points, plan };
+        // (the parsed scene kept without its mesh bytes, as a reopened database has it)
+        let mut kept = scene.clone();
+        kept.meshes.clear();
+        let entry = StudyEntry { record, points, plan, scene: std::sync::Arc::new(kept) };
         tracing::info!(study = %entry.record.id, points = entry.points.len(), scene = %admitted.scene_hash, audit_of = ?entry.record.audit_of, "study submitted");
         self.emit(EventKind::Snapshot, &entry, None);
         let id = entry.record.id;

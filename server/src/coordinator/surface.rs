@@ -59,8 +59,8 @@ impl Coordinator {
     ) -> Result<Surface, CoordError> {
         let state = self.lock();
         // the scene's ranges scale the parameters of a prediction
-        let scene_text = match &source {
-            SurfaceSource::Study(id) if !predict_at.is_empty() => state.studies.get(id).map(|e| e.record.scene.clone()),
+        let study_scene = match &source {
+            SurfaceSource::Study(id) if !predict_at.is_empty() => state.studies.get(id).map(|e| Arc::clone(&e.scene)),
             _ => None,
         };
         let (scene_hash, mut rows) = match &source {
@@ -147,16 +147,16 @@ impl Coordinator {
             key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal)
         });
         let predictions = if let Some(predicted_from) = predicted_from {
-            let text = match scene_text {
-                Some(text) => text,
+            let scene = match study_scene {
+                Some(scene) => scene,
                 None => {
                     let bytes = self.store.get(Tree::Scenes, scene_hash.as_bytes())?.ok_or_else(|| {
                         CoordError::Corrupt(format!("scene {scene_hash} is missing from the database"))
                     })?;
-                    String::from_utf8_lossy(&bytes).into_owned()
+                    let text = String::from_utf8_lossy(&bytes);
+                    Arc::new(Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?)
                 }
             };
-            let scene = Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?;
             predict(&scene, &names, &qoi_names, &predicted_from, predict_at)?
         } else {
             Vec::new()

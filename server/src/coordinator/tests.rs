@@ -1025,7 +1025,13 @@ fn retry_keeps_failed_points_whose_scene_is_invalid_at_their_parameters() {
         c.fail(failure).unwrap();
     }
     // a study stored before scenes were checked at submit: its friction is -f1 at every point
-    c.lock().studies.get_mut(&id).unwrap().record.scene = TINY.replace("friction = \"f1\"", "friction = \"-f1\"");
+    // (as a reopened database parses it: the text and the parsed scene beside the study)
+    let stored = TINY.replace("friction = \"f1\"", "friction = \"-f1\"");
+    let mut state = c.lock();
+    let entry = state.studies.get_mut(&id).unwrap();
+    entry.scene = Arc::new(Scene::parse(&stored).unwrap());
+    entry.record.scene = stored;
+    drop(state);
     let (requeued, (kept, why), _) = c.retry_failed(id).unwrap();
     assert_eq!((requeued, kept), (0, 2));
     assert!(why.contains("interfaces[0].friction: must be >= 0, got -0.1: retrying cannot help"), "{why}");
