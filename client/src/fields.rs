@@ -3,13 +3,14 @@
 //! solve converges at once) and written as HDF5 + XDMF for ParaView.
 
 use glissade_cli::outln;
+use glissade_core::point::DesignPoint;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, anyhow, bail};
 use glissade_core::io::solution_file;
-use glissade_core::scene::Scene;
-use glissade_core::study::space::{DesignPoint, ParameterSpace};
+use glissade_core::scene::{Scene, Tolerance};
+use glissade_core::study::space::ParameterSpace;
 use glissade_core::text::same_parameter;
 use glissade_proto::Assembler;
 use glissade_proto::v1;
@@ -43,8 +44,8 @@ pub struct FieldsArgs {
 }
 
 /// `f1=0.12,f2=0.15` with exactly the swept parameters, finite values (`flag` names the option).
-pub fn parse_point(flag: &str, spec: &str, swept: &[String]) -> Result<BTreeMap<String, f64>> {
-    let mut point = BTreeMap::new();
+pub fn parse_point(flag: &str, spec: &str, swept: &[String]) -> Result<DesignPoint> {
+    let mut point = DesignPoint::new();
     for pair in spec.split(',').map(str::trim).filter(|p| !p.is_empty()) {
         let (name, value) = pair.split_once('=').ok_or_else(|| anyhow!("{flag} {spec}: `{pair}` is not NAME=VALUE"))?;
         let value: f64 =
@@ -55,9 +56,10 @@ pub fn parse_point(flag: &str, spec: &str, swept: &[String]) -> Result<BTreeMap<
         if !swept.iter().any(|s| s == name.trim()) {
             bail!("{flag} {spec}: `{}` is not a swept parameter of the study ({})", name.trim(), swept.join(", "));
         }
-        if point.insert(name.trim().to_owned(), value).is_some() {
+        if point.get(name.trim()).is_some() {
             bail!("{flag} {spec}: {name} given twice");
         }
+        point.insert(name.trim(), value).with_context(|| format!("{flag} {spec}"))?;
     }
     if point.len() != swept.len() {
         bail!("{flag} {spec}: give every swept parameter ({})", swept.join(", "));
@@ -67,14 +69,12 @@ pub fn parse_point(flag: &str, spec: &str, swept: &[String]) -> Result<BTreeMap<
 
 /// The done point of `study` nearest to `target`, in the scene's normalised parameter space (the
 /// distance the coordinator's warm starts use).
-fn nearest_done<'a>(
-    scene: &Scene,
-    study: &'a v1::Study,
-    target: &BTreeMap<String, f64>,
-) -> Option<&'a v1::PointStatus> {
+fn nearest_done<'a>(scene: &Scene, study: &'a v1::Study, target: &DesignPoint) -> Option<&'a v1::PointStatus> {
     let space = ParameterSpace::from_scene(scene);
-    let goal = DesignPoint::from(target.clone());
-    let distance = |p: &v1::PointStatus| space.normalised_distance(&DesignPoint::from(p.parameters.clone()), &goal);
+    // (a point the coordinator sent that is no design point is no start)
+    let distance = |p: &v1::PointStatus| {
+        DesignPoint::try_from(p.parameters.clone()).map_or(f64::INFINITY, |p| space.normalised_distance(&p, target))
+    };
     let done = study.points.iter().filter(|p| p.state == v1::PointState::Done as i32);
     done.min_by(|a, b| distance(a).total_cmp(&distance(b)))
 }
@@ -125,12 +125,12 @@ pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
     let (meta, init) = solution_file::read_from(&bytes[..]).context("the stored solution")?;
     meta.check_fits(&scene).context("the stored solution")?;
     // the point's own converged solution: one linear stage gives its fields, nothing to iterate
-    let own = target.iter().all(|(k, &v)| from.parameters.get(k).is_some_and(|&x| same_parameter(x, v)))
+    let own = target.iter().all(|(k, v)| from.parameters.get(k).is_some_and(|&x| same_parameter(x, v)))
         && meta.converged
         && meta.error_indicator <= study.tolerance;
     let request = SolveRequest {
-        set: target.iter().map(|(k, v)| (k.clone(), *v)).collect(),
-        tolerance: Some(study.tolerance),
+        point: target.clone(),
+        tolerance: Some(Tolerance::new("the study's tolerance", study.tolerance)?),
         max_iterations: Some(if own { 1 } else { study.max_iterations as usize }),
         scale: None,
         record_fields: true,
@@ -179,7 +179,7 @@ pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
         let statics = summary.iterations - dynamic;
         outln!(
             "point {}: {dynamic} iteration{} of the dynamic stage{} from {from_text}, eta {:.2e}",
-            describe_parameters(&target),
+            target,
             if dynamic == 1 { "" } else { "s" },
             if statics > 0 { format!(" (and {statics} of the static one)") } else { String::new() },
             summary.error_indicator
@@ -197,7 +197,7 @@ mod tests {
     fn a_point_gives_every_swept_parameter_once() {
         let swept = ["f1".to_owned(), "f2".to_owned()];
         let p = parse_point("--point", "f1=0.12, f2=0.15", &swept).unwrap();
-        assert_eq!(p, [("f1".to_owned(), 0.12), ("f2".to_owned(), 0.15)].into());
+        assert_eq!(p, DesignPoint::from_pairs([("f1", 0.12), ("f2", 0.15)]).unwrap());
         for bad in ["f1=0.12", "f1=0.1,f2=x", "f1=0.1,f3=0.1", "f1=0.1,f1=0.2", "f1=0.1,f2=inf", "f1"] {
             assert!(parse_point("--at", bad, &swept).is_err(), "{bad}");
         }

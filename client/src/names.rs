@@ -1,8 +1,8 @@
 //! Words for the API's enums and parameter vectors, as the CLI prints them.
 
+use glissade_core::point::DesignPoint;
 use std::collections::BTreeMap;
 
-use glissade_core::study::space::DesignPoint;
 use glissade_proto::v1;
 
 pub fn study_state_name(state: i32) -> &'static str {
@@ -46,7 +46,8 @@ pub fn order_name(order: i32) -> &'static str {
     }
 }
 
-/// `f1=0.1 f2=0.15`, in name order: the study library's `DesignPoint` display.
+/// `f1=0.1 f2=0.15`, in name order: the study library's `DesignPoint` display (a map that is no
+/// design point as it came).
 pub fn describe_parameters(parameters: &BTreeMap<String, f64>) -> String {
-    DesignPoint::from(parameters.clone()).to_string()
+    DesignPoint::try_from(parameters.clone()).map_or_else(|_| format!("{parameters:?}"), |p| p.to_string())
 }

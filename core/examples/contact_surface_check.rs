@@ -20,10 +20,11 @@
 //!
 //! cargo run --release -p glissade-core --example contact_surface_check -- SCENE RESULTS.json P1 P2
 
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_core::study::StudyResult;
 use glissade_core::study::holdout::{SurfaceErrors, spread, surface_errors};
-use glissade_core::study::space::{DesignPoint, ParameterSpace};
+use glissade_core::study::space::ParameterSpace;
 use glissade_core::study::surrogate::{Prediction, ResponseSurface};
 use rand::SeedableRng;
 use rand::seq::index::sample;
@@ -146,7 +147,7 @@ fn main() {
 }
 
 fn at(names: &[String], x: &[f64]) -> DesignPoint {
-    DesignPoint::from_pairs(names.iter().cloned().zip(x.iter().copied()))
+    DesignPoint::from_pairs(names.iter().cloned().zip(x.iter().copied())).expect("the swept names at finite values")
 }
 
 fn fit(space: &ParameterSpace, names: &[String], samples: &[Sample]) -> ResponseSurface {

@@ -16,10 +16,10 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_core::study::StudyResult;
 use glissade_core::study::holdout::{spread, surface_errors};
-use glissade_core::study::space::DesignPoint;
 use glissade_core::study::surrogate::{Prediction, QoiSurface};
 
 fn read(path: &str) -> StudyResult {

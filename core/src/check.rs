@@ -8,9 +8,8 @@
 //! `Model::build`), which runs the same rules while it builds.
 
 use crate::gmsh::Msh;
-use crate::scene::{
-    BodySpec, InterfaceSpec, LawSpec, ParameterValues, Resolver, Scene, SceneError, Substructures, invalid,
-};
+use crate::point::DesignPoint;
+use crate::scene::{BodySpec, InterfaceSpec, LawSpec, Resolver, Scene, SceneError, Substructures, invalid};
 
 /// The useful range of `solver.tangential_factor`: far outside it, the compliances overflow
 /// (docs/performance.md).
@@ -60,7 +59,7 @@ pub fn law_values(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<LawVa
 impl Scene {
     /// Every rule on the scene's numbers at the design point `values` (all parameters, as
     /// [`Scene::parameter_values`] gives them).
-    pub fn check_point(&self, values: &ParameterValues) -> Result<(), SceneError> {
+    pub fn check_point(&self, values: &DesignPoint) -> Result<(), SceneError> {
         let r = Resolver { values };
         let duration = r.get("time.duration", &self.time.duration)?;
         if duration <= 0.0 {
@@ -289,8 +288,8 @@ mod tests {
 
     const TINY: &str = include_str!("../../scenes/three-blocks-tiny.toml");
 
-    fn defaults(scene: &Scene) -> ParameterValues {
-        scene.parameter_values(&[]).unwrap()
+    fn defaults(scene: &Scene) -> DesignPoint {
+        scene.parameter_values(&DesignPoint::new()).unwrap()
     }
 
     /// Each of the probe's bad scenes, as a change of the tiny scene's text, and the key the
@@ -330,7 +329,7 @@ mod tests {
         scene.check_point(&defaults(&scene)).unwrap();
         // a parameter's value is checked where it is used: f1 < 0 at one point only
         let mut at = defaults(&scene);
-        at.insert("f1".into(), -0.1);
+        at.insert("f1", -0.1).unwrap();
         assert!(scene.check_point(&at).unwrap_err().to_string().contains("interfaces[0].friction: must be >= 0"));
     }
 

@@ -5,6 +5,7 @@
 //! - [`contact`]: what a frictional contact did while it slid (evidence beside an answer);
 //! - [`field`]: interface force and velocity fields, the solutions a study stores;
 //! - [`io`]: the solution file format and atomic, durable file writes;
+//! - [`point`]: a design point, the one checked form of a study's parameter values;
 //! - [`refine`]: refinement ladders (dt / 2, h / 2): the refined scene and Richardson's estimate;
 //! - [`study`]: the multiparametric strategy (design points, parameter space, solution store,
 //!   warm starts, ordering) and the study engine that both the local study and the coordinator run;
@@ -15,6 +16,7 @@ pub mod contact;
 pub mod field;
 pub mod gmsh;
 pub mod io;
+pub mod point;
 pub mod refine;
 pub mod scene;
 pub mod study;

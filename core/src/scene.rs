@@ -3,7 +3,8 @@
 //! Any number may instead be the name of a declared parameter; [`Model::build`](crate::model::Model::build) substitutes the
 //! design point's values and checks every physical constraint, naming the offending key.
 
-use crate::text::{MAX_NAME_CHARS, excerpt};
+use crate::point::{DesignPoint, MAX_PARAMETERS};
+use crate::text::{MAX_NAME_CHARS, excerpt, is_plain_name};
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
@@ -19,8 +20,6 @@ pub enum SceneError {
     UndeclaredParameter { key: String, name: String },
     #[error("--set {name}: no parameter of that name in the scene (declared: {declared})")]
     UnknownParameter { name: String, declared: String },
-    #[error("parameter {name} = {value}: {message}")]
-    BadParameterValue { name: String, value: f64, message: String },
 }
 
 pub fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError {
@@ -475,9 +474,6 @@ pub fn read_mesh_file(path: &std::path::Path) -> Result<Vec<u8>, String> {
     Ok(bytes)
 }
 
-/// Parameter values of one design point, by name.
-pub type ParameterValues = BTreeMap<String, f64>;
-
 impl Scene {
     /// Parses TOML text; errors carry the TOML key path and line.
     pub fn parse(text: &str) -> Result<Self, SceneError> {
@@ -486,6 +482,10 @@ impl Scene {
             return Err(invalid("dimension", format!("must be 1, 2 or 3, got {}", scene.dimension)));
         }
         scene.check_names()?;
+        if scene.parameters.len() > MAX_PARAMETERS {
+            let n = scene.parameters.len();
+            return Err(invalid("parameters", format!("{n} parameters, more than the {MAX_PARAMETERS} accepted")));
+        }
         check_tolerance("solver.tolerance", scene.solver.tolerance)?;
         check_max_iterations("solver.max_iterations", scene.solver.max_iterations as u64)?;
         for (name, p) in &scene.parameters {
@@ -699,7 +699,7 @@ impl Scene {
             .chain(self.interfaces.iter().map(|i| ("interfaces", &i.name)))
             .chain(self.qoi.iter().map(|q| ("qoi", &q.name)));
         for (table, name) in names {
-            if name.is_empty() || name.chars().count() > MAX_NAME_CHARS || name.chars().any(char::is_control) {
+            if !is_plain_name(name) {
                 return Err(invalid(
                     table,
                     format!(
@@ -808,32 +808,23 @@ impl Scene {
         })
     }
 
-    /// The parameter values of a design point: defaults overridden by `set`, all checked.
-    pub fn parameter_values(&self, set: &[(String, f64)]) -> Result<ParameterValues, SceneError> {
-        let mut values: ParameterValues = self.parameters.iter().map(|(k, p)| (k.clone(), p.default)).collect();
-        for (name, value) in set {
-            if !self.parameters.contains_key(name) {
-                return Err(SceneError::UnknownParameter {
-                    name: name.clone(),
-                    declared: self.parameters.keys().cloned().collect::<Vec<_>>().join(", "),
-                });
-            }
-            if !value.is_finite() {
-                return Err(SceneError::BadParameterValue {
-                    name: name.clone(),
-                    value: *value,
-                    message: "not a finite number".into(),
-                });
-            }
-            values.insert(name.clone(), *value);
+    /// Every parameter's value at `point`: the defaults, overridden by `point`'s values; refuses
+    /// a name the scene does not declare.
+    pub fn parameter_values(&self, point: &DesignPoint) -> Result<DesignPoint, SceneError> {
+        if let Some(name) = point.names().find(|name| !self.parameters.contains_key(*name)) {
+            return Err(SceneError::UnknownParameter {
+                name: name.to_owned(),
+                declared: self.parameters.keys().cloned().collect::<Vec<_>>().join(", "),
+            });
         }
-        Ok(values)
+        let defaults = DesignPoint::from_pairs(self.parameters.iter().map(|(k, p)| (k.as_str(), p.default)));
+        defaults.and_then(|d| d.overlaid(point)).map_err(|e| invalid("parameters", e.to_string()))
     }
 }
 
 /// Substitutes parameter values into scalars, naming the key on failure.
 pub struct Resolver<'a> {
-    pub values: &'a ParameterValues,
+    pub values: &'a DesignPoint,
 }
 
 impl Resolver<'_> {
@@ -846,7 +837,7 @@ impl Resolver<'_> {
                     Some(n) => (-1.0, n),
                     None => (1.0, spec.as_str()),
                 };
-                sign * *self
+                sign * self
                     .values
                     .get(name)
                     .ok_or_else(|| SceneError::UndeclaredParameter { key: key.to_string(), name: name.to_string() })?
@@ -1122,7 +1113,7 @@ initial_velocity = ["v0"]
 
     #[test]
     fn undeclared_parameter_is_named() {
-        let values = ParameterValues::new();
+        let values = DesignPoint::new();
         let r = Resolver { values: &values };
         let err = r.get("interfaces[0].friction", &Scalar::Parameter("f9".into())).unwrap_err().to_string();
         assert!(err.contains("f9") && err.contains("interfaces[0].friction"), "{err}");

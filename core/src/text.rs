@@ -7,6 +7,13 @@ pub const MAX_MESSAGE_CHARS: usize = 2000;
 /// Longest name of a parameter, material, body, interface or QoI in a scene.
 pub const MAX_NAME_CHARS: usize = 64;
 
+/// Whether `name` may name a parameter, material, body, interface or QoI: 1 to
+/// [`MAX_NAME_CHARS`] printable characters, not all blank (names key records, label plots and
+/// come back in messages).
+pub fn is_plain_name(name: &str) -> bool {
+    !name.trim().is_empty() && name.chars().count() <= MAX_NAME_CHARS && !name.chars().any(char::is_control)
+}
+
 /// A message on one line (toml's parse errors span several), at most [`MAX_MESSAGE_CHARS`].
 pub fn one_line(text: &str) -> String {
     let joined = text.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" ");

@@ -12,6 +12,7 @@
 use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use glissade_core::gmsh::Msh;
 use glissade_core::io::solution_file::{self, SolutionMeta};
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use proptest::prelude::*;
 use proptest::strategy::ValueTree;
@@ -52,7 +53,7 @@ fn submit_path(text: &str) {
     let Ok(scene) = Scene::parse(text) else { return };
     let _ = scene.size();
     let _ = scene.check_meshes();
-    if let Ok(values) = scene.parameter_values(&[]) {
+    if let Ok(values) = scene.parameter_values(&DesignPoint::new()) {
         let _ = scene.check_point(&values);
     }
 }
@@ -70,7 +71,7 @@ fn solution_bytes() -> Vec<u8> {
         scene_hash: "ab".repeat(32),
         dimension: 2,
         time_steps: 5,
-        parameters: [("f1".to_string(), 0.3)].into(),
+        parameters: DesignPoint::from_pairs([("f1", 0.3)]).unwrap(),
         converged: true,
         error_indicator: 1e-4,
         iterations: 17,
@@ -137,7 +138,7 @@ fn mutations_reach_the_checks() {
         let text = String::from_utf8_lossy(&mutate(TINY.as_bytes(), &edits, 1.0)).into_owned();
         if let Ok(scene) = Scene::parse(&text) {
             parsed += 1;
-            let checked = scene.parameter_values(&[]).and_then(|v| scene.check_point(&v));
+            let checked = scene.parameter_values(&DesignPoint::new()).and_then(|v| scene.check_point(&v));
             refused_by_checks += usize::from(checked.is_err());
         }
     }

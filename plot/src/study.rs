@@ -2,11 +2,11 @@
 //! (`QoiSurface::of_scene`, fitted to the same points), sampled over the box where it answers,
 //! with the scene's units on the axes. The CLI and the web page both call [`Picture::surface`].
 
+use glissade_core::point::DesignPoint;
 use std::collections::BTreeMap;
 
 use glissade_core::scene::Scene;
 use glissade_core::study::shown;
-use glissade_core::study::space::DesignPoint;
 use glissade_core::study::surrogate::QoiSurface;
 use glissade_core::text::same_parameter;
 
@@ -102,7 +102,8 @@ impl Picture<'_> {
         Field::sample(&free_bounds, nodes, |x| {
             let mut point = held.clone();
             point.extend(free.iter().map(|n| (*n).clone()).zip(x.iter().copied()));
-            surface.predict(&DesignPoint::from(point)).map(|p| (p.mean, p.std)).map_err(|e| e.to_string())
+            let point = DesignPoint::try_from(point).map_err(|e| e.to_string())?;
+            surface.predict(&point).map(|p| (p.mean, p.std)).map_err(|e| e.to_string())
         })
     }
 }
@@ -149,10 +150,11 @@ mod tests {
             data.iter().map(|(p, q)| (vec![p["a"], p["b"]], q)).collect();
         let direct = QoiSurface::of_scene(&scene, &names, &fit, "ux").unwrap();
         let k = 7 + 13 * NODES_2D;
-        let at = DesignPoint::from(BTreeMap::from([
+        let at = DesignPoint::try_from(BTreeMap::from([
             ("a".to_owned(), field.axes[0][7]),
             ("b".to_owned(), field.axes[1][13]),
-        ]));
+        ]))
+        .unwrap();
         let p = direct.predict_within(&at).unwrap();
         assert_eq!((field.mean[k], field.std[k]), (p.mean, p.std));
         // a norm never reads below zero (the same clamp as `--at`'s)

@@ -6,7 +6,8 @@ pub mod contact;
 pub mod domain;
 
 pub use chunks::{Assembler, CHUNK_BYTES, ChunkError, chunks};
-pub use domain::{IdParseError, ParameterError, ParameterVector, PointId, StudyId, now_unix_ms};
+pub use domain::{IdParseError, PointId, StudyId, now_unix_ms};
+use glissade_core::point::{DesignPoint, ParameterError};
 
 /// Generated code of package `glissade.v1`.
 pub mod v1 {
@@ -16,7 +17,8 @@ pub mod v1 {
 /// The encoded protobuf descriptors of `glissade.v1`, for server reflection.
 pub const FILE_DESCRIPTOR_SET: &[u8] = tonic::include_file_descriptor_set!("glissade_descriptor");
 
-impl TryFrom<v1::ParameterVector> for ParameterVector {
+/// A design point from the wire: checked here, once (core's rule), and trusted after.
+impl TryFrom<v1::ParameterVector> for DesignPoint {
     type Error = ParameterError;
 
     fn try_from(message: v1::ParameterVector) -> Result<Self, Self::Error> {
@@ -24,8 +26,8 @@ impl TryFrom<v1::ParameterVector> for ParameterVector {
     }
 }
 
-impl From<ParameterVector> for v1::ParameterVector {
-    fn from(vector: ParameterVector) -> Self {
-        Self { values: vector.into() }
+impl From<DesignPoint> for v1::ParameterVector {
+    fn from(point: DesignPoint) -> Self {
+        Self { values: point.into() }
     }
 }

@@ -5,10 +5,11 @@
 use std::collections::BTreeMap;
 
 use glissade_core::contact::{ContactActivity, MAX_CONTACT_REPORTS};
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::{MAX_MESH_BYTES, MAX_MESH_FILES, Tolerance};
-use glissade_core::text::{MAX_NAME_CHARS, excerpt, one_line};
+use glissade_core::text::one_line;
 use glissade_proto::v1;
-use glissade_proto::{ParameterVector, PointId, StudyId};
+use glissade_proto::{PointId, StudyId};
 use tonic::{Code, Status};
 
 use crate::coordinator::{
@@ -76,14 +77,9 @@ impl From<CoordError> for Status {
     }
 }
 
-fn parameters(what: &str, values: BTreeMap<String, f64>) -> Result<ParameterVector, Invalid> {
-    for name in values.keys() {
-        if name.chars().count() > MAX_NAME_CHARS || name.chars().any(char::is_control) {
-            let shown = excerpt(&name.escape_debug().to_string(), MAX_NAME_CHARS);
-            return Err(Invalid(format!("{what}: parameter name `{shown}` is not a plain short name")));
-        }
-    }
-    ParameterVector::try_from(values).map_err(|e| Invalid(format!("{what}: {e}")))
+/// A design point from a request: core's one check (`DesignPoint`'s `TryFrom`), named by `what`.
+fn parameters(what: &str, values: BTreeMap<String, f64>) -> Result<DesignPoint, Invalid> {
+    DesignPoint::try_from(values).map_err(|e| Invalid(format!("{what}: {e}")))
 }
 
 /// Neighbours a blend or a linear fit may combine.
@@ -207,7 +203,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
 /// A response-surface query.
 pub struct SurfaceQuery {
     pub source: SurfaceSource,
-    pub fixed: ParameterVector,
+    pub fixed: DesignPoint,
     pub qoi: Vec<String>,
     pub predict_at: Vec<BTreeMap<String, f64>>,
 }

@@ -15,10 +15,11 @@
 use std::collections::BTreeMap;
 
 use glissade_core::contact::ContactActivity;
+use glissade_core::point::DesignPoint;
 use glissade_core::study::adaptive::{AdaptiveDesign, TargetOutcome};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
-use glissade_proto::{ParameterVector, PointId, StudyId};
+use glissade_proto::{PointId, StudyId};
 use serde::{Deserialize, Serialize};
 
 /// `meta` key of the next study id to hand out.
@@ -52,7 +53,7 @@ pub struct SolutionKey(Vec<u8>);
 
 impl SolutionKey {
     /// The key of `scene_hash` at `parameters`.
-    pub fn new(scene_hash: &str, parameters: &ParameterVector) -> Self {
+    pub fn new(scene_hash: &str, parameters: &DesignPoint) -> Self {
         let mut bytes = scene_hash.as_bytes().to_vec();
         for (name, value) in parameters.iter() {
             let len = u16::try_from(name.len()).expect("parameter names are validated to be short");
@@ -205,7 +206,7 @@ pub enum PointState {
 pub struct SolutionOrigin {
     pub scene_hash: String,
     /// Every parameter of the solution.
-    pub parameters: ParameterVector,
+    pub parameters: DesignPoint,
     pub study: Option<StudyId>,
     pub point: Option<PointId>,
 }
@@ -240,7 +241,7 @@ pub struct PointRecord {
     pub study: StudyId,
     pub id: PointId,
     /// The swept parameters only.
-    pub parameters: ParameterVector,
+    pub parameters: DesignPoint,
     #[serde(flatten)]
     pub state: PointState,
     /// Leases granted since submission or the last RetryFailed.
@@ -262,7 +263,7 @@ pub struct PointRecord {
 pub struct SolutionRecord {
     pub scene_hash: String,
     /// Every parameter of the scene at this solution.
-    pub parameters: ParameterVector,
+    pub parameters: DesignPoint,
     /// Version of the solver that computed it: it answers a request only of the same version.
     pub solver_version: String,
     pub converged: bool,
@@ -358,8 +359,8 @@ pub fn decode<T: for<'de> Deserialize<'de>>(tree: &'static str, key: &[u8], byte
 mod tests {
     use super::*;
 
-    fn pv(pairs: &[(&str, f64)]) -> ParameterVector {
-        ParameterVector::from_pairs(pairs.iter().map(|&(n, v)| (n, v))).unwrap()
+    fn pv(pairs: &[(&str, f64)]) -> DesignPoint {
+        DesignPoint::from_pairs(pairs.iter().map(|&(n, v)| (n, v))).unwrap()
     }
 
     #[test]

@@ -7,53 +7,22 @@
 //! fields stay in sled and are read (zstd, then the solution file format) when a strategy asks
 //! for them.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
-use glissade_core::scene::{Scene, SceneError, Tolerance};
+use glissade_core::point::DesignPoint;
+use glissade_core::scene::{Scene, SceneError, Tolerance, invalid};
 use glissade_core::study::StartKind;
 use glissade_core::study::engine::{Start, StudyEngine};
 use glissade_core::study::order::OrderingPolicy;
-use glissade_core::study::space::{DesignPoint, ParameterSpace, submission_points};
+use glissade_core::study::space::ParameterSpace;
 use glissade_core::study::store::{PointIndex, SolutionId, SolutionInfo, SolutionStore, StoreError, StoredSolution};
 use glissade_core::study::strategy::Initialisation;
-use glissade_proto::ParameterVector;
 
 use crate::records::{PointRecord, PointState, SolutionKey, SolutionOrigin, SolutionRecord, StudyRecord};
 use crate::store::{Store, Tree};
-
-/// The design points of a submission (the library's [`submission_points`], checked against the
-/// scene) as wire vectors. Returns the swept names (sorted) and the points (swept parameters only).
-pub fn expand(
-    scene: &Scene,
-    grid: &[String],
-    points: &[ParameterVector],
-    max_points: usize,
-) -> Result<(Vec<String>, Vec<ParameterVector>), String> {
-    let listed: Vec<DesignPoint> = points.iter().map(|p| DesignPoint::from(BTreeMap::from(p.clone()))).collect();
-    let (names, design) = submission_points(scene, grid, &listed, max_points)?;
-    let out = design
-        .iter()
-        .enumerate()
-        .map(|(i, p)| ParameterVector::try_from(BTreeMap::from(p.clone())).map_err(|e| format!("point {i}: {e}")))
-        .collect::<Result<_, _>>()?;
-    Ok((names, out))
-}
-
-/// Every parameter of `scene` at `swept` (defaults for the rest), as the library's point.
-pub fn design_point(space: &ParameterSpace, swept: &ParameterVector) -> DesignPoint {
-    let mut full = space.defaults();
-    for (name, value) in swept.iter() {
-        full.insert(name, value);
-    }
-    full
-}
-
-pub fn parameter_vector(point: &DesignPoint) -> ParameterVector {
-    ParameterVector::try_from(BTreeMap::from(point.clone())).expect("design points hold finite named values")
-}
 
 /// The ordering of one study and its engine (the rules of reuse, warm starts and failures that
 /// the local study follows too).
@@ -81,18 +50,14 @@ impl StudyPlan {
     pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Result<Self, SceneError> {
         let tolerance = Tolerance::new("the study's tolerance", record.tolerance)?;
         let engine = StudyEngine::new(scene, record.strategy, Some(tolerance));
-        let full = points.iter().map(|p| design_point(engine.space(), &p.parameters)).collect();
+        let full = points.iter().map(|p| engine.space().complete(&p.parameters)).collect::<Result<_, _>>();
+        let full = full.map_err(|e| invalid("the study's points", e.to_string()))?;
         let answers_stored = record.refines.is_some();
         Ok(Self { policy: record.order.policy(engine.space()), engine, full, answers_stored })
     }
 
     pub fn space(&self) -> &ParameterSpace {
         self.engine.space()
-    }
-
-    /// A point added to the study (adaptive studies grow).
-    pub fn push(&mut self, swept: &ParameterVector) {
-        self.full.push(design_point(self.engine.space(), swept));
     }
 
     /// The point to lease next among the pending ones, by the study's ordering policy (which sees
@@ -237,7 +202,7 @@ impl SceneSolutions {
     pub fn index(&mut self, key: SolutionKey, record: &SolutionRecord) -> Result<(), StoreError> {
         let info = SolutionInfo {
             id: 0,
-            point: DesignPoint::from(BTreeMap::from(record.parameters.clone())),
+            point: record.parameters.clone(),
             eta: record.error_indicator,
             tolerance: record.tolerance,
             converged: record.converged,
@@ -319,7 +284,7 @@ impl SceneSolutions {
             // The nearest source's point, as for any start from another point: the pool then
             // stops at `warm_tolerance_ratio` times the tolerance, as the engine asks of every
             // start that is not a continuation of this very point.
-            parameters: BTreeMap::from(first.point.clone()),
+            parameters: first.point.clone(),
             converged: false,
             error_indicator: record.error_indicator,
             iterations: 0,
@@ -340,9 +305,8 @@ impl SolutionStore for SceneSolutions {
     /// scene and the solution's point (the coordinator calls [`SceneSolutions::index`] itself,
     /// with the record it committed).
     fn insert(&mut self, solution: StoredSolution) -> Result<SolutionId, StoreError> {
-        let parameters = ParameterVector::try_from(BTreeMap::from(solution.point.clone()))
-            .map_err(|e| StoreError::Backend(e.to_string()))?;
-        let key = SolutionKey::new(&self.scene_hash, &parameters);
+        let parameters = &solution.point;
+        let key = SolutionKey::new(&self.scene_hash, parameters);
         let bytes = self
             .store
             .get(Tree::Solutions, key.as_bytes())

@@ -25,8 +25,9 @@ use axum::extract::{Form, Path, Query, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
+use glissade_core::point::DesignPoint;
+use glissade_proto::StudyId;
 use glissade_proto::auth::Token;
-use glissade_proto::{ParameterVector, StudyId};
 use maud::{DOCTYPE, Markup, PreEscaped, html};
 use serde_json::json;
 
@@ -379,7 +380,7 @@ async fn api_surface_csv(
 
 fn surface(web: &Web, id: &str) -> Result<Surface, Refusal> {
     let v = study(web, id, false)?;
-    web.coordinator.surface(SurfaceSource::Study(v.record.id), &ParameterVector::default(), &[], &[]).map_err(failed)
+    web.coordinator.surface(SurfaceSource::Study(v.record.id), &DesignPoint::default(), &[], &[]).map_err(failed)
 }
 
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse}\
@@ -949,7 +950,7 @@ mod tests {
             .iter()
             .enumerate()
             .map(|(k, &(a, b))| crate::coordinator::SurfaceRow {
-                parameters: ParameterVector::from_pairs([("a", a), ("b", b)]).unwrap(),
+                parameters: DesignPoint::from_pairs([("a", a), ("b", b)]).unwrap(),
                 qoi: if k < done {
                     BTreeMap::from([("ux".to_owned(), a + b), ("slip".to_owned(), a * b)])
                 } else {

@@ -15,6 +15,7 @@
 //! CACHE/MESH-TOL-KIND.json, so an interrupted run resumes; delete the cache to redo it. The
 //! reference is the last --scene (the finest) at the smallest --tol, cold.
 
+use glissade_core::point::DesignPoint;
 use std::path::{Path, PathBuf};
 
 use clap::Parser;
@@ -23,7 +24,7 @@ use serde::{Deserialize, Serialize};
 
 use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::LexicographicAscending;
-use glissade_core::study::space::{DesignPoint, ParameterSpace};
+use glissade_core::study::space::ParameterSpace;
 use glissade_core::study::store::MemoryStore;
 use glissade_core::study::strategy::InitStrategy;
 use glissade_core::study::{StudyOptions, run_study};
@@ -79,6 +80,7 @@ fn parse_point(s: &str) -> DesignPoint {
         let (k, v) = kv.split_once('=').expect("NAME=VALUE");
         (k.trim().to_string(), v.trim().parse::<f64>().expect("number"))
     }))
+    .expect("a design point")
 }
 
 fn sample_name(scene_path: &Path, tol: f64, warm: bool) -> String {

@@ -9,11 +9,12 @@
 //!
 //! cargo run --release -p glissade-solver --example adaptive_check -- SCENE REFERENCE.json [BUDGET]
 
+use glissade_core::point::DesignPoint;
 use std::collections::BTreeMap;
 
 use glissade_core::scene::Scene;
 use glissade_core::study::adaptive::{AdaptiveDesign, QoiReadings};
-use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
+use glissade_core::study::space::{GridAxis, ParameterSpace, design_points};
 use glissade_core::study::surrogate::ResponseSurface;
 use glissade_core::study::{PointRequest, SolvePoint, StudyResult};
 use glissade_solver::run::PointSolver;

@@ -7,6 +7,7 @@
 
 use anyhow::{Context, Result, bail};
 use glissade_core::field::{InterfaceSolution, SideField, StageSolution};
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_solver::latin::{LatinSolver, SolveOptions};
 use glissade_solver::model::Model;
@@ -19,8 +20,8 @@ fn refine_side(coarse: &SideField, ratio: usize, steps: usize) -> SideField {
     SideField { force: take(&coarse.force), velocity: take(&coarse.velocity) }
 }
 
-fn run<const D: usize>(scene: &Scene, set: &[(String, f64)], ratio: usize) -> Result<()> {
-    let values = scene.parameter_values(set)?;
+fn run<const D: usize>(scene: &Scene, point: &DesignPoint, ratio: usize) -> Result<()> {
+    let values = scene.parameter_values(point)?;
     let fine = Model::<D>::build(scene, &values)?;
     if fine.steps % ratio != 0 {
         bail!("{} steps are not a multiple of {ratio}", fine.steps);
@@ -86,6 +87,7 @@ fn main() -> Result<()> {
             Ok((k.to_string(), v.parse::<f64>()?))
         })
         .collect::<Result<_>>()?;
+    let set = DesignPoint::from_pairs(set)?;
     match scene.dimension {
         1 => run::<1>(&scene, &set, ratio),
         2 => run::<2>(&scene, &set, ratio),

@@ -4,13 +4,14 @@
 //! cargo run --release -p glissade-solver --example explicit_reference -- SCENE [SUBSTEPS] [NAME=VALUE]... [--explicit-only]
 
 use anyhow::{Context, Result, bail};
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_solver::explicit;
 use glissade_solver::latin::{LatinSolver, SolveOptions};
 use glissade_solver::model::Model;
 
-fn run<const D: usize>(scene: &Scene, set: &[(String, f64)], substeps: usize, explicit_only: bool) -> Result<()> {
-    let values = scene.parameter_values(set)?;
+fn run<const D: usize>(scene: &Scene, point: &DesignPoint, substeps: usize, explicit_only: bool) -> Result<()> {
+    let values = scene.parameter_values(point)?;
     let m = Model::<D>::build(scene, &values)?;
     let t = std::time::Instant::now();
     let reference = explicit::solve(&m, substeps)?;
@@ -63,7 +64,7 @@ fn main() -> Result<()> {
     let Some(path) = args.first() else { bail!("usage: explicit_reference SCENE [SUBSTEPS] [NAME=VALUE]...") };
     let scene = Scene::read(std::path::Path::new(path)).with_context(|| format!("reading {path}"))?;
     let mut substeps = 10;
-    let mut set = Vec::new();
+    let mut set = DesignPoint::new();
     let mut explicit_only = false;
     for a in &args[1..] {
         if a == "--explicit-only" {
@@ -71,7 +72,7 @@ fn main() -> Result<()> {
             continue;
         }
         match a.split_once('=') {
-            Some((k, v)) => set.push((k.to_string(), v.parse::<f64>().with_context(|| format!("value of {k}"))?)),
+            Some((k, v)) => set.insert(k, v.parse::<f64>().with_context(|| format!("value of {k}"))?)?,
             None => substeps = a.parse().with_context(|| format!("substeps '{a}'"))?,
         }
     }

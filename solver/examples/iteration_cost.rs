@@ -8,13 +8,14 @@
 
 use std::time::Instant;
 
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::{Scale, Scene};
 use glissade_solver::latin::{LatinSolver, SolveOptions};
 use glissade_solver::model::Model;
 use glissade_solver::monolithic;
 
 fn run<const D: usize>(scene: &Scene, iterations: usize) {
-    let values = scene.parameter_values(&[]).expect("parameters");
+    let values = scene.parameter_values(&DesignPoint::new()).expect("parameters");
     let mut glued_scene = scene.clone();
     for itf in &mut glued_scene.interfaces {
         itf.law = glissade_core::scene::LawSpec::Perfect;

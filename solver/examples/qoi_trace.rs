@@ -7,6 +7,7 @@
 //!
 //!   cargo run --release -p glissade-solver --example qoi_trace -- SCENE "f1=0.15,f2=0.1" "f1=0.125,f2=0.1" [K0_FACTOR]
 
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_solver::latin::{LatinSolver, SolveOptions, SolveReport};
 use glissade_solver::model::Model;
@@ -23,7 +24,8 @@ fn parse_point(s: &str) -> Vec<(String, f64)> {
 
 fn run<const D: usize>(scene: &Scene, p: &[(String, f64)], q: Option<&[(String, f64)]>, k0: Option<f64>) {
     let build = |set: &[(String, f64)], tol: f64, max: usize| {
-        let values = scene.parameter_values(set).expect("parameters");
+        let point = DesignPoint::from_pairs(set.iter().map(|(k, v)| (k.as_str(), *v))).expect("a design point");
+        let values = scene.parameter_values(&point).expect("parameters");
         let mut m = Model::<D>::build(scene, &values).expect("model");
         m.settings.tolerance = tol;
         m.settings.max_iterations = max;

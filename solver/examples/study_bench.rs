@@ -17,13 +17,14 @@
 //! tolerance, OUT/reference.json), the largest |q - q_ref| over those points divided by the
 //! largest |q_ref|, per QoI.
 
+use glissade_core::point::DesignPoint;
 use std::path::{Path, PathBuf};
 
 use clap::Parser;
 
 use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::OrderKind;
-use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
+use glissade_core::study::space::{GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::MemoryStore;
 use glissade_core::study::strategy::InitStrategy;
 use glissade_core::study::{StudyOptions, StudyResult, run_study};

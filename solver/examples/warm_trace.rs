@@ -6,7 +6,8 @@
 //!   cargo run --release -p glissade-solver --example warm_trace -- SCENE Q_F1 Q_F2 P_F1 P_F2 QOI [MAX]
 //!   cargo run --release -p glissade-solver --example warm_trace -- scenes/three-blocks-tiny.toml 0.125 0.1 0.15 0.1 slip_A
 
-use glissade_core::scene::Scene;
+use glissade_core::point::DesignPoint;
+use glissade_core::scene::{Scene, Tolerance};
 use glissade_solver::run::{SolveRequest, solve_scene};
 
 fn main() {
@@ -20,8 +21,8 @@ fn main() {
     let (q, p, qoi) = ((number(2), number(3)), (number(4), number(5)), args[6].as_str());
     let max: usize = args.get(7).map_or(160, |s| s.parse().expect("an iteration count"));
     let request = |(f1, f2): (f64, f64), tol: f64, max_iterations: Option<usize>| SolveRequest {
-        set: vec![("f1".into(), f1), ("f2".into(), f2)],
-        tolerance: Some(tol),
+        point: DesignPoint::from_pairs([("f1", f1), ("f2", f2)]).expect("a design point"),
+        tolerance: Some(Tolerance::new("tolerance", tol).expect("a tolerance")),
         max_iterations,
         ..SolveRequest::default()
     };

@@ -7,9 +7,9 @@ use crate::element::{ElementKind, Material, face_area_and_normal};
 use crate::mesh::{Face, Mesh};
 use crate::search_direction::{SearchDirection, dynamic_search_direction, static_search_direction};
 use crate::sparse::CsrMatrix;
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::{
-    BodySpec, History, MassMatrix, ParameterValues, QoiKind, Resolver, Scale, Scene, SceneError, Substructures,
-    component_index, invalid,
+    BodySpec, History, MassMatrix, QoiKind, Resolver, Scale, Scene, SceneError, Substructures, component_index, invalid,
 };
 
 /// Interface behaviour (docs/method.md 1), applied node by node in the local stage
@@ -241,7 +241,7 @@ pub struct Model<const D: usize> {
     pub steps: usize,
     pub qois: Vec<Qoi>,
     pub settings: SolverSettings,
-    pub parameters: ParameterValues,
+    pub parameters: DesignPoint,
 }
 
 impl<const D: usize> Model<D> {
@@ -262,7 +262,7 @@ impl<const D: usize> Model<D> {
 
     /// Moves the model to another design point that differs only in interface-law parameters
     /// ([`Scene::interface_law_parameters`]): the interfaces' laws change, no operator does.
-    pub fn update_interface_laws(&mut self, scene: &Scene, values: &ParameterValues) -> Result<(), SceneError> {
+    pub fn update_interface_laws(&mut self, scene: &Scene, values: &DesignPoint) -> Result<(), SceneError> {
         let r = Resolver { values };
         for (ii, spec) in scene.interfaces.iter().enumerate() {
             let law = resolve_law(&r, &format!("interfaces[{ii}]"), spec)?;
@@ -275,7 +275,7 @@ impl<const D: usize> Model<D> {
     }
 
     /// Builds the model of `scene` at the design point `values` (dimension must equal `D`).
-    pub fn build(scene: &Scene, values: &ParameterValues) -> Result<Self, SceneError> {
+    pub fn build(scene: &Scene, values: &DesignPoint) -> Result<Self, SceneError> {
         assert_eq!(scene.dimension, D, "scene dimension must match the model's");
         // the rules on the scene's numbers, in the one place the coordinator runs them too
         scene.check_point(values)?;

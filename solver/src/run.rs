@@ -13,7 +13,8 @@ use crate::latin::{
 };
 use crate::model::Model;
 use glissade_core::field::InterfaceSolution;
-use glissade_core::scene::{ParameterValues, Scale, Scene, SceneError};
+use glissade_core::point::DesignPoint;
+use glissade_core::scene::{Scale, Scene, SceneError, Tolerance};
 use glissade_core::study::{PointRequest, PointSolved, SolvePoint};
 
 #[derive(Debug, thiserror::Error)]
@@ -27,9 +28,11 @@ pub enum RunError {
 /// What to solve and how.
 #[derive(Debug, Clone, Default)]
 pub struct SolveRequest {
-    /// `--set NAME=VALUE` overrides of parameter defaults
-    pub set: Vec<(String, f64)>,
-    pub tolerance: Option<f64>,
+    /// The design point: the parameters it sets (`--set NAME=VALUE`); the others keep the
+    /// scene's defaults.
+    pub point: DesignPoint,
+    /// (None: the scene's)
+    pub tolerance: Option<Tolerance>,
     pub max_iterations: Option<usize>,
     pub scale: Option<Scale>,
     pub record_fields: bool,
@@ -38,7 +41,7 @@ pub struct SolveRequest {
     /// Every parameter's value at the design point the warm start converged at, when known:
     /// a restart of this very point converges to the tolerance as asked, one from another
     /// point to `warm_tolerance_ratio` times it (docs/scenes.md).
-    pub init_parameters: Option<ParameterValues>,
+    pub init_parameters: Option<DesignPoint>,
 }
 
 /// A QoI time series and its final value.
@@ -86,7 +89,7 @@ pub struct SolveSummary {
     pub substructures: usize,
     pub interfaces: usize,
     pub time_steps: usize,
-    pub parameters: ParameterValues,
+    pub parameters: DesignPoint,
     pub qoi: BTreeMap<String, QoiJson>,
     /// what each frictional interface's contact did while it slid, and whether that sliding is
     /// ill-posed (`contact_activity`, docs/verification.md 4d); rank 0's only
@@ -155,7 +158,7 @@ pub struct SolveOutcome {
     pub fields: Option<FieldOutput>,
 }
 
-/// Solves `scene` at the design point given by `request.set`, optionally warm-started, on one
+/// Solves `scene` at the design point `request.point`, optionally warm-started, on one
 /// process.
 pub fn solve_scene(
     scene: &Scene,
@@ -217,13 +220,13 @@ impl SolvePoint for PointSolver {
         init: Option<&InterfaceSolution>,
     ) -> Result<PointSolved, String> {
         let request = SolveRequest {
-            set: request.point.to_set(),
-            tolerance: Some(request.tolerance),
+            point: request.point.clone(),
+            tolerance: Some(Tolerance::new("the study's tolerance", request.tolerance).map_err(|e| e.to_string())?),
             max_iterations: request.max_iterations,
             scale: request.scale,
             record_fields: false,
             progress: None,
-            init_parameters: request.init_point.and_then(|p| scene.parameter_values(&p.to_set()).ok()),
+            init_parameters: request.init_point.and_then(|p| scene.parameter_values(p).ok()),
         };
         let o = PointSolver::solve(self, &crate::comm::Serial, scene, &request, init).map_err(|e| e.to_string())?;
         let s = o.summary;
@@ -242,7 +245,7 @@ impl SolvePoint for PointSolver {
 /// What the operators and the cached model depend on: the scene (its hash leaves out the
 /// `[solver]` section, whose k0_factor is in the operators and whose other settings are in the
 /// model: so the section too), the parameters other than interface laws, the scale.
-fn operator_key(scene: &Scene, values: &ParameterValues, scale: Option<Scale>) -> String {
+fn operator_key(scene: &Scene, values: &DesignPoint, scale: Option<Scale>) -> String {
     let law = scene.interface_law_parameters();
     let others: Vec<String> =
         values.iter().filter(|(k, _)| !law.contains(*k)).map(|(k, v)| format!("{k}={v:?}")).collect();
@@ -253,7 +256,7 @@ fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &
     model.settings.tolerance = scene.solver.tolerance;
     model.settings.max_iterations = scene.solver.max_iterations;
     if let Some(t) = request.tolerance {
-        model.settings.tolerance = glissade_core::scene::check_tolerance("--tol", t)?;
+        model.settings.tolerance = t.get();
     }
     if let Some(n) = request.max_iterations {
         model.settings.max_iterations = glissade_core::scene::check_max_iterations("--max-iter", n as u64)?;
@@ -272,7 +275,7 @@ fn solve_dim<const D: usize>(
     cache: &mut Option<Box<dyn std::any::Any + Send>>,
 ) -> Result<SolveOutcome, RunError> {
     let start = Instant::now();
-    let values = scene.parameter_values(&request.set)?;
+    let values = scene.parameter_values(&request.point)?;
     let key = operator_key(scene, &values, request.scale);
     let reusable = cache.take().and_then(|c| c.downcast::<Cached<D>>().ok()).filter(|c| c.key == key);
     let (mut model, operators) = match reusable {

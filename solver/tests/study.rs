@@ -6,12 +6,13 @@
 
 mod fixtures;
 
+use glissade_core::point::DesignPoint;
 use std::collections::BTreeMap;
 
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
 use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::{Greedy, LexicographicAscending, LexicographicDescending, OrderingPolicy};
-use glissade_core::study::space::{DesignPoint, GridAxis, ParameterSpace, design_points};
+use glissade_core::study::space::{GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::{MemoryStore, SolutionStore, StoredSolution};
 use glissade_core::study::strategy::{InitStrategy, initialise, interface_law_parameters};
 use glissade_core::study::{PointRecord, PointStatus, StartKind, StudyOptions, StudyResult, run_study};
@@ -117,7 +118,7 @@ fn warm_starts_reach_the_cold_solution_for_every_strategy() {
 #[test]
 fn tolerance_aware_reuse_answers_at_once_and_continues_to_a_tighter_tolerance() {
     let s = scene(fixtures::THREE_BLOCKS_TINY);
-    let point = vec![DesignPoint::from_pairs([("f1", 0.12), ("f2", 0.17)])];
+    let point = vec![DesignPoint::from_pairs([("f1", 0.12), ("f2", 0.17)]).unwrap()];
     let mut store = fresh_store(&s);
     let loose = study(&s, &point, options(InitStrategy::Nearest, 1e-3), &mut LexicographicAscending, &mut store);
     assert_eq!(loose.records[0].start, StartKind::Cold);
@@ -175,7 +176,8 @@ fn blend_combines_only_across_interface_law_parameters() {
     let law = interface_law_parameters(&s);
     assert_eq!(law.iter().map(String::as_str).collect::<Vec<_>>(), ["f1", "f2"]);
     let mut store = fresh_store(&s);
-    let full = |pairs: &[(&str, f64)]| space.complete(&DesignPoint::from_pairs(pairs.iter().copied())).unwrap();
+    let full =
+        |pairs: &[(&str, f64)]| space.complete(&DesignPoint::from_pairs(pairs.iter().copied()).unwrap()).unwrap();
     store.insert(fake(full(&[("f1", 0.10)]))).unwrap();
     store.insert(fake(full(&[("f1", 0.14)]))).unwrap();
     store.insert(fake(full(&[("f1", 0.12), ("pressure", 6e7)]))).unwrap();
@@ -204,7 +206,7 @@ const CAP: usize = 600;
 
 /// One point of `scene` from cold, iterations capped at CAP per stage.
 fn point(scene: &Scene, set: &[(&str, f64)], tol: f64) -> PointRecord {
-    let p = vec![DesignPoint::from_pairs(set.iter().copied())];
+    let p = vec![DesignPoint::from_pairs(set.iter().copied()).unwrap()];
     let tolerance = Tolerance::new("tolerance", tol).expect("a tolerance");
     let opts = StudyOptions {
         strategy: InitStrategy::Cold,
@@ -406,8 +408,8 @@ fn extremes_of_load_and_prestress() {
 fn warm_starts_from_a_neighbour_are_as_accurate_as_cold_solves() {
     use glissade_solver::run::{SolveOutcome, SolveRequest, solve_scene};
     let at = |f1: f64, tolerance: f64| SolveRequest {
-        set: vec![("f1".into(), f1), ("f2".into(), 0.1)],
-        tolerance: Some(tolerance),
+        point: DesignPoint::from_pairs([("f1", f1), ("f2", 0.1)]).unwrap(),
+        tolerance: Some(Tolerance::new("tolerance", tolerance).unwrap()),
         ..SolveRequest::default()
     };
     let tiny = scene(fixtures::THREE_BLOCKS_TINY);

@@ -3,16 +3,25 @@
 
 mod fixtures;
 
-use glissade_core::scene::{Scale, Scene};
+use glissade_core::point::DesignPoint;
+use glissade_core::scene::{Scale, Scene, Tolerance};
 use glissade_solver::element::ElementKind;
 use glissade_solver::latin::{LatinSolver, SolveOptions, SolveReport};
 use glissade_solver::model::{Model, QoiTarget};
 use glissade_solver::monolithic;
 
+/// The design point of `set`.
+fn point(set: &[(&str, f64)]) -> DesignPoint {
+    DesignPoint::from_pairs(set.iter().copied()).expect("a design point")
+}
+
+fn tolerance(t: f64) -> Option<Tolerance> {
+    Some(Tolerance::new("tolerance", t).expect("a tolerance"))
+}
+
 fn build<const D: usize>(text: &str, set: &[(&str, f64)]) -> Model<D> {
     let scene = Scene::parse(text).expect("test scene parses");
-    let set: Vec<(String, f64)> = set.iter().map(|(k, v)| (k.to_string(), *v)).collect();
-    let values = scene.parameter_values(&set).expect("parameters");
+    let values = scene.parameter_values(&point(set)).expect("parameters");
     Model::<D>::build(&scene, &values).expect("model builds")
 }
 
@@ -678,17 +687,17 @@ fn bad_scenes_give_named_errors() {
         let err = match Scene::parse(&text) {
             Err(e) => e.to_string(),
             Ok(scene) => {
-                let values = scene.parameter_values(&[]).unwrap();
+                let values = scene.parameter_values(&DesignPoint::new()).unwrap();
                 Model::<2>::build(&scene, &values).err().map(|e| e.to_string()).unwrap_or_default()
             }
         };
         assert!(err.contains(expected), "{to}: expected an error naming {expected}, got '{err}'");
     }
     let scene = Scene::parse(base).unwrap();
-    let err = scene.parameter_values(&[("nosuch".into(), 1.0)]).unwrap_err().to_string();
+    let err = scene.parameter_values(&point(&[("nosuch", 1.0)])).unwrap_err().to_string();
     assert!(err.contains("nosuch") && err.contains("f, push"), "{err}");
-    let err = scene.parameter_values(&[("f".into(), f64::NAN)]).unwrap_err().to_string();
-    assert!(err.contains("f = NaN"), "{err}");
+    let err = DesignPoint::from_pairs([("f", f64::NAN)]).unwrap_err().to_string();
+    assert!(err.contains("`f` is not finite: NaN"), "{err}");
 }
 
 /// Non-matching interface faces are refused.
@@ -701,7 +710,7 @@ fn non_matching_interfaces_are_refused() {
         1,
     );
     let scene = Scene::parse(&text).unwrap();
-    let err = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).unwrap_err().to_string();
+    let err = Model::<3>::build(&scene, &scene.parameter_values(&DesignPoint::new()).unwrap()).unwrap_err().to_string();
     assert!(err.contains("interfaces[0]") && err.contains("do not match"), "{err}");
 }
 
@@ -723,11 +732,7 @@ fn point_solver_reuses_factorisations_across_friction_changes() {
     use glissade_solver::comm::Serial;
     use glissade_solver::run::{PointSolver, SolveRequest, solve_scene};
     let scene = Scene::parse(fixtures::THREE_BLOCKS_TINY).unwrap();
-    let at = |set: &[(&str, f64)]| SolveRequest {
-        set: set.iter().map(|(k, v)| (k.to_string(), *v)).collect(),
-        tolerance: Some(1e-3),
-        ..Default::default()
-    };
+    let at = |set: &[(&str, f64)]| SolveRequest { point: point(set), tolerance: tolerance(1e-3), ..Default::default() };
     let mut pool = PointSolver::default();
     let first = pool.solve(&Serial, &scene, &at(&[("f1", 0.1)]), None).unwrap();
     assert!(first.summary.timings.factorisation > 0.0);
@@ -756,7 +761,7 @@ fn point_solver_reuses_factorisations_across_friction_changes() {
 /// pushed past f N, slides.
 fn assert_block_obeys_coulomb_and_slides(m: &Model<2>, r: &SolveReport) {
     let q = |name: &str| &r.qoi.iter().find(|q| q.name == name).expect("QoI").values;
-    let f = m.parameters["f"];
+    let f = m.parameters.get("f").unwrap();
     for (t, n) in q("friction_force").iter().zip(q("normal_force")) {
         assert!(t.abs() <= f * n.abs() * (1.0 + 1e-6) + 1e-9, "friction {t} above f x normal {n}");
     }
@@ -887,7 +892,7 @@ fn meshed_scene(text: &str) -> Scene {
 
 fn build_meshed(text: &str) -> Result<Model<3>, String> {
     let scene = meshed_scene(text);
-    Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).map_err(|e| e.to_string())
+    Model::<3>::build(&scene, &scene.parameter_values(&DesignPoint::new()).unwrap()).map_err(|e| e.to_string())
 }
 
 /// Perfect interfaces on a Gmsh mesh (the declared one between the bodies, METIS's cuts
@@ -992,7 +997,8 @@ fn gmsh_bad_meshes_give_precise_errors() {
     }
     let text = MESHED_BAR.replace("MESH", "bar-tet.msh");
     let scene = Scene::parse(&text).unwrap();
-    let err = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).err().map(|e| e.to_string());
+    let err =
+        Model::<3>::build(&scene, &scene.parameter_values(&DesignPoint::new()).unwrap()).err().map(|e| e.to_string());
     let err = err.unwrap_or_default();
     assert!(err.starts_with("bodies[0].mesh.file: mesh file 'bar-tet.msh' is not attached to the scene"), "{err}");
     let err = build_meshed(&MESHED_BAR.replace("MESH", "nonconforming.msh")).err().unwrap_or_default();
@@ -1080,7 +1086,7 @@ fn gmsh_frictional_joint_obeys_coulomb() {
 fn bolted_joint_tiny_builds_with_radial_normals_in_the_holes() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/bolted-joint-tiny.toml");
     let scene = Scene::read(&path).expect("the shipped scene reads");
-    let m = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).expect("model builds");
+    let m = Model::<3>::build(&scene, &scene.parameter_values(&DesignPoint::new()).unwrap()).expect("model builds");
     assert_eq!((m.bodies.len(), m.substructures.len()), (10, 14));
     assert!(m.needs_static_stage(), "the bolts' prestress");
     let (mut worst_radial, mut holes) = (1.0f64, 0);
@@ -1193,13 +1199,13 @@ fn a_tangential_factor_out_of_range_is_refused() {
     for value in ["1e-300", "0.001", "0", "-2", "200"] {
         let text = format!("{}\n[solver]\ntangential_factor = {value}\n", fixtures::SLIDING_BLOCK_2D);
         let scene = Scene::parse(&text).unwrap();
-        let values = scene.parameter_values(&[]).unwrap();
+        let values = scene.parameter_values(&DesignPoint::new()).unwrap();
         let err = Model::<2>::build(&scene, &values).unwrap_err().to_string();
         assert!(err.contains("solver.tangential_factor") && err.contains("[0.01, 100]"), "{value}: {err}");
     }
     let text = format!("{}\n[solver]\ntangential_factor = 0.5\n", fixtures::SLIDING_BLOCK_2D);
     let scene = Scene::parse(&text).unwrap();
-    assert!(Model::<2>::build(&scene, &scene.parameter_values(&[]).unwrap()).is_ok());
+    assert!(Model::<2>::build(&scene, &scene.parameter_values(&DesignPoint::new()).unwrap()).is_ok());
 }
 
 /// The shipped bolted joint without its pull (velocity 0) over 2 steps: the static stage alone
@@ -1222,7 +1228,7 @@ fn bolted_joint_at_rest(edit: impl Fn(String) -> String) -> Scene {
 #[test]
 fn bolted_joint_static_bolt_force_matches_the_series_springs_estimate() {
     let scene = bolted_joint_at_rest(|t| t);
-    let m = Model::<3>::build(&scene, &scene.parameter_values(&[]).unwrap()).unwrap();
+    let m = Model::<3>::build(&scene, &scene.parameter_values(&DesignPoint::new()).unwrap()).unwrap();
     let r = solve(&m, false);
     let (e, t, rs, rh, delta) = (210e9, 0.004, 0.003, 0.005, 3e-5);
     let pi = std::f64::consts::PI;
@@ -1245,7 +1251,7 @@ fn bolted_joint_static_bolt_force_matches_the_series_springs_estimate() {
 #[test]
 fn bolted_joint_without_prestress_is_unloaded() {
     let scene = bolted_joint_at_rest(|t| t.replace("prestress = 3e-5", "prestress = 0.0"));
-    let m = Model::<3>::build(&scene, &scene.parameter_values(&[("prestress".into(), 0.0)]).unwrap()).unwrap();
+    let m = Model::<3>::build(&scene, &scene.parameter_values(&point(&[("prestress", 0.0)])).unwrap()).unwrap();
     assert!(!m.needs_static_stage());
     let r = solve(&m, false);
     assert!(r.qoi.iter().all(|q| q.values.iter().all(|&v| v == 0.0)), "{:?}", r.qoi);
@@ -1261,7 +1267,7 @@ fn bolted_joint_without_prestress_is_unloaded() {
 fn a_warm_start_from_another_preload_begins_at_the_new_static_forces() {
     let scene = bolted_joint_at_rest(|t| t);
     let build =
-        |p: f64| Model::<3>::build(&scene, &scene.parameter_values(&[("prestress".into(), p)]).unwrap()).unwrap();
+        |p: f64| Model::<3>::build(&scene, &scene.parameter_values(&point(&[("prestress", p)])).unwrap()).unwrap();
     let (source, target) = (build(2.8e-5), build(3e-5));
     let from = solve(&source, false).solution;
     let cold = solve(&target, false);
@@ -1468,7 +1474,7 @@ component = "x"
 fn refinement_ladder_finds_second_order_on_an_elastic_bar() {
     use glissade_solver::refine::{Refinement, refined_scene, run_ladder};
     let scene = Scene::parse(PULLED_BAR).expect("scene");
-    let request = glissade_solver::run::SolveRequest { tolerance: Some(1e-6), ..Default::default() };
+    let request = glissade_solver::run::SolveRequest { tolerance: tolerance(1e-6), ..Default::default() };
     let comm = glissade_solver::comm::Serial;
     let ladder = run_ladder(&comm, &scene, &request, Refinement::Time, &[1, 2, 4], |_| {}).expect("ladder");
     assert!(ladder.levels.iter().all(|l| l.converged));
@@ -1520,7 +1526,7 @@ fn smooth_pulse_bar() -> String {
 fn refinement_ladder_finds_second_order_in_h_on_an_elastic_bar() {
     use glissade_solver::refine::{Refinement, refined_scene, run_ladder};
     let scene = Scene::parse(&smooth_pulse_bar()).expect("scene");
-    let request = glissade_solver::run::SolveRequest { tolerance: Some(1e-6), ..Default::default() };
+    let request = glissade_solver::run::SolveRequest { tolerance: tolerance(1e-6), ..Default::default() };
     let comm = glissade_solver::comm::Serial;
     let ladder = run_ladder(&comm, &scene, &request, Refinement::Mesh, &[1, 2, 4], |_| {}).expect("ladder");
     assert!(ladder.levels.iter().all(|l| l.converged && l.steps == scene.time.steps));
@@ -2097,9 +2103,9 @@ point = [0.008, 0]
     let scene = Scene::parse(COPPER_BLOCK).expect("scene");
     for f in [0.6, 1.5] {
         // the push reaches 12 f MPa: twice what a rigid block needs to slide
-        let set = vec![("f".to_string(), f), ("push".to_string(), 12e6 * f)];
+        let at = point(&[("f", f), ("push", 12e6 * f)]);
         let o =
-            solve_scene(&scene, &SolveRequest { set: set.clone(), ..SolveRequest::default() }, None).expect("solve");
+            solve_scene(&scene, &SolveRequest { point: at.clone(), ..SolveRequest::default() }, None).expect("solve");
         assert!(o.summary.converged, "f = {f}");
         let [a] = &o.summary.contact[..] else { panic!("one frictional interface: {:?}", o.summary.contact) };
         eprintln!("f = {f}: {a:?}");
@@ -2117,7 +2123,7 @@ point = [0.008, 0]
         // and in four had added 4 and 12 at f = 0.6)
         for cut in ["[1, 1]", "[4, 1]"] {
             let other = Scene::parse(&COPPER_BLOCK.replace("[2, 1]", cut)).expect("scene");
-            let o = solve_scene(&other, &SolveRequest { set: set.clone(), ..SolveRequest::default() }, None)
+            let o = solve_scene(&other, &SolveRequest { point: at.clone(), ..SolveRequest::default() }, None)
                 .expect("solve");
             let [b] = &o.summary.contact[..] else { panic!("one frictional interface") };
             assert_eq!(
@@ -2182,9 +2188,9 @@ component = "y"
 "#
         )
     };
-    let solve = |check: bool, tolerance: f64| {
+    let solve = |check: bool, tol: f64| {
         let scene = Scene::parse(&block(check)).expect("scene");
-        solve_scene(&scene, &SolveRequest { tolerance: Some(tolerance), ..SolveRequest::default() }, None)
+        solve_scene(&scene, &SolveRequest { tolerance: tolerance(tol), ..SolveRequest::default() }, None)
             .expect("solve")
             .summary
     };

@@ -9,7 +9,8 @@ use clap::{Args, Parser, Subcommand};
 use serde::Serialize;
 
 use glissade_core::io::solution_file;
-use glissade_core::scene::{Scale, Scene, SceneError};
+use glissade_core::point::DesignPoint;
+use glissade_core::scene::{Scale, Scene, SceneError, Tolerance};
 use glissade_solver::comm::Communicator;
 use glissade_solver::run::{SolveRequest, SolveSummary, solve_scene_on};
 use glissade_worker::io::fields;
@@ -296,8 +297,8 @@ impl PointArgs {
             .with_context(|| format!("cannot read scene {}", self.scene.display()))?;
         let scene = parse_scene(&text, &self.scene)?;
         let request = SolveRequest {
-            set: self.set.iter().map(|s| parse_set(s)).collect::<Result<_>>()?,
-            tolerance: self.tol,
+            point: parse_point(&self.set)?,
+            tolerance: self.tol.map(|t| Tolerance::new("--tol", t)).transpose()?,
             max_iterations: self.max_iter,
             ..SolveRequest::default()
         };
@@ -346,13 +347,18 @@ struct Output<'a> {
     fields: Option<FieldFiles>,
 }
 
-fn parse_set(s: &str) -> Result<(String, f64)> {
-    let (name, value) = s.split_once('=').with_context(|| format!("--set {s}: expected NAME=VALUE"))?;
-    let v: f64 = value.trim().parse().with_context(|| format!("--set {s}: '{value}' is not a number"))?;
-    if !v.is_finite() {
-        bail!("--set {s}: value must be a finite number");
+/// The design point of `--set NAME=VALUE`s (a name set twice takes its last value).
+fn parse_point(sets: &[String]) -> Result<DesignPoint> {
+    let mut point = DesignPoint::new();
+    for s in sets {
+        let (name, value) = s.split_once('=').with_context(|| format!("--set {s}: expected NAME=VALUE"))?;
+        let v: f64 = value.trim().parse().with_context(|| format!("--set {s}: '{value}' is not a number"))?;
+        if !v.is_finite() {
+            bail!("--set {s}: value must be a finite number");
+        }
+        point.insert(name.trim(), v).with_context(|| format!("--set {s}"))?;
     }
-    Ok((name.trim().to_string(), v))
+    Ok(point)
 }
 
 /// Parses a scene (its mesh files next to it); TOML errors become one line with their position.

@@ -73,9 +73,7 @@ pub(crate) async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
     let predict_at = args
         .at
         .iter()
-        .map(|spec| {
-            Ok(v1::ParameterPoint { parameters: fields::parse_point("--at", spec, swept)?.into_iter().collect() })
-        })
+        .map(|spec| Ok(v1::ParameterPoint { parameters: fields::parse_point("--at", spec, swept)?.into() }))
         .collect::<Result<Vec<_>>>()?;
     let reply = client
         .query_surface(v1::QuerySurfaceRequest {

@@ -12,10 +12,11 @@
 //! cross-validated error ([`Surfaces::cross_validate`]: leave-one-out, the measure of the surface
 //! audit) is within the target for every QoI (docs/surrogate.md, "Adaptive to a target").
 
+use crate::point::DesignPoint;
 use std::collections::BTreeMap;
 
 use super::holdout::{self, SurfaceErrors};
-use super::space::{DesignPoint, ParameterSpace};
+use super::space::ParameterSpace;
 use super::surrogate::QoiSurface;
 use crate::scene::{MIN_TOLERANCE, Scene};
 
@@ -307,7 +308,8 @@ impl AdaptiveDesign {
             (1..=CANDIDATES).map(|i| (0..dim).map(|d| halton(i, PRIMES[d % PRIMES.len()])).collect()).collect();
         let free: Vec<&Vec<f64>> = candidates.iter().filter(|c| nearest(c) >= MIN_SEPARATION).collect();
         let point = |c: &[f64]| {
-            DesignPoint::from_pairs(self.ranges.iter().zip(c).map(|((n, lo, hi), x)| (n.clone(), lo + x * (hi - lo))))
+            DesignPoint::from_pairs(self.ranges.iter().zip(c).map(|((n, lo, hi), x)| (n.as_str(), lo + x * (hi - lo))))
+                .expect("a point of ranges `parse` checked: the scene's parameters, finite bounds")
         };
         let score = |c: &[f64]| -> f64 {
             if surfaces.is_empty() {
@@ -455,7 +457,7 @@ mod tests {
             .iter()
             .zip(&truth)
             .map(|((a, b), t)| {
-                let p = surface.predict(&DesignPoint::from_pairs([("f1", *a), ("f2", *b)])).unwrap();
+                let p = surface.predict(&DesignPoint::from_pairs([("f1", *a), ("f2", *b)]).unwrap()).unwrap();
                 (p.mean - t).abs()
             })
             .fold(0.0f64, f64::max);
@@ -488,7 +490,7 @@ mod tests {
         let all: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = (1..=CANDIDATES)
             .map(|i| {
                 let (x, y) = (halton(i, 2), halton(i, 3));
-                (DesignPoint::from_pairs([("f1", 0.1 + 0.1 * x), ("f2", 0.1 + 0.1 * y)]), None)
+                (DesignPoint::from_pairs([("f1", 0.1 + 0.1 * x), ("f2", 0.1 + 0.1 * y)]).unwrap(), None)
             })
             .collect();
         assert_eq!(next(&d, &space, &all), None);
@@ -573,6 +575,7 @@ mod tests {
                     ("f1", 0.1 + 0.0125 * i as f64),
                     ("f2", 0.1 + 0.1 * ((i * 3) % 8) as f64 / 7.0),
                 ])
+                .unwrap()
             })
             .collect();
         let values: Vec<BTreeMap<String, f64>> = chosen

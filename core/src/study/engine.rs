@@ -10,12 +10,13 @@
 //! - what a failed solve becomes: a warm-started solve that fails is solved again from cold
 //!   ([`solve_or_retry_cold`]), whoever runs it.
 
+use crate::point::DesignPoint;
 use std::collections::BTreeSet;
 
 use crate::field::InterfaceSolution;
 use crate::scene::{Scene, Tolerance};
 
-use super::space::{DesignPoint, ParameterSpace};
+use super::space::ParameterSpace;
 use super::store::{SolutionId, SolutionInfo, SolutionStore, StoreError};
 use super::strategy::{InitSource, InitStrategy, Initialisation, initialise, interface_law_parameters};
 use super::{SAME_POINT, StartKind};

@@ -29,9 +29,10 @@ use serde::{Deserialize, Serialize};
 use crate::field::InterfaceSolution;
 use crate::scene::{Scale, Scene, Tolerance};
 
+use crate::point::DesignPoint;
 use engine::{SOLVER_VERSION, Start, StudyEngine, solve_or_retry_cold};
 use order::OrderingPolicy;
-use space::{DesignPoint, SpaceError};
+use space::SpaceError;
 use store::{SolutionId, SolutionStore, StoreError, StoredSolution};
 use strategy::{InitSource, InitStrategy};
 

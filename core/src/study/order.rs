@@ -2,11 +2,12 @@
 //! in flight. A policy, not a precomputed list, so that several pools can ask concurrently (each
 //! asks when it becomes free; the points the others are solving count as in flight).
 
+use crate::point::DesignPoint;
 use std::cmp::Ordering;
 
 use serde::{Deserialize, Serialize};
 
-use super::space::{DesignPoint, ParameterSpace};
+use super::space::ParameterSpace;
 
 /// Chooses the next point of a study.
 pub trait OrderingPolicy: Send {
@@ -132,7 +133,7 @@ mod tests {
         let mut pts = Vec::new();
         for i in 0..3 {
             for j in 0..3 {
-                pts.push(DesignPoint::from_pairs([("f1", i as f64 / 2.0), ("f2", j as f64 / 2.0)]));
+                pts.push(DesignPoint::from_pairs([("f1", i as f64 / 2.0), ("f2", j as f64 / 2.0)]).unwrap());
             }
         }
         (space, pts)

@@ -4,84 +4,15 @@
 
 use crate::text::{MAX_NAME_CHARS, excerpt};
 use std::collections::BTreeMap;
-use std::fmt;
 
 use rand::Rng;
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use serde::{Deserialize, Serialize};
 
+use crate::point::DesignPoint;
+use crate::point::ParameterError;
 use crate::scene::Scene;
-
-/// Values of named parameters at one design point, ordered by name.
-///
-/// The same shape as `glissade_proto::ParameterVector` (a `BTreeMap<String, f64>`), so the
-/// coordinator converts with `DesignPoint::from(BTreeMap::from(vector))`.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(transparent)]
-pub struct DesignPoint(pub BTreeMap<String, f64>);
-
-impl DesignPoint {
-    pub fn new() -> Self {
-        Self::default()
-    }
-
-    pub fn from_pairs<S: Into<String>>(pairs: impl IntoIterator<Item = (S, f64)>) -> Self {
-        Self(pairs.into_iter().map(|(k, v)| (k.into(), v)).collect())
-    }
-
-    pub fn get(&self, name: &str) -> Option<f64> {
-        self.0.get(name).copied()
-    }
-
-    pub fn insert(&mut self, name: impl Into<String>, value: f64) {
-        self.0.insert(name.into(), value);
-    }
-
-    pub fn iter(&self) -> impl Iterator<Item = (&str, f64)> {
-        self.0.iter().map(|(k, v)| (k.as_str(), *v))
-    }
-
-    pub fn len(&self) -> usize {
-        self.0.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.0.is_empty()
-    }
-
-    /// The `--set` pairs of a solve at this point.
-    pub fn to_set(&self) -> Vec<(String, f64)> {
-        self.0.iter().map(|(k, v)| (k.clone(), *v)).collect()
-    }
-}
-
-impl From<BTreeMap<String, f64>> for DesignPoint {
-    fn from(map: BTreeMap<String, f64>) -> Self {
-        Self(map)
-    }
-}
-
-impl From<DesignPoint> for BTreeMap<String, f64> {
-    fn from(point: DesignPoint) -> Self {
-        point.0
-    }
-}
-
-impl fmt::Display for DesignPoint {
-    /// `f1=0.1 f2=0.15`
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let mut first = true;
-        for (k, v) in &self.0 {
-            if !first {
-                f.write_str(" ")?;
-            }
-            first = false;
-            write!(f, "{k}={}", crate::text::parameter(*v))?;
-        }
-        Ok(())
-    }
-}
 
 /// One named parameter of the space.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -126,8 +57,8 @@ pub enum SpaceError {
     TooManyPoints { count: String, max: usize },
     #[error("point {point}: parameter '{name}' is not in the scene")]
     PointUnknownParameter { point: String, name: String },
-    #[error("point {point}: parameter '{name}' = {value} is not a finite number")]
-    PointNotFinite { point: String, name: String, value: f64 },
+    #[error(transparent)]
+    Point(#[from] ParameterError),
 }
 
 /// The named parameters of a scene with their ranges, in name order.
@@ -178,25 +109,16 @@ impl ParameterSpace {
 
     /// The point with every parameter at its default.
     pub fn defaults(&self) -> DesignPoint {
-        DesignPoint(self.parameters.iter().map(|p| (p.name.clone(), p.default)).collect())
+        DesignPoint::from_pairs(self.parameters.iter().map(|p| (p.name.as_str(), p.default)))
+            .expect("a space's parameters are a parsed scene's: plain names, finite defaults, at most MAX_PARAMETERS")
     }
 
-    /// `point` with every parameter it lacks at its default; refuses names not in the space and
-    /// non-finite values.
+    /// `point` with every parameter it lacks at its default; refuses names not in the space.
     pub fn complete(&self, point: &DesignPoint) -> Result<DesignPoint, SpaceError> {
-        for (name, value) in point.iter() {
-            if self.range(name).is_none() {
-                return Err(SpaceError::PointUnknownParameter { point: point.to_string(), name: name.into() });
-            }
-            if !value.is_finite() {
-                return Err(SpaceError::PointNotFinite { point: point.to_string(), name: name.into(), value });
-            }
+        if let Some(name) = point.names().find(|name| self.range(name).is_none()) {
+            return Err(SpaceError::PointUnknownParameter { point: point.to_string(), name: name.into() });
         }
-        let mut full = self.defaults();
-        for (name, value) in point.iter() {
-            full.insert(name, value);
-        }
-        Ok(full)
+        Ok(self.defaults().overlaid(point)?)
     }
 
     /// Coordinates of a point in the unit-scaled space: (value - min) / scale per parameter, in
@@ -417,19 +339,17 @@ pub fn design_points(axes: &[GridAxis], max_points: usize) -> Result<Vec<DesignP
     let mut points = vec![DesignPoint::new()];
     for factor in factors {
         let partial: Vec<DesignPoint> = match factor[0].values {
-            AxisValues::Lhs { samples, seed, .. } => latin_hypercube(&factor, samples, seed),
-            ref values => {
-                values.expand().into_iter().map(|v| DesignPoint::from_pairs([(factor[0].name.clone(), v)])).collect()
-            }
+            AxisValues::Lhs { samples, seed, .. } => latin_hypercube(&factor, samples, seed)?,
+            ref values => values
+                .expand()
+                .into_iter()
+                .map(|v| DesignPoint::from_pairs([(factor[0].name.clone(), v)]))
+                .collect::<Result<_, _>>()?,
         };
         let mut next = Vec::with_capacity(points.len() * partial.len());
         for p in &points {
             for q in &partial {
-                let mut r = p.clone();
-                for (k, v) in q.iter() {
-                    r.insert(k, v);
-                }
-                next.push(r);
+                next.push(p.clone().overlaid(q)?);
             }
         }
         points = next;
@@ -443,7 +363,7 @@ pub fn design_points(axes: &[GridAxis], max_points: usize) -> Result<Vec<DesignP
 /// A Latin hypercube: each parameter's range cut into `samples` equal strata, one sample drawn
 /// uniformly in each stratum, the strata permuted independently per parameter (ChaCha8 seeded
 /// with `seed`, so the same spec gives the same points on every machine).
-fn latin_hypercube(members: &[&GridAxis], samples: usize, seed: u64) -> Vec<DesignPoint> {
+fn latin_hypercube(members: &[&GridAxis], samples: usize, seed: u64) -> Result<Vec<DesignPoint>, ParameterError> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut points = vec![DesignPoint::new(); samples];
     for a in members {
@@ -452,10 +372,10 @@ fn latin_hypercube(members: &[&GridAxis], samples: usize, seed: u64) -> Vec<Desi
         strata.shuffle(&mut rng);
         for (p, s) in points.iter_mut().zip(strata) {
             let u: f64 = rng.random();
-            p.insert(a.name.clone(), tidy(low + (high - low) * (s as f64 + u) / samples as f64));
+            p.insert(a.name.clone(), tidy(low + (high - low) * (s as f64 + u) / samples as f64))?;
         }
     }
-    points
+    Ok(points)
 }
 
 /// The design points of a study submission: a grid (`NAME=SPEC` axes, Cartesian product) or an
@@ -617,9 +537,9 @@ mod tests {
         let axes = vec![GridAxis::parse("f1=0.1,0.2", &s).unwrap(), GridAxis::parse("f2=0.1:0.2:3", &s).unwrap()];
         let pts = design_points(&axes, DEFAULT_MAX_POINTS).unwrap();
         assert_eq!(pts.len(), 6);
-        assert_eq!(pts[0], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1)]));
-        assert_eq!(pts[1], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.15)]));
-        assert_eq!(pts[5], DesignPoint::from_pairs([("f1", 0.2), ("f2", 0.2)]));
+        assert_eq!(pts[0], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1)]).unwrap());
+        assert_eq!(pts[1], DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.15)]).unwrap());
+        assert_eq!(pts[5], DesignPoint::from_pairs([("f1", 0.2), ("f2", 0.2)]).unwrap());
         assert_eq!(design_points(&[], DEFAULT_MAX_POINTS).unwrap_err(), SpaceError::EmptyGrid);
         let dup = vec![axes[0].clone(), axes[0].clone()];
         assert!(matches!(design_points(&dup, DEFAULT_MAX_POINTS), Err(SpaceError::Duplicate { .. })));
@@ -671,13 +591,13 @@ mod tests {
     #[test]
     fn distance_is_normalised_by_range_and_zero_width_counts_as_one() {
         let s = space();
-        let a = DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1)]);
-        let b = DesignPoint::from_pairs([("f1", 0.2), ("f2", 0.2)]);
+        let a = DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1)]).unwrap();
+        let b = DesignPoint::from_pairs([("f1", 0.2), ("f2", 0.2)]).unwrap();
         assert!((s.normalised_distance(&a, &b) - 2f64.sqrt()).abs() < 1e-12);
-        let c = DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1), ("p", 7.0)]);
+        let c = DesignPoint::from_pairs([("f1", 0.1), ("f2", 0.1), ("p", 7.0)]).unwrap();
         assert!((s.normalised_distance(&a, &c) - 2.0).abs() < 1e-12, "p defaults to 5, width 1");
         assert_eq!(s.normalised_distance(&a, &s.complete(&a).unwrap()), 0.0);
-        assert!(s.complete(&DesignPoint::from_pairs([("q", 1.0)])).is_err());
-        assert!(s.complete(&DesignPoint::from_pairs([("f1", f64::NAN)])).is_err());
+        assert!(s.complete(&DesignPoint::from_pairs([("q", 1.0)]).unwrap()).is_err());
+        assert!(DesignPoint::from_pairs([("f1", f64::NAN)]).is_err(), "a point is finite before a space sees it");
     }
 }

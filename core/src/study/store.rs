@@ -5,6 +5,7 @@
 //! database in the service; both find neighbours with the same [`PointIndex`] (a kd-tree from
 //! `kiddo`).
 
+use crate::point::DesignPoint;
 use std::collections::BTreeMap;
 use std::num::NonZeroUsize;
 use std::sync::Arc;
@@ -14,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::field::InterfaceSolution;
 
-use super::space::{DesignPoint, ParameterSpace};
+use super::space::ParameterSpace;
 
 /// Identifies a stored solution within its store.
 pub type SolutionId = u64;
@@ -326,15 +327,15 @@ mod tests {
         let mut points = Vec::new();
         for i in 0..20 {
             for j in 0..20 {
-                let p = DesignPoint::from_pairs([("p0", i as f64 / 19.0), ("p1", 2.0 * j as f64 / 19.0)]);
+                let p = DesignPoint::from_pairs([("p0", i as f64 / 19.0), ("p1", 2.0 * j as f64 / 19.0)]).unwrap();
                 points.push(p.clone());
                 store.insert(stored(p)).unwrap();
             }
         }
         assert_eq!(store.len(), 400);
         for q in [
-            DesignPoint::from_pairs([("p0", 0.33), ("p1", 1.01)]),
-            DesignPoint::from_pairs([("p0", 1.5), ("p1", -1.0), ("p2", 2.0)]),
+            DesignPoint::from_pairs([("p0", 0.33), ("p1", 1.01)]).unwrap(),
+            DesignPoint::from_pairs([("p0", 1.5), ("p1", -1.0), ("p2", 2.0)]).unwrap(),
             points[37].clone(),
         ] {
             let got = store.nearest(&q, 5).unwrap();
@@ -355,8 +356,8 @@ mod tests {
     fn empty_store_and_bad_points() {
         let store = MemoryStore::new(space(2)).unwrap();
         assert!(store.nearest(&DesignPoint::new(), 3).unwrap().is_empty());
-        assert!(store.nearest(&DesignPoint::from_pairs([("zz", 1.0)]), 1).is_err());
-        assert!(store.nearest(&DesignPoint::from_pairs([("p0", f64::NAN)]), 1).is_err());
+        assert!(store.nearest(&DesignPoint::from_pairs([("zz", 1.0)]).unwrap(), 1).is_err());
+        assert!(DesignPoint::from_pairs([("p0", f64::NAN)]).is_err(), "a NaN never reaches the store");
         let err = MemoryStore::new(space(MAX_DIMENSION + 1)).err().unwrap().to_string();
         assert!(err.contains("at most 8"), "{err}");
     }

@@ -17,6 +17,7 @@
 //!   to `Nearest`. The blended local-stage fields need not satisfy the new interface law: the
 //!   first local stage projects them.
 
+use crate::point::DesignPoint;
 use std::collections::BTreeSet;
 use std::sync::Arc;
 
@@ -25,7 +26,7 @@ use serde::{Deserialize, Serialize};
 use crate::field::{InterfaceSolution, SideField, StageSolution};
 use crate::scene::Scene;
 
-use super::space::{DesignPoint, ParameterSpace};
+use super::space::ParameterSpace;
 use super::store::{SolutionId, SolutionStore, StoreError};
 
 /// Where the iterations of a design point start.
@@ -407,7 +408,7 @@ k0_factor = "k"
                 .map(|n| ParameterRange { name: n.to_string(), default: 0.0, min: 0.0, max: 1.0, declared: true })
                 .collect(),
         );
-        let p = |a: f64, b: f64| DesignPoint::from_pairs([("f1", a), ("f2", b)]);
+        let p = |a: f64, b: f64| DesignPoint::from_pairs([("f1", a), ("f2", b)]).unwrap();
         let x = p(0.3, 0.5);
         let (a, b) = (p(0.2, 0.5), p(0.1, 0.5));
         let w = linear_weights(&space, &x, &[(&a, 0.1), (&b, 0.2)]).unwrap();

@@ -14,7 +14,8 @@
 //! Cost: O(n^3) per likelihood evaluation; fits are refused above [`MAX_POINTS`] points before
 //! anything is allocated.
 
-use super::space::{DesignPoint, ParameterSpace};
+use super::space::ParameterSpace;
+use crate::point::DesignPoint;
 
 /// The most points a surface is fitted to (an n x n matrix: 32 MB at this size).
 pub const MAX_POINTS: usize = 2000;
@@ -669,7 +670,7 @@ mod tests {
         let samples: Vec<(Vec<f64>, f64)> = (0..6).map(|i| 0.1 + 0.02 * i as f64).map(|f| (vec![f], slip(f))).collect();
         let raw = ResponseSurface::fit(&space, &names, &samples).unwrap();
         let norm = raw.clone().non_negative();
-        let at = |s: &ResponseSurface, f: f64| s.predict(&DesignPoint::from_pairs([("f1", f)])).unwrap();
+        let at = |s: &ResponseSurface, f: f64| s.predict(&DesignPoint::from_pairs([("f1", f)]).unwrap()).unwrap();
         let grid: Vec<f64> = (0..=100).map(|i| 0.1 + 0.001 * i as f64).collect();
         let lowest = grid.iter().map(|&f| at(&raw, f).mean).fold(f64::INFINITY, f64::min);
         assert!(lowest < 0.0, "the process alone undershoots beside the edge: {lowest:e}");
@@ -701,7 +702,7 @@ mod tests {
         }
         let surface = ResponseSurface::fit(&space, &names, &samples).unwrap().non_negative();
         let largest = samples.iter().map(|(_, v)| *v).fold(0.0f64, f64::max);
-        let at = |a: f64, b: f64| surface.predict(&DesignPoint::from_pairs([("f1", a), ("f2", b)])).unwrap();
+        let at = |a: f64, b: f64| surface.predict(&DesignPoint::from_pairs([("f1", a), ("f2", b)]).unwrap()).unwrap();
         let mut stuck = 0;
         for i in 0..=40 {
             for j in 0..=40 {
@@ -758,7 +759,7 @@ mod tests {
             (0..=100)
                 .map(|i| 0.1 + 0.001 * i as f64)
                 .map(|f| {
-                    let p = s.predict(&DesignPoint::from_pairs([("f1", f)])).unwrap();
+                    let p = s.predict(&DesignPoint::from_pairs([("f1", f)]).unwrap()).unwrap();
                     assert!(p.mean >= 0.0, "f1 = {f}: {p:?}");
                     (p.mean - x(f).hypot(y(f))).abs()
                 })
@@ -784,7 +785,7 @@ mod tests {
         let names = vec!["f1".to_owned()];
         let samples: Vec<(Vec<f64>, f64)> = (0..5).map(|i| (vec![0.1 + 0.025 * i as f64], i as f64)).collect();
         let surface = ResponseSurface::fit(&space, &names, &samples).unwrap();
-        let at = |v: f64| surface.predict_within(&DesignPoint::from_pairs([("f1", v)]));
+        let at = |v: f64| surface.predict_within(&DesignPoint::from_pairs([("f1", v)]).unwrap());
         assert!(at(0.2).unwrap().mean.is_finite() && at(0.1).unwrap().std.is_finite());
         for v in [1e300, 0.2 + 1e-9, -1.0] {
             match at(v) {

@@ -8,10 +8,11 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
+use glissade_core::point::DesignPoint;
 use glissade_core::refine::{NOISE_PER_TOLERANCE, Refinement, refined_scene_text, richardson};
 use glissade_core::scene::Scene;
 use glissade_core::text::one_line;
-use glissade_proto::{ParameterVector, StudyId};
+use glissade_proto::StudyId;
 
 use super::{
     CoordError, Discretisation, MAX_REFINE_LEVELS, MAX_REFINE_POINTS, MeshError, MeshLevel, QoiDiscretisation,
@@ -119,7 +120,7 @@ fn describe(refinement: Refinement, factor: u32) -> String {
 
 /// `n` of `points` spread over the list: the first and the last, and evenly between (the
 /// iteration audit's choice too).
-pub(super) fn spread(points: &[ParameterVector], n: usize) -> Vec<ParameterVector> {
+pub(super) fn spread(points: &[DesignPoint], n: usize) -> Vec<DesignPoint> {
     (0..n).map(|k| points[if n == 1 { 0 } else { k * (points.len() - 1) / (n - 1) }].clone()).collect()
 }
 
@@ -212,7 +213,7 @@ type Ladder<'a> = Vec<&'a BTreeMap<String, f64>>;
 /// The QoIs of each point of the first level that is done at every level, level by level, the
 /// study's own first; and how many points the levels plan.
 fn ladders<'a>(study: &'a StudyEntry, levels: &[&'a StudyEntry]) -> (Vec<Ladder<'a>>, usize) {
-    fn result<'a>(e: &'a StudyEntry, at: &ParameterVector) -> Option<&'a PointResult> {
+    fn result<'a>(e: &'a StudyEntry, at: &DesignPoint) -> Option<&'a PointResult> {
         let p = e.points.iter().find(|p| p.state == PointState::Done && &p.parameters == at)?;
         p.result.as_ref()
     }

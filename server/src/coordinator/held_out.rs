@@ -7,11 +7,10 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_core::study::holdout::{self, held_out_points};
-use glissade_core::study::space::DesignPoint;
 use glissade_core::study::surrogate::{Prediction, QoiSurface};
-use glissade_proto::ParameterVector;
 
 use super::{StudyEntry, SurfaceAccuracy, audit_cost, now_unix_ms};
 use crate::records::{AdaptiveSpec, PointState, Predicted};
@@ -21,12 +20,12 @@ use crate::records::{AdaptiveSpec, PointState, Predicted};
 /// none at a design point, seeded by `seed` (the study's id: the same study, the same points).
 pub(super) fn points(
     names: &[String],
-    design: &[ParameterVector],
+    design: &[DesignPoint],
     adaptive: Option<&AdaptiveSpec>,
     n: usize,
     seed: u64,
-) -> Vec<ParameterVector> {
-    let coordinates = |p: &ParameterVector| -> Vec<f64> { names.iter().map(|k| p.get(k).unwrap_or(0.0)).collect() };
+) -> Vec<DesignPoint> {
+    let coordinates = |p: &DesignPoint| -> Vec<f64> { names.iter().map(|k| p.get(k).unwrap_or(0.0)).collect() };
     let design: Vec<Vec<f64>> = design.iter().map(coordinates).collect();
     let ranges: Vec<(f64, f64)> = match adaptive {
         Some(a) => names
@@ -42,7 +41,8 @@ pub(super) fn points(
     }
     held_out_points(&ranges, &design, n, seed)
         .into_iter()
-        .map(|x| crate::study::parameter_vector(&DesignPoint::from_pairs(names.iter().cloned().zip(x))))
+        // (coordinates inside the swept ranges, of the study's names: always a design point)
+        .filter_map(|x| DesignPoint::from_pairs(names.iter().cloned().zip(x)).ok())
         .collect()
 }
 
@@ -53,7 +53,7 @@ type QoiPredictions = BTreeMap<String, (f64, f64)>;
 /// fits run outside its lock: each is O(n^3) in the study's points).
 pub(super) struct Job {
     pub audit: glissade_proto::StudyId,
-    scene: String,
+    scene: std::sync::Arc<Scene>,
     names: Vec<String>,
     /// the study's done points: coordinates and QoIs
     rows: Vec<(Vec<f64>, BTreeMap<String, f64>)>,
@@ -71,8 +71,8 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
             Some((x?, p.result.as_ref()?.qoi.clone()))
         })
         .collect();
-    let at = audit.points.iter().map(|p| DesignPoint::from(BTreeMap::from(p.parameters.clone()))).collect();
-    Job { audit: audit.record.id, scene: study.record.scene.clone(), names, rows, at }
+    let at = audit.points.iter().map(|p| p.parameters.clone()).collect();
+    Job { audit: audit.record.id, scene: std::sync::Arc::clone(&study.scene), names, rows, at }
 }
 
 /// The surface of each QoI of the study's points (as `glissade surface` fits it: norms never
@@ -81,17 +81,11 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
 pub(super) fn predict(job: &Job) -> Predicted {
     let mut refused = BTreeMap::new();
     let mut at = vec![BTreeMap::new(); job.at.len()];
-    let scene = match Scene::parse(&job.scene) {
-        Ok(s) => s,
-        Err(e) => {
-            refused.insert(String::new(), format!("the stored scene does not parse: {e}"));
-            return Predicted { fitted: 0, at, refused, unix_ms: now_unix_ms() };
-        }
-    };
+    let scene: &Scene = &job.scene;
     let qois: std::collections::BTreeSet<&String> = job.rows.iter().flat_map(|(_, q)| q.keys()).collect();
     let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = job.rows.iter().map(|(x, q)| (x.clone(), q)).collect();
     for q in qois {
-        let surface = match QoiSurface::of_scene(&scene, &job.names, &points, q) {
+        let surface = match QoiSurface::of_scene(scene, &job.names, &points, q) {
             Ok(s) => s,
             Err(e) => {
                 refused.insert(q.clone(), e.to_string());

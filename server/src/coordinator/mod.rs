@@ -16,8 +16,9 @@ use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::Instant;
 
 use glissade_core::io::solution_file::{self, SolutionFileError, SolutionMeta};
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::{Scene, mesh_digest};
-use glissade_proto::{ParameterVector, PointId, StudyId};
+use glissade_proto::{PointId, StudyId};
 use tokio::sync::{Notify, broadcast};
 
 use glissade_core::study::order::OrderKind;
@@ -29,7 +30,6 @@ use crate::records::{
 };
 use crate::store::{Batch, Store, Tree};
 use glissade_core::study::adaptive::{QoiReadings, TargetOutcome};
-use glissade_core::study::space::DesignPoint;
 
 mod discretisation;
 mod held_out;
@@ -45,6 +45,10 @@ struct StudyEntry {
     record: StudyRecord,
     points: Vec<PointRecord>,
     plan: StudyPlan,
+    /// The study's scene, parsed once where the study entered (its submission, or the reopening
+    /// of the database), without its mesh bytes: the study list, the checks of its points, its
+    /// QoIs' readings and its surfaces read it, none builds a mesh body.
+    scene: Arc<Scene>,
 }
 
 impl StudyEntry {
@@ -85,8 +89,8 @@ impl StudyEntry {
     }
 
     /// Every scene parameter at point `i`: the scene's defaults overridden by the point's values.
-    fn full_parameters(&self, i: usize) -> ParameterVector {
-        crate::study::parameter_vector(&self.plan.full[i])
+    fn full_parameters(&self, i: usize) -> DesignPoint {
+        self.plan.full[i].clone()
     }
 
     /// The stored solution of the point of this study finished last (for `previous`).
@@ -189,7 +193,7 @@ impl Coordinator {
                     Err(e) => tracing::warn!(study = %record.id, error = %e, "no warm starts for this scene"),
                 }
             }
-            state.studies.insert(record.id, StudyEntry { record, points, plan });
+            state.studies.insert(record.id, StudyEntry { record, points, plan, scene: Arc::new(scene) });
         }
         store.commit(batch)?;
         // The nearest-neighbour indexes, rebuilt from the records (the fields stay on disk).
@@ -346,7 +350,7 @@ impl Coordinator {
         StudyView {
             solving,
             kind,
-            scene_title: Scene::parse(&r.scene).ok().and_then(|s| s.title).unwrap_or_default(),
+            scene_title: entry.scene.title.clone().unwrap_or_default(),
             finished_unix_ms: (state != StudyState::Active)
                 .then(|| entry.points.iter().filter_map(|p| p.finished_unix_ms).max())
                 .flatten(),
@@ -460,13 +464,10 @@ impl Coordinator {
         if entry.record.cancelled {
             return Err(CoordError::Precondition(format!("study {id} is cancelled: its points are not retried")));
         }
-        // (parsed when the study was submitted; stored meshes are attached to a lease, not here:
-        // only the per-point check runs)
-        let scene = Scene::parse(&entry.record.scene).ok();
+        // (stored meshes are attached to a lease, not here: only the per-point check runs)
+        let scene = Arc::clone(&entry.scene);
         let bad_input = |i: usize| -> Option<String> {
-            let scene = scene.as_ref()?;
-            let set: Vec<(String, f64)> = entry.full_parameters(i).iter().map(|(n, v)| (n.to_owned(), v)).collect();
-            let values = scene.parameter_values(&set);
+            let values = scene.parameter_values(&entry.plan.full[i]);
             values
                 .and_then(|v| scene.check_point(&v))
                 .err()
@@ -735,7 +736,9 @@ impl Coordinator {
         let mut batch = Batch::new();
         match next {
             Some(next) => {
-                let parameters = crate::study::parameter_vector(&next);
+                // every parameter of the point, for the plan: refused before anything is stored
+                let full = entry.plan.space().complete(&next).map_err(|e| CoordError::Invalid(e.to_string()))?;
+                let parameters = next;
                 let point = PointRecord {
                     study: entry.record.id,
                     id: PointId(entry.points.len() as u64),
@@ -750,7 +753,7 @@ impl Coordinator {
                 batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
                 self.store.commit(batch)?;
                 tracing::info!(study = %entry.record.id, point = point.id.0, at = %point.parameters, "adaptive point chosen");
-                entry.plan.push(&point.parameters);
+                entry.plan.full.push(full);
                 entry.points.push(point);
             }
             None => {
@@ -1143,12 +1146,10 @@ fn adaptive_step(
         .iter()
         .map(|p| {
             let done = (p.state == PointState::Done).then(|| p.result.as_ref().map(|r| &r.qoi)).flatten();
-            (DesignPoint::from(BTreeMap::from(p.parameters.clone())), done)
+            (p.parameters.clone(), done)
         })
         .collect();
-    // (the stored scene parsed when it was submitted; a QoI of a scene that no longer parses
-    // is read on its own)
-    let readings = Scene::parse(&entry.record.scene).map(|s| QoiReadings::of(&s)).unwrap_or_default();
+    let readings = QoiReadings::of(&entry.scene);
     let surfaces = design.surfaces(entry.plan.space(), &readings, &chosen);
     let in_flight = points.iter().any(|p| matches!(p.state, PointState::Pending | PointState::Leased { .. }));
     let spent = points.len() >= spec.budget as usize && !in_flight;
@@ -1250,7 +1251,7 @@ fn leased_from(point: &PointRecord) -> Option<SolutionOrigin> {
 }
 
 /// Checks that a solution file is the one announced, for the point held.
-fn check_meta(meta: &SolutionMeta, c: &Completion, scene_hash: &str, full: &ParameterVector) -> Result<(), CoordError> {
+fn check_meta(meta: &SolutionMeta, c: &Completion, scene_hash: &str, full: &DesignPoint) -> Result<(), CoordError> {
     let point = format!("point {} of study {}", c.point, c.study);
     if meta.scene_hash != scene_hash {
         return Err(CoordError::Invalid(format!(
@@ -1258,8 +1259,7 @@ fn check_meta(meta: &SolutionMeta, c: &Completion, scene_hash: &str, full: &Para
             meta.scene_hash
         )));
     }
-    let parameters = ParameterVector::try_from(meta.parameters.clone())
-        .map_err(|e| CoordError::Invalid(format!("solution for {point}: {e}")))?;
+    let parameters = &meta.parameters;
     let same_point = parameters.len() == full.len()
         && full.iter().all(|(name, v)| parameters.get(name).is_some_and(|w| same_number(v, w)));
     if !same_point {

@@ -1,12 +1,13 @@
 //! A submission's way in: every check made before the coordinator's lock ([`Admitted`]), then
 //! under it the study's records and its audits' written in one batch and entered in the state.
 
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::{MeshFileError, Scene, SceneError, Tolerance, mesh_digest};
 use glissade_core::study::adaptive::{AdaptiveDesign, TARGET_BUDGET, check_target, point_tolerance};
-use glissade_core::study::space::ParameterSpace;
+use glissade_core::study::space::{ParameterSpace, submission_points};
 use glissade_core::study::strategy::InitStrategy;
 use glissade_core::text::one_line;
-use glissade_proto::{ParameterVector, PointId, StudyId};
+use glissade_proto::{PointId, StudyId};
 
 use super::discretisation::{self, Level};
 use super::{
@@ -21,7 +22,7 @@ use crate::study::{SceneSolutions, StudyPlan};
 
 /// A study's swept parameter names, its points (none yet for an adaptive study) and its
 /// adaptive spec.
-type Design = (Vec<String>, Vec<ParameterVector>, Option<AdaptiveSpec>);
+type Design = (Vec<String>, Vec<DesignPoint>, Option<AdaptiveSpec>);
 
 /// A submission that passed every check: what [`Coordinator::submit`] stores.
 struct Admitted {
@@ -31,7 +32,7 @@ struct Admitted {
     tolerance: f64,
     max_iterations: u32,
     names: Vec<String>,
-    points: Vec<ParameterVector>,
+    points: Vec<DesignPoint>,
     adaptive: Option<AdaptiveSpec>,
     /// (digest, compressed bytes) of the meshes not stored yet
     new_meshes: Vec<(String, Vec<u8>)>,
@@ -174,7 +175,7 @@ impl Coordinator {
         let (names, points, adaptive) = match &submission.adaptive {
             None => {
                 let (names, points) =
-                    crate::study::expand(scene, &submission.grid, &submission.points, self.config.max_points)
+                    submission_points(scene, &submission.grid, &submission.points, self.config.max_points)
                         .map_err(CoordError::Invalid)?;
                 (names, points, None)
             }
@@ -196,20 +197,19 @@ impl Coordinator {
         };
         for (i, point) in points.iter().enumerate() {
             check_point(scene, point).map_err(|e| {
-                CoordError::Invalid(format!("scene at point {i} ({}): {}", point_text(point), one_line(&e.to_string())))
+                CoordError::Invalid(format!("scene at point {i} ({point}): {}", one_line(&e.to_string())))
             })?;
         }
         if let Some(a) = &adaptive {
             // an adaptive study's points are not known yet: every corner of its box
             for corner in 0..1usize << a.ranges.len().min(12) {
-                let set: Vec<(String, f64)> = a
+                let at = a
                     .ranges
                     .iter()
                     .enumerate()
-                    .map(|(k, (n, lo, hi))| (n.clone(), if (corner >> k) & 1 == 1 { *hi } else { *lo }))
-                    .collect();
-                let values = scene.parameter_values(&set).map_err(scene_refused)?;
-                scene.check_point(&values).map_err(scene_refused)?;
+                    .map(|(k, (n, lo, hi))| (n, if (corner >> k) & 1 == 1 { *hi } else { *lo }));
+                let at = DesignPoint::from_pairs(at).map_err(|e| CoordError::Invalid(e.to_string()))?;
+                check_point(scene, &at).map_err(scene_refused)?;
             }
         }
         Ok((names, points, adaptive))
@@ -292,7 +292,10 @@ impl Coordinator {
                 state.by_scene.insert(record.scene_hash.clone(), index);
             }
         }
-        let entry = StudyEntry { record, points, plan };
+        // (the parsed scene kept without its mesh bytes, as a reopened database has it)
+        let mut kept = scene.clone();
+        kept.meshes.clear();
+        let entry = StudyEntry { record, points, plan, scene: std::sync::Arc::new(kept) };
         tracing::info!(study = %entry.record.id, points = entry.points.len(), scene = %admitted.scene_hash, audit_of = ?entry.record.audit_of, "study submitted");
         self.emit(EventKind::Snapshot, &entry, None);
         let id = entry.record.id;
@@ -398,7 +401,7 @@ impl Admitted {
 }
 
 /// A study's points, pending.
-fn pending(study: StudyId, points: Vec<ParameterVector>) -> Vec<PointRecord> {
+fn pending(study: StudyId, points: Vec<DesignPoint>) -> Vec<PointRecord> {
     points
         .into_iter()
         .enumerate()
@@ -417,14 +420,8 @@ fn pending(study: StudyId, points: Vec<ParameterVector>) -> Vec<PointRecord> {
 }
 
 /// What a pool checks before it solves a point (core::check), checked at submit.
-fn check_point(scene: &Scene, point: &ParameterVector) -> Result<(), SceneError> {
-    let set: Vec<(String, f64)> = point.iter().map(|(n, v)| (n.to_owned(), v)).collect();
-    scene.check_point(&scene.parameter_values(&set)?)
-}
-
-/// `f1=0.1 f2=0.2`
-fn point_text(point: &ParameterVector) -> String {
-    point.iter().map(|(n, v)| format!("{n}={v}")).collect::<Vec<_>>().join(" ")
+fn check_point(scene: &Scene, point: &DesignPoint) -> Result<(), SceneError> {
+    scene.check_point(&scene.parameter_values(point)?)
 }
 
 /// A scene the checks refuse: its message, on one line.

@@ -1,7 +1,7 @@
 //! Reading what the coordinator stores: response surfaces over a study or a scene, and stored
 //! solutions' files and fields.
 
-use glissade_core::study::space::DesignPoint;
+use glissade_core::point::DesignPoint;
 use glissade_core::study::surrogate::QoiSurface;
 
 use super::*;
@@ -37,7 +37,8 @@ fn predict(
                     names.join(", ")
                 )));
             }
-            let p = DesignPoint::from(point.clone());
+            let p = DesignPoint::try_from(point.clone())
+                .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
             let predicted = surfaces
                 .iter()
                 .map(|s| s.predict_within(&p).map(|v| (v, s.len())))
@@ -52,14 +53,14 @@ impl Coordinator {
     pub fn surface(
         &self,
         source: SurfaceSource,
-        fixed: &ParameterVector,
+        fixed: &DesignPoint,
         qoi: &[String],
         predict_at: &[BTreeMap<String, f64>],
     ) -> Result<Surface, CoordError> {
         let state = self.lock();
         // the scene's ranges scale the parameters of a prediction
-        let scene_text = match &source {
-            SurfaceSource::Study(id) if !predict_at.is_empty() => state.studies.get(id).map(|e| e.record.scene.clone()),
+        let study_scene = match &source {
+            SurfaceSource::Study(id) if !predict_at.is_empty() => state.studies.get(id).map(|e| Arc::clone(&e.scene)),
             _ => None,
         };
         let (scene_hash, mut rows) = match &source {
@@ -146,16 +147,16 @@ impl Coordinator {
             key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal)
         });
         let predictions = if let Some(predicted_from) = predicted_from {
-            let text = match scene_text {
-                Some(text) => text,
+            let scene = match study_scene {
+                Some(scene) => scene,
                 None => {
                     let bytes = self.store.get(Tree::Scenes, scene_hash.as_bytes())?.ok_or_else(|| {
                         CoordError::Corrupt(format!("scene {scene_hash} is missing from the database"))
                     })?;
-                    String::from_utf8_lossy(&bytes).into_owned()
+                    let text = String::from_utf8_lossy(&bytes);
+                    Arc::new(Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?)
                 }
             };
-            let scene = Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?;
             predict(&scene, &names, &qoi_names, &predicted_from, predict_at)?
         } else {
             Vec::new()

@@ -172,10 +172,7 @@ fn solution_file_with_qoi(
     qoi: &BTreeMap<String, f64>,
 ) -> (Completion, Vec<u8>) {
     let scene = Scene::parse(&grant.scene_text).unwrap();
-    let mut full = BTreeMap::new();
-    for (name, p) in &scene.parameters {
-        full.insert(name.clone(), grant.parameters.get(name).unwrap_or(p.default));
-    }
+    let full = scene.parameter_values(&grant.parameters).unwrap();
     let len = scene.time.steps * 3 * 4;
     let mut field = InterfaceField::zeros(2, len);
     field.s[0].force[0] = grant.point.0 as f64 + 1.0;
@@ -380,7 +377,7 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
     let listed = Submission {
         scene_text: TINY.into(),
         grid: vec![],
-        points: vec![ParameterVector::try_from(BTreeMap::from([("f1".to_string(), 0.12)])).unwrap()],
+        points: vec![DesignPoint::try_from(BTreeMap::from([("f1".to_string(), 0.12)])).unwrap()],
         tolerance: Some(tolerance(1e-3)),
         max_iterations: None,
         strategy: InitStrategy::Cold,
@@ -1042,7 +1039,13 @@ fn retry_keeps_failed_points_whose_scene_is_invalid_at_their_parameters() {
         c.fail(failure).unwrap();
     }
     // a study stored before scenes were checked at submit: its friction is -f1 at every point
-    c.lock().studies.get_mut(&id).unwrap().record.scene = TINY.replace("friction = \"f1\"", "friction = \"-f1\"");
+    // (as a reopened database parses it: the text and the parsed scene beside the study)
+    let stored = TINY.replace("friction = \"f1\"", "friction = \"-f1\"");
+    let mut state = c.lock();
+    let entry = state.studies.get_mut(&id).unwrap();
+    entry.scene = Arc::new(Scene::parse(&stored).unwrap());
+    entry.record.scene = stored;
+    drop(state);
     let (requeued, (kept, why), _) = c.retry_failed(id).unwrap();
     assert_eq!((requeued, kept), (0, 2));
     assert!(why.contains("interfaces[0].friction: must be >= 0, got -0.1: retrying cannot help"), "{why}");
@@ -1079,7 +1082,7 @@ fn submit_held_out(
 
 /// A QoI law with a stick region and a kink (slip_A, a norm: zero below f1 = 0.14) and a smooth
 /// one (middle_ux).
-fn law(p: &ParameterVector) -> BTreeMap<String, f64> {
+fn law(p: &DesignPoint) -> BTreeMap<String, f64> {
     // (f2 at the scene's default where it is not swept)
     let (f1, f2) = (p.get("f1").unwrap(), p.get("f2").unwrap_or(0.1));
     [("slip_A".to_string(), (f1 - 0.14).max(0.0) * 1e-3 * (1.0 + f2)), ("middle_ux".to_string(), (9.0 * f1).sin() * f2)]
@@ -1144,7 +1147,7 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
         let values: Vec<f64> = study.points.iter().chain(&held.points).map(|p| law(&p.parameters)[q]).collect();
         let spread = values.iter().cloned().fold(f64::MIN, f64::max) - values.iter().cloned().fold(f64::MAX, f64::min);
         for p in &held.points {
-            let at = DesignPoint::from(BTreeMap::from(p.parameters.clone()));
+            let at = p.parameters.clone();
             let predicted = surface.predict(&at).unwrap();
             let error = (predicted.mean - law(&p.parameters)[q]).abs();
             largest = largest.max(error / spread);
@@ -1240,7 +1243,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
         c.complete(done, file).unwrap();
     }
     let at: BTreeMap<String, f64> = [("f1".to_string(), 0.137)].into();
-    let s = c.surface(SurfaceSource::Study(id), &ParameterVector::default(), &["slip_A".into()], &[at]).unwrap();
+    let s = c.surface(SurfaceSource::Study(id), &DesignPoint::default(), &["slip_A".into()], &[at]).unwrap();
     assert_eq!(s.qoi, ["slip_A"], "only what was asked for is returned");
     let (p, fitted) = s.predictions[0].qoi[0];
     let truth = y(0.137);
@@ -1259,7 +1262,7 @@ fn submit_target(c: &Coordinator, target: f64, budget: u32, tolerance: Option<f6
 }
 
 /// Solves every point a pool is given with `law`, one at a time; the points solved.
-fn solve_all(c: &Coordinator, law: impl Fn(&ParameterVector) -> BTreeMap<String, f64>) -> usize {
+fn solve_all(c: &Coordinator, law: impl Fn(&DesignPoint) -> BTreeMap<String, f64>) -> usize {
     let mut solved = 0;
     while let Some(g) = c.lease("p").unwrap() {
         let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &law(&g.parameters));
@@ -1275,10 +1278,8 @@ fn cross_validation(c: &Coordinator, id: StudyId, n: usize) -> glissade_core::st
     let v = c.study(id, true).unwrap();
     let scene = Scene::parse(TINY).unwrap();
     let design = v.record.adaptive.as_ref().unwrap().design();
-    let rows: Vec<(DesignPoint, &BTreeMap<String, f64>)> = v.points[..n]
-        .iter()
-        .map(|p| (DesignPoint::from(BTreeMap::from(p.parameters.clone())), &p.result.as_ref().unwrap().qoi))
-        .collect();
+    let rows: Vec<(DesignPoint, &BTreeMap<String, f64>)> =
+        v.points[..n].iter().map(|p| (p.parameters.clone(), &p.result.as_ref().unwrap().qoi)).collect();
     let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
         rows.iter().map(|(p, q)| (p.clone(), Some(*q))).collect();
     let readings = glissade_core::study::adaptive::QoiReadings::of(&scene);
@@ -1286,7 +1287,7 @@ fn cross_validation(c: &Coordinator, id: StudyId, n: usize) -> glissade_core::st
 }
 
 /// A smooth law of f1 and f2 (a slip that slides everywhere, a displacement).
-fn smooth_law(p: &ParameterVector) -> BTreeMap<String, f64> {
+fn smooth_law(p: &DesignPoint) -> BTreeMap<String, f64> {
     let (f1, f2) = (p.get("f1").unwrap(), p.get("f2").unwrap());
     [
         ("slip_A".to_string(), 1e-4 * (1.0 + 4.0 * (f1 - 0.1) + 3.0 * (f2 - 0.1))),

@@ -146,7 +146,9 @@ pub fn apply(point: &PointRecord, transition: Transition) -> Result<PointRecord,
 mod tests {
     use std::collections::BTreeMap;
 
-    use glissade_proto::{ParameterVector, PointId, StudyId};
+    use glissade_core::point::DesignPoint;
+
+    use glissade_proto::{PointId, StudyId};
 
     use super::*;
 
@@ -154,7 +156,7 @@ mod tests {
         PointRecord {
             study: StudyId(3),
             id: PointId(7),
-            parameters: ParameterVector::default(),
+            parameters: DesignPoint::default(),
             state,
             attempts,
             result: None,

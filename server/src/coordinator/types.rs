@@ -5,12 +5,13 @@ use std::collections::BTreeMap;
 use std::time::Duration;
 
 use glissade_core::contact::ContactActivity;
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Tolerance;
 use glissade_core::study::holdout::SurfaceErrors;
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
 use glissade_core::study::surrogate::Prediction;
-use glissade_proto::{ParameterVector, PointId, StudyId};
+use glissade_proto::{PointId, StudyId};
 
 use crate::records::{self, PointRecord, PointState, StudyRecord};
 use crate::store::StoreError;
@@ -175,7 +176,7 @@ pub struct StudyView {
 pub struct Submission {
     pub scene_text: String,
     pub grid: Vec<String>,
-    pub points: Vec<ParameterVector>,
+    pub points: Vec<DesignPoint>,
     pub tolerance: Option<Tolerance>,
     pub max_iterations: Option<u32>,
     pub strategy: InitStrategy,
@@ -364,7 +365,7 @@ pub struct LeaseGrant {
     pub lease_id: u64,
     pub study: StudyId,
     pub point: PointId,
-    pub parameters: ParameterVector,
+    pub parameters: DesignPoint,
     pub scene_text: String,
     pub scene_hash: String,
     pub tolerance: f64,
@@ -418,7 +419,7 @@ pub struct PoolInfo {
 /// One row of a response surface.
 #[derive(Debug, Clone)]
 pub struct SurfaceRow {
-    pub parameters: ParameterVector,
+    pub parameters: DesignPoint,
     pub qoi: BTreeMap<String, f64>,
     pub iterations: u64,
     pub error_indicator: f64,
@@ -458,5 +459,5 @@ pub enum SurfaceSource {
 #[derive(Debug, Clone)]
 pub enum SolutionSelector {
     Point(StudyId, PointId),
-    Key(String, ParameterVector),
+    Key(String, DesignPoint),
 }

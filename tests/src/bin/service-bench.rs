@@ -12,12 +12,12 @@
 //!
 //! STRATEGY: cold | previous | nearest | blend; ORDER: asc | desc | greedy.
 
-use std::collections::BTreeMap;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
 use glissade_core::io::solution_file::{self, SolutionMeta};
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_proto::v1::pool_client::PoolClient;
 use glissade_proto::v1::user_client::UserClient;
@@ -64,10 +64,8 @@ fn parse_args() -> Result<Args, Error> {
 
 /// A converged solution file of `scene` at the lease's point with one interface node.
 fn fake_solution(scene: &Scene, hash: &str, lease: &v1::Lease) -> Result<Vec<u8>, Error> {
-    let mut parameters = BTreeMap::new();
-    for (name, p) in &scene.parameters {
-        parameters.insert(name.clone(), lease.parameters.get(name).copied().unwrap_or(p.default));
-    }
+    let point = DesignPoint::try_from(lease.parameters.clone())?;
+    let parameters = scene.parameter_values(&point)?;
     let len = scene.time.steps * scene.dimension;
     let solution = InterfaceSolution {
         static_stage: None,

@@ -293,7 +293,7 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
         let bytes = fetch(&mut client, Solution::Point(v1::PointKey { study_id: first, point_id: 4 })).await?;
         let (meta, _) = glissade_core::io::solution_file::read_from(&bytes[..])?;
         assert_eq!(meta.scene_hash, scene_hash);
-        assert_eq!((meta.parameters["f1"], meta.parameters["f2"]), (0.15, 0.15));
+        assert_eq!((meta.parameters.get("f1"), meta.parameters.get("f2")), (Some(0.15), Some(0.15)));
         assert!(meta.converged);
         anyhow::Ok(())
     })?;

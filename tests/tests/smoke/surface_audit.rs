@@ -97,8 +97,9 @@ fn a_surface_audit_reports_the_error_of_the_surface_at_held_out_solves() -> anyh
 /// target, not one point later.
 #[test]
 fn a_target_stops_an_adaptive_study_once_its_surfaces_are_within_it() -> anyhow::Result<()> {
+    use glissade_core::point::DesignPoint;
     use glissade_core::study::adaptive::{AdaptiveDesign, QoiReadings};
-    use glissade_core::study::space::{DesignPoint, ParameterSpace};
+    use glissade_core::study::space::ParameterSpace;
     let dir = tempfile::tempdir()?;
     let (server_log, pool_log) = (dir.path().join("server.log"), dir.path().join("pool.log"));
     let (_server, addr) = start_server(&dir.path().join("db"), &server_log);
@@ -141,12 +142,7 @@ fn a_target_stops_an_adaptive_study_once_its_surfaces_are_within_it() -> anyhow:
         let design = AdaptiveDesign::parse(&ranges, budget, Some(target), &space, 1000).map_err(anyhow::Error::msg)?;
         let points: Vec<(DesignPoint, std::collections::BTreeMap<String, f64>)> = done
             .iter()
-            .map(|p| {
-                (
-                    DesignPoint::from_pairs(p.parameters.iter().map(|(n, v)| (n.clone(), *v))),
-                    p.qoi.clone().into_iter().collect(),
-                )
-            })
+            .map(|p| (DesignPoint::try_from(p.parameters.clone()).unwrap(), p.qoi.clone().into_iter().collect()))
             .collect();
         let validation = |k: usize| {
             let chosen: Vec<_> = points[..k].iter().map(|(p, q)| (p.clone(), Some(q))).collect();

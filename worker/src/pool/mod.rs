@@ -31,12 +31,11 @@ use tonic::{Code, Status};
 
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
+use glissade_core::point::DesignPoint;
 use glissade_core::scene::{
-    MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, ParameterValues, Scene, Tolerance, check_max_iterations,
-    mesh_digest,
+    MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, Scene, Tolerance, check_max_iterations, mesh_digest,
 };
 use glissade_core::study::engine::solve_or_retry_cold;
-use glissade_proto::ParameterVector;
 use glissade_solver::comm::Serial;
 use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 
@@ -120,7 +119,7 @@ pub fn host_name() -> String {
 pub struct PointJob {
     pub scene_text: String,
     pub scene: Scene,
-    /// The swept parameters as `--set` pairs, the tolerance and the iteration limit.
+    /// The lease's design point, the tolerance and the iteration limit.
     pub request: SolveRequest,
     /// The warm start as a solution file (empty: cold start).
     pub init_bytes: Vec<u8>,
@@ -607,7 +606,7 @@ pub fn available_memory() -> Option<u64> {
 /// parameters (names and finite values: the domain type), the tolerance and the iteration limit.
 #[derive(Debug, Clone, PartialEq)]
 struct Asked {
-    parameters: ParameterVector,
+    parameters: DesignPoint,
     tolerance: Tolerance,
     max_iterations: usize,
 }
@@ -617,7 +616,7 @@ impl TryFrom<&v1::Lease> for Asked {
 
     fn try_from(lease: &v1::Lease) -> Result<Self> {
         Ok(Self {
-            parameters: ParameterVector::try_from(lease.parameters.clone()).context("the lease's parameters")?,
+            parameters: DesignPoint::try_from(lease.parameters.clone()).context("the lease's parameters")?,
             tolerance: Tolerance::new("the lease's tolerance", lease.tolerance)?,
             max_iterations: check_max_iterations("the lease's max_iterations", lease.max_iterations.into())?,
         })
@@ -625,11 +624,11 @@ impl TryFrom<&v1::Lease> for Asked {
 }
 
 impl Asked {
-    /// The solver's request: the swept parameters as `--set` pairs.
-    fn request(&self, init_parameters: Option<ParameterValues>) -> SolveRequest {
+    /// The solver's request at the lease's point.
+    fn request(&self, init_parameters: Option<DesignPoint>) -> SolveRequest {
         SolveRequest {
-            set: self.parameters.iter().map(|(k, v)| (k.to_owned(), v)).collect(),
-            tolerance: Some(self.tolerance.get()),
+            point: self.parameters.clone(),
+            tolerance: Some(self.tolerance),
             max_iterations: Some(self.max_iterations),
             scale: None,
             record_fields: false,
@@ -662,7 +661,7 @@ fn prepare(
     // coordinator, or one whose rules changed since
     let asked = Asked::try_from(lease)?;
     let request = asked.request(None);
-    scene.check_meshes().and_then(|()| scene.check_point(&scene.parameter_values(&request.set)?)).context("scene")?;
+    scene.check_meshes().and_then(|()| scene.check_point(&scene.parameter_values(&request.point)?)).context("scene")?;
     let size = scene.size().context("scene")?;
     if let Some(memory) = memory
         && size.bytes() > memory
@@ -780,13 +779,12 @@ mod tests {
         let asked = Asked::try_from(&lease(&[("f2", 0.1 + 0.2), ("f1", -1e-300)], 2e-4, 77)).unwrap();
         let request = asked.request(None);
         // name order, every bit kept
-        assert_eq!(request.set.len(), 2);
-        assert_eq!((request.set[0].0.as_str(), request.set[0].1.to_bits()), ("f1", (-1e-300f64).to_bits()));
-        assert_eq!((request.set[1].0.as_str(), request.set[1].1.to_bits()), ("f2", (0.1f64 + 0.2).to_bits()));
-        assert_eq!((request.tolerance, request.max_iterations), (Some(2e-4), Some(77)));
+        let set: Vec<(&str, u64)> = request.point.iter().map(|(k, v)| (k, v.to_bits())).collect();
+        assert_eq!(set, [("f1", (-1e-300f64).to_bits()), ("f2", (0.1f64 + 0.2).to_bits())]);
+        assert_eq!((request.tolerance.map(|t| t.get()), request.max_iterations), (Some(2e-4), Some(77)));
         for (bad, needle) in [
             (lease(&[("f1", f64::NAN)], 2e-4, 77), "not finite"),
-            (lease(&[(" ", 0.1)], 2e-4, 77), "empty"),
+            (lease(&[(" ", 0.1)], 2e-4, 77), "printable characters"),
             (lease(&[("f1", 0.1)], 0.0, 77), "tolerance"),
             (lease(&[("f1", 0.1)], 1e-30, 77), "tolerance"),
             (lease(&[("f1", 0.1)], 2e-4, 0), "max_iterations"),

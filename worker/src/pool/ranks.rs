@@ -15,7 +15,8 @@ use mpi::topology::Communicator as _;
 use super::{PointJob, PoolSolver};
 use crate::mpi_comm::Mpi;
 use glissade_core::io::solution_file;
-use glissade_core::scene::{Scale, Scene};
+use glissade_core::point::DesignPoint;
+use glissade_core::scene::{Scale, Scene, Tolerance};
 use glissade_solver::comm::Communicator;
 use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 
@@ -152,7 +153,7 @@ struct WireJob {
     scene_text: String,
     #[prost(message, repeated, tag = "2")]
     meshes: Vec<WireMesh>,
-    /// the `--set` pairs, in their order
+    /// the design point, in name order
     #[prost(message, repeated, tag = "3")]
     set: Vec<WireParameter>,
     #[prost(double, optional, tag = "4")]
@@ -195,8 +196,8 @@ struct WireParameters {
     values: Vec<WireParameter>,
 }
 
-fn wire_parameters<'a>(pairs: impl Iterator<Item = (&'a String, &'a f64)>) -> Vec<WireParameter> {
-    pairs.map(|(name, &value)| WireParameter { name: name.clone(), value }).collect()
+fn wire_parameters(point: &DesignPoint) -> Vec<WireParameter> {
+    point.iter().map(|(name, value)| WireParameter { name: name.to_owned(), value }).collect()
 }
 
 fn encode(message: &Message) -> Vec<u8> {
@@ -205,7 +206,7 @@ fn encode(message: &Message) -> Vec<u8> {
         Message::Stop => WireKind::Stop(true),
         Message::Job { scene_text, meshes, request, init_bytes } => {
             // progress is counted on each rank for itself
-            let SolveRequest { set, tolerance, max_iterations, scale, record_fields, progress: _, init_parameters } =
+            let SolveRequest { point, tolerance, max_iterations, scale, record_fields, progress: _, init_parameters } =
                 request;
             WireKind::Job(WireJob {
                 scene_text: scene_text.clone(),
@@ -213,8 +214,8 @@ fn encode(message: &Message) -> Vec<u8> {
                     .iter()
                     .map(|(file, bytes)| WireMesh { file: file.clone(), bytes: bytes.clone() })
                     .collect(),
-                set: wire_parameters(set.iter().map(|(k, v)| (k, v))),
-                tolerance: *tolerance,
+                set: wire_parameters(point),
+                tolerance: tolerance.map(Tolerance::get),
                 max_iterations: max_iterations.map(|n| n as u64),
                 scale: match scale {
                     None => 0,
@@ -222,7 +223,7 @@ fn encode(message: &Message) -> Vec<u8> {
                     Some(Scale::Multi) => 2,
                 },
                 record_fields: *record_fields,
-                init_parameters: init_parameters.as_ref().map(|v| WireParameters { values: wire_parameters(v.iter()) }),
+                init_parameters: init_parameters.as_ref().map(|v| WireParameters { values: wire_parameters(v) }),
                 init_bytes: init_bytes.clone(),
             })
         }
@@ -240,7 +241,16 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
     if job.meshes.len() > glissade_core::scene::MAX_MESH_FILES {
         return Err(RanksError::Malformed("too many mesh files"));
     }
-    let pairs = |values: Vec<WireParameter>| values.into_iter().map(|p| (p.name, p.value));
+    // (rank 0 sent design points: a failure here is a damaged message)
+    let point = |values: Vec<WireParameter>| {
+        DesignPoint::from_pairs(values.into_iter().map(|p| (p.name, p.value)))
+            .map_err(|_| RanksError::Malformed("bad design point"))
+    };
+    let tolerance = match job.tolerance.map(|t| Tolerance::new("the job's tolerance", t)) {
+        None => None,
+        Some(Ok(t)) => Some(t),
+        Some(Err(_)) => return Err(RanksError::Malformed("tolerance out of range")),
+    };
     let scale = match job.scale {
         0 => None,
         1 => Some(Scale::Single),
@@ -253,13 +263,13 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
         Some(Err(_)) => return Err(RanksError::Malformed("iteration limit out of range")),
     };
     let request = SolveRequest {
-        set: pairs(job.set).collect(),
-        tolerance: job.tolerance,
+        point: point(job.set)?,
+        tolerance,
         max_iterations,
         scale,
         record_fields: job.record_fields,
         progress: None,
-        init_parameters: job.init_parameters.map(|p| pairs(p.values).collect()),
+        init_parameters: job.init_parameters.map(|p| point(p.values)).transpose()?,
     };
     Ok(Message::Job {
         scene_text: job.scene_text,
@@ -277,13 +287,13 @@ mod tests {
     fn a_job_survives_encoding_bit_for_bit() {
         // every field of the request set to something other than its default
         let request = SolveRequest {
-            set: vec![("f1".into(), 0.1 + 0.2), ("prestress".into(), -1e-300)],
-            tolerance: Some(2e-4),
+            point: DesignPoint::from_pairs([("f1", 0.1 + 0.2), ("prestress", -1e-300)]).unwrap(),
+            tolerance: Some(Tolerance::new("tol", 2e-4).unwrap()),
             max_iterations: Some(77),
             scale: Some(Scale::Multi),
             record_fields: true,
             progress: Some(Default::default()),
-            init_parameters: Some([("f1".to_owned(), 0.1), ("f2".to_owned(), 1.0 / 3.0)].into()),
+            init_parameters: Some(DesignPoint::from_pairs([("f1", 0.1), ("f2", 1.0 / 3.0)]).unwrap()),
         };
         let meshes = vec![("a.msh".to_string(), vec![1, 2, 3]), ("b.msh".to_string(), vec![])];
         let message = Message::Job {
@@ -298,13 +308,14 @@ mod tests {
         };
         assert_eq!(scene_text, "dimension = 2\n");
         assert_eq!(decoded, meshes);
-        assert_eq!(request.set[0].1.to_bits(), (0.1f64 + 0.2).to_bits());
-        assert_eq!(request.set[1], ("prestress".into(), -1e-300));
-        assert_eq!((request.tolerance, request.max_iterations), (Some(2e-4), Some(77)));
+        assert_eq!(request.point.get("f1").unwrap().to_bits(), (0.1f64 + 0.2).to_bits());
+        assert_eq!(request.point.get("prestress").unwrap().to_bits(), (-1e-300f64).to_bits());
+        assert_eq!(request.point.len(), 2);
+        assert_eq!((request.tolerance.map(Tolerance::get), request.max_iterations), (Some(2e-4), Some(77)));
         assert_eq!((request.scale, request.record_fields), (Some(Scale::Multi), true));
         // a progress counter is each rank's own
         assert!(request.progress.is_none());
-        assert_eq!(request.init_parameters.unwrap()["f2"].to_bits(), (1.0f64 / 3.0).to_bits());
+        assert_eq!(request.init_parameters.unwrap().get("f2").unwrap().to_bits(), (1.0f64 / 3.0).to_bits());
         for scale in [None, Some(Scale::Single)] {
             let message = Message::Job {
                 scene_text: String::new(),
