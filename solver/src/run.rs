@@ -237,6 +237,7 @@ impl SolvePoint for PointSolver {
             dynamic_sweeps: s.dynamic_sweeps,
             eta: s.error_indicator,
             qoi: s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect(),
+            contact: s.contact.clone(),
             solution: o.solution,
         })
     }

@@ -442,3 +442,64 @@ fn warm_starts_from_a_neighbour_are_as_accurate_as_cold_solves() {
         assert!(warm.summary.history.len() < cold.summary.history.len(), "a warm start must still pay");
     }
 }
+
+/// A local study keeps each solved point's contact evidence: a zinc block of our own pushed
+/// along a rigid floor hard enough to slide at f = 0.4 and f = 1.3; only the latter slides
+/// ill-posed (above friction 1 on a rigid wall, docs/verification.md 4d), and its record says so.
+#[test]
+fn a_local_study_keeps_each_points_contact_evidence() {
+    let s = scene(
+        r#"
+dimension = 2
+[time]
+duration = 2e-4
+steps = 70
+[parameters]
+f = { default = 0.4, min = 0.0, max = 3.0 }
+[materials.zn]
+E = 108e9
+nu = 0.25
+rho = 7140
+[[bodies]]
+name = "block"
+material = "zn"
+size = [0.018, 0.009]
+elements = [4, 2]
+substructures = [2, 1]
+[[interfaces]]
+name = "floor"
+a = "block.y-"
+b = "wall"
+law = "friction"
+friction = "f"
+[[loads]]
+face = "block.y+"
+pressure = 2e6
+[[loads]]
+face = "block.x-"
+traction = [1.4e7, 0]
+history = [[0, 0], [2e-4, 1]]
+[[qoi]]
+name = "slip"
+kind = "slip"
+interface = "floor"
+point = [0.009, 0]
+"#,
+    );
+    let points = grid(&s, &["f=0.4,1.3"]);
+    let r = study(&s, &points, options(InitStrategy::Cold, 2e-4), &mut LexicographicAscending, &mut fresh_store(&s));
+    let flags: Vec<(f64, bool)> = r
+        .records
+        .iter()
+        .map(|p| {
+            assert!(p.converged, "{p:?}");
+            let [c] = &p.contact[..] else { panic!("one frictional interface: {p:?}") };
+            assert!(c.first_slip_time.is_some() && c.contact_nodes == 5, "it slides: {c:?}");
+            (p.point.get("f").expect("f"), c.ill_posed)
+        })
+        .collect();
+    assert_eq!(flags, [(0.4, false), (1.3, true)]);
+    // and the results file keeps them
+    let json = serde_json::to_value(&r).expect("results serialise");
+    assert_eq!(json["records"][1]["contact"][0]["ill_posed"], true, "{json}");
+}

@@ -111,6 +111,9 @@ pub fn study(args: StudyArgs) -> Result<bool> {
             r.wall_seconds,
             r.started_from()
         );
+        for w in r.contact.iter().filter_map(|c| c.warning()) {
+            let _ = writeln!(std::io::stderr(), "warning: {}: {w}", values.join(" "));
+        }
     };
     let result =
         run_study(&scene, &points, &options, policy.as_mut(), &mut store, &mut PointSolver::default(), &mut progress)?;
@@ -144,6 +147,14 @@ pub fn study(args: StudyArgs) -> Result<bool> {
             println!("  {line}");
         }
         println!("  wall time: {:.2} s", s.wall_seconds);
+        let ill_posed = result.records.iter().filter(|r| r.contact.iter().any(|c| c.ill_posed)).count();
+        if ill_posed > 0 {
+            // docs/verification.md 4d: no tolerance bounds how far these answers move under refinement
+            println!(
+                "  warning: {ill_posed} of {} points slide ill-posed (on a rigid wall above friction 1; stderr names them)",
+                s.points
+            );
+        }
         if let Some(dir) = &args.out {
             println!("  results: {}, {}", dir.join("results.csv").display(), dir.join("results.json").display());
         }

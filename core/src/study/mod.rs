@@ -128,6 +128,10 @@ pub struct PointRecord {
     /// id of this point's solution in the store (converged points only)
     pub stored_as: Option<SolutionId>,
     pub error: Option<String>,
+    /// what each frictional interface's contact did while it slid (points solved here; a
+    /// reused point's solve is not repeated, and carries none)
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub contact: Vec<crate::contact::ContactActivity>,
 }
 
 impl PointRecord {
@@ -360,6 +364,8 @@ pub struct PointSolved {
     /// final value of every QoI
     pub qoi: BTreeMap<String, f64>,
     pub solution: InterfaceSolution,
+    /// what each frictional interface's contact did while it slid
+    pub contact: Vec<crate::contact::ContactActivity>,
 }
 
 /// The seam between a study and the solver (the worker's solver, which keeps factorised operators
@@ -454,6 +460,7 @@ fn solve_point(
         retried_cold: false,
         stored_as: None,
         error: None,
+        contact: Vec::new(),
     };
     let (init, start_kind) = match engine.start(store, point, *previous, SOLVER_VERSION)? {
         Start::Answer(s) => {
@@ -494,6 +501,7 @@ fn solve_point(
             record.dynamic_sweeps = (o.dynamic_sweeps != dynamic).then_some(o.dynamic_sweeps);
             record.eta = Some(o.eta);
             record.qoi = o.qoi;
+            record.contact = o.contact;
             if o.converged {
                 let id = store.insert(StoredSolution {
                     point: point.clone(),
