@@ -331,6 +331,20 @@ impl Store for InMemoryStore {
     }
 }
 
+/// Opens the sled database at `dir` for a test that has just dropped another handle on it:
+/// sled lets go of its file lock when its flusher thread ends, which a loaded machine can delay
+/// past the drop (failed in CI: `Locked`), so wait for it, a few seconds at most.
+#[cfg(test)]
+pub(crate) fn open_when_unlocked(dir: &Path) -> SledStore {
+    for _ in 0..100 {
+        match SledStore::open(dir) {
+            Err(StoreError::Locked { .. }) => std::thread::sleep(std::time::Duration::from_millis(50)),
+            other => return other.unwrap(),
+        }
+    }
+    SledStore::open(dir).unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -367,7 +381,7 @@ mod tests {
     #[test]
     fn every_engine_keeps_the_store_contract() {
         let dir = tempfile::tempdir().unwrap();
-        contract(&SledStore::open(dir.path()).unwrap());
+        contract(&open_when_unlocked(dir.path()));
         contract(&InMemoryStore::default());
     }
 
@@ -375,13 +389,13 @@ mod tests {
     fn new_database_gets_schema_version_and_reopens() {
         let dir = tempfile::tempdir().unwrap();
         {
-            let store = SledStore::open(dir.path()).unwrap();
+            let store = open_when_unlocked(dir.path());
             assert_eq!(store.db.get(SCHEMA_KEY).unwrap().as_deref(), Some(&b"2"[..]));
             let mut batch = Batch::new();
             batch.put(Tree::Studies, b"k".to_vec(), b"v".to_vec()).put(Tree::Points, b"k1".to_vec(), b"w".to_vec());
             store.commit(batch).unwrap();
         }
-        let store = SledStore::open(dir.path()).unwrap();
+        let store = open_when_unlocked(dir.path());
         assert_eq!(store.get(Tree::Studies, b"k").unwrap().as_deref(), Some(&b"v"[..]));
         assert_eq!(store.get(Tree::Points, b"k").unwrap(), None);
         assert_eq!(store.scan_prefix(Tree::Points, b"k").unwrap(), vec![(b"k1".to_vec(), b"w".to_vec())]);
@@ -392,7 +406,7 @@ mod tests {
     fn other_schema_version_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         {
-            let store = SledStore::open(dir.path()).unwrap();
+            let store = open_when_unlocked(dir.path());
             store.db.insert(SCHEMA_KEY, b"999").unwrap();
             store.flush().unwrap();
         }
@@ -412,7 +426,7 @@ mod tests {
             db.insert(SCHEMA_KEY, b"1").unwrap();
             db.flush().unwrap();
         }
-        let store = SledStore::open(dir.path()).unwrap();
+        let store = open_when_unlocked(dir.path());
         assert_eq!(store.db.get(SCHEMA_KEY).unwrap().as_deref(), Some(&b"2"[..]));
         drop(store);
 

@@ -581,7 +581,7 @@ async fn cached_figures(
     cache: &FigureCache,
     study: StudyId,
     s: &Arc<Surface>,
-    scene: &Option<glissade_core::scene::Scene>,
+    scene: &Option<Arc<glissade_core::scene::Scene>>,
     fixed: &[(String, f64)],
     resolution: &BTreeMap<String, f64>,
 ) -> Result<Arc<Vec<String>>, Refusal> {
@@ -590,7 +590,7 @@ async fn cached_figures(
         return Ok(kept);
     }
     let (s, scene, fixed_owned, resolution) = (s.clone(), scene.clone(), fixed.to_vec(), resolution.clone());
-    let drawn = tokio::task::spawn_blocking(move || surface_figures(&s, scene.as_ref(), &fixed_owned, &resolution))
+    let drawn = tokio::task::spawn_blocking(move || surface_figures(&s, scene.as_deref(), &fixed_owned, &resolution))
         .await
         .map_err(|e| refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}")))?;
     let drawn = Arc::new(drawn);
@@ -650,8 +650,8 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     };
     let s = Arc::new(s);
     let r = &v.record;
-    // the units the scene gives its parameters and QoIs (it parsed when the study was submitted)
-    let scene = glissade_core::scene::Scene::parse(&r.scene).ok();
+    // the units the scene gives its parameters and QoIs (parsed once, when the study entered)
+    let scene = Some(v.scene.clone());
     let units: BTreeMap<String, String> = r
         .parameters
         .iter()
@@ -973,7 +973,7 @@ mod tests {
 
     #[tokio::test]
     async fn a_second_load_draws_nothing_and_a_new_point_draws_again() {
-        let scene = Some(glissade_core::scene::Scene::parse(SCENE).unwrap());
+        let scene = Some(Arc::new(glissade_core::scene::Scene::parse(SCENE).unwrap()));
         let cache = FigureCache::default();
         let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5)];
         let resolution = BTreeMap::from([("ux".to_owned(), 0.0), ("slip".to_owned(), 0.0)]);
@@ -1008,7 +1008,7 @@ mod tests {
         load(study_surface(&points, 5), vec![("b".into(), 1.5)]).await;
         assert_eq!(cache.stats().0, 4);
         // each picture is the drawing of its points, as without a cache
-        let fresh = surface_figures(&study_surface(&points, 5), scene.as_ref(), &[], &resolution);
+        let fresh = surface_figures(&study_surface(&points, 5), scene.as_deref(), &[], &resolution);
         assert_eq!(*landed, fresh);
     }
 

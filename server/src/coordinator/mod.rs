@@ -351,6 +351,7 @@ impl Coordinator {
             solving,
             kind,
             scene_title: entry.scene.title.clone().unwrap_or_default(),
+            scene: entry.scene.clone(),
             finished_unix_ms: (state != StudyState::Active)
                 .then(|| entry.points.iter().filter_map(|p| p.finished_unix_ms).max())
                 .flatten(),

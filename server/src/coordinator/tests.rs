@@ -15,18 +15,8 @@ const TINY: &str = include_str!("../../../scenes/three-blocks-tiny.toml");
 const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator {
-    // sled lets go of its file lock when its flusher thread ends, which a loaded machine can
-    // delay past the drop of a coordinator reopened at once: wait for it, a few seconds at most
-    let mut tries = 0;
-    let store = loop {
-        match SledStore::open(dir) {
-            Err(crate::store::StoreError::Locked { .. }) if tries < 100 => {
-                tries += 1;
-                std::thread::sleep(Duration::from_millis(50));
-            }
-            other => break Arc::new(other.unwrap()),
-        }
-    };
+    // a coordinator is often reopened at once on the database another just dropped
+    let store = Arc::new(crate::store::open_when_unlocked(dir));
     let config = Config { lease: Duration::from_millis(lease_ms), max_attempts, ..config(VERSION) };
     Coordinator::open(store, config).unwrap()
 }

@@ -2,6 +2,7 @@
 //! and the requests and grants of the lease protocol.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 use std::time::Duration;
 
 use glissade_core::contact::ContactActivity;
@@ -167,6 +168,9 @@ pub struct StudyView {
     pub kind: &'static str,
     /// The scene's `title` (empty: none).
     pub scene_title: String,
+    /// Its scene, parsed once where the study entered (without its mesh bytes): the web page
+    /// reads its units from it rather than parsing the text again.
+    pub scene: Arc<glissade_core::scene::Scene>,
     /// When its last point ended, once it has ended (Unix ms).
     pub finished_unix_ms: Option<i64>,
 }
