@@ -37,6 +37,19 @@ pub struct ContactActivity {
 }
 
 impl ContactActivity {
+    /// What it did while it slid, in words: evidence, not a verdict (answers with landings
+    /// while sliding converge slowly in dt and h).
+    pub fn evidence(&self) -> String {
+        format!(
+            "contact '{}' slides from t = {:.3e} s; its nodes lifted off and landed {} times while it slid, \
+             the normal force peaking at {:.1} x its mean",
+            self.interface,
+            self.first_slip_time.unwrap_or(0.0),
+            self.landings_while_sliding,
+            self.peak_normal_force_ratio
+        )
+    }
+
     /// The warning a user reads, with its evidence.
     pub fn warning(&self) -> Option<String> {
         self.ill_posed.then(|| {

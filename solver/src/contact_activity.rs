@@ -26,21 +26,25 @@ pub fn contact_activity<const D: usize>(
 ) -> Vec<ContactActivity> {
     // the pieces of each frictional interface (cut by the substructures), by name in the
     // model's order
-    let mut named: Vec<(&Interface<D>, f64, Vec<Cut<D>>)> = Vec::new();
+    let mut named: Vec<Vec<Cut<D>>> = Vec::new();
     for (itf, field) in interfaces.iter().zip(&dynamic.interfaces) {
-        let InterfaceLaw::Friction { coefficient } = itf.law else { continue };
+        if !matches!(itf.law, InterfaceLaw::Friction { .. }) {
+            continue;
+        }
         let piece = (itf, Piece::read(itf, field));
-        match named.iter_mut().find(|(first, ..)| first.name == itf.name) {
-            Some((.., pieces)) => pieces.push(piece),
-            None => named.push((itf, coefficient, vec![piece])),
+        match named.iter_mut().find(|pieces| pieces[0].0.name == itf.name) {
+            Some(pieces) => pieces.push(piece),
+            None => named.push(vec![piece]),
         }
     }
-    named.into_iter().map(|(itf, friction, pieces)| activity(itf, friction, &pieces, dt)).collect()
+    named.iter().map(|pieces| activity(pieces, dt)).collect()
 }
 
 /// One interface's activity from its pieces; a node two pieces share (at a cut between
 /// substructures) is one node, its landings counted once.
-fn activity<const D: usize>(itf: &Interface<D>, friction: f64, pieces: &[Cut<D>], dt: f64) -> ContactActivity {
+fn activity<const D: usize>(pieces: &[Cut<D>], dt: f64) -> ContactActivity {
+    let itf = pieces[0].0;
+    let InterfaceLaw::Friction { coefficient: friction } = itf.law else { unreachable!("frictional pieces only") };
     let first_slip = pieces.iter().filter_map(|(_, p)| p.first_slip()).min();
     // landings of each node in contact, by its position
     let mut nodes: BTreeMap<[u64; D], usize> = BTreeMap::new();

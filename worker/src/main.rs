@@ -525,14 +525,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             }
         }
         for c in s.contact.iter().filter(|c| c.landings_while_sliding > 0) {
-            // evidence, not a verdict: answers with impacts while sliding converge slowly in dt and h
-            println!(
-                "  contact '{}' slides from t = {:.3e} s; its nodes lifted off and landed {} times while it slid, the normal force peaking at {:.1} x its mean",
-                c.interface,
-                c.first_slip_time.unwrap_or(0.0),
-                c.landings_while_sliding,
-                c.peak_normal_force_ratio
-            );
+            println!("  {}", c.evidence());
         }
         if let Some(p) = &args.init {
             println!("  initialised from {}", p.display());

@@ -200,15 +200,10 @@ fn point_lines(s: &v1::Study) {
             from,
             if point.error.is_empty() { String::new() } else { format!("  [{}]", point.error) }
         );
-        for c in point.contact.iter().filter(|c| c.landings_while_sliding > 0 || c.ill_posed) {
-            outln!(
-                "        contact '{}'{}: slides from {:.3e} s, {} landings while it slid, normal force peaking at {:.1} x its mean",
-                c.interface,
-                if c.ill_posed { " ILL-POSED (sliding on a rigid wall above friction 1)" } else { "" },
-                c.first_slip_time.unwrap_or(0.0),
-                c.landings_while_sliding,
-                c.peak_normal_force_ratio
-            );
+        let contact = point.contact.iter().filter_map(|c| ContactActivity::try_from(c.clone()).ok());
+        for c in contact.filter(|c| c.landings_while_sliding > 0 || c.ill_posed) {
+            let flag = if c.ill_posed { " (ILL-POSED: on a rigid wall above friction 1)" } else { "" };
+            outln!("        {}{flag}", c.evidence());
         }
     }
 }
