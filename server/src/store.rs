@@ -336,13 +336,19 @@ impl Store for InMemoryStore {
 /// past the drop (failed in CI: `Locked`), so wait for it, a few seconds at most.
 #[cfg(test)]
 pub(crate) fn open_when_unlocked(dir: &Path) -> SledStore {
+    reopen(dir).unwrap()
+}
+
+/// [`SledStore::open`] once sled's lock is free ([`open_when_unlocked`]): any other outcome.
+#[cfg(test)]
+pub(crate) fn reopen(dir: &Path) -> Result<SledStore, StoreError> {
     for _ in 0..100 {
         match SledStore::open(dir) {
             Err(StoreError::Locked { .. }) => std::thread::sleep(std::time::Duration::from_millis(50)),
-            other => return other.unwrap(),
+            other => return other,
         }
     }
-    SledStore::open(dir).unwrap()
+    SledStore::open(dir)
 }
 
 #[cfg(test)]
@@ -410,7 +416,7 @@ mod tests {
             store.db.insert(SCHEMA_KEY, b"999").unwrap();
             store.flush().unwrap();
         }
-        let err = SledStore::open(dir.path()).err().expect("must refuse");
+        let err = reopen(dir.path()).err().expect("must refuse");
         assert!(
             matches!(&err, StoreError::SchemaMismatch { found, expected: SCHEMA_VERSION, .. } if found == "999"),
             "{err}"
@@ -436,7 +442,7 @@ mod tests {
             db.open_tree("studies").unwrap().insert(b"1", b"x").unwrap();
             db.flush().unwrap();
         }
-        let err = SledStore::open(dir.path()).err().expect("must refuse data without a version");
+        let err = reopen(dir.path()).err().expect("must refuse data without a version");
         assert!(matches!(&err, StoreError::SchemaMismatch { found, .. } if found == "(none)"), "{err}");
     }
 }
