@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Strong scaling of one solve over MPI ranks: the same scene, a fixed number of iterations per
-# stage (tolerance unreachable), P ranks for each P given. Prints time per dynamic iteration,
+# stage (tolerance unreachable in that many), P ranks for each P given. Prints time per dynamic iteration,
 # speed-up, parallel efficiency and the shares of the macro problem and of communication.
 #
 #   deploy/bench-mpi-scaling.sh SCENE.toml "1 2" [ITERATIONS] [single|multi] [WORKER_BINARY]
@@ -18,7 +18,7 @@ results=$(mktemp -d)
 trap 'rm -rf "$results"' EXIT
 for p in $ranks; do
   # exit 2 means "not converged": expected, the tolerance is unreachable on purpose
-  ${MPIEXEC:-mpiexec.mpich} ${MPIEXEC_FLAGS:-} -n "$p" "$worker" solve "$scene" --scale "$scale" --tol 1e-30 \
+  ${MPIEXEC:-mpiexec.mpich} ${MPIEXEC_FLAGS:-} -n "$p" "$worker" solve "$scene" --scale "$scale" --tol 1e-10 \
     --max-iter "$iterations" --json > "$results/$p.json" || [[ $? -eq 2 ]]
 done
 python3 - "$results" "$scene" "$iterations" "$scale" $ranks <<'PY'
