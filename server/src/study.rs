@@ -210,6 +210,7 @@ impl SceneSolutions {
             parent: None,
             qoi: record.qoi.clone(),
             solver_version: record.solver_version.clone(),
+            contact: record.contact.clone(),
         };
         if let Some(&id) = self.ids.get(&key) {
             // what the engine reads to decide on reuse must be the better solution's

@@ -166,6 +166,7 @@ fn fake(point: DesignPoint) -> StoredSolution {
         }),
         parent: None,
         solver_version: glissade_core::study::engine::SOLVER_VERSION.into(),
+        contact: Vec::new(),
     }
 }
 
@@ -487,7 +488,8 @@ point = [0.009, 0]
 "#,
     );
     let points = grid(&s, &["f=0.4,1.3"]);
-    let r = study(&s, &points, options(InitStrategy::Cold, 2e-4), &mut LexicographicAscending, &mut fresh_store(&s));
+    let mut store = fresh_store(&s);
+    let r = study(&s, &points, options(InitStrategy::Cold, 2e-4), &mut LexicographicAscending, &mut store);
     let flags: Vec<(f64, bool)> = r
         .records
         .iter()
@@ -502,4 +504,9 @@ point = [0.009, 0]
     // and the results file keeps them
     let json = serde_json::to_value(&r).expect("results serialise");
     assert_eq!(json["records"][1]["contact"][0]["ill_posed"], true, "{json}");
+    // a point the store answers carries the evidence of the solve that made its solution
+    let again = study(&s, &points[1..], options(InitStrategy::Nearest, 2e-4), &mut LexicographicAscending, &mut store);
+    let [p] = &again.records[..] else { panic!("one point: {again:?}") };
+    assert_eq!((p.status, p.iterations), (PointStatus::Reused, 0), "{p:?}");
+    assert_eq!(p.contact, r.records[1].contact, "a reused point keeps its contact evidence");
 }

@@ -197,6 +197,7 @@ mod tests {
             }),
             parent: None,
             solver_version: version.into(),
+            contact: Vec::new(),
         }
     }
 

@@ -128,8 +128,8 @@ pub struct PointRecord {
     /// id of this point's solution in the store (converged points only)
     pub stored_as: Option<SolutionId>,
     pub error: Option<String>,
-    /// what each frictional interface's contact did while it slid (points solved here; a
-    /// reused point's solve is not repeated, and carries none)
+    /// what each frictional interface's contact did while it slid (a reused point: that of the
+    /// solve that made its stored solution)
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contact: Vec<crate::contact::ContactActivity>,
 }
@@ -471,6 +471,7 @@ fn solve_point(
             record.start = StartKind::Reused;
             record.sources = vec![InitSource { id: s.id, point: s.point.clone(), distance: 0.0, weight: 1.0 }];
             record.stored_as = Some(s.id);
+            record.contact = s.contact;
             record.wall_seconds = start.elapsed().as_secs_f64();
             *previous = Some(s.id);
             return Ok(record);
@@ -513,6 +514,7 @@ fn solve_point(
                     solution: Arc::new(o.solution),
                     parent: if retried_cold { None } else { record.sources.first().map(|s| s.id) },
                     solver_version: SOLVER_VERSION.into(),
+                    contact: record.contact.clone(),
                 })?;
                 record.stored_as = Some(id);
                 *previous = Some(id);

@@ -13,6 +13,7 @@ use std::sync::Arc;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use serde::{Deserialize, Serialize};
 
+use crate::contact::ContactActivity;
 use crate::field::InterfaceSolution;
 
 use super::space::ParameterSpace;
@@ -44,6 +45,9 @@ pub struct StoredSolution {
     pub parent: Option<SolutionId>,
     /// the version of the solver that computed it
     pub solver_version: String,
+    /// what each frictional interface's contact did while it slid, so that a point this
+    /// solution answers carries the evidence of the solve that made it
+    pub contact: Vec<ContactActivity>,
 }
 
 impl StoredSolution {
@@ -59,6 +63,7 @@ impl StoredSolution {
             solution,
             parent: info.parent,
             solver_version: info.solver_version,
+            contact: info.contact,
         }
     }
 
@@ -74,6 +79,7 @@ impl StoredSolution {
             parent: self.parent,
             qoi: self.qoi.clone(),
             solver_version: self.solver_version.clone(),
+            contact: self.contact.clone(),
         }
     }
 }
@@ -92,6 +98,8 @@ pub struct SolutionInfo {
     pub qoi: BTreeMap<String, f64>,
     #[serde(default)]
     pub solver_version: String,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub contact: Vec<ContactActivity>,
 }
 
 /// Errors of a solution store.
@@ -315,6 +323,7 @@ mod tests {
             solution: Arc::new(InterfaceSolution { static_stage: None, dynamic: StageSolution { interfaces: vec![] } }),
             parent: None,
             solver_version: "test".into(),
+            contact: Vec::new(),
         }
     }
 
