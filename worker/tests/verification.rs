@@ -38,7 +38,12 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
     assert!(!text.contains("[solver]"), "the shipped scene sets no solver options");
     std::fs::write(&windowed, format!("{text}\n[solver]\ntime_window = 10\n")).unwrap();
     let windowed = windowed.to_str().unwrap().to_owned();
-    for (scene, scale) in [(&whole, "single"), (&whole, "multi"), (&windowed, "single")] {
+    // and a whole-interval solve checked by iterating on (its tightening decides on QoIs that
+    // every rank holds after their reduction)
+    let checked = dir.path().join("checked.toml");
+    std::fs::write(&checked, format!("{text}\n[solver]\nwhole_interval_check = true\n")).unwrap();
+    let checked = checked.to_str().unwrap().to_owned();
+    for (scene, scale) in [(&whole, "single"), (&whole, "multi"), (&windowed, "single"), (&checked, "multi")] {
         let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
         for np in ["1", "2", "3"] {
             let save = dir.path().join(format!("{scale}-{}-{np}.sol", scene.len()));
@@ -68,6 +73,7 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
                     assert_eq!(j["iterations"], json["iterations"], "{scale} P = {np}");
                     assert_eq!(j["error_indicator"], json["error_indicator"], "{scale} P = {np}");
                     assert_eq!(j["qoi"], json["qoi"], "{scale} P = {np}");
+                    assert_eq!(j["window_check"], json["window_check"], "{scale} P = {np}");
                     assert!(*b == bytes, "{scale} P = {np}: saved solution differs from P = 1");
                 }
             }
