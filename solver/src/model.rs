@@ -164,6 +164,43 @@ impl<const D: usize> Interface<D> {
         Some(mean.powf(1.0 / (D - 1) as f64))
     }
 
+    /// How far the elements along the interface are from cubes: the mean depth along the
+    /// interface's normal of the elements with a face on it, against the side of a face (the
+    /// interface's measure over their number), the larger of the two ratios (none in 1D). A
+    /// scalar search direction sits between the smallest and the largest stiffness a side opposes
+    /// to the interface; elements of aspect ratio a widen that range about a^2 times
+    /// (docs/performance.md, "Flat elements along an interface (aspect ratio 100, 2026-11-26)").
+    pub fn element_aspect(&self, substructures: &[Substructure<D>]) -> Option<f64> {
+        if D < 2 {
+            return None;
+        }
+        let normal = self.mean_normal();
+        let along = |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
+        let (mut depth, mut faces) = (0.0, 0usize);
+        for side in &self.sides {
+            let sub = &substructures[side.substructure];
+            let on_side: std::collections::HashSet<usize> = side.nodes.iter().copied().collect();
+            for element in sub.connectivity.chunks(sub.kind.nodes(D)) {
+                // a face on the interface, not an edge or a corner touching it
+                if element.iter().filter(|n| on_side.contains(n)).count() >= D {
+                    let (lo, hi) = element
+                        .iter()
+                        .map(|&n| along(&sub.coords[n]))
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+                    depth += hi - lo;
+                    faces += 1;
+                }
+            }
+        }
+        if faces == 0 {
+            return None;
+        }
+        let depth = depth / faces as f64;
+        let per_side = faces as f64 / self.sides.len() as f64;
+        let face = (self.area.iter().sum::<f64>() / per_side).powf(1.0 / (D - 1) as f64);
+        (depth > 0.0 && face > 0.0).then(|| (depth / face).max(face / depth))
+    }
+
     /// The area-weighted mean unit normal (the normal of a flat interface).
     pub fn mean_normal(&self) -> [f64; D] {
         let mut n = [0.0; D];

@@ -2230,3 +2230,63 @@ component = "y"
     assert!(c.passes == 1 && (c.discrepancy / first - 1.0).abs() < 0.5, "{} against {first}", c.discrepancy);
     assert!(error(&checked) < 0.5 * first);
 }
+
+/// Elements far from squares along an interface are measured (`Interface::element_aspect`) and
+/// a diagnosis that blames that interface names them: a steel plate of our own, 20 x 10 mm, cut
+/// into 2 x 100 elements (10 mm x 0.1 mm, aspect 100) and into 8 x 4 (2.5 mm squares), two
+/// substructures side by side on a rigid floor.
+#[test]
+fn flat_elements_along_an_interface_are_measured_and_named() {
+    use glissade_solver::latin::{FLAT_ELEMENTS, StageReport};
+    let plate = |elements: &str| {
+        format!(
+            r#"
+dimension = 2
+[time]
+duration = 1e-5
+steps = 5
+[materials.steel]
+E = 205e9
+nu = 0.29
+rho = 7850
+[[bodies]]
+name = "plate"
+material = "steel"
+size = [0.02, 0.01]
+elements = {elements}
+substructures = [2, 1]
+[[interfaces]]
+name = "floor"
+a = "plate.y-"
+b = "wall"
+law = "contact"
+[[loads]]
+face = "plate.y+"
+pressure = 1e6
+"#
+        )
+    };
+    let aspects = |m: &Model<2>| -> Vec<(String, f64)> {
+        m.interfaces.iter().map(|i| (i.name.clone(), i.element_aspect(&m.substructures).expect("2D"))).collect()
+    };
+    let flat: Model<2> = build(&plate("[2, 100]"), &[]);
+    let square: Model<2> = build(&plate("[8, 4]"), &[]);
+    for (name, a) in aspects(&flat) {
+        // the perfect interface: 0.1 mm along it, 10 mm deep; the floor: 10 mm along, 0.1 mm deep
+        assert!((a - 100.0).abs() < 1e-6, "{name}: aspect {a}");
+    }
+    for (name, a) in aspects(&square) {
+        assert!((a - 1.0).abs() < 1e-9, "{name}: aspect {a}");
+    }
+    // a stalled stage blamed on such an interface says so, and only then
+    let stalled = |aspect: f64| {
+        let mut r = StageReport::default();
+        (r.iterations, r.sweeps, r.history, r.relaxation) = (400, 400.0, vec![4e-5; 400], 1.0);
+        (r.worst_interface, r.worst_interface_aspect) = (Some("plate:0-1".into()), Some(aspect));
+        r.diagnosis(2e-4)
+    };
+    let told = stalled(aspects(&flat)[0].1);
+    assert!(told.starts_with("stalled") && told.contains("x longer one way than the other"), "{told}");
+    assert!(!stalled(aspects(&square)[0].1).contains("longer"), "square elements are not blamed");
+    assert!(!stalled(0.99 * FLAT_ELEMENTS).contains("longer"));
+}

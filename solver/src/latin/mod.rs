@@ -44,6 +44,10 @@ pub const WINDOW_TOLERANCE_RATIO: f64 = 0.1;
 pub const STALL_ITERATIONS: usize = 100;
 pub const STALL_PER_STEP: usize = 4;
 
+/// Aspect ratio of the elements along an interface from which a diagnosis names it: at 10 the
+/// range of stiffnesses one search direction must span is about 100 x wider than for cubes.
+pub const FLAT_ELEMENTS: f64 = 10.0;
+
 /// Tolerance of the static prestress stage relative to the asked one: the prestress is the
 /// dynamics' initial state, and its error comes out of them amplified (a wall's normal force
 /// 4,000 x the static stage's eta: docs/performance.md, "The prestress's error"), while a static
@@ -104,6 +108,9 @@ pub struct StageReport {
     pub qoi_trace: Vec<Vec<Vec<f64>>>,
     /// the interface with the largest share of eta at the last iteration
     pub worst_interface: Option<String>,
+    /// its elements' aspect ratio ([`crate::model::Interface::element_aspect`])
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub worst_interface_aspect: Option<f64>,
     /// the relaxation coefficient at the last iteration (lowered where the iterates oscillated)
     pub relaxation: f64,
     /// the work of the iterations in sweeps of the whole interval: `iterations`, or less with
@@ -146,6 +153,7 @@ impl StageReport {
         self.error_estimate = self.error_estimate.max(next.error_estimate);
         self.converged = next.converged;
         self.worst_interface = next.worst_interface;
+        self.worst_interface_aspect = next.worst_interface_aspect;
         self.relaxation = next.relaxation;
     }
 
@@ -179,6 +187,14 @@ impl StageReport {
         };
         let place =
             self.worst_interface.as_ref().map_or(String::new(), |i| format!(", largest residual on interface '{i}'"));
+        // elements far from cubes widen the range of stiffnesses beyond what one k fits
+        let flat = match self.worst_interface_aspect {
+            Some(a) if a >= FLAT_ELEMENTS => format!(
+                " (its elements are {a:.0} x longer one way than the other: cut them closer to cubes; \
+                 docs/performance.md, \"Flat elements along an interface (aspect ratio 100, 2026-11-26)\")"
+            ),
+            _ => String::new(),
+        };
         let advice = if last > 2.0 * best.max(f64::MIN_POSITIVE) && last > before {
             format!(
                 "growing: eta {last:.2e} over the last {window} iterations, {best:.2e} at best; lower solver.relaxation (0.5) \
@@ -204,7 +220,7 @@ impl StageReport {
                  or try {windows}"
             )
         };
-        format!("{advice}{place}")
+        format!("{advice}{place}{flat}")
     }
 }
 
@@ -955,6 +971,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
         }
         report.worst_interface = worst.map(|i| m.interfaces[i].name.clone());
+        report.worst_interface_aspect = worst.and_then(|i| m.interfaces[i].element_aspect(&m.substructures));
         report.relaxation = relaxation.mu();
         if let Some(t) = tightening {
             report.window_check = t.end(&mut report);
