@@ -5,7 +5,15 @@
 //!
 //! The monolithic reference handles perfect interfaces only, so it runs on the same mesh with the
 //! contact interfaces glued (its cost does not depend on the interface law).
+//!
+//! "one dynamic iteration" is the linear and local stages' time per step of both stages, times the
+//! steps (static iterations count one step each). The dynamic stage alone is also timed, from
+//! the solver's per-iteration events: wall and CPU time of this thread (Linux's
+//! /proc/thread-self/schedstat). On a shared machine the wall time follows the load and a 0.06 s
+//! sweep is a noisy yardstick: compare builds in one run, alternating (docs/performance.md, "Why an
+//! iteration got slower").
 
+use std::sync::Mutex;
 use std::time::Instant;
 
 use glissade_core::point::DesignPoint;
@@ -14,7 +22,64 @@ use glissade_solver::latin::{LatinSolver, SolveOptions};
 use glissade_solver::model::Model;
 use glissade_solver::monolithic;
 
-fn run<const D: usize>(scene: &Scene, iterations: usize) {
+/// CPU time of the calling thread in seconds, where Linux tells it.
+fn thread_cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = stat.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
+}
+
+/// One LATIN iteration's event: dynamic stage or not, wall clock, this thread's CPU time.
+type Mark = (bool, Instant, Option<f64>);
+
+/// Marks the end of each LATIN iteration (the solver's `tracing::debug!` "LATIN iteration").
+struct IterationMarks(Mutex<Vec<Mark>>);
+
+struct StageField(bool);
+
+impl tracing::field::Visit for StageField {
+    fn record_str(&mut self, field: &tracing::field::Field, value: &str) {
+        if field.name() == "stage" {
+            self.0 = value == "dynamic";
+        }
+    }
+    fn record_debug(&mut self, _: &tracing::field::Field, _: &dyn std::fmt::Debug) {}
+}
+
+impl tracing::Subscriber for &'static IterationMarks {
+    fn enabled(&self, meta: &tracing::Metadata<'_>) -> bool {
+        meta.is_event() && meta.fields().field("iteration").is_some() && meta.fields().field("stage").is_some()
+    }
+    fn new_span(&self, _: &tracing::span::Attributes<'_>) -> tracing::span::Id {
+        tracing::span::Id::from_u64(1)
+    }
+    fn record(&self, _: &tracing::span::Id, _: &tracing::span::Record<'_>) {}
+    fn record_follows_from(&self, _: &tracing::span::Id, _: &tracing::span::Id) {}
+    fn event(&self, event: &tracing::Event<'_>) {
+        let mut stage = StageField(false);
+        event.record(&mut stage);
+        let mark = (stage.0, Instant::now(), thread_cpu_seconds());
+        self.0.lock().expect("marks").push(mark);
+    }
+    fn enter(&self, _: &tracing::span::Id) {}
+    fn exit(&self, _: &tracing::span::Id) {}
+}
+
+/// The dynamic stage's (wall, CPU) seconds per iteration, from its first iteration's end to its
+/// last's (the stage's start and the post-processing left out), and the static iterations.
+fn dynamic_per_iteration(marks: &[Mark]) -> (Option<(f64, Option<f64>)>, usize) {
+    let statics = marks.iter().filter(|m| !m.0).count();
+    let dynamic: Vec<&Mark> = marks.iter().filter(|m| m.0).collect();
+    let (Some(first), Some(last)) = (dynamic.first(), dynamic.last()) else { return (None, statics) };
+    if dynamic.len() < 2 {
+        return (None, statics);
+    }
+    let n = (dynamic.len() - 1) as f64;
+    let cpu = first.2.zip(last.2).map(|(a, b)| (b - a) / n);
+    (Some(((last.1 - first.1).as_secs_f64() / n, cpu)), statics)
+}
+
+fn run<const D: usize>(scene: &Scene, iterations: usize, marks: &IterationMarks) {
     let values = scene.parameter_values(&DesignPoint::new()).expect("parameters");
     let mut glued_scene = scene.clone();
     for itf in &mut glued_scene.interfaces {
@@ -36,11 +101,15 @@ fn run<const D: usize>(scene: &Scene, iterations: usize) {
         let mut model = Model::<D>::build(scene, &values).expect("model");
         model.settings.scale = scale;
         model.settings.max_iterations = iterations;
-        model.settings.tolerance = 1e-30; // run exactly `iterations` iterations per stage
+        // the dynamic stage runs exactly `iterations` iterations (the static stage to its floor,
+        // STATIC_TOLERANCE_FLOOR, or its limit)
+        model.settings.tolerance = 1e-30;
         let t = Instant::now();
         let mut solver = LatinSolver::serial(&model).expect("factorisation");
         let setup = t.elapsed().as_secs_f64();
+        marks.0.lock().expect("marks").clear();
         let r = solver.solve(None, &SolveOptions::default()).expect("solve");
+        let (alone, statics) = dynamic_per_iteration(&marks.0.lock().expect("marks"));
         let dynamic_iterations = r.dynamic.iterations as f64;
         let static_iterations = r.static_stage.as_ref().map_or(0, |s| s.iterations) as f64;
         // a static iteration is one step, a dynamic one `steps` steps
@@ -59,6 +128,12 @@ fn run<const D: usize>(scene: &Scene, iterations: usize) {
             100.0 * r.timings.local_stage / (r.timings.linear_stage + r.timings.local_stage),
             bytes_per_step / 1e3
         );
+        if let Some((wall, cpu)) = alone {
+            let cpu = cpu.map_or_else(|| "unknown".to_owned(), |c| format!("{c:.4} s"));
+            println!(
+                "  dynamic stage alone: {wall:.4} s wall, {cpu} CPU per iteration ({statics} static iterations before)"
+            );
+        }
     }
 }
 
@@ -67,10 +142,12 @@ fn main() {
     let path = args.next().expect("usage: iteration_cost SCENE.toml [ITERATIONS]");
     let iterations: usize = args.next().map_or(5, |s| s.parse().expect("ITERATIONS is a number"));
     let scene = Scene::read(std::path::Path::new(&path)).expect("scene");
-    println!("{path}: {iterations} iterations per stage");
+    let marks: &'static IterationMarks = Box::leak(Box::new(IterationMarks(Mutex::new(Vec::new()))));
+    tracing::subscriber::set_global_default(marks).expect("subscriber");
+    println!("{path}: {iterations} dynamic iterations");
     match scene.dimension {
-        1 => run::<1>(&scene, iterations),
-        2 => run::<2>(&scene, iterations),
-        _ => run::<3>(&scene, iterations),
+        1 => run::<1>(&scene, iterations, marks),
+        2 => run::<2>(&scene, iterations, marks),
+        _ => run::<3>(&scene, iterations, marks),
     }
 }
