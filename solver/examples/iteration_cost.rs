@@ -5,7 +5,12 @@
 //!
 //! The monolithic reference handles perfect interfaces only, so it runs on the same mesh with the
 //! contact interfaces glued (its cost does not depend on the interface law).
+//!
+//! Each solve also prints the bytes it allocated: run with N and 2N iterations, the difference
+//! over N is what an iteration allocates (docs/design.md, "Issue 26: before and after").
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use glissade_core::point::DesignPoint;
@@ -13,6 +18,41 @@ use glissade_core::scene::{Scale, Scene};
 use glissade_solver::latin::{LatinSolver, SolveOptions};
 use glissade_solver::model::Model;
 use glissade_solver::monolithic;
+
+/// The system allocator, counting the bytes and the calls it is asked for.
+struct Counting;
+
+static ALLOCATED: AtomicUsize = AtomicUsize::new(0);
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATED.fetch_add(layout.size(), Ordering::Relaxed);
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: the caller's contract for `alloc`, passed on unchanged
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from `System.alloc` above with this layout
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATED.fetch_add(new_size, Ordering::Relaxed);
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: the caller's contract for `realloc`, passed on unchanged
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static COUNTING: Counting = Counting;
+
+/// (bytes, calls) allocated so far.
+fn allocated() -> (usize, usize) {
+    (ALLOCATED.load(Ordering::Relaxed), ALLOCATIONS.load(Ordering::Relaxed))
+}
 
 fn run<const D: usize>(scene: &Scene, iterations: usize) {
     let values = scene.parameter_values(&DesignPoint::new()).expect("parameters");
@@ -40,7 +80,9 @@ fn run<const D: usize>(scene: &Scene, iterations: usize) {
         let t = Instant::now();
         let mut solver = LatinSolver::serial(&model).expect("factorisation");
         let setup = t.elapsed().as_secs_f64();
+        let before = allocated();
         let r = solver.solve(None, &SolveOptions::default()).expect("solve");
+        let after = allocated();
         let dynamic_iterations = r.dynamic.iterations as f64;
         let static_iterations = r.static_stage.as_ref().map_or(0, |s| s.iterations) as f64;
         // a static iteration is one step, a dynamic one `steps` steps
@@ -58,6 +100,13 @@ fn run<const D: usize>(scene: &Scene, iterations: usize) {
             iteration / mono.sweep_seconds,
             100.0 * r.timings.local_stage / (r.timings.linear_stage + r.timings.local_stage),
             bytes_per_step / 1e3
+        );
+        println!(
+            "  the solve ({} static + {} dynamic iterations) allocated {} bytes in {} calls",
+            static_iterations,
+            dynamic_iterations,
+            after.0 - before.0,
+            after.1 - before.1
         );
     }
 }
