@@ -273,7 +273,7 @@ pub enum Scale {
     Multi,
 }
 
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SolverSpec {
     #[serde(default = "default_tolerance")]

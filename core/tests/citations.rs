@@ -1,7 +1,7 @@
 //! Every heading the sources and docs cite exists: a citation `docs/<name>.md, "Heading"` (comma
 //! optional, across comment lines too) must name the beginning of a heading of that file (after
 //! a section number such as `4.` or `4d.`), a citation `docs/<name>.md 4d` a heading numbered
-//! so, and the file must exist.
+//! so, and the file must exist. And the README's Architecture table names the crate graph.
 
 use std::path::{Path, PathBuf};
 
@@ -153,4 +153,67 @@ fn section_numbers_are_citations_and_years_are_not() {
         ]
     );
     assert_eq!(sections("## 4d. Sliding\n## 11. The discretisation error\n### Time windows"), vec!["4d", "11"]);
+}
+
+/// The glissade crates a crate's `[dependencies]` name (`glissade-core`: `core`), and whether
+/// each takes its default features.
+fn workspace_dependencies(manifest: &str) -> Vec<(String, bool)> {
+    let manifest: toml::Table = toml::from_str(manifest).expect("a Cargo.toml");
+    let Some(deps) = manifest.get("dependencies").and_then(|d| d.as_table()) else { return Vec::new() };
+    let mut found: Vec<(String, bool)> = deps
+        .iter()
+        .filter_map(|(name, spec)| {
+            let short = name.strip_prefix("glissade-")?;
+            let defaults = spec.get("default-features").and_then(|d| d.as_bool()).unwrap_or(true);
+            Some((short.to_string(), defaults))
+        })
+        .collect();
+    found.sort();
+    found
+}
+
+/// The README's Architecture table says which glissade crates each crate may depend on (its
+/// last column up to the first `;`): it names exactly those of the crate's Cargo.toml, and
+/// "without `mpi`" exactly where the default features are off.
+#[test]
+fn the_architecture_table_is_the_crate_graph() {
+    let root = repository();
+    let readme = std::fs::read_to_string(root.join("README.md")).expect("README.md");
+    let table = readme.split("## Architecture").nth(1).expect("an Architecture section");
+    let crates = ["proto", "core", "plot", "solver", "worker", "server", "client", "tests"];
+    let mut rows = 0;
+    for line in table.lines().take_while(|l| !l.starts_with("## ")) {
+        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+        let Some(dir) = cells.get(1).and_then(|c| c.strip_prefix('`')).and_then(|c| c.split('/').next()) else {
+            continue;
+        };
+        if !crates.contains(&dir) {
+            continue;
+        }
+        rows += 1;
+        let allowed = cells[3].split(';').next().unwrap_or("");
+        let mut said: Vec<(String, bool)> = allowed
+            .split(',')
+            .filter_map(|item| {
+                let item = item.trim();
+                let name = item.split_whitespace().next()?;
+                crates.contains(&name).then(|| (name.to_string(), !item.contains("without `mpi`")))
+            })
+            .collect();
+        said.sort();
+        let manifest = std::fs::read_to_string(root.join(dir).join("Cargo.toml")).expect("Cargo.toml");
+        assert_eq!(
+            said,
+            workspace_dependencies(&manifest),
+            "README's Architecture row of `{dir}/` against {dir}/Cargo.toml"
+        );
+    }
+    assert_eq!(rows, crates.len(), "a row for every crate");
+}
+
+#[test]
+fn workspace_dependencies_are_read_with_their_features() {
+    let manifest = "[dependencies]\nglissade-core.workspace = true\nserde = \"1\"\n\
+        glissade-worker = { path = \"../worker\", default-features = false }\n[dev-dependencies]\nglissade-plot = \"0\"\n";
+    assert_eq!(workspace_dependencies(manifest), vec![("core".to_string(), true), ("worker".to_string(), false)]);
 }

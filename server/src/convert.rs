@@ -205,7 +205,7 @@ pub struct SurfaceQuery {
     pub source: SurfaceSource,
     pub fixed: DesignPoint,
     pub qoi: Vec<String>,
-    pub predict_at: Vec<BTreeMap<String, f64>>,
+    pub predict_at: Vec<DesignPoint>,
 }
 
 /// The most points one QuerySurface predicts at.
@@ -230,7 +230,7 @@ impl TryFrom<v1::QuerySurfaceRequest> for SurfaceQuery {
             .predict_at
             .into_iter()
             .enumerate()
-            .map(|(i, p)| parameters(&format!("predict_at[{i}]"), p.parameters).map(BTreeMap::from))
+            .map(|(i, p)| parameters(&format!("predict_at[{i}]"), p.parameters))
             .collect::<Result<_, _>>()?;
         Ok(Self { source, fixed: parameters("fixed", m.fixed)?, qoi: m.qoi, predict_at })
     }
@@ -600,7 +600,7 @@ pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
             .predictions
             .into_iter()
             .map(|p| v1::SurfacePrediction {
-                parameters: p.at,
+                parameters: p.at.into(),
                 qoi: s
                     .qoi
                     .iter()

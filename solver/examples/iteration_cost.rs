@@ -12,8 +12,12 @@
 //! /proc/thread-self/schedstat). On a shared machine the wall time follows the load and a 0.06 s
 //! sweep is a noisy yardstick: compare builds in one run, alternating (docs/performance.md, "Why an
 //! iteration got slower").
+//! Each solve also prints the bytes it allocated: run with N and 2N iterations, the difference
+//! over N is what an iteration allocates (docs/design.md, "Issue 26: before and after").
 
+use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use glissade_core::point::DesignPoint;
@@ -22,9 +26,48 @@ use glissade_solver::latin::{LatinSolver, SolveOptions};
 use glissade_solver::model::Model;
 use glissade_solver::monolithic;
 
+/// The system allocator, counting the bytes and the calls it is asked for.
+struct Counting;
+
+static ALLOCATED: AtomicUsize = AtomicUsize::new(0);
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATED.fetch_add(layout.size(), Ordering::Relaxed);
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: the caller's contract for `alloc`, passed on unchanged
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from `System.alloc` above with this layout
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATED.fetch_add(new_size, Ordering::Relaxed);
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: the caller's contract for `realloc`, passed on unchanged
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static COUNTING: Counting = Counting;
+
+/// (bytes, calls) allocated so far.
+fn allocated() -> (usize, usize) {
+    (ALLOCATED.load(Ordering::Relaxed), ALLOCATIONS.load(Ordering::Relaxed))
+}
+
 /// CPU time of the calling thread in seconds, where Linux tells it.
 fn thread_cpu_seconds() -> Option<f64> {
-    let stat = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    use std::io::Read;
+    // read into the stack: the allocation count must not see the timing
+    let mut buffer = [0u8; 128];
+    let n = std::fs::File::open("/proc/thread-self/schedstat").ok()?.read(&mut buffer).ok()?;
+    let stat = std::str::from_utf8(&buffer[..n]).ok()?;
     let ns: f64 = stat.split_whitespace().next()?.parse().ok()?;
     Some(ns * 1e-9)
 }
@@ -107,8 +150,15 @@ fn run<const D: usize>(scene: &Scene, iterations: usize, marks: &IterationMarks)
         let t = Instant::now();
         let mut solver = LatinSolver::serial(&model).expect("factorisation");
         let setup = t.elapsed().as_secs_f64();
-        marks.0.lock().expect("marks").clear();
+        {
+            // room for every mark made, so that keeping them allocates nothing the count sees
+            let mut m = marks.0.lock().expect("marks");
+            m.clear();
+            m.reserve(100_000);
+        }
+        let before = allocated();
         let r = solver.solve(None, &SolveOptions::default()).expect("solve");
+        let after = allocated();
         let (alone, statics) = dynamic_per_iteration(&marks.0.lock().expect("marks"));
         let dynamic_iterations = r.dynamic.iterations as f64;
         let static_iterations = r.static_stage.as_ref().map_or(0, |s| s.iterations) as f64;
@@ -134,6 +184,13 @@ fn run<const D: usize>(scene: &Scene, iterations: usize, marks: &IterationMarks)
                 "  dynamic stage alone: {wall:.4} s wall, {cpu} CPU per iteration ({statics} static iterations before)"
             );
         }
+        println!(
+            "  the solve ({} static + {} dynamic iterations) allocated {} bytes in {} calls",
+            static_iterations,
+            dynamic_iterations,
+            after.0 - before.0,
+            after.1 - before.1
+        );
     }
 }
 

@@ -14,7 +14,7 @@ use crate::latin::{
 use crate::model::Model;
 use glissade_core::field::InterfaceSolution;
 use glissade_core::point::DesignPoint;
-use glissade_core::scene::{Scale, Scene, SceneError, Tolerance};
+use glissade_core::scene::{Scale, Scene, SceneError, SolverSpec, Tolerance};
 use glissade_core::study::{PointRequest, PointSolved, SolvePoint};
 
 #[derive(Debug, thiserror::Error)]
@@ -185,12 +185,31 @@ pub fn solve_scene_on(
 /// pool or a study does. Any other change (scene, other parameters, scale) refactorises.
 #[derive(Default)]
 pub struct PointSolver {
-    cache: Option<Box<dyn std::any::Any + Send>>,
+    cache: Option<CachedModel>,
+}
+
+/// The last model built, of the scene's dimension.
+enum CachedModel {
+    One(Cached<1>),
+    Two(Cached<2>),
+    Three(Cached<3>),
+}
+
+impl CachedModel {
+    fn one(self) -> Option<Cached<1>> {
+        if let Self::One(c) = self { Some(c) } else { None }
+    }
+    fn two(self) -> Option<Cached<2>> {
+        if let Self::Two(c) = self { Some(c) } else { None }
+    }
+    fn three(self) -> Option<Cached<3>> {
+        if let Self::Three(c) = self { Some(c) } else { None }
+    }
 }
 
 /// A built model and its factorised operators, with what they were built for.
 struct Cached<const D: usize> {
-    key: String,
+    key: OperatorKey,
     model: Model<D>,
     operators: Operators,
 }
@@ -203,11 +222,18 @@ impl PointSolver {
         request: &SolveRequest,
         init: Option<&InterfaceSolution>,
     ) -> Result<SolveOutcome, RunError> {
-        match scene.dimension {
-            1 => solve_dim::<1>(comm, scene, request, init, &mut self.cache),
-            2 => solve_dim::<2>(comm, scene, request, init, &mut self.cache),
-            _ => solve_dim::<3>(comm, scene, request, init, &mut self.cache),
-        }
+        use CachedModel::{One, Three, Two};
+        // a model of another dimension is dropped, as one of another key
+        let cache = self.cache.take();
+        let (outcome, cached) = match scene.dimension {
+            1 => solve_dim(comm, scene, request, init, cache.and_then(CachedModel::one)).map(|(o, c)| (o, One(c)))?,
+            2 => solve_dim(comm, scene, request, init, cache.and_then(CachedModel::two)).map(|(o, c)| (o, Two(c)))?,
+            _ => {
+                solve_dim(comm, scene, request, init, cache.and_then(CachedModel::three)).map(|(o, c)| (o, Three(c)))?
+            }
+        };
+        self.cache = Some(cached);
+        Ok(outcome)
     }
 }
 
@@ -245,12 +271,23 @@ impl SolvePoint for PointSolver {
 
 /// What the operators and the cached model depend on: the scene (its hash leaves out the
 /// `[solver]` section, whose k0_factor is in the operators and whose other settings are in the
-/// model: so the section too), the parameters other than interface laws, the scale.
-fn operator_key(scene: &Scene, values: &DesignPoint, scale: Option<Scale>) -> String {
-    let law = scene.interface_law_parameters();
-    let others: Vec<String> =
-        values.iter().filter(|(k, _)| !law.contains(*k)).map(|(k, v)| format!("{k}={v:?}")).collect();
-    format!("{}|{:?}|{scale:?}|{}", scene.content_hash(), scene.solver, others.join(","))
+/// model: so the section too), the parameters other than interface laws (their bits: -0 is not
+/// 0 here), the scale.
+#[derive(PartialEq)]
+struct OperatorKey {
+    scene: String,
+    solver: SolverSpec,
+    others: Vec<(String, u64)>,
+    scale: Option<Scale>,
+}
+
+impl OperatorKey {
+    fn new(scene: &Scene, values: &DesignPoint, scale: Option<Scale>) -> Self {
+        let law = scene.interface_law_parameters();
+        let others =
+            values.iter().filter(|(k, _)| !law.contains(*k)).map(|(k, v)| (k.to_owned(), v.to_bits())).collect();
+        Self { scene: scene.content_hash(), solver: scene.solver.clone(), others, scale }
+    }
 }
 
 fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &SolveRequest) -> Result<(), RunError> {
@@ -273,15 +310,14 @@ fn solve_dim<const D: usize>(
     scene: &Scene,
     request: &SolveRequest,
     init: Option<&InterfaceSolution>,
-    cache: &mut Option<Box<dyn std::any::Any + Send>>,
-) -> Result<SolveOutcome, RunError> {
+    cache: Option<Cached<D>>,
+) -> Result<(SolveOutcome, Cached<D>), RunError> {
     let start = Instant::now();
     let values = scene.parameter_values(&request.point)?;
-    let key = operator_key(scene, &values, request.scale);
-    let reusable = cache.take().and_then(|c| c.downcast::<Cached<D>>().ok()).filter(|c| c.key == key);
-    let (mut model, operators) = match reusable {
+    let key = OperatorKey::new(scene, &values, request.scale);
+    let (mut model, operators) = match cache.filter(|c| c.key == key) {
         Some(c) => {
-            let Cached { mut model, operators, .. } = *c;
+            let Cached { mut model, operators, .. } = c;
             model.update_interface_laws(scene, &values)?;
             (model, Some(operators))
         }
@@ -366,6 +402,5 @@ fn solve_dim<const D: usize>(
         },
         timings: report.timings.clone(),
     };
-    *cache = Some(Box::new(Cached { key, model, operators }));
-    Ok(SolveOutcome { summary, solution: report.solution, fields })
+    Ok((SolveOutcome { summary, solution: report.solution, fields }, Cached { key, model, operators }))
 }

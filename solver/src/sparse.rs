@@ -1,8 +1,9 @@
 //! Compressed sparse row matrices assembled from triplets, and their sparse Cholesky factors.
 
-use faer::linalg::solvers::Solve;
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::sparse::linalg::cholesky::{LltRef, SymbolicCholesky, factorize_symbolic_cholesky};
 use faer::sparse::{SparseColMat, Triplet};
-use faer::{MatMut, Side};
+use faer::{Conj, MatMut, Par, Side};
 
 /// Errors of sparse assembly and factorisation.
 #[derive(Debug, thiserror::Error)]
@@ -86,8 +87,14 @@ pub struct FactorisedOperator {
     free: Vec<usize>,
     /// position of each full unknown among the free ones, `usize::MAX` when fixed
     free_index: Vec<usize>,
-    llt: faer::sparse::linalg::solvers::Llt<usize, f64>,
+    /// the Cholesky factor L L^T of the free block: its pattern and its values
+    symbolic: SymbolicCholesky<usize>,
+    values: Vec<f64>,
+    par: Par,
     work: Vec<f64>,
+    /// faer's workspace of a solve, allocated once (faer's `Solve` allocates it at every call:
+    /// a substructure's size per step and iteration)
+    solve_stack: MemBuffer,
 }
 
 impl FactorisedOperator {
@@ -114,8 +121,26 @@ impl FactorisedOperator {
         let m = free.len();
         let mat = SparseColMat::<usize, f64>::try_new_from_triplets(m, m, &trip)
             .map_err(|e| SparseError::Creation(format!("{e:?}")))?;
-        let llt = mat.sp_cholesky(Side::Lower).map_err(|e| SparseError::NotPositiveDefinite(format!("{e:?}")))?;
-        Ok(Self { full: a, free, free_index, llt, work: vec![0.0; m] })
+        // what faer's `sp_cholesky(Side::Lower)` does, keeping the parts a solve needs
+        let par = faer::get_global_parallelism();
+        let symbolic = factorize_symbolic_cholesky(mat.symbolic(), Side::Lower, Default::default(), Default::default())
+            .map_err(|e| SparseError::Creation(format!("{e:?}")))?;
+        let mut values = vec![0.0; symbolic.len_val()];
+        let scratch = MemBuffer::try_new(symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()))
+            .map_err(|e| SparseError::Creation(format!("{e:?}")))?;
+        symbolic
+            .factorize_numeric_llt(
+                &mut values,
+                mat.as_ref(),
+                Side::Lower,
+                Default::default(),
+                par,
+                MemStack::new(&mut { scratch }),
+                Default::default(),
+            )
+            .map_err(|e| SparseError::NotPositiveDefinite(format!("{e:?}")))?;
+        let solve_stack = MemBuffer::new(symbolic.solve_in_place_scratch::<f64>(1, par));
+        Ok(Self { full: a, free, free_index, symbolic, values, par, work: vec![0.0; m], solve_stack })
     }
 
     pub fn n(&self) -> usize {
@@ -142,7 +167,12 @@ impl FactorisedOperator {
             }
         }
         let m = self.work.len();
-        self.llt.solve_in_place(MatMut::from_column_major_slice_mut(&mut self.work, m, 1));
+        LltRef::new(&self.symbolic, &self.values).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(&mut self.work, m, 1),
+            self.par,
+            MemStack::new(&mut self.solve_stack),
+        );
         for (k, &i) in self.free.iter().enumerate() {
             x[i] = self.work[k];
         }

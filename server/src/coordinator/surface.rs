@@ -13,7 +13,7 @@ fn predict(
     names: &[String],
     qoi: &[String],
     rows: &[SurfaceRow],
-    at: &[BTreeMap<String, f64>],
+    at: &[DesignPoint],
 ) -> Result<Vec<PointPrediction>, CoordError> {
     let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = rows
         .iter()
@@ -31,17 +31,15 @@ fn predict(
     at.iter()
         .enumerate()
         .map(|(i, point)| {
-            if let Some(name) = point.keys().find(|k| !names.contains(k)) {
+            if let Some(name) = point.names().find(|k| !names.iter().any(|n| n == k)) {
                 return Err(CoordError::Invalid(format!(
                     "predict_at[{i}]: `{name}` is not a parameter of these points ({})",
                     names.join(", ")
                 )));
             }
-            let p = DesignPoint::try_from(point.clone())
-                .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
             let predicted = surfaces
                 .iter()
-                .map(|s| s.predict_within(&p).map(|v| (v, s.len())))
+                .map(|s| s.predict_within(point).map(|v| (v, s.len())))
                 .collect::<Result<Vec<_>, _>>()
                 .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
             Ok(PointPrediction { at: point.clone(), qoi: predicted })
@@ -55,7 +53,7 @@ impl Coordinator {
         source: SurfaceSource,
         fixed: &DesignPoint,
         qoi: &[String],
-        predict_at: &[BTreeMap<String, f64>],
+        predict_at: &[DesignPoint],
     ) -> Result<Surface, CoordError> {
         let state = self.lock();
         // the scene's ranges scale the parameters of a prediction

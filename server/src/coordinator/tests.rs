@@ -1232,7 +1232,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
         let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &qoi);
         c.complete(done, file).unwrap();
     }
-    let at: BTreeMap<String, f64> = [("f1".to_string(), 0.137)].into();
+    let at = DesignPoint::from_pairs([("f1", 0.137)]).unwrap();
     let s = c.surface(SurfaceSource::Study(id), &DesignPoint::default(), &["slip_A".into()], &[at]).unwrap();
     assert_eq!(s.qoi, ["slip_A"], "only what was asked for is returned");
     let (p, fitted) = s.predictions[0].qoi[0];

@@ -446,7 +446,7 @@ pub struct Surface {
 /// The response surface's prediction at a point asked for.
 #[derive(Debug, Clone)]
 pub struct PointPrediction {
-    pub at: BTreeMap<String, f64>,
+    pub at: DesignPoint,
     /// Per QoI (in the surface's `qoi` order): the prediction and the number of points its
     /// surface was fitted to.
     pub qoi: Vec<(Prediction, usize)>,
