@@ -284,6 +284,7 @@ impl<const D: usize> LatinSolver<'_, D> {
         report.history.extend(&outcome.history);
         report.error_indicator = outcome.error_indicator;
         report.worst_interface = outcome.worst_interface.clone();
+        report.worst_interface_aspect = outcome.worst_interface_aspect;
         report.relaxation = outcome.relaxation;
         report.windows_stalled += outcome.windows_stalled;
         report.windows_redone += outcome.windows_redone;
