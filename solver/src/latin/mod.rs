@@ -971,7 +971,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
         }
         report.worst_interface = worst.map(|i| m.interfaces[i].name.clone());
-        report.worst_interface_aspect = worst.and_then(|i| m.interfaces[i].element_aspect(&m.substructures));
+        // geometry for the diagnosis, which only a window that did not converge needs
+        if !report.converged {
+            report.worst_interface_aspect = worst.and_then(|i| m.interfaces[i].element_aspect(&m.substructures));
+        }
         report.relaxation = relaxation.mu();
         if let Some(t) = tightening {
             report.window_check = t.end(&mut report);
