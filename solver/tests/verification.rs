@@ -6,7 +6,7 @@ mod fixtures;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{Scale, Scene, Tolerance};
 use glissade_solver::element::ElementKind;
-use glissade_solver::latin::{LatinSolver, SolveOptions, SolveReport};
+use glissade_solver::latin::{LatinSolver, Parting, SolveOptions, SolveReport};
 use glissade_solver::model::{Model, QoiTarget};
 use glissade_solver::monolithic;
 
@@ -1981,6 +1981,31 @@ fn windowings_that_keep_parting_are_reported_not_converged() {
     assert_eq!(check.distances.len(), m.qois.len());
     assert_eq!(check.distances[&check.qoi], check.discrepancy);
     assert!(check.distances.values().all(|d| *d <= check.discrepancy));
+
+    // The evidence (docs/verification.md, "A slide that amplifies perturbations"): where the
+    // answers part, and how fast their difference grows. Marched a step a window, each step
+    // converged to 1e-10 and to 1e-7 (what an implicit code does), the two part at the same
+    // time and rate: the motion amplifies a difference, whatever made it, not the windows.
+    let parting = check.parting.as_ref().expect("the parting is measured");
+    let efold = parting.efold.expect("a growth, not a jump");
+    assert_eq!(parting.qoi, check.qoi);
+    assert!(parting.growth.is_some_and(|g| g > 1e3), "{parting:?}");
+    assert!(why.contains(&format!("e-fold every {efold:.1e} s")), "{why}");
+    let stepwise = |tolerance: f64| {
+        let mut m = build::<2>(&text.replace("[solver]", "[solver]\ntime_window = 1\nwindow_check = false"), &[]);
+        (m.settings.tolerance, m.settings.max_iterations) = (tolerance, 20000);
+        solve(&m, false)
+    };
+    let (tight, loose) = (stepwise(1e-10), stepwise(1e-7));
+    assert!(tight.converged() && loose.converged());
+    let q = m.qois.iter().position(|q| q.name == parting.qoi).expect("a QoI of the scene");
+    let marching = Parting::of(&parting.qoi, &tight.qoi[q].values, &loose.qoi[q].values, m.dt).expect("they part");
+    eprintln!("marched: {marching:?}; the check: {parting:?}");
+    let rate = marching.efold.expect("a growth") / efold;
+    assert!((0.5..2.0).contains(&rate), "e-fold {:?} marched against {efold:.2e}", marching.efold);
+    // (where a difference reaches 1e-3 of its largest depends on where it started: within a few
+    // e-folds)
+    assert!((marching.from - parting.from).abs() < 3.0 * efold, "from {} against {}", marching.from, parting.from);
 }
 
 /// A magnesium block of our own pressed onto a rigid floor and pushed until it slides (f = 0.2),

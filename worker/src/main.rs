@@ -523,6 +523,9 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
                     "  a pass did not converge at {floor:.1e} (its iterations stall short of it) and was tried again looser"
                 );
             }
+            if let Some(p) = &c.parting {
+                println!("  {}", p.evidence());
+            }
         }
         for c in s.contact.iter().filter(|c| c.landings_while_sliding > 0) {
             println!("  {}", c.evidence());

@@ -29,7 +29,7 @@ use macro_problem::{MacroError, MacroProblem};
 use relaxation::Relaxation;
 use stopping::{ErrorEstimator, UnitScales};
 use window_check::Tightening;
-pub use window_check::{CheckOutcome, WindowCheck};
+pub use window_check::{CheckOutcome, Parting, WindowCheck};
 
 /// Tolerance of each time window relative to the asked one (docs/method.md, "Time windows").
 pub const WINDOW_TOLERANCE_RATIO: f64 = 0.1;
@@ -848,7 +848,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let m = self.model;
         let StageStart { stage, u0, statics, .. } = *begin;
         let WindowRule { mut tolerance, mut estimate_tolerance, stall_at, floors, budget, tighten } = rule;
-        let mut tightening = tighten.then(|| Tightening::new(tolerance));
+        let mut tightening = tighten.then(|| Tightening::new(tolerance, m.dt));
         let settings = &m.settings;
         let progress = it.options.progress.as_deref();
         let mut report = StageReport::default();

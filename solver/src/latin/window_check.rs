@@ -46,7 +46,65 @@ pub struct WindowCheck {
     /// where one did not: each such pass was tried again, looser
     #[serde(skip_serializing_if = "Option::is_none")]
     pub floor: Option<f64>,
+    /// where the last two answers part on the worst QoI, when they part by more than the
+    /// tolerance
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parting: Option<Parting>,
     pub outcome: CheckOutcome,
+}
+
+/// How two answers part on one QoI over time: the difference of their histories, as its running
+/// largest value, first reaches 1e-3 of its final largest at `from` and a tenth of it at `to`
+/// (100 x more). Between the two it grew e-fold every `efold` seconds: the rate at which the
+/// motion amplifies a perturbation, which no tolerance outruns (docs/verification.md, "A slide
+/// that amplifies perturbations"). `efold` is none where the difference jumped by 100 x within
+/// a step or two (an impact that one answer has and the other not); `growth` is what that rate
+/// makes of a difference at `from` by the end of the interval.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Parting {
+    pub qoi: String,
+    pub from: f64,
+    pub to: f64,
+    pub efold: Option<f64>,
+    pub growth: Option<f64>,
+}
+
+impl Parting {
+    /// The parting of the QoI `qoi` between the histories `a` and `b` at steps 0, dt, 2 dt, ...;
+    /// none where they are equal.
+    pub fn of(qoi: &str, a: &[f64], b: &[f64], dt: f64) -> Option<Parting> {
+        let mut largest = 0.0f64;
+        let running: Vec<f64> = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| {
+                largest = largest.max((x - y).abs());
+                largest
+            })
+            .collect();
+        if !(largest > 0.0 && largest.is_finite()) {
+            return None;
+        }
+        let first = |share: f64| running.iter().position(|d| *d >= share * largest).expect("the largest is reached");
+        let (i, j) = (first(1e-3), first(0.1));
+        let efold = (j >= i + 3).then(|| (j - i) as f64 * dt / (running[j] / running[i]).ln());
+        let growth = efold.map(|e| ((running.len() - 1 - i) as f64 * dt / e).exp());
+        Some(Parting { qoi: qoi.to_string(), from: i as f64 * dt, to: j as f64 * dt, efold, growth })
+    }
+
+    /// The evidence, in words.
+    pub fn evidence(&self) -> String {
+        match (self.efold, self.growth) {
+            (Some(e), Some(g)) => format!(
+                "they part from t = {:.2e} s, their difference growing e-fold every {e:.1e} s: the motion amplifies \
+                 a difference there (an iteration error, or a change in the data) about {g:.0e} x by the end, and \
+                 '{}' is pinned only by iterations as much tighter than the tolerance \
+                 (docs/verification.md, \"A slide that amplifies perturbations\")",
+                self.from, self.qoi
+            ),
+            _ => format!("they part at t = {:.2e} s, at once (an impact in one answer and not in the other)", self.to),
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
@@ -67,7 +125,13 @@ impl WindowCheck {
     pub fn diagnosis(&self, tolerance: f64, pass: &str) -> String {
         if self.outcome == CheckOutcome::PassNotConverged {
             let measured = if self.passes > 0 && !self.qoi.is_empty() {
-                format!("{}, the answers parted by {:.2e} on '{}', and ", self.how(), self.discrepancy, self.qoi)
+                format!(
+                    "{}, the answers parted by {:.2e} on '{}'{}, and ",
+                    self.how(),
+                    self.discrepancy,
+                    self.qoi,
+                    self.growth()
+                )
             } else {
                 String::new()
             };
@@ -83,15 +147,21 @@ impl WindowCheck {
         let others = if agreeing.is_empty() { String::new() } else { format!("; within it: {}", agreeing.join(", ")) };
         format!(
             "sensitive: {}, the last two answers part by {:.2e} on '{}' \
-             (the tighter iterated to {:.1e}, the tolerance {tolerance:.1e}{others}): this QoI moves with the iteration \
+             (the tighter iterated to {:.1e}, the tolerance {tolerance:.1e}{others}){}: this QoI moves with the iteration \
              error far more than the tolerance allows, as the forces of a contact that lifts off and lands do; \
              a looser tolerance, leaving this QoI out (a slip is often determined where a contact force is \
              not), or solver.window_check = false to take the first answer, off by about that much",
             self.how(),
             self.discrepancy,
             self.qoi,
-            self.iteration_tolerance
+            self.iteration_tolerance,
+            self.growth()
         )
+    }
+
+    /// The parting's evidence after "; ", or nothing.
+    fn growth(&self) -> String {
+        self.parting.as_ref().map_or(String::new(), |p| format!("; {}", p.evidence()))
     }
 
     /// The check iterated a whole-interval solve on rather than another windowing.
@@ -158,6 +228,12 @@ impl<const D: usize> LatinSolver<'_, D> {
             check.iteration_tolerance = tight;
             check.distances = distances(&looser, &answer, &run.scales);
             (check.discrepancy, check.qoi) = worst(&check.distances);
+            check.parting = (check.discrepancy > tolerance)
+                .then(|| {
+                    let q = looser.iter().position(|q| q.name == check.qoi)?;
+                    Parting::of(&check.qoi, &looser[q].values, &answer[q].values, self.model.dt)
+                })
+                .flatten();
             tracing::info!(
                 loose,
                 tight,
@@ -347,6 +423,8 @@ fn distances_of<'a>(
 /// cost is the iterations from the tolerance to a tenth of it; no windowing to iterate again.
 pub(super) struct Tightening {
     asked: f64,
+    /// the time step, where the QoI histories' steps are
+    dt: f64,
     /// the pairs have ended the check (else the iterations ran out on the way)
     over: bool,
     looser: Option<Vec<Vec<f64>>>,
@@ -354,9 +432,10 @@ pub(super) struct Tightening {
 }
 
 impl Tightening {
-    pub(super) fn new(asked: f64) -> Self {
+    pub(super) fn new(asked: f64, dt: f64) -> Self {
         Self {
             asked,
+            dt,
             over: false,
             looser: None,
             check: WindowCheck { iteration_tolerance: asked, ..Default::default() },
@@ -385,9 +464,14 @@ impl Tightening {
             );
             if self.check.discrepancy <= self.asked {
                 self.check.outcome = CheckOutcome::Agreed;
+                self.check.parting = None;
                 self.over = true;
                 return None;
             }
+            self.check.parting = qois
+                .iter()
+                .position(|q| q.name == self.check.qoi)
+                .and_then(|q| Parting::of(&self.check.qoi, &looser[q], &current[q], self.dt));
         }
         // (no tighter than a scene may ask: below it the iterations stall on round-off)
         let next = (tolerance * TIGHTER).max(MIN_TOLERANCE);
@@ -438,5 +522,34 @@ mod tests {
         assert!((d - 0.1).abs() < 1e-12, "{d}");
         let (d, q) = worst(&distances(&a, &a, &[1e-6, 5.0]));
         assert_eq!((d, q.as_str()), (0.0, ""));
+    }
+
+    /// A difference that grows e-fold every 5 steps from step 40 (below 1e-12 before) is found
+    /// there, at that rate, and what the rate makes of it by the end; one that jumps has no
+    /// rate; equal answers do not part.
+    #[test]
+    fn a_parting_is_found_where_the_difference_grows_and_at_its_rate() {
+        let dt = 2e-6;
+        let a: Vec<f64> = (0..=100).map(|n| (n as f64 * 0.3).sin()).collect();
+        let grown: Vec<f64> = (0..=100)
+            .map(|n| if n < 40 { 1e-13 * (n as f64).cos() } else { 1e-9 * ((n - 40) as f64 / 5.0).exp() })
+            .collect();
+        let b: Vec<f64> = a.iter().zip(&grown).map(|(x, d)| x + d).collect();
+        let p = Parting::of("force", &a, &b, dt).expect("they part");
+        let efold = p.efold.expect("a rate");
+        assert!((efold / (5.0 * dt) - 1.0).abs() < 0.05, "{p:?}");
+        // the largest is 1e-9 e^12 at the end; 1e-3 of it is 6.9 e-folds (34.5 steps) before,
+        // a tenth of it 2.3 (11.5 steps) before
+        assert!((p.from / dt - 65.5).abs() < 1.0 && (p.to / dt - 88.5).abs() < 1.0, "{p:?}");
+        let growth = p.growth.expect("a growth");
+        assert!((growth.ln() - (100.0 * dt - p.from) / efold).abs() < 1e-9, "{p:?}");
+        assert!(p.evidence().contains("e-fold every 1.0e-5 s"), "{}", p.evidence());
+
+        let mut jump = a.clone();
+        jump[70] += 0.5;
+        let p = Parting::of("force", &a, &jump, dt).expect("they part");
+        assert_eq!((p.efold, p.growth, p.to), (None, None, 70.0 * dt));
+        assert!(p.evidence().contains("at once"), "{}", p.evidence());
+        assert_eq!(Parting::of("force", &a, &a, dt), None);
     }
 }
