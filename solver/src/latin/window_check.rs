@@ -73,12 +73,20 @@ impl Parting {
     /// The parting of the QoI `qoi` between the histories `a` and `b` at steps 0, dt, 2 dt, ...;
     /// none where they are equal.
     pub fn of(qoi: &str, a: &[f64], b: &[f64], dt: f64) -> Option<Parting> {
-        let mut largest = 0.0f64;
+        // the difference relative to the QoI's size so far, so that a QoI that only starts
+        // (a slip from zero at the onset of sliding) is not taken for a difference that grows;
+        // that size no less than 1e-3 of the QoI's largest (a stuck slip of 1e-22 m is no size)
+        let floor = 1e-3 * a.iter().chain(b).fold(0.0f64, |m, v| m.max(v.abs()));
+        let (mut size, mut apart, mut largest) = (floor, 0.0f64, 0.0f64);
         let running: Vec<f64> = a
             .iter()
             .zip(b)
             .map(|(x, y)| {
-                largest = largest.max((x - y).abs());
+                size = size.max(x.abs()).max(y.abs());
+                apart = apart.max((x - y).abs());
+                if size > 0.0 {
+                    largest = largest.max(apart / size);
+                }
                 largest
             })
             .collect();
