@@ -164,13 +164,19 @@ impl<const D: usize> Interface<D> {
         Some(mean.powf(1.0 / (D - 1) as f64))
     }
 
-    /// How far the elements along the interface are from cubes: the mean depth along the
-    /// interface's normal of the elements with a face on it, against the side of a face (the
-    /// interface's measure over their number), the larger of the two ratios (none in 1D). A
-    /// scalar search direction sits between the smallest and the largest stiffness a side opposes
-    /// to the interface; elements of aspect ratio a widen that range about a^2 times
-    /// (docs/performance.md, "Flat elements along an interface (aspect ratio 100, 2026-11-26)").
+    /// How far the elements along the interface are from cubes: [`Self::element_depth`] or its
+    /// inverse, the larger (none in 1D). A scalar search direction sits between the smallest and
+    /// the largest stiffness a side opposes to the interface; elements of aspect ratio a widen
+    /// that range about a^2 times (docs/performance.md, "Flat elements along an interface
+    /// (aspect ratio 100, 2026-11-26)").
     pub fn element_aspect(&self, substructures: &[Substructure<D>]) -> Option<f64> {
+        self.element_depth(substructures).map(|r| r.max(1.0 / r))
+    }
+
+    /// The mean depth along the interface's normal of the elements with a face on it, against
+    /// the side of a face (the interface's measure over their number): 1 for cubes, 100 for
+    /// elements 100 x deeper than long along the interface (none in 1D).
+    pub fn element_depth(&self, substructures: &[Substructure<D>]) -> Option<f64> {
         if D < 2 {
             return None;
         }
@@ -198,7 +204,7 @@ impl<const D: usize> Interface<D> {
         let depth = depth / faces as f64;
         let per_side = faces as f64 / self.sides.len() as f64;
         let face = (self.area.iter().sum::<f64>() / per_side).powf(1.0 / (D - 1) as f64);
-        (depth > 0.0 && face > 0.0).then(|| (depth / face).max(face / depth))
+        (depth > 0.0 && face > 0.0).then(|| depth / face)
     }
 
     /// The area-weighted mean unit normal (the normal of a flat interface).
@@ -808,9 +814,11 @@ fn set_search_directions<const D: usize>(
     for itf in interfaces.iter_mut() {
         let normal = itf.mean_normal();
         let h = itf.mesh_size();
+        let depth = itf.element_depth(substructures);
         for side in itf.sides.iter_mut() {
             let young = substructures[side.substructure].material.young;
-            side.k_static = SearchDirection::isotropic(k0_factor * static_search_direction(young, assembly_size, h));
+            side.k_static =
+                SearchDirection::isotropic(k0_factor * static_search_direction(young, assembly_size, h, depth));
             let sub = &substructures[side.substructure];
             let k = k0_factor
                 * dynamic_search_direction(
