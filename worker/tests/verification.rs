@@ -139,7 +139,7 @@ fn mpi_fields_are_gathered_on_rank_zero() {
 /// static stage stopped short used to be reported with the dynamic stage's eta, below the
 /// tolerance), and exits with status 2. The static stage may iterate ten times the limit (its
 /// iterations sweep one step): the sliding block with elements of aspect ratio 100 at its floor
-/// needs 813 to reach 2e-6 and falls short at 5 x 10.
+/// needs 471 to reach 2e-11 and falls short at 5 x 10.
 #[test]
 fn a_solve_out_of_iterations_names_the_stage_that_fell_short() {
     let dir = tempfile::tempdir().unwrap();
