@@ -1962,6 +1962,33 @@ fn a_windowed_solve_is_checked_against_another_windowing() {
     );
 }
 
+/// A check pass that does not converge stops in some window, and the windows after it are never
+/// iterated: the answer returned is the last pass that converged (here the solve itself), not
+/// that one's half-iterated histories (the 3D block's slip used to end at 1e-13 m, its value
+/// before sliding). The titanium block, 60 iterations a window: the solve converges, the
+/// check's pass at 2e-5 and its retry at 6.3e-5 run out.
+#[test]
+fn a_check_whose_pass_stops_part_way_returns_the_last_converged_answer() {
+    let titanium = |extra: &str| {
+        let mut m = build::<2>(&PUSHED_TITANIUM_BLOCK.replace("STEPS", "200").replace("[solver]", extra), &[]);
+        m.settings.max_iterations = 60;
+        m
+    };
+    let unchecked = solve(&titanium("[solver]\nwindow_check = false"), false);
+    let m = titanium("[solver]");
+    let r = LatinSolver::serial(&m).expect("factorisation").solve(None, &SolveOptions::default()).expect("solve");
+    let check = r.dynamic.window_check.as_ref().expect("a windowed solve is checked");
+    eprintln!("{check:?}");
+    assert!(unchecked.converged() && !r.converged());
+    assert_eq!(check.outcome, glissade_solver::latin::CheckOutcome::PassNotConverged);
+    assert!(check.floor.is_some_and(|f| f < 2e-4) && check.iteration_tolerance == 2e-4, "{check:?}");
+    for (a, b) in r.qoi.iter().zip(&unchecked.qoi) {
+        assert_eq!(a.values, b.values, "{}: the solve's own answer, bit for bit", a.name);
+    }
+    let why = r.dynamic.diagnosis(2e-4);
+    assert!(why.contains(&format!("a pass to {:.1e} did not converge", check.floor.unwrap_or(0.0))), "{why}");
+}
+
 /// Where the windowings keep parting however tight their iterations (the titanium block at
 /// dt / 3 and coarser, 4 x 2 elements, whose normal force chatters: 4e-3 apart at 1e-10), the
 /// solve does not claim the tolerance: not converged, saying which QoI moved and what to change.

@@ -1270,6 +1270,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
 
 /// The static prestress stage's outcome: its report, its solution, and the displacements it
 /// leaves each substructure in (the dynamics' initial state).
+#[derive(Clone)]
 struct Prestress {
     report: StageReport,
     solution: StageSolution,

@@ -40,7 +40,8 @@ pub struct WindowCheck {
     pub qoi: String,
     /// every QoI's distance in the last pair (where the worst parted, the others may agree)
     pub distances: BTreeMap<String, f64>,
-    /// the tolerance the answer returned (the last pair's tighter member) was iterated to
+    /// the tolerance the answer returned was iterated to: the last pair's tighter member, or
+    /// where a pass did not converge, the last pass that did
     pub iteration_tolerance: f64,
     /// the loosest tolerance a pass did not converge at (its iterations stalled short of it),
     /// where one did not: each such pass was tried again, looser
@@ -147,7 +148,7 @@ impl WindowCheck {
                 "checking the {} solve: {measured}a pass to {:.1e} did not converge ({pass}); a looser tolerance, \
                  or solver.window_check = false to take the first answer unchecked",
                 if self.whole_interval() { "whole-interval" } else { "windowed" },
-                self.iteration_tolerance
+                self.floor.unwrap_or(self.iteration_tolerance)
             );
         }
         let agreeing: Vec<String> =
@@ -204,7 +205,10 @@ impl<const D: usize> LatinSolver<'_, D> {
         let first = self.model.settings.time_window;
         let windows = [first, first + first.div_ceil(2)];
         let quiet = SolveOptions { record_fields: false, trace_qois: false, ..options.clone() };
-        let mut pass = Pass { start: &start, prestress, fields, check: WindowCheck { windows, ..Default::default() } };
+        // the answer to return should a later pass stop part-way: the solve's own, at first
+        let kept = Some(Kept { fields: fields.to_vec(), prestress: prestress.clone(), tolerance });
+        let check = WindowCheck { windows, ..Default::default() };
+        let mut pass = Pass { start: &start, prestress, fields, check, kept };
         let mut run = PassRun { scales: report.scales.clone(), report, timings, quiet: &quiet };
         // the looser member of the pair and its iteration tolerance: first the solve itself
         let mut looser = self.answer(&pass, &quiet);
@@ -268,6 +272,16 @@ impl<const D: usize> LatinSolver<'_, D> {
             } else {
                 (looser, loose, first_windowing) = (answer, tight, false);
             }
+        }
+        // A pass that did not converge stopped in some window, the later ones never iterated
+        // (the 3D block's QoIs then ended at their values of t = 1.2e-4 s): the answer returned
+        // is the last pass that converged, the tolerance it was iterated to with it.
+        if pass.check.outcome == CheckOutcome::PassNotConverged
+            && let Some(kept) = pass.kept.take()
+        {
+            pass.fields.clone_from_slice(&kept.fields);
+            *pass.prestress = kept.prestress;
+            pass.check.iteration_tolerance = kept.tolerance;
         }
         let report = run.report;
         report.converged &= pass.check.outcome == CheckOutcome::Agreed;
@@ -375,6 +389,7 @@ impl<const D: usize> LatinSolver<'_, D> {
         if !outcome.converged {
             return Ok(Err(outcome.error_estimate));
         }
+        pass.kept = Some(Kept { fields: pass.fields.to_vec(), prestress: pass.prestress.clone(), tolerance });
         Ok(Ok(self.answer(pass, quiet)))
     }
 }
@@ -386,6 +401,15 @@ struct Pass<'a, 'b> {
     prestress: &'b mut Option<Prestress>,
     fields: &'b mut [InterfaceField],
     check: WindowCheck,
+    /// the last pass that converged (at first the solve itself)
+    kept: Option<Kept>,
+}
+
+/// A converged pass's fields and prestress, and the tolerance it was iterated to.
+struct Kept {
+    fields: Vec<InterfaceField>,
+    prestress: Option<Prestress>,
+    tolerance: f64,
 }
 
 /// What the passes add their work to, the QoIs' scales they measure with, and how they run.
