@@ -568,6 +568,7 @@ fn surface_figures(
                 fixed,
                 qoi,
                 resolution: resolution.get(qoi).copied().unwrap_or(0.0),
+                tolerance: s.rows.first().map_or(0.0, |r| r.tolerance),
                 title: String::new(),
             };
             surface_figure(&picture.surface(&rows)).into_string()
@@ -913,6 +914,7 @@ mod tests {
             fixed,
             qoi,
             resolution: 0.0,
+            tolerance: 0.0,
             title: String::new(),
         };
         surface_figure(&picture.surface(&rows)).into_string()
@@ -960,6 +962,7 @@ mod tests {
                 error_indicator: 1e-4,
                 converged: k < done,
                 state: if k < done { PointState::Done } else { PointState::Pending },
+                tolerance: 1e-4,
             })
             .collect();
         Surface {
@@ -1032,6 +1035,7 @@ mod tests {
             fixed: &[],
             qoi: hostile,
             resolution: 0.0,
+            tolerance: 0.0,
             title: String::new(),
         };
         let svg = surface_figure(&picture.surface(&rows)).into_string();

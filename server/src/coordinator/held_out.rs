@@ -57,6 +57,8 @@ pub(super) struct Job {
     names: Vec<String>,
     /// the study's done points: coordinates and QoIs
     rows: Vec<(Vec<f64>, BTreeMap<String, f64>)>,
+    /// the tolerance they were solved to
+    tolerance: f64,
     at: Vec<DesignPoint>,
 }
 
@@ -72,7 +74,8 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
         })
         .collect();
     let at = audit.points.iter().map(|p| p.parameters.clone()).collect();
-    Job { audit: audit.record.id, scene: std::sync::Arc::clone(&study.scene), names, rows, at }
+    let tolerance = study.record.tolerance;
+    Job { audit: audit.record.id, scene: std::sync::Arc::clone(&study.scene), names, rows, tolerance, at }
 }
 
 /// The surface of each QoI of the study's points (as `glissade surface` fits it: norms never
@@ -84,8 +87,9 @@ pub(super) fn predict(job: &Job) -> Predicted {
     let scene: &Scene = &job.scene;
     let qois: std::collections::BTreeSet<&String> = job.rows.iter().flat_map(|(_, q)| q.keys()).collect();
     let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = job.rows.iter().map(|(x, q)| (x.clone(), q)).collect();
+    let tolerances = vec![job.tolerance; points.len()];
     for q in qois {
-        let surface = match QoiSurface::of_scene(scene, &job.names, &points, q) {
+        let surface = match QoiSurface::of_scene(scene, &job.names, &points, &tolerances, q) {
             Ok(s) => s,
             Err(e) => {
                 refused.insert(q.clone(), e.to_string());

@@ -1131,7 +1131,11 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
     for q in ["slip_A", "middle_ux"] {
         let xy = |p: &PointRecord| vec![p.parameters.get("f1").unwrap(), p.parameters.get("f2").unwrap()];
         let samples: Vec<(Vec<f64>, f64)> = study.points.iter().map(|p| (xy(p), law(&p.parameters)[q])).collect();
-        let surface = ResponseSurface::fit(&space, &names, &samples).unwrap();
+        // carrying the points' error: POINT_ERROR_PER_TOLERANCE x the study's tolerance x the largest |value|
+        let top = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
+        let error = glissade_core::study::surrogate::POINT_ERROR_PER_TOLERANCE * study.record.tolerance * top;
+        let surface =
+            ResponseSurface::fit(&space, &names, &samples).unwrap().with_point_errors(vec![error; 25]).unwrap();
         let surface = if q == "slip_A" { surface.non_negative() } else { surface };
         let (mut largest, mut sum, mut within) = (0.0f64, 0.0, 0);
         let values: Vec<f64> = study.points.iter().chain(&held.points).map(|p| law(&p.parameters)[q]).collect();

@@ -430,6 +430,9 @@ pub struct SurfaceRow {
     pub converged: bool,
     /// Point state for a study source; Done/Failed for a stored solution.
     pub state: PointState,
+    /// The tolerance its QoIs were solved to (a study's points: the study's, an upper bound for
+    /// those answered from tighter stored solutions), whose error the surface carries.
+    pub tolerance: f64,
 }
 
 /// A response surface.
