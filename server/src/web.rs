@@ -272,6 +272,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "surface_accuracy": v.surface_accuracy.as_ref().map(|a| json!({
             "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "validated": a.validated,
             "planned": a.planned, "fitted": a.fitted, "work": a.work, "work_cap": a.work_cap, "refused": a.refused,
+            "seed": a.seed,
             "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), json!({
                 "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
             }))).collect::<serde_json::Map<_, _>>(),
@@ -758,8 +759,8 @@ fn audit_paragraphs(v: &StudyView) -> Markup {
         @if let Some(a) = &v.surface_accuracy {
             p #surface-accuracy {
                 (format!(
-                    "surface between the points: {} of {} held-out points solved cold at {:.0e}, against the surface of {} points: ",
-                    a.validated, a.planned, a.tolerance, a.fitted
+                    "surface between the points: {} of {} held-out points (seed {}) solved cold at {:.0e}, against the surface of {} points: ",
+                    a.validated, a.planned, a.seed, a.tolerance, a.fitted
                 ))
                 @for (k, (q, e)) in a.qoi.iter().enumerate() {
                     @if k > 0 { ", " }

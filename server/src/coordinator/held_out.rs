@@ -17,7 +17,8 @@ use crate::records::{AdaptiveSpec, PointState, Predicted};
 
 /// `n` points held out of a study of swept `names` over `design` (or, adaptive, over its
 /// ranges): uniform in the study's box (each parameter from its lowest to its highest value),
-/// none at a design point, seeded by `seed` (the study's id: the same study, the same points).
+/// none at a design point, seeded by `seed` (the audit's record keeps it: the same seed, the same
+/// points).
 pub(super) fn points(
     names: &[String],
     design: &[DesignPoint],
@@ -157,6 +158,7 @@ pub(super) fn measure(study: &StudyEntry, audit: &StudyEntry) -> SurfaceAccuracy
         validated: pairs.len() as u32,
         planned: audit.points.len() as u32,
         fitted: predicted.map_or(0, |p| p.fitted),
+        seed: audit.record.held_out.as_ref().map_or(study.record.id.0, |h| h.seed_of(study.record.id)),
         qoi,
         refused: predicted.map(|p| p.refused.clone()).unwrap_or_default(),
         work: budget.map_or(0.0, |b| b.spent),
