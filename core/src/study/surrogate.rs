@@ -252,8 +252,9 @@ impl Surrogate {
         let inherited = if self.errors.is_empty() {
             0.0
         } else {
-            // the mean's weights: w = K^-1 k + u (1 - 1' K^-1 k), u = K^-1 1 / (1' K^-1 1)
-            let kinv_k = solve(&self.factor, n, &k);
+            // the mean's weights: w = K^-1 k + u (1 - 1' K^-1 k), u = K^-1 1 / (1' K^-1 1);
+            // K^-1 k = L'^-1 v, v = L^-1 k of the variance
+            let kinv_k = backward(&self.factor, n, v);
             let share = 1.0 - kinv_k.iter().sum::<f64>();
             kinv_k.iter().zip(&self.mean_weights).zip(&self.errors).map(|((w, u), e)| (w + u * share).abs() * e).sum()
         };
@@ -611,14 +612,18 @@ fn forward(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
     y
 }
 
-/// (L L')^-1 b.
-fn solve(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
-    let mut x = forward(l, n, b);
+/// L'^-1 y.
+fn backward(l: &[f64], n: usize, mut x: Vec<f64>) -> Vec<f64> {
     for i in (0..n).rev() {
         let s: f64 = (i + 1..n).map(|k| l[k * n + i] * x[k]).sum();
         x[i] = (x[i] - s) / l[i * n + i];
     }
     x
+}
+
+/// (L L')^-1 b.
+fn solve(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
+    backward(l, n, forward(l, n, b))
 }
 
 #[cfg(test)]
