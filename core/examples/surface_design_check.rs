@@ -44,6 +44,8 @@ fn main() {
     let coordinates = |p: &DesignPoint| -> Vec<f64> { names.iter().map(|n| p.get(n).expect("swept")).collect() };
     let rows: Vec<(Vec<f64>, &BTreeMap<String, f64>)> =
         design.records.iter().filter(|r| r.converged).map(|r| (coordinates(&r.point), &r.qoi)).collect();
+    // each point's tolerance, whose error the surface carries as the service's does
+    let tolerances: Vec<f64> = design.records.iter().filter(|r| r.converged).map(|r| r.tolerance).collect();
     let off: Vec<_> = reference
         .records
         .iter()
@@ -69,7 +71,7 @@ fn main() {
     let qois: Vec<String> =
         scene.qoi.iter().map(|d| d.name.clone()).filter(|q| !components.contains(&q.as_str())).collect();
     for q in &qois {
-        let surface = QoiSurface::of_scene(&scene, &names, &rows, q).expect("a surface");
+        let surface = QoiSurface::of_scene(&scene, &names, &rows, &tolerances, q).expect("a surface");
         // the QoI's spread over the box: the design's values and the reference's (the audit's)
         let scale = spread(
             rows.iter()
@@ -95,7 +97,7 @@ fn main() {
                 parts.iter().map(|s| format!("{:.2?}", s.lengths())).collect::<Vec<_>>().join(" ")
             }
         };
-        print_leads(&scene, &names, &rows, q, &off, scale, design.tolerance);
+        print_leads(&scene, &names, &rows, q, &off, scale);
         print_audits(&pairs, scale, truth.mean);
         println!(
             "| {q} | {:.4} | {:.5} | {:.0} % | {:.4?} | {:.5} ({:.2}) | {:.4} | {lengths} |",
@@ -118,24 +120,16 @@ fn print_leads(
     q: &str,
     off: &[&glissade_core::study::PointRecord],
     scale: f64,
-    tolerance: f64,
 ) {
     let space = glissade_core::study::space::ParameterSpace::from_scene(scene);
-    let surface = QoiSurface::of_scene(scene, names, rows, q).expect("a surface");
-    let largest = rows.iter().map(|(_, v)| v[q].abs()).fold(0.0f64, f64::max);
     let judge = |lead: &str, predict: &dyn Fn(&DesignPoint) -> Prediction| {
         let pairs: Vec<(Prediction, f64)> = off.iter().map(|r| (predict(&r.point), r.qoi[q])).collect();
         let e = surface_errors(&pairs, scale);
         println!("|   {q} {lead} | {:.4} | {:.5} | {:.0} % |", e.largest, e.mean, 100.0 * e.within_2sd);
     };
-    // the points' own error, 3 x the tolerance of the largest |value| (docs/surrogate.md)
-    for k in [1.0, 3.0] {
-        let noise = k * tolerance * largest;
-        judge(&format!("noise floor {k} x tol x largest"), &|p| {
-            let at = surface.predict(p).expect("a prediction");
-            Prediction { mean: at.mean, std: at.std.hypot(noise) }
-        });
-    }
+    // the surface before 2026-11-26's: the points taken as exact (their error not carried)
+    let exact = QoiSurface::of_scene(scene, names, rows, &[], q).expect("a surface");
+    judge("points taken as exact", &|p| exact.predict(p).expect("a prediction"));
     if scene.qoi_is_norm(q) {
         let samples: Vec<(Vec<f64>, f64)> = rows.iter().map(|(x, v)| (x.clone(), v[q].max(0.0).sqrt())).collect();
         let root = glissade_core::study::surrogate::ResponseSurface::fit(&space, names, &samples).expect("a surface");

@@ -36,6 +36,9 @@ pub struct Picture<'a> {
     pub qoi: &'a str,
     /// Values below it show as 0 (core::study::resolutions).
     pub resolution: f64,
+    /// The tolerance the points were solved to, whose error the surface's standard deviation
+    /// carries as `--at`'s does (0: taken as exact).
+    pub tolerance: f64,
     pub title: String,
 }
 
@@ -76,7 +79,9 @@ impl Picture<'_> {
             .iter()
             .filter_map(|(p, q)| Some((self.names.iter().map(|n| p.get(n).copied()).collect::<Option<_>>()?, *q)))
             .collect();
-        let surface = QoiSurface::of_scene(scene, self.names, &fit_rows, self.qoi).map_err(|e| e.to_string())?;
+        let tolerances = vec![self.tolerance; fit_rows.len()];
+        let surface =
+            QoiSurface::of_scene(scene, self.names, &fit_rows, &tolerances, self.qoi).map_err(|e| e.to_string())?;
         // every parameter that is not drawn is held where the slice is: fixed, or one value throughout
         let mut held = BTreeMap::new();
         for name in self.names.iter().filter(|n| !free.contains(n)) {
@@ -126,7 +131,16 @@ mod tests {
     }
 
     fn picture<'a>(scene: &'a Scene, names: &'a [String], fixed: &'a [(String, f64)], qoi: &'a str) -> Picture<'a> {
-        Picture { scene: Some(scene), names, swept: names, fixed, qoi, resolution: 0.0, title: String::new() }
+        Picture {
+            scene: Some(scene),
+            names,
+            swept: names,
+            fixed,
+            qoi,
+            resolution: 0.0,
+            tolerance: 0.0,
+            title: String::new(),
+        }
     }
 
     #[test]
@@ -137,7 +151,8 @@ mod tests {
         let xs = [(0.3, 0.5), (0.6, 0.7), (0.4, 1.2), (0.7, 1.4), (0.5, 0.9), (0.35, 1.0)];
         let data = rows(|a, b| a + 0.5 * b, &xs);
         let rows: Vec<Row> = data.iter().map(|(p, q)| (p, q)).collect();
-        let s = picture(&scene, &names, &[], "ux").surface(&rows);
+        // points solved to 1e-3, whose error the standard deviation carries as `--at`'s does
+        let s = Picture { tolerance: 1e-3, ..picture(&scene, &names, &[], "ux") }.surface(&rows);
         let field = s.field.as_ref().expect("a surface");
         assert_eq!(field.axes[0].first().copied(), Some(0.0));
         assert_eq!(field.axes[0].last().copied(), Some(1.0));
@@ -148,7 +163,7 @@ mod tests {
         // the very predictor of `--at`
         let fit: Vec<(Vec<f64>, &BTreeMap<String, f64>)> =
             data.iter().map(|(p, q)| (vec![p["a"], p["b"]], q)).collect();
-        let direct = QoiSurface::of_scene(&scene, &names, &fit, "ux").unwrap();
+        let direct = QoiSurface::of_scene(&scene, &names, &fit, &[1e-3; 6], "ux").unwrap();
         let k = 7 + 13 * NODES_2D;
         let at = DesignPoint::try_from(BTreeMap::from([
             ("a".to_owned(), field.axes[0][7]),
@@ -157,6 +172,8 @@ mod tests {
         .unwrap();
         let p = direct.predict_within(&at).unwrap();
         assert_eq!((field.mean[k], field.std[k]), (p.mean, p.std));
+        let exact = QoiSurface::of_scene(&scene, &names, &fit, &[], "ux").unwrap().predict_within(&at).unwrap();
+        assert!(p.std > exact.std, "the points' error widens the error bars: {} against {}", p.std, exact.std);
         // a norm never reads below zero (the same clamp as `--at`'s)
         let slip = picture(&scene, &names, &[], "slip").surface(&rows);
         assert!(slip.field.unwrap().mean.iter().all(|v| *v >= 0.0));
@@ -197,7 +214,8 @@ mod tests {
             let data = rows(|a, b| (3.0 * a).sin() * b + (a - 0.4).max(0.0), &xs);
             let rows: Vec<Row> = data.iter().map(|(p, q)| (p, q)).collect();
             let start = std::time::Instant::now();
-            let s = picture(&scene, &names, &[], "ux").surface(&rows);
+            // points solved to a tolerance, as a study's: their error is carried
+            let s = Picture { tolerance: 2e-4, ..picture(&scene, &names, &[], "ux") }.surface(&rows);
             let picture = start.elapsed();
             let start = std::time::Instant::now();
             let svg = crate::surface_svg(&s, (960, 420)).unwrap();

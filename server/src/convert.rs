@@ -525,6 +525,7 @@ pub fn study(v: &StudyView) -> v1::Study {
             refused: a.refused.clone().into_iter().collect(),
             work: a.work,
             work_cap: a.work_cap,
+            seed: a.seed,
         }),
         held_out: r.held_out.is_some(),
         target: r.adaptive.as_ref().and_then(|a| {

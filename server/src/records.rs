@@ -121,11 +121,24 @@ pub struct StudyRecord {
     pub held_out: Option<HeldOut>,
 }
 
-/// What a surface audit's study predicted at its points (None until that study has ended).
+/// How a surface audit's points were drawn, and what its study predicted at them (None until
+/// that study has ended).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct HeldOut {
+    /// The seed of their draw (`held_out::points`), random at submission, so that every study,
+    /// a resubmitted one too, is judged on points of its own; None in records written before
+    /// 2026-11-26, drawn with the study's id.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted: Option<Predicted>,
+}
+
+impl HeldOut {
+    /// The seed its points were drawn with, the study's id for the records that do not say.
+    pub fn seed_of(&self, study: StudyId) -> u64 {
+        self.seed.unwrap_or(study.0)
+    }
 }
 
 /// A surface's predictions at the held-out points, made from the study's points alone.

@@ -272,6 +272,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "surface_accuracy": v.surface_accuracy.as_ref().map(|a| json!({
             "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "validated": a.validated,
             "planned": a.planned, "fitted": a.fitted, "work": a.work, "work_cap": a.work_cap, "refused": a.refused,
+            "seed": a.seed,
             "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), json!({
                 "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
             }))).collect::<serde_json::Map<_, _>>(),
@@ -568,6 +569,7 @@ fn surface_figures(
                 fixed,
                 qoi,
                 resolution: resolution.get(qoi).copied().unwrap_or(0.0),
+                tolerance: s.rows.first().map_or(0.0, |r| r.tolerance),
                 title: String::new(),
             };
             surface_figure(&picture.surface(&rows)).into_string()
@@ -757,8 +759,8 @@ fn audit_paragraphs(v: &StudyView) -> Markup {
         @if let Some(a) = &v.surface_accuracy {
             p #surface-accuracy {
                 (format!(
-                    "surface between the points: {} of {} held-out points solved cold at {:.0e}, against the surface of {} points: ",
-                    a.validated, a.planned, a.tolerance, a.fitted
+                    "surface between the points: {} of {} held-out points (seed {}) solved cold at {:.0e}, against the surface of {} points: ",
+                    a.validated, a.planned, a.seed, a.tolerance, a.fitted
                 ))
                 @for (k, (q, e)) in a.qoi.iter().enumerate() {
                     @if k > 0 { ", " }
@@ -913,6 +915,7 @@ mod tests {
             fixed,
             qoi,
             resolution: 0.0,
+            tolerance: 0.0,
             title: String::new(),
         };
         surface_figure(&picture.surface(&rows)).into_string()
@@ -960,6 +963,7 @@ mod tests {
                 error_indicator: 1e-4,
                 converged: k < done,
                 state: if k < done { PointState::Done } else { PointState::Pending },
+                tolerance: 1e-4,
             })
             .collect();
         Surface {
@@ -1032,6 +1036,7 @@ mod tests {
             fixed: &[],
             qoi: hostile,
             resolution: 0.0,
+            tolerance: 0.0,
             title: String::new(),
         };
         let svg = surface_figure(&picture.surface(&rows)).into_string();

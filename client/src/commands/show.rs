@@ -339,7 +339,7 @@ pub(crate) fn accuracy_line(a: &v1::StudyAccuracy) -> String {
     )
 }
 
-/// `7 of 7 held-out points solved cold at 2e-6 (study 4) against the surface of 121 points:
+/// `7 of 7 held-out points (seed 1234) solved cold at 2e-6 (study 4) against the surface of 121 points:
 /// slip_A largest 1.3e-1 mean 5.0e-3 within 2 sd 86 %, ...`; errors relative to each QoI's spread.
 pub(crate) fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
     let mut parts: Vec<String> = a
@@ -360,9 +360,10 @@ pub(crate) fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
         String::new()
     };
     format!(
-        "{} of {} held-out points solved cold at {:.0e} (study {}) against the surface of {} points{}{}{cost}",
+        "{} of {} held-out points (seed {}) solved cold at {:.0e} (study {}) against the surface of {} points{}{}{cost}",
         a.validated,
         a.planned,
+        a.seed,
         a.tolerance,
         a.audit_study_id,
         a.fitted,

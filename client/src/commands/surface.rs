@@ -120,6 +120,7 @@ pub(crate) async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
             fixed: &fixed,
             qoi,
             resolution: table.resolution[0],
+            tolerance: study.tolerance,
             title,
         };
         let surface = picture.surface(&rows);

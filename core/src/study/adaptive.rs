@@ -263,7 +263,9 @@ impl AdaptiveDesign {
             let components: Vec<&str> =
                 readings.norms.get(q.as_str()).map(|c| c.iter().map(String::as_str).collect()).unwrap_or_default();
             let norm = readings.norms.contains_key(q.as_str());
-            match QoiSurface::fit(space, &names, &rows, q, norm, &components) {
+            // (the points taken as exact: a new point has the same error as the others, so the
+            // points' own error, which the surface of `--at` carries, says nothing of where to go)
+            match QoiSurface::fit(space, &names, &rows, &[], q, norm, &components) {
                 Ok(s) => {
                     let at: Vec<&Vec<f64>> =
                         rows.iter().filter(|(_, v)| v.contains_key(q.as_str())).map(|(x, _)| x).collect();

@@ -11,6 +11,14 @@
 //! one by one; the signal variance and the mean are in closed form for each choice (profile
 //! likelihood).
 //!
+//! The points are not exact: each QoI is within about 3 x its tolerance of the QoI's largest
+//! |value| ([`POINT_ERROR_PER_TOLERANCE`]), and that error is an offset shared by neighbouring
+//! points (tiny's middle_ux at 2e-4: -0.41 % of its spread at every point of an 11 x 11 grid, with
+//! a scatter of 0.03 %), not noise that averaging removes. A nugget would average it away; the
+//! prediction inherits sum_i w_i e_i instead (w the weights of the mean), bounded by
+//! sum_i |w_i| e_i, which is added to the standard deviation ([`Surrogate::with_point_errors`];
+//! docs/surrogate.md, "Error bars of grid studies").
+//!
 //! Cost: O(n^3) per likelihood evaluation; fits are refused above [`MAX_POINTS`] points before
 //! anything is allocated.
 
@@ -27,6 +35,10 @@ const MIN_LENGTH: f64 = 0.1;
 /// Nugget: the noise variance added to the diagonal, relative to the signal variance (lengths
 /// whose matrix does not factorise with it are skipped by the search).
 const NUGGETS: [f64; 5] = [1e-10, 1e-7, 1e-5, 1e-4, 1e-3];
+/// A point's QoI error per unit of its tolerance, relative to the QoI's largest |value| over the
+/// fitted points: measured within about 3 x (docs/surrogate.md, "Adaptive to a target"; tiny's
+/// middle_ux at 2e-4 off by 3.5 x, slips by less).
+pub const POINT_ERROR_PER_TOLERANCE: f64 = 3.0;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SurrogateError {
@@ -42,6 +54,8 @@ pub enum SurrogateError {
     NotFinite { index: usize },
     #[error("two points at the same place (points {0} and {1}) with different values")]
     Conflict(usize, usize),
+    #[error("{tolerances} tolerances for {rows} points: give one per point, or none")]
+    Tolerances { tolerances: usize, rows: usize },
     #[error("`{0}` is not a parameter of the scene")]
     UnknownParameter(String),
     #[error("give a value of `{0}` (a parameter of the surface)")]
@@ -66,6 +80,10 @@ pub struct Surrogate {
     factor: Vec<f64>,
     /// K^-1 (y - mean).
     alpha: Vec<f64>,
+    /// each fitted point's own error, in the values' units (empty: exact points)
+    errors: Vec<f64>,
+    /// K^-1 1 / (1' K^-1 1), the mean's weights (with `errors` only)
+    mean_weights: Vec<f64>,
 }
 
 /// A prediction: the mean and its standard deviation.
@@ -157,7 +175,32 @@ impl Surrogate {
             mean,
             factor,
             alpha,
+            errors: Vec::new(),
+            mean_weights: Vec::new(),
         })
+    }
+
+    /// The same process with each fitted point's own error (`errors[i]` >= 0, in the values'
+    /// units, as the points): a prediction's standard deviation then includes what the points'
+    /// errors can make of its mean, sum_i |w_i| errors[i] (w the weights of the mean: the errors
+    /// taken as one offset of the worst sign, not as noise that averages out), in quadrature
+    /// with the process's.
+    pub fn with_point_errors(mut self, errors: Vec<f64>) -> Result<Self, SurrogateError> {
+        if errors.len() != self.points.len() {
+            return Err(SurrogateError::Tolerances { tolerances: errors.len(), rows: self.points.len() });
+        }
+        if let Some(index) = errors.iter().position(|e| !e.is_finite() || *e < 0.0) {
+            return Err(SurrogateError::NotFinite { index });
+        }
+        if errors.iter().all(|e| *e == 0.0) {
+            return Ok(self);
+        }
+        let n = self.points.len();
+        let ones = solve(&self.factor, n, &vec![1.0; n]);
+        let total: f64 = ones.iter().sum();
+        self.mean_weights = ones.iter().map(|o| o / total).collect();
+        self.errors = errors;
+        Ok(self)
     }
 
     /// The length scale of each parameter (in units of its range).
@@ -206,7 +249,16 @@ impl Surrogate {
         let v = forward(&self.factor, n, &k);
         let reduction = v.iter().map(|x| x * x).sum::<f64>();
         let variance = self.signal_variance * (1.0 + self.nugget - reduction).max(0.0);
-        Prediction { mean, std: variance.sqrt() }
+        let inherited = if self.errors.is_empty() {
+            0.0
+        } else {
+            // the mean's weights: w = K^-1 k + u (1 - 1' K^-1 k), u = K^-1 1 / (1' K^-1 1);
+            // K^-1 k = L'^-1 v, v = L^-1 k of the variance
+            let kinv_k = backward(&self.factor, n, v);
+            let share = 1.0 - kinv_k.iter().sum::<f64>();
+            kinv_k.iter().zip(&self.mean_weights).zip(&self.errors).map(|((w, u), e)| (w + u * share).abs() * e).sum()
+        };
+        Prediction { mean, std: (variance + inherited * inherited).sqrt() }
     }
 }
 
@@ -261,6 +313,13 @@ impl ResponseSurface {
     pub fn non_negative(mut self) -> Self {
         self.non_negative = true;
         self
+    }
+
+    /// The surface with each sample's own error (the samples' order; see
+    /// [`Surrogate::with_point_errors`]).
+    pub fn with_point_errors(mut self, errors: Vec<f64>) -> Result<Self, SurrogateError> {
+        self.process = self.process.with_point_errors(errors)?;
+        Ok(self)
     }
 
     pub fn names(&self) -> &[String] {
@@ -343,47 +402,61 @@ pub enum QoiSurface {
 impl QoiSurface {
     /// The surface of `qoi` as the scene defines it: never below zero for a norm, from its
     /// components where the scene reports them. The one fit behind `glissade surface --at`, the
-    /// surface audit and the pictures.
+    /// surface audit and the pictures. `tolerances`: as [`Self::fit`].
     pub fn of_scene(
         scene: &crate::scene::Scene,
         names: &[String],
         rows: &[(Vec<f64>, &std::collections::BTreeMap<String, f64>)],
+        tolerances: &[f64],
         qoi: &str,
     ) -> Result<Self, SurrogateError> {
         let space = ParameterSpace::from_scene(scene);
-        Self::fit(&space, names, rows, qoi, scene.qoi_is_norm(qoi), &scene.components_of(qoi))
+        Self::fit(&space, names, rows, tolerances, qoi, scene.qoi_is_norm(qoi), &scene.components_of(qoi))
     }
 
     /// The surface of `qoi` over `rows` (each: the values of `names`, in that order, and the
     /// point's QoIs): from its `components` (names of QoIs) where every row that has the norm has
-    /// them all, else its own, never below zero if `norm`.
+    /// them all, else its own, never below zero if `norm`. `tolerances`: one per row, the
+    /// tolerance its QoIs were solved to, whose error each surface's standard deviation carries
+    /// ([`POINT_ERROR_PER_TOLERANCE`] x it x the largest |value| of the surface's QoI); empty:
+    /// the points are taken as exact.
     pub fn fit(
         space: &ParameterSpace,
         names: &[String],
         rows: &[(Vec<f64>, &std::collections::BTreeMap<String, f64>)],
+        tolerances: &[f64],
         qoi: &str,
         norm: bool,
         components: &[&str],
     ) -> Result<Self, SurrogateError> {
+        if !tolerances.is_empty() && tolerances.len() != rows.len() {
+            return Err(SurrogateError::Tolerances { tolerances: tolerances.len(), rows: rows.len() });
+        }
+        let tolerance = |i: usize| tolerances.get(i).copied().unwrap_or(0.0);
         // (the components at the rows that have the norm: every surface fits the same points)
-        let samples = |q: &str| -> Vec<(Vec<f64>, f64)> {
+        let samples = |q: &str| -> (Vec<(Vec<f64>, f64)>, Vec<f64>) {
             rows.iter()
-                .filter(|(_, v)| v.contains_key(qoi))
-                .filter_map(|(x, v)| Some((x.clone(), *v.get(q)?)))
-                .collect()
+                .enumerate()
+                .filter(|(_, (_, v))| v.contains_key(qoi))
+                .filter_map(|(i, (x, v))| Some(((x.clone(), *v.get(q)?), tolerance(i))))
+                .unzip()
         };
-        let own = samples(qoi);
+        let fit = |q: &str| -> Result<ResponseSurface, SurrogateError> {
+            let (samples, tolerances) = samples(q);
+            let largest = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
+            let errors = tolerances.iter().map(|t| POINT_ERROR_PER_TOLERANCE * t * largest).collect();
+            ResponseSurface::fit(space, names, &samples)?.with_point_errors(errors)
+        };
         let complete = !components.is_empty()
             && rows
                 .iter()
                 .filter(|(_, v)| v.contains_key(qoi))
                 .all(|(_, v)| components.iter().all(|c| v.contains_key(*c)));
         if norm && complete {
-            let parts =
-                components.iter().map(|c| ResponseSurface::fit(space, names, &samples(c))).collect::<Result<_, _>>()?;
+            let parts = components.iter().map(|c| fit(c)).collect::<Result<_, _>>()?;
             return Ok(QoiSurface::Components(parts));
         }
-        let surface = ResponseSurface::fit(space, names, &own)?;
+        let surface = fit(qoi)?;
         Ok(QoiSurface::Direct(Box::new(if norm { surface.non_negative() } else { surface })))
     }
 
@@ -539,14 +612,18 @@ fn forward(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
     y
 }
 
-/// (L L')^-1 b.
-fn solve(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
-    let mut x = forward(l, n, b);
+/// L'^-1 y.
+fn backward(l: &[f64], n: usize, mut x: Vec<f64>) -> Vec<f64> {
     for i in (0..n).rev() {
         let s: f64 = (i + 1..n).map(|k| l[k * n + i] * x[k]).sum();
         x[i] = (x[i] - s) / l[i * n + i];
     }
     x
+}
+
+/// (L L')^-1 b.
+fn solve(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
+    backward(l, n, forward(l, n, b))
 }
 
 #[cfg(test)]
@@ -566,6 +643,51 @@ mod tests {
 
     fn analytic(x: &[f64]) -> f64 {
         (3.0 * x[0]).sin() + 0.5 * (2.0 * x[1]).cos() + x[0] * x[1]
+    }
+
+    /// Points solved to a tolerance are off by an offset their neighbours share (tiny's middle_ux
+    /// at 2e-4: -0.41 % of its spread at every point of a grid, scatter 0.03 %): the error bars
+    /// must carry it, where a process that takes the points as exact is sure of the wrong value.
+    #[test]
+    fn the_points_error_is_carried_as_an_offset_not_averaged_away() {
+        let points = grid(9);
+        let truth: Vec<f64> = points.iter().map(|p| analytic(p)).collect();
+        let largest = truth.iter().map(|v| v.abs()).fold(0.0, f64::max);
+        let error = POINT_ERROR_PER_TOLERANCE * 1e-2 * largest;
+        // every point off by 80 % of its error bound, one sign, with a small scatter
+        let values: Vec<f64> =
+            truth.iter().enumerate().map(|(i, v)| v - 0.8 * error + 0.05 * error * (i % 3) as f64).collect();
+        let exact = Surrogate::fit(&points, &values).unwrap();
+        let carried = exact.clone().with_point_errors(vec![error; points.len()]).unwrap();
+        let centres: Vec<Vec<f64>> =
+            (0..8).flat_map(|i| (0..8).map(move |j| vec![(i as f64 + 0.5) / 8.0, (j as f64 + 0.5) / 8.0])).collect();
+        let within = |s: &Surrogate| {
+            centres.iter().filter(|c| (s.predict(c).mean - analytic(c)).abs() <= 2.0 * s.predict(c).std).count()
+        };
+        assert!(within(&exact) < centres.len() / 2, "exact points: {} of 64 within 2 sd", within(&exact));
+        assert_eq!(within(&carried), centres.len(), "every centre within 2 sd once the points' error is carried");
+        for c in &centres {
+            let (a, b) = (exact.predict(c), carried.predict(c));
+            assert_eq!(a.mean, b.mean, "the error bars change, not the mean");
+            // the inherited term is at least the error (the weights sum to 1) and no wild multiple of it
+            assert!(b.std >= error && b.std <= 2.0 * error + a.std, "{c:?}: {b:?}, error {error}, {a:?}");
+        }
+        // at a fitted point the prediction inherits that point's error
+        let at = carried.predict(&points[40]);
+        assert!((at.std - error).abs() < 0.02 * error, "{at:?} at a point of error {error}");
+        // each point's own: looser points (x < 0.5) give wider bars than tighter ones
+        let mixed: Vec<f64> = points.iter().map(|p| if p[0] < 0.5 { 10.0 * error } else { error }).collect();
+        let mixed = exact.clone().with_point_errors(mixed).unwrap();
+        let (loose, tight) = (mixed.predict(&[0.2, 0.5]).std, mixed.predict(&[0.8, 0.5]).std);
+        assert!(loose > 5.0 * tight, "{loose} against {tight}");
+        // one error per point, finite and not negative
+        assert_eq!(
+            exact.clone().with_point_errors(vec![error; 3]).err(),
+            Some(SurrogateError::Tolerances { tolerances: 3, rows: 81 })
+        );
+        let mut bad = vec![error; 81];
+        bad[7] = -1.0;
+        assert_eq!(exact.clone().with_point_errors(bad).err(), Some(SurrogateError::NotFinite { index: 7 }));
     }
 
     #[test]
@@ -751,8 +873,8 @@ mod tests {
             .collect();
         let rows: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = rows.iter().map(|(p, q)| (p.clone(), q)).collect();
         let components = scene.components_of("slip_A");
-        let read = QoiSurface::fit(&space, &names, &rows, "slip_A", true, &components).unwrap();
-        let direct = QoiSurface::fit(&space, &names, &rows, "slip_A", true, &[]).unwrap();
+        let read = QoiSurface::fit(&space, &names, &rows, &[], "slip_A", true, &components).unwrap();
+        let direct = QoiSurface::fit(&space, &names, &rows, &[], "slip_A", true, &[]).unwrap();
         assert!(matches!(read, QoiSurface::Components(_)) && matches!(direct, QoiSurface::Direct(_)));
         assert_eq!(read.len(), 6);
         let largest = |s: &QoiSurface| {
@@ -772,7 +894,7 @@ mod tests {
         let lacking: BTreeMap<String, f64> = [("slip_A".to_string(), 1e-6)].into();
         partial[0].1 = &lacking;
         assert!(matches!(
-            QoiSurface::fit(&space, &names, &partial, "slip_A", true, &components).unwrap(),
+            QoiSurface::fit(&space, &names, &partial, &[], "slip_A", true, &components).unwrap(),
             QoiSurface::Direct(_)
         ));
     }

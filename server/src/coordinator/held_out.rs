@@ -17,7 +17,8 @@ use crate::records::{AdaptiveSpec, PointState, Predicted};
 
 /// `n` points held out of a study of swept `names` over `design` (or, adaptive, over its
 /// ranges): uniform in the study's box (each parameter from its lowest to its highest value),
-/// none at a design point, seeded by `seed` (the study's id: the same study, the same points).
+/// none at a design point, seeded by `seed` (the audit's record keeps it: the same seed, the same
+/// points).
 pub(super) fn points(
     names: &[String],
     design: &[DesignPoint],
@@ -57,6 +58,8 @@ pub(super) struct Job {
     names: Vec<String>,
     /// the study's done points: coordinates and QoIs
     rows: Vec<(Vec<f64>, BTreeMap<String, f64>)>,
+    /// the tolerance they were solved to
+    tolerance: f64,
     at: Vec<DesignPoint>,
 }
 
@@ -72,7 +75,8 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
         })
         .collect();
     let at = audit.points.iter().map(|p| p.parameters.clone()).collect();
-    Job { audit: audit.record.id, scene: std::sync::Arc::clone(&study.scene), names, rows, at }
+    let tolerance = study.record.tolerance;
+    Job { audit: audit.record.id, scene: std::sync::Arc::clone(&study.scene), names, rows, tolerance, at }
 }
 
 /// The surface of each QoI of the study's points (as `glissade surface` fits it: norms never
@@ -84,8 +88,9 @@ pub(super) fn predict(job: &Job) -> Predicted {
     let scene: &Scene = &job.scene;
     let qois: std::collections::BTreeSet<&String> = job.rows.iter().flat_map(|(_, q)| q.keys()).collect();
     let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = job.rows.iter().map(|(x, q)| (x.clone(), q)).collect();
+    let tolerances = vec![job.tolerance; points.len()];
     for q in qois {
-        let surface = match QoiSurface::of_scene(scene, &job.names, &points, q) {
+        let surface = match QoiSurface::of_scene(scene, &job.names, &points, &tolerances, q) {
             Ok(s) => s,
             Err(e) => {
                 refused.insert(q.clone(), e.to_string());
@@ -153,6 +158,7 @@ pub(super) fn measure(study: &StudyEntry, audit: &StudyEntry) -> SurfaceAccuracy
         validated: pairs.len() as u32,
         planned: audit.points.len() as u32,
         fitted: predicted.map_or(0, |p| p.fitted),
+        seed: audit.record.held_out.as_ref().map_or(study.record.id.0, |h| h.seed_of(study.record.id)),
         qoi,
         refused: predicted.map(|p| p.refused.clone()).unwrap_or_default(),
         work: budget.map_or(0.0, |b| b.spent),

@@ -685,7 +685,8 @@ impl Coordinator {
                 .collect::<Result<Vec<_>, CoordError>>()?;
             let mut record = entry.record.clone();
             tracing::info!(study = %job.audit, fitted = predicted.fitted, "surface audit: predictions made");
-            record.held_out = Some(records::HeldOut { predicted: Some(predicted) });
+            let drawn = record.held_out.take().unwrap_or_default();
+            record.held_out = Some(records::HeldOut { predicted: Some(predicted), ..drawn });
             result = self.commit(entry, changes, Some(record), Batch::new());
         }
         result

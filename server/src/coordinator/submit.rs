@@ -374,19 +374,22 @@ impl Admitted {
         let surface_audit = (self.held_out_points > 0)
             .then(|| {
                 let sid = StudyId(id.0 + 1 + audit_id.is_some() as u64 + refined_studies.len() as u64);
+                // a seed of its own (not the study's id, 1 in every fresh database): a study
+                // submitted again is judged on other points; the record keeps it
+                let seed: u64 = rand::random();
                 let held = held_out::points(
                     &record.parameters,
                     &self.points,
                     record.adaptive.as_ref(),
                     self.held_out_points,
-                    id.0,
+                    seed,
                 )
                 .into_iter()
                 // (the design's points passed this check; its box's may not everywhere)
                 .filter(|p| check_point(&self.scene, p).is_ok())
                 .collect();
                 let mut audit = cold_audit_record(&record, sid, format!("surface audit of study {id}"));
-                audit.held_out = Some(records::HeldOut::default());
+                audit.held_out = Some(records::HeldOut { seed: Some(seed), predicted: None });
                 (audit, pending(sid, held))
             })
             // (a box the design fills, a point with no swept parameter: nothing to hold out)

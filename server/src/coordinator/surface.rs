@@ -15,16 +15,13 @@ fn predict(
     rows: &[SurfaceRow],
     at: &[DesignPoint],
 ) -> Result<Vec<PointPrediction>, CoordError> {
-    let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = rows
-        .iter()
-        .filter_map(|r| {
-            let x: Option<Vec<f64>> = names.iter().map(|n| r.parameters.get(n)).collect();
-            Some((x?, &r.qoi))
-        })
-        .collect();
+    let rows: Vec<&SurfaceRow> = rows.iter().filter(|r| names.iter().all(|n| r.parameters.get(n).is_some())).collect();
+    let points: Vec<(Vec<f64>, &BTreeMap<String, f64>)> =
+        rows.iter().map(|r| (names.iter().filter_map(|n| r.parameters.get(n)).collect(), &r.qoi)).collect();
+    let tolerances: Vec<f64> = rows.iter().map(|r| r.tolerance).collect();
     let mut surfaces = Vec::with_capacity(qoi.len());
     for q in qoi {
-        let surface = QoiSurface::of_scene(scene, names, &points, q)
+        let surface = QoiSurface::of_scene(scene, names, &points, &tolerances, q)
             .map_err(|e| CoordError::Precondition(format!("the surface of {q} cannot predict: {e}")))?;
         surfaces.push(surface);
     }
@@ -76,6 +73,7 @@ impl Coordinator {
                             error_indicator: r.map_or(0.0, |r| r.error_indicator),
                             converged: r.is_some_and(|r| r.converged),
                             state: p.state.clone(),
+                            tolerance: entry.record.tolerance,
                         }
                     })
                     .collect::<Vec<_>>();
@@ -93,6 +91,7 @@ impl Coordinator {
                         error_indicator: s.error_indicator,
                         converged: s.converged,
                         state: if s.converged { PointState::Done } else { PointState::Failed },
+                        tolerance: s.tolerance,
                     })
                     .collect::<Vec<_>>();
                 if rows.is_empty() && self.store.get(Tree::Scenes, hash.as_bytes())?.is_none() {

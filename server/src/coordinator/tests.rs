@@ -1098,7 +1098,23 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
         ("audit", Some(id), InitStrategy::Cold, 6)
     );
     assert_eq!(a.record.tolerance, 1e-3 * AUDIT_TOLERANCE_RATIO);
-    assert_eq!(a.record.held_out, Some(records::HeldOut { predicted: None }));
+    let seed = a.record.held_out.as_ref().and_then(|h| h.seed).expect("the seed of the draw, kept");
+    assert_eq!(a.record.held_out, Some(records::HeldOut { seed: Some(seed), predicted: None }));
+    // the record repeats the draw: the seed gives these points again
+    let design: Vec<DesignPoint> = c.study(id, true).unwrap().points.iter().map(|p| p.parameters.clone()).collect();
+    let names = vec!["f1".to_string(), "f2".to_string()];
+    let drawn = super::held_out::points(&names, &design, None, 6, seed);
+    assert_eq!(drawn, a.points.iter().map(|p| p.parameters.clone()).collect::<Vec<_>>());
+    // the same study in a fresh database (id 1 again) is judged on points of its own
+    let other_dir = tempfile::tempdir().unwrap();
+    let other = open(other_dir.path(), 60_000, 3);
+    let again = submit_held_out(&other, &["f1=0.1:0.2:5", "f2=0.1:0.2:5"], None, None);
+    assert_eq!(again, id, "the same id");
+    let again = other.study(other.study(again, false).unwrap().record.surface_audit.unwrap(), true).unwrap();
+    let other_seed = again.record.held_out.as_ref().and_then(|h| h.seed).unwrap();
+    assert_ne!(other_seed, seed);
+    assert_ne!(again.points[0].parameters, a.points[0].parameters, "other held-out points");
+    drop(other);
     let grid = [0.1, 0.125, 0.15, 0.175, 0.2];
     for p in &a.points {
         let (f1, f2) = (p.parameters.get("f1").unwrap(), p.parameters.get("f2").unwrap());
@@ -1123,15 +1139,19 @@ fn a_surface_audit_measures_the_surface_between_the_points() {
     let held = c.study(audit, true).unwrap();
     let scene = Scene::parse(TINY).unwrap();
     let space = ParameterSpace::from_scene(&scene);
-    let names = vec!["f1".to_string(), "f2".to_string()];
     let measured = study.surface_accuracy.expect("measured");
     assert_eq!((measured.audit_study, measured.validated, measured.planned, measured.fitted), (audit, 6, 6, 25));
+    assert_eq!(measured.seed, seed, "reported with what it measured");
     // its cost: 6 points of work 8 against a cap of half the study's 25 x 8
     assert_eq!((measured.work, measured.work_cap), (48.0, 100.0));
     for q in ["slip_A", "middle_ux"] {
         let xy = |p: &PointRecord| vec![p.parameters.get("f1").unwrap(), p.parameters.get("f2").unwrap()];
         let samples: Vec<(Vec<f64>, f64)> = study.points.iter().map(|p| (xy(p), law(&p.parameters)[q])).collect();
-        let surface = ResponseSurface::fit(&space, &names, &samples).unwrap();
+        // carrying the points' error: POINT_ERROR_PER_TOLERANCE x the study's tolerance x the largest |value|
+        let top = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
+        let error = glissade_core::study::surrogate::POINT_ERROR_PER_TOLERANCE * study.record.tolerance * top;
+        let surface =
+            ResponseSurface::fit(&space, &names, &samples).unwrap().with_point_errors(vec![error; 25]).unwrap();
         let surface = if q == "slip_A" { surface.non_negative() } else { surface };
         let (mut largest, mut sum, mut within) = (0.0f64, 0.0, 0);
         let values: Vec<f64> = study.points.iter().chain(&held.points).map(|p| law(&p.parameters)[q]).collect();

@@ -354,6 +354,8 @@ pub struct SurfaceAccuracy {
     pub planned: u32,
     /// Points the surface was fitted to (0 until the study has ended and it predicted).
     pub fitted: u32,
+    /// The seed the held-out points were drawn with (records::HeldOut::seed).
+    pub seed: u64,
     /// Per QoI: largest and mean |predicted - solved| / the QoI's spread, share within 2 sd.
     pub qoi: BTreeMap<String, SurfaceErrors>,
     /// QoIs whose surface could not be fitted, and why.
@@ -430,6 +432,9 @@ pub struct SurfaceRow {
     pub converged: bool,
     /// Point state for a study source; Done/Failed for a stored solution.
     pub state: PointState,
+    /// The tolerance its QoIs were solved to (a study's points: the study's, an upper bound for
+    /// those answered from tighter stored solutions), whose error the surface carries.
+    pub tolerance: f64,
 }
 
 /// A response surface.

@@ -74,7 +74,8 @@ fn a_surface_audit_reports_the_error_of_the_surface_at_held_out_solves() -> anyh
     let out = glissade(Some(&url), &["show", &measured.study_id.to_string()]);
     assert!(out.status.success(), "show: {}", text(&out.stderr));
     let shown = text(&out.stdout);
-    assert!(shown.contains("  surface   2 of 2 held-out points solved cold at 1e-5"), "{shown}");
+    let line = format!("  surface   2 of 2 held-out points (seed {}) solved cold at 1e-5", s.seed);
+    assert!(shown.contains(&line), "{shown}");
     assert!(shown.contains("against the surface of 16 points: middle_ux largest"), "{shown}");
     let out = glissade(Some(&url), &["show", &held.study_id.to_string()]);
     assert!(text(&out.stdout).contains("points held out of its surface"), "{}", text(&out.stdout));
@@ -85,6 +86,7 @@ fn a_surface_audit_reports_the_error_of_the_surface_at_held_out_solves() -> anyh
     let json: serde_json::Value = serde_json::from_str(&json)?;
     let slip = &json["surface_accuracy"]["qoi"]["slip_A"];
     assert_eq!(slip["largest"].as_f64(), Some(s.qoi["slip_A"].largest), "{json}");
+    assert_eq!(json["surface_accuracy"]["seed"].as_u64(), Some(s.seed), "{json}");
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }
