@@ -54,13 +54,13 @@ pub struct WindowCheck {
     pub outcome: CheckOutcome,
 }
 
-/// How two answers part on one QoI over time: the difference of their histories, as its running
-/// largest value, first reaches 1e-3 of its final largest at `from` and a tenth of it at `to`
-/// (100 x more). Between the two it grew e-fold every `efold` seconds: the rate at which the
-/// motion amplifies a perturbation, which no tolerance outruns (docs/verification.md, "A slide
-/// that amplifies perturbations"). `efold` is none where the difference jumped by 100 x within
-/// a step or two (an impact that one answer has and the other not); `growth` is what that rate
-/// makes of a difference at `from` by the end of the interval.
+/// How two answers part on one QoI over time: the difference of their histories relative to the
+/// QoI's size so far, as its running largest value, first reaches 1e-3 of its final largest at
+/// `from` and a tenth of it at `to` (100 x more). Between the two it grew e-fold every `efold`
+/// seconds: the rate at which the motion amplifies a perturbation (docs/verification.md, "A
+/// slide that amplifies perturbations"). `efold` is none where the difference jumped by 100 x
+/// within a step or two (an impact that one answer has and the other not); `growth` is what that
+/// rate makes of a difference at `from` by the end of the interval.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Parting {
     pub qoi: String,
