@@ -1966,7 +1966,8 @@ fn a_windowed_solve_is_checked_against_another_windowing() {
 /// iterated: the answer returned is the last pass that converged (here the solve itself), not
 /// that one's half-iterated histories (the 3D block's slip used to end at 1e-13 m, its value
 /// before sliding). The titanium block, 60 iterations a window: the solve converges, the
-/// check's pass at 2e-5 and its retry at 6.3e-5 run out.
+/// check's pass at 2e-5 and its retry at 6.3e-5 run out. A solve that itself stops in a window
+/// says where, and that the rest is no answer.
 #[test]
 fn a_check_whose_pass_stops_part_way_returns_the_last_converged_answer() {
     let titanium = |extra: &str| {
@@ -1987,6 +1988,20 @@ fn a_check_whose_pass_stops_part_way_returns_the_last_converged_answer() {
     }
     let why = r.dynamic.diagnosis(2e-4);
     assert!(why.contains(&format!("a pass to {:.1e} did not converge", check.floor.unwrap_or(0.0))), "{why}");
+    assert_eq!(r.dynamic.stopped_in, None, "the answer returned is a whole one");
+
+    // With 20 iterations a window the solve itself stops in its first window: it says so, and
+    // that its histories after it are no answer (they stay at the prestress's values).
+    let mut limited = titanium("[solver]");
+    limited.settings.max_iterations = 20;
+    let stopped =
+        LatinSolver::serial(&limited).expect("factorisation").solve(None, &SolveOptions::default()).expect("solve");
+    let at = stopped.dynamic.stopped_in.expect("stopped in a window");
+    assert_eq!((at.from, at.to, at.of), (0, 10, 200));
+    let why = stopped.dynamic.diagnosis(2e-4);
+    assert!(why.contains("stopped in the time window of steps 0..10 of 200"), "{why}");
+    let force = &stopped.qoi.iter().find(|q| q.name == "normal_force").expect("a QoI").values;
+    assert!(force[at.to + 1..].iter().all(|f| *f == force[at.to + 1]), "not iterated after step 10");
 }
 
 /// Where the windowings keep parting however tight their iterations (the titanium block at

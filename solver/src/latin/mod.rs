@@ -125,6 +125,11 @@ pub struct StageReport {
     /// the same solve iterated again in other time windows and compared (dynamic stage in
     /// windows, unless the scene turns it off): `iterations` and `sweeps` include its passes
     pub window_check: Option<WindowCheck>,
+    /// where a stage in time windows stopped before the end: the window's steps `[from, to)` of
+    /// the interval's `of` (the steps after it were never iterated: their fields, and the QoIs,
+    /// follow the starting guess)
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stopped_in: Option<StoppedIn>,
     /// per QoI, the norm of its whole history its error is measured against (floored as the
     /// stopping test floors it) when the stage stopped
     #[serde(skip)]
@@ -220,8 +225,24 @@ impl StageReport {
                  or try {windows}"
             )
         };
-        format!("{advice}{place}{flat}")
+        // a windowed stage that stopped early has no answer after that window
+        let stopped = self.stopped_in.map_or(String::new(), |w| {
+            format!(
+                "; it stopped in the time window of steps {}..{} of {}: the steps after {} were never iterated, \
+                 their histories follow the starting guess and are no answer",
+                w.from, w.to, w.of, w.to
+            )
+        });
+        format!("{advice}{place}{flat}{stopped}")
     }
+}
+
+/// The time window a stage stopped in ([`StageReport::stopped_in`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct StoppedIn {
+    pub from: usize,
+    pub to: usize,
+    pub of: usize,
 }
 
 /// A quantity of interest as a time series over t_0 .. t_N.
@@ -810,6 +831,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 report.converged = report.error_estimate <= tolerance;
             }
             if !report.converged || window.steps.end == steps {
+                if !report.converged && window.steps.end < steps {
+                    report.stopped_in = Some(StoppedIn { from: window.steps.start, to: window.steps.end, of: steps });
+                }
                 return Ok(report);
             }
             let bases = end.bases;
