@@ -2380,4 +2380,15 @@ pressure = 1e6
     let r = solve(&flat, false);
     let prestress = r.static_stage.as_ref().expect("a pressed plate has a prestress");
     assert!(r.converged() && prestress.iterations < 600, "prestress {} iterations", prestress.iterations);
+    // and as accurate: the floor carries the pressure on the top face, 1 MPa x 20 mm
+    let statics = r.solution.static_stage.as_ref().expect("the prestress's fields");
+    let carried: f64 = (0..flat.interfaces.len())
+        .filter(|&i| i != perfect)
+        .map(|i| {
+            let itf = &flat.interfaces[i];
+            itf.area.iter().enumerate().map(|(j, a)| a * statics.interfaces[i].hat[0].force[2 * j + 1]).sum::<f64>()
+        })
+        .sum();
+    eprintln!("the floor carries {carried:.6e} N/m");
+    assert!((carried.abs() / 2e4 - 1.0).abs() < 1e-6, "floor force {carried} N/m against 2e4");
 }
