@@ -57,7 +57,8 @@ impl SearchDirection {
     }
 }
 
-/// The static search direction of one side: E / sqrt(L h). The static stage is multiscale
+/// The static search direction of one side: E / sqrt(L h), or E / sqrt(L h / a) for elements a
+/// times deeper than long (below). The static stage is multiscale
 /// (`latin::LatinSolver::new`): its macro problem carries the smooth part of the interface fields,
 /// and the direction aims at the rest of the range of stiffnesses a substructure opposes, from
 /// E / L (L the assembly's largest extent) for a smooth interface displacement to E / h for one
@@ -71,8 +72,6 @@ impl SearchDirection {
 /// E / sqrt(L h / a) (a > 1 only; docs/performance.md, "Flat elements along an interface":
 /// prestress iterations 6,384 -> 633 at a = 100).
 pub fn static_search_direction(young: f64, assembly_size: f64, mesh_size: Option<f64>, depth: Option<f64>) -> f64 {
-    // elements a times deeper than long along the interface (depth a > 1) oppose a pattern
-    // changing from node to node with about a x E / h: the range's upper end moves up as much
     let h = mesh_size.map(|h| h / depth.filter(|a| a.is_finite()).unwrap_or(1.0).max(1.0));
     match h {
         Some(h) if h > 0.0 && h < assembly_size => young / (assembly_size * h).sqrt(),
