@@ -7,9 +7,10 @@
 //! its coordinates and elements. The messages are the model's (`glissade-worker`'s
 //! `Model::build`), which runs the same rules while it builds.
 
+use crate::contact::PrakashClifton;
 use crate::gmsh::Msh;
 use crate::point::DesignPoint;
-use crate::scene::{BodySpec, InterfaceSpec, LawSpec, Resolver, Scene, SceneError, Substructures, invalid};
+use crate::scene::{BodySpec, InterfaceSpec, LawSpec, Resolver, Scalar, Scene, SceneError, Substructures, invalid};
 
 /// The useful range of `solver.tangential_factor`: far outside it, the compliances overflow
 /// (docs/performance.md).
@@ -20,8 +21,8 @@ pub const TANGENTIAL_FACTOR_RANGE: (f64, f64) = (0.01, 100.0);
 pub enum LawValues {
     Perfect,
     Contact,
-    /// the friction coefficient, >= 0
-    Friction(f64),
+    /// the friction coefficient (>= 0), and the Prakash-Clifton regularisation if asked
+    Friction(f64, Option<PrakashClifton>),
     /// the shortening (m)
     Prestress(f64),
 }
@@ -31,6 +32,9 @@ pub enum LawValues {
 pub fn law_values(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<LawValues, SceneError> {
     if spec.prestress.is_some() && spec.law != LawSpec::Prestress {
         return Err(invalid(format!("{key}.prestress"), "only law 'prestress' takes a prestress"));
+    }
+    if spec.prakash_clifton.is_some() && spec.law != LawSpec::Friction {
+        return Err(invalid(format!("{key}.prakash_clifton"), "only law 'friction' takes a regularisation"));
     }
     Ok(match spec.law {
         LawSpec::Perfect => LawValues::Perfect,
@@ -44,7 +48,21 @@ pub fn law_values(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<LawVa
             if f < 0.0 {
                 return Err(invalid(format!("{key}.friction"), format!("must be >= 0, got {f}")));
             }
-            LawValues::Friction(f)
+            let regularisation = match &spec.prakash_clifton {
+                Some(pc) => {
+                    let positive = |name: &str, s: &Scalar| {
+                        let k = format!("{key}.prakash_clifton.{name}");
+                        let v = r.get(&k, s)?;
+                        if v > 0.0 { Ok(v) } else { Err(invalid(k, format!("must be > 0, got {v}"))) }
+                    };
+                    Some(PrakashClifton {
+                        length: positive("length", &pc.length)?,
+                        velocity: positive("velocity", &pc.velocity)?,
+                    })
+                }
+                None => None,
+            };
+            LawValues::Friction(f, regularisation)
         }
         LawSpec::Prestress => {
             let s = spec
@@ -331,6 +349,47 @@ mod tests {
         let mut at = defaults(&scene);
         at.insert("f1", -0.1).unwrap();
         assert!(scene.check_point(&at).unwrap_err().to_string().contains("interfaces[0].friction: must be >= 0"));
+    }
+
+    /// A Prakash-Clifton regularisation is read on a friction law, its numbers > 0 (parameters
+    /// allowed, and law-only), and refused elsewhere, naming the key.
+    #[test]
+    fn a_regularisation_is_checked_and_its_parameters_are_law_only() {
+        let with =
+            |pc: &str| TINY.replacen("friction = \"f1\"", &format!("friction = \"f1\"\nprakash_clifton = {pc}"), 1);
+        let scene = Scene::parse(&with("{ length = 3e-5, velocity = 1.0 }")).unwrap();
+        let r = Resolver { values: &defaults(&scene) };
+        let law = law_values(&r, "interfaces[0]", &scene.interfaces[0]).unwrap();
+        assert_eq!(law, LawValues::Friction(0.1, Some(PrakashClifton { length: 3e-5, velocity: 1.0 })));
+        assert_eq!(law_values(&r, "interfaces[1]", &scene.interfaces[1]).unwrap(), LawValues::Friction(0.1, None));
+        for (pc, message) in [
+            ("{ length = 0, velocity = 1.0 }", "interfaces[0].prakash_clifton.length: must be > 0, got 0"),
+            ("{ length = 1e-5, velocity = -1 }", "interfaces[0].prakash_clifton.velocity: must be > 0, got -1"),
+            (
+                "{ length = \"L\", velocity = 1 }",
+                "interfaces[0].prakash_clifton.length: parameter 'L' is used but not declared",
+            ),
+        ] {
+            let scene = Scene::parse(&with(pc)).unwrap();
+            let e = scene.check_point(&defaults(&scene)).unwrap_err().to_string();
+            assert!(e.starts_with(message), "{pc}: {e}");
+        }
+        assert!(Scene::parse(&with("{ length = 1e-5 }")).is_err(), "both numbers are needed");
+        let contact = with("{ length = 1e-5, velocity = 1 }").replacen("law = \"friction\"", "law = \"contact\"", 1);
+        let scene = Scene::parse(&contact).unwrap();
+        let e = scene.check_point(&defaults(&scene)).unwrap_err().to_string();
+        assert!(e.starts_with("interfaces[0].prakash_clifton: only law 'friction' takes a regularisation"), "{e}");
+        // a parameter used only as the law's length is law-only, like a friction coefficient
+        let text = with("{ length = \"L\", velocity = 1 }").replacen(
+            "[parameters]",
+            "[parameters]\nL = { default = 3e-5 }",
+            1,
+        );
+        let scene = Scene::parse(&text).unwrap();
+        assert!(scene.interface_law_parameters().contains("L"), "{:?}", scene.interface_law_parameters());
+        // absent, it is absent from what the hash is taken of: stored solutions keep their keys
+        let canonical = serde_json::to_string(&Scene::parse(TINY).unwrap()).unwrap();
+        assert!(!canonical.contains("prakash_clifton"), "{canonical}");
     }
 
     #[test]

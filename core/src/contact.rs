@@ -16,6 +16,29 @@ pub const MAX_CONTACT_REPORTS: usize = 1024;
 /// tests below find it).
 pub const ILL_POSED_FRICTION: f64 = 1.0;
 
+/// The Prakash-Clifton regularisation of Coulomb's law (docs/method.md 2): the friction
+/// strength is f times a normal force N* that follows the contact's N with a lag,
+/// dN*/dt = -(|V| + `velocity`) / `length` (N* - N), V the slip rate. A sudden change of the
+/// normal force then changes the friction over a slip of `length`, not at once, which bounds
+/// how fast short waves on a sliding face can grow (docs/verification.md 4e).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PrakashClifton {
+    /// m, > 0
+    pub length: f64,
+    /// m/s, > 0
+    pub velocity: f64,
+}
+
+impl PrakashClifton {
+    /// N* a step `dt` on from `before`, with the contact's normal force `normal` and the slip
+    /// rate `slip_rate` held over the step: the law's equation solved exactly, so it is stable
+    /// at any step and gives Coulomb's N* = N as `length` goes to zero.
+    pub fn follow(&self, before: f64, normal: f64, slip_rate: f64, dt: f64) -> f64 {
+        let decay = (-(slip_rate.abs() + self.velocity) * dt / self.length).exp();
+        normal + (before - normal) * decay
+    }
+}
+
 /// What one frictional interface's contact did over the dynamic stage (its pieces between
 /// substructures summed).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -86,5 +109,26 @@ impl ContactActivity {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The law's step is its equation's exact solution: constant inputs relax N* exponentially
+    /// at the rate (|V| + V*) / L, two half steps make one step, and a vanishing length is
+    /// Coulomb's law (N* = N at once).
+    #[test]
+    fn the_followed_normal_force_relaxes_at_the_laws_rate() {
+        let law = PrakashClifton { length: 2e-5, velocity: 0.5 };
+        let (before, normal, slip_rate, dt) = (3.0, 1.0, -1.5, 1e-5);
+        let exact = normal + (before - normal) * (-(1.5 + 0.5) * dt / 2e-5f64).exp();
+        assert!((law.follow(before, normal, slip_rate, dt) - exact).abs() < 1e-14);
+        let half = law.follow(law.follow(before, normal, slip_rate, dt / 2.0), normal, slip_rate, dt / 2.0);
+        assert!((half - exact).abs() < 1e-14, "{half} against {exact}");
+        let coulomb = PrakashClifton { length: 1e-300, velocity: 0.5 };
+        assert_eq!(coulomb.follow(before, normal, 0.0, dt), normal);
+        assert_eq!(law.follow(before, normal, 0.0, 0.0), before, "no time, no change");
     }
 }

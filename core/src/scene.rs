@@ -180,6 +180,10 @@ pub enum LawSpec {
     Prestress,
 }
 
+/// Where a parameter changes only an interface law (no operator): [`Scene::interface_law_parameters`].
+const LAW_ONLY_PATHS: [&str; 3] =
+    ["interfaces.[].friction", "interfaces.[].prakash_clifton.length", "interfaces.[].prakash_clifton.velocity"];
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct InterfaceSpec {
@@ -196,6 +200,21 @@ pub struct InterfaceSpec {
     /// static stage and held in the dynamics (absent from the hash when absent)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prestress: Option<Scalar>,
+    /// law `friction` only: the friction follows the normal force with a lag (the Prakash-Clifton
+    /// regularisation, docs/method.md 2) instead of at once (absent from the hash when absent)
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prakash_clifton: Option<PrakashCliftonSpec>,
+}
+
+/// The Prakash-Clifton law's two numbers: the friction strength relaxes towards f times the
+/// normal force at the rate (|slip rate| + `velocity`) / `length`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PrakashCliftonSpec {
+    /// slip over which the strength follows a change of the normal force (m)
+    pub length: Scalar,
+    /// reference velocity (m/s): at rest the lag is `length / velocity`
+    pub velocity: Scalar,
 }
 
 /// Piecewise-linear factor `[[t, value], ...]`, constant beyond its ends.
@@ -712,7 +731,7 @@ impl Scene {
         Ok(())
     }
 
-    /// Parameters used only as friction coefficients of interfaces (`interfaces[*].friction`):
+    /// Parameters used only in interface laws (`interfaces[*].friction`, `.prakash_clifton`):
     /// changing them changes no substructure operator, only the local stage, so a solve can
     /// keep its factorisations and warm starts may blend solutions. A parameter also used
     /// anywhere else (or never used) is not in the set.
@@ -747,7 +766,9 @@ impl Scene {
         walk(&value, &mut Vec::new(), &mut uses);
         self.parameters
             .keys()
-            .filter(|name| uses.get(*name).is_some_and(|paths| paths.iter().all(|p| p == "interfaces.[].friction")))
+            .filter(|name| {
+                uses.get(*name).is_some_and(|paths| paths.iter().all(|p| LAW_ONLY_PATHS.contains(&p.as_str())))
+            })
             .cloned()
             .collect()
     }

@@ -2,12 +2,15 @@
 //! integrated by central differences with a lumped (row-sum) mass, and each wall node's contact
 //! and Coulomb friction enforced by an impulse at the end of its step (the explicit codes'
 //! forward-increment Lagrange multiplier: the node is put back on the wall, and its tangential
-//! velocity stopped, or slowed by f times the normal impulse). Another time scheme, another mass
+//! velocity stopped, or slowed by f times the normal impulse, or under a Prakash-Clifton law by f
+//! times the impulse that follows it). Another time scheme, another mass
 //! and another contact enforcement than the LATIN solver's: what the two share is the mesh and
 //! the continuous problem (docs/verification.md 4d).
 //!
 //! Conditionally stable: `substeps` per model step must make the inner step shorter than
 //! 2 / omega_max, checked before integrating.
+
+use glissade_core::contact::PrakashClifton;
 
 use crate::latin::linear_stage::prescribed_velocities;
 use crate::model::{InterfaceLaw, Model, QoiTarget};
@@ -39,12 +42,17 @@ pub struct ExplicitHistory {
     pub critical_dt: f64,
 }
 
-/// A wall node: global dofs, normal from the body towards the wall, initial gap, friction.
+/// A wall node: global dofs, normal from the body towards the wall, initial gap, friction, and
+/// under a Prakash-Clifton law the normal impulse (per unit mass) its friction follows and its
+/// last slip rate.
 struct WallNode<const D: usize> {
     dofs: [usize; D],
     normal: [f64; D],
     gap0: f64,
     friction: f64,
+    regularisation: Option<PrakashClifton>,
+    followed: Option<f64>,
+    slip_rate: f64,
 }
 
 /// Largest eigenvalue of M^-1 K (lumped M), by power iteration from a rough vector.
@@ -96,14 +104,15 @@ pub fn solve<const D: usize>(m: &Model<D>, substeps: usize) -> Result<ExplicitHi
     let mut wall: Vec<WallNode<D>> = Vec::new();
     for &i in &a.walls {
         let itf = &m.interfaces[i];
-        let friction = match itf.law {
-            InterfaceLaw::Friction { coefficient } => coefficient,
-            _ => 0.0,
+        let (friction, regularisation) = match itf.law {
+            InterfaceLaw::Friction { coefficient, regularisation } => (coefficient, regularisation),
+            _ => (0.0, None),
         };
         let side = &itf.sides[0];
         for (j, &node) in side.nodes.iter().enumerate() {
             let dofs = std::array::from_fn(|c| a.dof_map[side.substructure][node * D + c]);
-            wall.push(WallNode { dofs, normal: itf.normal[j], gap0: itf.gap0[j], friction });
+            let (normal, gap0) = (itf.normal[j], itf.gap0[j]);
+            wall.push(WallNode { dofs, normal, gap0, friction, regularisation, followed: None, slip_rate: 0.0 });
         }
     }
 
@@ -137,21 +146,32 @@ pub fn solve<const D: usize>(m: &Model<D>, substeps: usize) -> Result<ExplicitHi
                 half[p.dof] = prescribed[p.dof];
             }
             // contact: the impulse that puts the node on the wall at t_next, friction bounded by it
-            for w in &wall {
+            // (or, under a Prakash-Clifton law, by the impulse that follows it with a lag)
+            for w in &mut wall {
                 let un: f64 = (0..D).map(|c| w.normal[c] * u[w.dofs[c]]).sum();
                 let vn: f64 = (0..D).map(|c| w.normal[c] * half[w.dofs[c]]).sum();
                 let gap = w.gap0 - un - dt * vn;
-                if gap >= 0.0 {
-                    continue;
-                }
                 // normal velocity change (along -n, away from the wall), per unit mass
-                let dvn = gap / dt;
+                let dvn = gap.min(0.0) / dt;
+                let bound = match w.regularisation {
+                    Some(law) => {
+                        let followed = w.followed.map_or(dvn.abs(), |b| law.follow(b, dvn.abs(), w.slip_rate, dt));
+                        w.followed = Some(followed);
+                        followed
+                    }
+                    None => dvn.abs(),
+                };
                 let mut vt = [0.0; D];
                 for c in 0..D {
                     vt[c] = half[w.dofs[c]] - vn * w.normal[c];
                 }
                 let vt_norm = vt.iter().map(|x| x * x).sum::<f64>().sqrt();
-                let keep = if vt_norm <= w.friction * dvn.abs() { 0.0 } else { 1.0 - w.friction * dvn.abs() / vt_norm };
+                w.slip_rate = vt_norm;
+                if gap >= 0.0 {
+                    continue;
+                }
+                let keep = if vt_norm <= w.friction * bound { 0.0 } else { 1.0 - w.friction * bound / vt_norm };
+                w.slip_rate = keep * vt_norm;
                 for c in 0..D {
                     let d = w.dofs[c];
                     if !a.fixed[d] {

@@ -7,6 +7,7 @@ use crate::element::{ElementKind, Material, face_area_and_normal};
 use crate::mesh::{Face, Mesh};
 use crate::search_direction::{SearchDirection, dynamic_search_direction, static_search_direction};
 use crate::sparse::CsrMatrix;
+use glissade_core::contact::PrakashClifton;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{
     BodySpec, History, MassMatrix, QoiKind, Resolver, Scale, Scene, SceneError, Substructures, component_index, invalid,
@@ -20,6 +21,8 @@ pub enum InterfaceLaw {
     Contact,
     Friction {
         coefficient: f64,
+        /// the friction follows the normal force with a lag (`None`: Coulomb's, at once)
+        regularisation: Option<PrakashClifton>,
     },
     /// glued, side 2 displaced by `-shortening` along the normal in the static stage (a bolt
     /// shortened by its prestress), the jump then held: perfect in the dynamics
@@ -937,7 +940,7 @@ fn resolve_law(
     Ok(match law_values(r, key, spec)? {
         LawValues::Perfect => InterfaceLaw::Perfect,
         LawValues::Contact => InterfaceLaw::Contact,
-        LawValues::Friction(coefficient) => InterfaceLaw::Friction { coefficient },
+        LawValues::Friction(coefficient, regularisation) => InterfaceLaw::Friction { coefficient, regularisation },
         LawValues::Prestress(shortening) => InterfaceLaw::Prestress { shortening },
     })
 }

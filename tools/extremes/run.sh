@@ -4,13 +4,21 @@
 # The table in docs/performance.md, "Where issue 30's cases stand at the default settings".
 #   cargo build --release -p glissade-worker
 #   bash tools/extremes/run.sh [OUT_DIR]        (about 10-20 minutes on two cores)
+# With PRAKASH_CLIFTON="LENGTH VELOCITY" every friction interface is given that regularisation
+# (docs/verification.md 4e; the table "... with the Prakash-Clifton law").
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 W=${GLISSADE_WORKER:-$here/../../target/release/glissade-worker}
 out=${1:-$(mktemp -d)}
 mkdir -p "$out"
 one() { # label scene f tol
-  "$W" solve "$here/$2.toml" --set "f=$3" --tol "$4" --json >"$out/$1.json" 2>"$out/$1.err" || true
+  scene="$here/$2.toml"
+  if [[ -n "${PRAKASH_CLIFTON:-}" ]]; then
+    set -- "$@" $PRAKASH_CLIFTON
+    scene="$out/$2.toml"
+    sed "s/^friction = \(.*\)/friction = \1\nprakash_clifton = { length = $5, velocity = $6 }/" "$here/$2.toml" >"$scene"
+  fi
+  "$W" solve "$scene" --set "f=$3" --tol "$4" --json >"$out/$1.json" 2>"$out/$1.err" || true
   python3 - "$out/$1" "$2" "$3" "$4" <<'PY'
 import json, sys
 l, s, f, t = sys.argv[1:]

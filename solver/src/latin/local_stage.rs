@@ -1,6 +1,8 @@
 //! Local stage: the interface laws in closed form, pointwise in space, stepwise in time
 //! (docs/method.md 3, "Local stage"). Pure functions of the linear-stage fields.
 
+use glissade_core::contact::PrakashClifton;
+
 use crate::model::InterfaceLaw;
 use crate::search_direction::SearchDirection;
 
@@ -27,13 +29,31 @@ pub struct NodeOutput<const D: usize> {
     pub f2: [f64; D],
 }
 
-/// How the normal gap follows from velocities: `g = base + weight * n.(W2 - W1)` where `base`
-/// holds the gap at the previous step plus the previous step's share (trapezoidal rule,
-/// weight dt/2, docs/method.md 2), or the initial gap in the static stage (weight 1, W = displacement).
+/// How a step's normal gap follows from velocities: `g = base + weight * n.(W2 - W1)`, `base`
+/// from the node's [`NodeMemory`] (trapezoidal rule, weight dt/2, docs/method.md 2; in the static
+/// stage the initial gap, weight 1, W = displacement), and the step `dt` the memory moves on by.
 #[derive(Debug, Clone, Copy)]
 pub struct GapRule {
-    pub base: f64,
     pub weight: f64,
+    pub dt: f64,
+}
+
+/// What the law of one node carries from a step to the next: the gap rule's base (the gap at the
+/// previous step plus that step's share, dt/2 times its normal velocity) and, under a
+/// Prakash-Clifton law, the normal force the friction follows and the last slip rate (`None`
+/// before the first step: the friction then follows that step's normal force, a state at rest).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodeMemory {
+    pub base: f64,
+    pub followed: Option<f64>,
+    pub slip_rate: f64,
+}
+
+impl NodeMemory {
+    /// A node at rest with gap base `base`.
+    pub fn new(base: f64) -> Self {
+        Self { base, followed: None, slip_rate: 0.0 }
+    }
 }
 
 fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
@@ -44,8 +64,13 @@ fn dot<const D: usize>(a: &[f64; D], b: &[f64; D]) -> f64 {
 /// contact with Coulomb friction ([`coulomb_contact`], frictionless for `Contact`), on the
 /// search direction E+: F^ - F = k (W^ - W), k with a normal and a
 /// tangential value: the law is solved on the normal and the tangential parts apart, each with
-/// its own scalar h.
-pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRule) -> NodeOutput<D> {
+/// its own scalar h. Moves the node's `memory` on to the next step.
+pub fn apply_law<const D: usize>(
+    law: InterfaceLaw,
+    x: &NodeInput<D>,
+    gap: GapRule,
+    memory: &mut NodeMemory,
+) -> NodeOutput<D> {
     let (h1, h2) = (x.h1, x.h2);
     let n = &x.normal;
     let mut f1h = [0.0; D];
@@ -75,25 +100,40 @@ pub fn apply_law<const D: usize>(law: InterfaceLaw, x: &NodeInput<D>, gap: GapRu
                 }
             }
         }
-        InterfaceLaw::Contact => f1h = coulomb_contact(x, 0.0, gap),
-        InterfaceLaw::Friction { coefficient } => f1h = coulomb_contact(x, coefficient, gap),
+        InterfaceLaw::Contact => f1h = coulomb_contact(x, 0.0, None, gap, memory),
+        InterfaceLaw::Friction { coefficient, regularisation } => {
+            f1h = coulomb_contact(x, coefficient, regularisation, gap, memory)
+        }
     }
     let f2h: [f64; D] = std::array::from_fn(|i| -f1h[i]);
     let d1 = h1.apply(n, &std::array::from_fn(|i| f1h[i] - x.f1[i]));
     let d2 = h2.apply(n, &std::array::from_fn(|i| f2h[i] - x.f2[i]));
-    NodeOutput {
+    let out = NodeOutput {
         w1: std::array::from_fn(|i| x.w1[i] + d1[i]),
         f1: f1h,
         w2: std::array::from_fn(|i| x.w2[i] + d2[i]),
         f2: f2h,
-    }
+    };
+    let rel: [f64; D] = std::array::from_fn(|i| out.w2[i] - out.w1[i]);
+    let vn = dot(n, &rel);
+    memory.base += gap.weight * vn + 0.5 * gap.dt * vn;
+    // (the Prakash-Clifton law's rate: read at the next step)
+    memory.slip_rate = (dot(&rel, &rel) - vn * vn).max(0.0).sqrt();
+    out
 }
 
 /// Unilateral contact with Coulomb friction of coefficient `mu` (0: frictionless) at one node:
 /// the force on side 1. Where the trial gap closes, the normal force closes it exactly; the
 /// tangential force is the stick trial's, scaled back to the cone mu |F_n| where it lies outside
-/// (sliding); where the gap opens, no force.
-fn coulomb_contact<const D: usize>(x: &NodeInput<D>, mu: f64, gap: GapRule) -> [f64; D] {
+/// (sliding); where the gap opens, no force. Under a Prakash-Clifton `regularisation` the cone
+/// is mu N* instead, N* following |F_n| with a lag (kept in `memory`).
+fn coulomb_contact<const D: usize>(
+    x: &NodeInput<D>,
+    mu: f64,
+    regularisation: Option<PrakashClifton>,
+    gap: GapRule,
+    memory: &mut NodeMemory,
+) -> [f64; D] {
     let (h1, h2) = (x.h1, x.h2);
     let n = &x.normal;
     let mut f1h = [0.0; D];
@@ -107,17 +147,26 @@ fn coulomb_contact<const D: usize>(x: &NodeInput<D>, mu: f64, gap: GapRule) -> [
     // A closed gap (base <= 0) is clipped at zero: contact then holds on the velocity level
     // (n.(W^2 - W^1) = 0), without the spurious rebound that closing the trapezoidal gap
     // exactly would give; penetration stays below dt/2 times the approach velocity.
-    let trial_gap = gap.base.max(0.0) + gap.weight * rel_n;
+    let trial_gap = memory.base.max(0.0) + gap.weight * rel_n;
+    // contact: the normal force closes the gap exactly
+    let f1n = if trial_gap <= 0.0 { trial_gap / (gap.weight * (h1.normal + h2.normal)) } else { 0.0 };
+    let normal = match regularisation {
+        Some(law) => {
+            let followed =
+                memory.followed.map_or(f1n.abs(), |before| law.follow(before, f1n.abs(), memory.slip_rate, gap.dt));
+            memory.followed = Some(followed);
+            followed
+        }
+        None => f1n.abs(),
+    };
     if trial_gap <= 0.0 {
-        // contact: the normal force closes the gap exactly
-        let f1n = trial_gap / (gap.weight * (h1.normal + h2.normal));
         // stick trial T from zero relative tangential velocity
         let mut t = [0.0; D];
         for i in 0..D {
             t[i] = (rel[i] - rel_n * n[i]) / (h1.tangential + h2.tangential);
         }
         let t_norm = dot(&t, &t).sqrt();
-        let threshold = mu * f1n.abs();
+        let threshold = mu * normal;
         let scale = if t_norm <= threshold { 1.0 } else { threshold / t_norm };
         for i in 0..D {
             f1h[i] = f1n * n[i] + scale * t[i];
@@ -160,7 +209,7 @@ mod tests {
     #[test]
     fn perfect_gives_equal_velocities() {
         let x = input([1.0, 2.0], [0.3, -0.1], [-1.0, 0.5], [0.2, 0.4]);
-        let o = apply_law(InterfaceLaw::Perfect, &x, GapRule { base: 0.0, weight: 1.0 });
+        let o = apply_law(InterfaceLaw::Perfect, &x, GapRule { weight: 1.0, dt: 0.0 }, &mut NodeMemory::new(0.0));
         assert_search_direction(&x, &o);
         for i in 0..2 {
             assert!((o.w1[i] - o.w2[i]).abs() < 1e-12);
@@ -170,7 +219,12 @@ mod tests {
     #[test]
     fn prestress_gives_the_prescribed_jump() {
         let x = input([1.0, 2.0], [0.3, -0.1], [-1.0, 0.5], [0.2, 0.4]);
-        let o = apply_law(InterfaceLaw::Prestress { shortening: 0.125 }, &x, GapRule { base: 0.0, weight: 1.0 });
+        let o = apply_law(
+            InterfaceLaw::Prestress { shortening: 0.125 },
+            &x,
+            GapRule { weight: 1.0, dt: 0.0 },
+            &mut NodeMemory::new(0.0),
+        );
         assert_search_direction(&x, &o);
         // W^2 - W^1 = -s n (n = y)
         assert!((o.w2[0] - o.w1[0]).abs() < 1e-12 && (o.w2[1] - o.w1[1] + 0.125).abs() < 1e-12);
@@ -181,7 +235,12 @@ mod tests {
     fn separation_gives_zero_force() {
         // side 2 moves away along n
         let x = input([0.0, 0.0], [0.0, 0.0], [0.0, 1.0], [0.0, 0.0]);
-        let o = apply_law(InterfaceLaw::Friction { coefficient: 0.5 }, &x, GapRule { base: 0.0, weight: 0.1 });
+        let o = apply_law(
+            InterfaceLaw::Friction { coefficient: 0.5, regularisation: None },
+            &x,
+            GapRule { weight: 0.1, dt: 0.2 },
+            &mut NodeMemory::new(0.0),
+        );
         assert_eq!(o.f1, [0.0, 0.0]);
         assert_search_direction(&x, &o);
     }
@@ -190,11 +249,16 @@ mod tests {
     fn contact_closes_gap_and_respects_coulomb() {
         // side 2 moves towards side 1 and slides along x
         let x = input([0.0, 0.0], [0.0, 0.0], [3.0, -1.0], [0.0, 0.0]);
-        let rule = GapRule { base: 0.0, weight: 0.1 };
+        let rule = GapRule { weight: 0.1, dt: 0.2 };
         for mu in [0.0, 0.1, 10.0] {
-            let o = apply_law(InterfaceLaw::Friction { coefficient: mu }, &x, rule);
+            let o = apply_law(
+                InterfaceLaw::Friction { coefficient: mu, regularisation: None },
+                &x,
+                rule,
+                &mut NodeMemory::new(0.0),
+            );
             assert_search_direction(&x, &o);
-            let gap = rule.base + rule.weight * (o.w2[1] - o.w1[1]);
+            let gap = rule.weight * (o.w2[1] - o.w1[1]);
             assert!(gap.abs() < 1e-12, "gap {gap}");
             assert!(o.f1[1] < 0.0, "compressive normal force on side 1");
             assert!(o.f1[0].abs() <= mu * o.f1[1].abs() * (1.0 + 1e-12));
@@ -206,6 +270,44 @@ mod tests {
                 assert!(o.f1[0] * slip >= 0.0 && slip > 0.0);
             }
         }
+    }
+
+    /// Under a Prakash-Clifton law the cone is mu N*, N* moved one step from the node's memory
+    /// towards this step's |F_n| (at the last slip rate); the memory then holds N*, the slip
+    /// rate of the output and the gap rule's next base.
+    #[test]
+    fn a_regularised_cone_follows_the_normal_force_with_a_lag() {
+        let x = input([0.0, 0.0], [0.0, 0.0], [3.0, -1.0], [0.0, 0.0]);
+        let rule = GapRule { weight: 0.1, dt: 0.2 };
+        let coulomb = apply_law(
+            InterfaceLaw::Friction { coefficient: 0.3, regularisation: None },
+            &x,
+            rule,
+            &mut NodeMemory::new(0.0),
+        );
+        let normal = coulomb.f1[1].abs();
+        let law = PrakashClifton { length: 2.0, velocity: 0.5 };
+        let mut memory = NodeMemory { base: 0.0, followed: Some(normal / 4.0), slip_rate: 1.5 };
+        let o =
+            apply_law(InterfaceLaw::Friction { coefficient: 0.3, regularisation: Some(law) }, &x, rule, &mut memory);
+        assert_search_direction(&x, &o);
+        let followed = law.follow(normal / 4.0, normal, 1.5, 0.2);
+        assert!(followed > normal / 4.0 && followed < normal);
+        assert_eq!(o.f1[1], coulomb.f1[1], "the normal force is Coulomb's");
+        assert!((o.f1[0].abs() - 0.3 * followed).abs() < 1e-12, "{} against {}", o.f1[0], 0.3 * followed);
+        assert_eq!(memory.followed, Some(followed));
+        let slip = o.w2[0] - o.w1[0];
+        assert!((memory.slip_rate - slip.abs()).abs() < 1e-12 && slip > 0.0);
+        let vn = o.w2[1] - o.w1[1];
+        assert!((memory.base - (0.1 + 0.1) * vn).abs() < 1e-12, "base {} for vn {vn}", memory.base);
+        // with no memory yet it follows this step's force: Coulomb's cone
+        let o = apply_law(
+            InterfaceLaw::Friction { coefficient: 0.3, regularisation: Some(law) },
+            &x,
+            rule,
+            &mut NodeMemory::new(0.0),
+        );
+        assert_eq!(o, coulomb);
     }
 
     #[test]
@@ -220,7 +322,7 @@ mod tests {
             normal: [-1.0],
         };
         // side 1 moves along -x towards a wall whose outward normal from side 1 is -x
-        let o = apply_law(InterfaceLaw::Contact, &x, GapRule { base: 0.0, weight: 0.1 });
+        let o = apply_law(InterfaceLaw::Contact, &x, GapRule { weight: 0.1, dt: 0.2 }, &mut NodeMemory::new(0.0));
         assert_eq!(o.w2, [0.0]);
         assert!(o.w1[0].abs() < 1e-12, "side 1 stopped by the wall");
         assert!(o.f1[0] > 0.0, "wall pushes along +x");
@@ -233,7 +335,7 @@ mod tests {
         let normal = [s, -s, s];
         let h1 = SearchDirection { normal: 1.0, tangential: 3.0 }.inverse();
         let h2 = SearchDirection { normal: 2.0, tangential: 1.0 }.inverse();
-        let rule = GapRule { base: 0.0, weight: 0.1 };
+        let rule = GapRule { weight: 0.1, dt: 0.2 };
         let dot3 = |a: &[f64; 3], b: &[f64; 3]| (0..3).map(|i| a[i] * b[i]).sum::<f64>();
         // perfect: equal velocities
         let x = NodeInput {
@@ -245,17 +347,22 @@ mod tests {
             h2,
             normal,
         };
-        let o = apply_law(InterfaceLaw::Perfect, &x, rule);
+        let o = apply_law(InterfaceLaw::Perfect, &x, rule, &mut NodeMemory::new(0.0));
         assert_search_direction(&x, &o);
         assert!((0..3).all(|i| (o.w1[i] - o.w2[i]).abs() < 1e-12), "{o:?}");
         // side 2 pushed into side 1 (against n) and dragged across it
         let x = NodeInput { w1: [0.0; 3], f1: [0.0; 3], w2: [-1.0, 2.0, 0.5], f2: [0.0; 3], h1, h2, normal };
         for mu in [0.0, 0.2, 50.0] {
-            let o = apply_law(InterfaceLaw::Friction { coefficient: mu }, &x, rule);
+            let o = apply_law(
+                InterfaceLaw::Friction { coefficient: mu, regularisation: None },
+                &x,
+                rule,
+                &mut NodeMemory::new(0.0),
+            );
             assert_search_direction(&x, &o);
             let rel: [f64; 3] = std::array::from_fn(|i| o.w2[i] - o.w1[i]);
             let rel_n = dot3(&rel, &normal);
-            assert!((rule.base + rule.weight * rel_n).abs() < 1e-12, "gap closed: {rel_n}");
+            assert!((rule.weight * rel_n).abs() < 1e-12, "gap closed: {rel_n}");
             let fn1 = dot3(&o.f1, &normal);
             assert!(fn1 < 0.0, "compressive");
             let ft: [f64; 3] = std::array::from_fn(|i| o.f1[i] - fn1 * normal[i]);

@@ -24,7 +24,7 @@ use crate::search_direction::SearchDirection;
 use distribution::Distribution;
 use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
-use local_stage::{GapRule, NodeInput, apply_law};
+use local_stage::{GapRule, NodeInput, NodeMemory, apply_law};
 use macro_problem::{MacroError, MacroProblem};
 use relaxation::Relaxation;
 use stopping::{ErrorEstimator, UnitScales};
@@ -751,7 +751,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut window = Window {
             steps: 0..length,
             states: None,
-            bases: self.initial_bases(stage, gap_start, vn_start),
+            memory: self.initial_memory(stage, gap_start, vn_start),
             body: BodyQois::new(m),
         };
         let mut report = StageReport::default();
@@ -836,10 +836,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 }
                 return Ok(report);
             }
-            let bases = end.bases;
+            let memory = end.memory;
             // The next window starts where this one ends: the substructures' states from a
             // sweep over the converged fields (what the post-processing sweep will find), the
-            // gap rule's bases from the last local stage.
+            // nodes' memory from the last local stage.
             let t = Instant::now();
             let mut scratch = fields.to_vec();
             let mut body = window.body.clone();
@@ -852,13 +852,13 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if cold && floors.is_none() {
                 hold_last_step(fields, steps, range.end, next.end);
             }
-            window = Window { steps: next, states: Some(states), bases, body };
+            window = Window { steps: next, states: Some(states), memory, body };
             it.timings.linear_stage += t.elapsed().as_secs_f64();
         }
     }
 
     /// LATIN iterations of one stage over one time window (or the whole interval) until the
-    /// error indicator is below the tolerance; returns the report and the gap rule's bases at
+    /// error indicator is below the tolerance; returns the report and the nodes' memory at
     /// the window's end.
     /// The tolerances: eta's and the QoI estimate's.
     fn iterate_window(
@@ -924,7 +924,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             it.timings.communication += c.elapsed().as_secs_f64();
             it.timings.linear_stage += t.elapsed().as_secs_f64();
             let t = Instant::now();
-            self.local_stage(stage, fields, window.steps.clone(), &window.bases, &mut it.bases);
+            self.local_stage(stage, fields, window.steps.clone(), &window.memory, &mut it.memory);
             let partial = &mut it.partial;
             let stop = progress.is_some_and(SolveProgress::stop_asked);
             self.eta_parts(stage, fields, window.steps.clone(), stop, partial);
@@ -1005,7 +1005,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         }
         Ok(WindowEnd {
             report,
-            bases: it.bases.clone(),
+            memory: it.memory.clone(),
             errors: estimator.errors(),
             scales: estimator.scales().to_vec(),
         })
@@ -1032,19 +1032,25 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         parts[2 * m.interfaces.len()] = if stop { 1.0 } else { 0.0 };
     }
 
-    /// Local stage over every interface and node, at the steps `steps`, from the gap rule's
-    /// `bases` at the first of them ([`Self::initial_bases`] at t_0); leaves the bases after the
-    /// last in `out` (empty for interfaces another rank owns).
+    /// Local stage over every interface and node, at the steps `steps`, from the nodes' `memory`
+    /// at the first of them ([`Self::initial_memory`] at t_0); leaves the memory after the last
+    /// in `out` (empty for interfaces another rank owns).
     fn local_stage(
         &self,
         stage: Stage,
         fields: &mut [InterfaceField],
         steps: Range<usize>,
-        bases: &[Vec<f64>],
-        out: &mut [Vec<f64>],
+        memory: &[Vec<NodeMemory>],
+        out: &mut [Vec<NodeMemory>],
     ) {
         let m = self.model;
-        let half_dt = 0.5 * m.dt;
+        let rule = GapRule {
+            weight: match stage {
+                Stage::Static => 1.0,
+                Stage::Dynamic => 0.5 * m.dt,
+            },
+            dt: m.dt,
+        };
         for (i, itf) in m.interfaces.iter().enumerate() {
             out[i].clear();
             if !self.dist.owns_interface(i) {
@@ -1055,15 +1061,14 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             // a rigid wall takes no velocity change: zero compliance
             let h2 = itf.sides.get(1).map_or(SearchDirection::isotropic(0.0), |s| stage.k(s).inverse());
             let f = &mut fields[i];
-            // gap rule state: base = g(t_{n-1}) + dt/2 vn(t_{n-1})
-            let base = &mut out[i];
-            base.extend_from_slice(&bases[i]);
-            let weight = match stage {
-                Stage::Static => 1.0,
-                Stage::Dynamic => half_dt,
+            let node_memory = &mut out[i];
+            node_memory.extend_from_slice(&memory[i]);
+            let law = match stage {
+                Stage::Static => itf.law,
+                Stage::Dynamic => itf.law.in_dynamics(),
             };
             for step in steps.clone() {
-                for j in 0..n {
+                for (j, memory) in node_memory.iter_mut().enumerate() {
                     let at = |v: &[f64]| -> [f64; D] {
                         let mut out = [0.0; D];
                         out.copy_from_slice(&v[(step * n + j) * D..(step * n + j + 1) * D]);
@@ -1082,11 +1087,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         h2,
                         normal: itf.normal[j],
                     };
-                    let law = match stage {
-                        Stage::Static => itf.law,
-                        Stage::Dynamic => itf.law.in_dynamics(),
-                    };
-                    let out = apply_law(law, &input, GapRule { base: base[j], weight });
+                    let out = apply_law(law, &input, rule, memory);
                     let r = (step * n + j) * D..(step * n + j + 1) * D;
                     f.hat[0].velocity[r.clone()].copy_from_slice(&out.w1);
                     f.hat[0].force[r.clone()].copy_from_slice(&out.f1);
@@ -1094,24 +1095,21 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         h.velocity[r.clone()].copy_from_slice(&out.w2);
                         h.force[r].copy_from_slice(&out.f2);
                     }
-                    let vn: f64 = (0..D).map(|c| itf.normal[j][c] * (out.w2[c] - out.w1[c])).sum();
-                    let gap = base[j] + weight * vn;
-                    base[j] = gap + half_dt * vn;
                 }
             }
         }
     }
 
-    /// The gap rule's bases at t_0 of a stage: the gap, and in dynamics the gap half a step on at
-    /// the initial normal velocity.
-    fn initial_bases(&self, stage: Stage, gap_start: &[Vec<f64>], vn_start: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    /// Every interface node's memory at t_0 of a stage: the gap, and in dynamics the gap half a
+    /// step on at the initial normal velocity.
+    fn initial_memory(&self, stage: Stage, gap_start: &[Vec<f64>], vn_start: &[Vec<f64>]) -> Vec<Vec<NodeMemory>> {
         let half_dt = 0.5 * self.model.dt;
         gap_start
             .iter()
             .enumerate()
             .map(|(i, g)| match stage {
-                Stage::Static => g.clone(),
-                Stage::Dynamic => g.iter().zip(&vn_start[i]).map(|(g, vn)| g + half_dt * vn).collect(),
+                Stage::Static => g.iter().map(|&g| NodeMemory::new(g)).collect(),
+                Stage::Dynamic => g.iter().zip(&vn_start[i]).map(|(g, vn)| NodeMemory::new(g + half_dt * vn)).collect(),
             })
             .collect()
     }
@@ -1310,7 +1308,7 @@ struct CheckStart<'a> {
 }
 
 /// A time window of a stage: its steps, and at its first one the substructures' states (`None`:
-/// the stage's initial state) and the gap rule's bases; the body QoIs recorded before it.
+/// the stage's initial state) and the nodes' memory; the body QoIs recorded before it.
 /// What a stage starts from, and the tolerance it is held to.
 #[derive(Clone, Copy)]
 struct StageStart<'a> {
@@ -1332,7 +1330,7 @@ struct StageStart<'a> {
 struct Window {
     steps: Range<usize>,
     states: Option<Vec<Option<NewmarkState>>>,
-    bases: Vec<Vec<f64>>,
+    memory: Vec<Vec<NodeMemory>>,
     body: BodyQois,
 }
 
@@ -1347,8 +1345,8 @@ struct Iterations<'r> {
     previous: Vec<Vec<SideField>>,
     /// the body QoIs: the window's, then those this iteration's linear stage records
     body: BodyQois,
-    /// per interface, the gap rule's bases after the last local stage
-    bases: Vec<Vec<f64>>,
+    /// per interface, the nodes' memory after the last local stage
+    memory: Vec<Vec<NodeMemory>>,
     /// per interface eta's numerator and denominator, then the stop flag: one reduction
     partial: Vec<f64>,
     /// every QoI's history ([`LatinSolver::qoi_values`])
@@ -1379,7 +1377,7 @@ impl<'r> Iterations<'r> {
             timings,
             previous: fields.iter().map(|f| f.s.clone()).collect(),
             body: BodyQois::new(m),
-            bases: vec![Vec::new(); m.interfaces.len()],
+            memory: vec![Vec::new(); m.interfaces.len()],
             partial: Vec::with_capacity(2 * m.interfaces.len() + 1),
             qois: QoiValues::default(),
         }
@@ -1408,11 +1406,11 @@ struct WindowRule<'a> {
     tighten: bool,
 }
 
-/// How a time window's iterations ended: the report, the gap rule's bases at the window's end,
+/// How a time window's iterations ended: the report, the nodes' memory at the window's end,
 /// and each QoI's estimated error relative to the norm it was measured against.
 struct WindowEnd {
     report: StageReport,
-    bases: Vec<Vec<f64>>,
+    memory: Vec<Vec<NodeMemory>>,
     errors: Vec<f64>,
     scales: Vec<f64>,
 }
