@@ -16,7 +16,7 @@ pub const MAX_CONTACT_REPORTS: usize = 1024;
 /// tests below find it).
 pub const ILL_POSED_FRICTION: f64 = 1.0;
 
-/// The Prakash-Clifton regularisation of Coulomb's law (docs/method.md 2): the friction
+/// The Prakash-Clifton regularisation of Coulomb's law (docs/method.md 3, "Local stage"): the friction
 /// strength is f times a normal force N* that follows the contact's N with a lag,
 /// dN*/dt = -(|V| + `velocity`) / `length` (N* - N), V the slip rate. A sudden change of the
 /// normal force then changes the friction over a slip of `length`, not at once, which bounds

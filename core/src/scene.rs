@@ -201,7 +201,7 @@ pub struct InterfaceSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prestress: Option<Scalar>,
     /// law `friction` only: the friction follows the normal force with a lag (the Prakash-Clifton
-    /// regularisation, docs/method.md 2) instead of at once (absent from the hash when absent)
+    /// regularisation, docs/method.md 3, "Local stage") instead of at once (absent from the hash when absent)
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prakash_clifton: Option<PrakashCliftonSpec>,
 }
