@@ -43,7 +43,19 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
     let checked = dir.path().join("checked.toml");
     std::fs::write(&checked, format!("{text}\n[solver]\nwhole_interval_check = true\n")).unwrap();
     let checked = checked.to_str().unwrap().to_owned();
-    for (scene, scale) in [(&whole, "single"), (&whole, "multi"), (&windowed, "single"), (&checked, "multi")] {
+    // and a regularised friction law, whose nodes carry their memory from window to window on
+    // the rank that owns their interface
+    let regularised = dir.path().join("regularised.toml");
+    let pc = "\nprakash_clifton = { length = 3e-5, velocity = 1.0 }";
+    let text_pc = text
+        .replace("friction = \"f1\"", &format!("friction = \"f1\"{pc}"))
+        .replace("friction = \"f2\"", &format!("friction = \"f2\"{pc}"));
+    assert_eq!(text_pc.matches("prakash_clifton").count(), 2);
+    std::fs::write(&regularised, format!("{text_pc}\n[solver]\ntime_window = 10\n")).unwrap();
+    let regularised = regularised.to_str().unwrap().to_owned();
+    for (scene, scale) in
+        [(&whole, "single"), (&whole, "multi"), (&windowed, "single"), (&checked, "multi"), (&regularised, "single")]
+    {
         let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
         for np in ["1", "2", "3"] {
             let save = dir.path().join(format!("{scale}-{}-{np}.sol", scene.len()));
