@@ -2441,8 +2441,7 @@ fn a_regularised_friction_law_converges_as_dt_falls_where_coulomb_chatters() {
 
     // a warm start from f = 0.4 at f = 0.44 (the law's memory is rebuilt from the fields, not
     // carried): the cold answer's accuracy against a tight solve. It saves little work on this
-    // block under either law (66.9 sweeps warm, 65.6 cold; Coulomb's 70.5 and 73.3): the
-    // window check's pass dominates
+    // block under either law (66.9 sweeps warm, 65.6 cold; Coulomb's 70.5 and 73.3)
     let at = |f: f64, tolerance: f64| {
         let mut m = build::<2>(&text.replace("steps = 200", "steps = 400"), &[("f", f)]);
         m.settings.tolerance = tolerance;
