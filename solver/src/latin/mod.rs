@@ -15,7 +15,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::comm::Communicator;
-use crate::model::{InterfaceLaw, Model, QoiTarget};
+use crate::model::{Model, QoiTarget};
 use crate::sparse::SparseError;
 use glissade_core::scene::Scale;
 
@@ -111,9 +111,6 @@ pub struct StageReport {
     /// its elements' aspect ratio ([`crate::model::Interface::element_aspect`])
     #[serde(skip_serializing_if = "Option::is_none")]
     pub worst_interface_aspect: Option<f64>,
-    /// its friction follows a Prakash-Clifton law
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
-    pub worst_interface_regularised: bool,
     /// the relaxation coefficient at the last iteration (lowered where the iterates oscillated)
     pub relaxation: f64,
     /// the work of the iterations in sweeps of the whole interval: `iterations`, or less with
@@ -162,7 +159,6 @@ impl StageReport {
         self.converged = next.converged;
         self.worst_interface = next.worst_interface;
         self.worst_interface_aspect = next.worst_interface_aspect;
-        self.worst_interface_regularised = next.worst_interface_regularised;
         self.relaxation = next.relaxation;
     }
 
@@ -204,12 +200,6 @@ impl StageReport {
             ),
             _ => String::new(),
         };
-        let lag = if self.worst_interface_regularised {
-            " (its friction follows a Prakash-Clifton law, whose iterations may not converge where high friction \
-             unloads a corner: a shorter length approaches Coulomb's law; docs/verification.md 4e)"
-        } else {
-            ""
-        };
         let advice = if last > 2.0 * best.max(f64::MIN_POSITIVE) && last > before {
             format!(
                 "growing: eta {last:.2e} over the last {window} iterations, {best:.2e} at best; lower solver.relaxation (0.5) \
@@ -243,7 +233,7 @@ impl StageReport {
                 w.from, w.to, w.of, w.to
             )
         });
-        format!("{advice}{place}{flat}{lag}{stopped}")
+        format!("{advice}{place}{flat}{stopped}")
     }
 }
 
@@ -1008,8 +998,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // geometry for the diagnosis, which only a window that did not converge needs
         if !report.converged {
             report.worst_interface_aspect = worst.and_then(|i| m.interfaces[i].element_aspect(&m.substructures));
-            report.worst_interface_regularised = worst
-                .is_some_and(|i| matches!(m.interfaces[i].law, InterfaceLaw::Friction { regularisation: Some(_), .. }));
         }
         report.relaxation = relaxation.mu();
         if let Some(t) = tightening {
