@@ -16,11 +16,12 @@ pub const MAX_CONTACT_REPORTS: usize = 1024;
 /// tests below find it).
 pub const ILL_POSED_FRICTION: f64 = 1.0;
 
-/// The Prakash-Clifton regularisation of Coulomb's law (docs/method.md 3, "Local stage"): the friction
-/// strength is f times a normal force N* that follows the contact's N with a lag,
-/// dN*/dt = -(|V| + `velocity`) / `length` (N* - N), V the slip rate. A sudden change of the
-/// normal force then changes the friction over a slip of `length`, not at once, which bounds
-/// how fast short waves on a sliding face can grow (docs/verification.md 4e).
+/// The Prakash-Clifton regularisation of Coulomb's law (docs/method.md 3, "Local stage"): the
+/// friction bound is f times a normal force N* that follows the contact's N with a lag,
+/// dN*/dt = -(|V| + `velocity`) / `length` (N* - N), V the slip rate, drawn at most
+/// [`LAG_CAP`] x N. A sudden change of the normal force then changes the friction over a slip of
+/// `length`, not at once: the friction no longer feeds a fast oscillation of the normal force
+/// back at once, which damps a sliding contact's chatter below f = 1 (docs/verification.md 4e).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PrakashClifton {
     /// m, > 0
@@ -29,7 +30,22 @@ pub struct PrakashClifton {
     pub velocity: f64,
 }
 
+/// The lagged normal force draws the friction bound at most this many times the contact's own:
+/// the friction must vanish with the normal force. Uncapped, a node whose normal force collapses
+/// (a corner that high friction unloads) keeps a pull of f N* that no step can hold: closed, it
+/// holds f N* and that pull lifts it; open, it holds nothing and closes (docs/verification.md
+/// 4e: the iterations cycle). At 2 the cap never binds on the chattering blocks the law is for
+/// (their answers unchanged to every digit); at 1 the law is Coulomb's on every fall of the
+/// normal force and the chatter comes back; at 5 and 20 the corners' iterations cycle again.
+pub const LAG_CAP: f64 = 2.0;
+
 impl PrakashClifton {
+    /// The normal force the friction bound is drawn with: `followed` (N*), at most
+    /// [`LAG_CAP`] x the contact's `normal`.
+    pub fn bound_normal(followed: f64, normal: f64) -> f64 {
+        followed.min(LAG_CAP * normal)
+    }
+
     /// N* a step `dt` on from `before`, with the contact's normal force `normal` and the slip
     /// rate `slip_rate` held over the step: the law's equation solved exactly, so it is stable
     /// at any step and gives Coulomb's N* = N as `length` goes to zero.
@@ -130,5 +146,9 @@ mod tests {
         let coulomb = PrakashClifton { length: 1e-300, velocity: 0.5 };
         assert_eq!(coulomb.follow(before, normal, 0.0, dt), normal);
         assert_eq!(law.follow(before, normal, 0.0, 0.0), before, "no time, no change");
+        // the bound is drawn with N*, at most LAG_CAP x N
+        assert_eq!(PrakashClifton::bound_normal(3.0, 1.0), LAG_CAP);
+        assert_eq!(PrakashClifton::bound_normal(1.5, 1.0), 1.5);
+        assert_eq!(PrakashClifton::bound_normal(1.5, 0.0), 0.0, "no contact force, no friction");
     }
 }

@@ -157,7 +157,7 @@ pub fn solve<const D: usize>(m: &Model<D>, substeps: usize) -> Result<ExplicitHi
                     Some(law) => {
                         let followed = w.followed.map_or(dvn.abs(), |b| law.follow(b, dvn.abs(), w.slip_rate, dt));
                         w.followed = Some(followed);
-                        followed
+                        PrakashClifton::bound_normal(followed, dvn.abs())
                     }
                     None => dvn.abs(),
                 };

@@ -126,7 +126,8 @@ pub fn apply_law<const D: usize>(
 /// the force on side 1. Where the trial gap closes, the normal force closes it exactly; the
 /// tangential force is the stick trial's, scaled back to the cone mu |F_n| where it lies outside
 /// (sliding); where the gap opens, no force. Under a Prakash-Clifton `regularisation` the cone
-/// is mu N* instead, N* following |F_n| with a lag (kept in `memory`).
+/// is mu N* instead, N* following |F_n| with a lag (kept in `memory`), at most 2 |F_n|
+/// ([`glissade_core::contact::LAG_CAP`]).
 fn coulomb_contact<const D: usize>(
     x: &NodeInput<D>,
     mu: f64,
@@ -155,7 +156,7 @@ fn coulomb_contact<const D: usize>(
             let followed =
                 memory.followed.map_or(f1n.abs(), |before| law.follow(before, f1n.abs(), memory.slip_rate, gap.dt));
             memory.followed = Some(followed);
-            followed
+            PrakashClifton::bound_normal(followed, f1n.abs())
         }
         None => f1n.abs(),
     };
@@ -300,6 +301,12 @@ mod tests {
         assert!((memory.slip_rate - slip.abs()).abs() < 1e-12 && slip > 0.0);
         let vn = o.w2[1] - o.w1[1];
         assert!((memory.base - (0.1 + 0.1) * vn).abs() < 1e-12, "base {} for vn {vn}", memory.base);
+        // a normal force fallen far below the one followed draws the cone at 2 |F_n| at most
+        let mut memory = NodeMemory { base: 0.0, followed: Some(100.0 * normal), slip_rate: 0.0 };
+        let o =
+            apply_law(InterfaceLaw::Friction { coefficient: 0.3, regularisation: Some(law) }, &x, rule, &mut memory);
+        assert!((o.f1[0].abs() - 0.3 * 2.0 * normal).abs() < 1e-12, "{} against {}", o.f1[0], 0.6 * normal);
+        assert!(memory.followed.unwrap() > 2.0 * normal, "the memory keeps N* itself");
         // with no memory yet it follows this step's force: Coulomb's cone
         let o = apply_law(
             InterfaceLaw::Friction { coefficient: 0.3, regularisation: Some(law) },
