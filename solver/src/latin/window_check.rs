@@ -109,7 +109,7 @@ impl Parting {
                  a difference there (an iteration error, or a change in the data) about {g:.0e} x by the end, and \
                  '{}' is pinned only by iterations as much tighter than the tolerance \
                  (docs/verification.md, \"A slide that amplifies perturbations\"); where a contact chatters as \
-                 it slides, a Prakash-Clifton regularisation of its friction (docs/scenes.md) damps it",
+                 it slides below friction 1, a Prakash-Clifton regularisation of its friction (docs/scenes.md) damps it",
                 self.from, self.qoi
             ),
             _ => format!("they part at t = {:.2e} s, at once (an impact in one answer and not in the other)", self.to),
