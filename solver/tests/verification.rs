@@ -756,6 +756,19 @@ fn point_solver_reuses_factorisations_across_friction_changes() {
     let fresh = solve_scene(&other_k0, &at(&[("f1", 0.15), ("prestress", 2e-4)]), None).unwrap();
     assert_eq!(fourth.summary.iterations, fresh.summary.iterations);
     assert_eq!(fourth.summary.qoi["slip_A"].values, fresh.summary.qoi["slip_A"].values);
+    // a Prakash-Clifton length is a law parameter too: changed, no operator is rebuilt, and the
+    // answer is a fresh solve's at the new length
+    let text = fixtures::THREE_BLOCKS_TINY
+        .replacen("friction = \"f1\"", "friction = \"f1\"\nprakash_clifton = { length = \"L\", velocity = 1.0 }", 1)
+        .replacen("[parameters]", "[parameters]\nL = { default = 3e-5, min = 1e-6, max = 1e-3 }", 1);
+    let regularised = Scene::parse(&text).unwrap();
+    assert!(regularised.interface_law_parameters().contains("L"));
+    pool.solve(&Serial, &regularised, &at(&[("L", 3e-5)]), None).unwrap();
+    let longer = pool.solve(&Serial, &regularised, &at(&[("L", 1e-4)]), None).unwrap();
+    assert_eq!(longer.summary.timings.factorisation, 0.0, "a length change must not refactorise");
+    let fresh = solve_scene(&regularised, &at(&[("L", 1e-4)]), None).unwrap();
+    assert_eq!(longer.summary.iterations, fresh.summary.iterations);
+    assert_eq!(longer.summary.qoi["slip_A"].values, fresh.summary.qoi["slip_A"].values);
 }
 
 /// The 2D sliding block (variants of `sliding-block-2d`) obeys Coulomb's law at every step and,
