@@ -35,7 +35,7 @@ pub struct PrakashClifton {
 /// (a corner that high friction unloads) keeps a pull of f N* that no step can hold: closed, it
 /// holds f N* and that pull lifts it; open, it holds nothing and closes (docs/verification.md
 /// 4e: the iterations cycle). At 2 the cap never binds on the chattering blocks the law is for
-/// (their answers unchanged to every digit); at 1 the law is Coulomb's on every fall of the
+/// (their slips unchanged to 6 digits); at 1 the law is Coulomb's on every fall of the
 /// normal force and the chatter comes back; at 5 and 20 the corners' iterations cycle again.
 pub const LAG_CAP: f64 = 2.0;
 
