@@ -529,8 +529,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         }
         for c in s.contact.iter().filter(|c| c.landings_while_sliding > 0) {
             println!("  {}", c.evidence());
-            let regularised =
-                scene.interfaces.iter().any(|i| i.name == c.interface && i.prakash_clifton.is_some());
+            let regularised = scene.interfaces.iter().any(|i| i.name == c.interface && i.prakash_clifton.is_some());
             if !regularised && c.friction <= glissade_solver::contact_activity::ILL_POSED_FRICTION {
                 println!(
                     "  (a contact that lands while it slides moves the answer with dt; `prakash_clifton` on interface '{}' \
