@@ -527,17 +527,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
                 println!("  {}", p.evidence());
             }
         }
-        for c in s.contact.iter().filter(|c| c.landings_while_sliding > 0) {
-            println!("  {}", c.evidence());
-            let regularised = scene.interfaces.iter().any(|i| i.name == c.interface && i.prakash_clifton.is_some());
-            if !regularised && c.friction <= glissade_solver::contact_activity::ILL_POSED_FRICTION {
-                println!(
-                    "  (a contact that lands while it slides moves the answer with dt; `prakash_clifton` on interface '{}' \
-                     damps the chatter: docs/scenes.md)",
-                    c.interface
-                );
-            }
-        }
+        print_contact_evidence(&scene, &s.contact);
         if let Some(p) = &args.init {
             println!("  initialised from {}", p.display());
         }
@@ -558,6 +548,22 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         eprintln!("error: not converged: {why}");
     }
     Ok(s.converged)
+}
+
+/// Each contact that lifted off and landed while it slid, and below friction 1, where its
+/// interface is not regularised, the law that damps its chatter.
+fn print_contact_evidence(scene: &Scene, contact: &[glissade_solver::contact_activity::ContactActivity]) {
+    for c in contact.iter().filter(|c| c.landings_while_sliding > 0) {
+        println!("  {}", c.evidence());
+        let regularised = scene.interfaces.iter().any(|i| i.name == c.interface && i.prakash_clifton.is_some());
+        if !regularised && c.friction <= glissade_solver::contact_activity::ILL_POSED_FRICTION {
+            println!(
+                "  (a contact that lands while it slides moves the answer with dt; `prakash_clifton` on interface '{}' \
+                 damps the chatter: docs/scenes.md)",
+                c.interface
+            );
+        }
+    }
 }
 
 fn main() -> ExitCode {
