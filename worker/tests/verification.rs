@@ -228,6 +228,63 @@ fn the_cli_reports_a_windowed_solves_work_in_sweeps() {
     assert!(check.contains("25 and 38 steps") && check.contains("the answers agree by"), "{check}");
 }
 
+/// A magnesium block of our own pushed along a rigid floor at f = 0.4: its contact lands while it
+/// slides (119 times), and the solve's text names the regularisation that damps that chatter;
+/// regularised, the block converges, does not land, and the line is not printed.
+#[test]
+fn the_cli_names_the_regularisation_where_a_contact_chatters() {
+    const MAGNESIUM_BLOCK: &str = r#"
+dimension = 2
+[time]
+duration = 5e-4
+steps = 250
+[parameters]
+f = { default = 0.4, min = 0.0, max = 1.0 }
+[materials.mg]
+E = 45e9
+nu = 0.35
+rho = 1740
+[[bodies]]
+name = "block"
+material = "mg"
+size = [0.02, 0.01]
+elements = [8, 4]
+substructures = [2, 1]
+[[interfaces]]
+name = "floor"
+a = "block.y-"
+b = "wall"
+law = "friction"
+friction = "f"
+[[loads]]
+face = "block.y+"
+pressure = 4e6
+[[loads]]
+face = "block.x-"
+traction = [7e6, 0]
+history = [[0, 0], [5e-4, 1]]
+[[qoi]]
+name = "slip"
+kind = "slip"
+interface = "floor"
+point = [0.01, 0]
+"#;
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, text: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let out = Command::new(worker_bin()).args(["solve", path.to_str().unwrap()]).output().unwrap();
+        (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned())
+    };
+    let (_, coulomb) = run("coulomb.toml", MAGNESIUM_BLOCK);
+    let hint = "`prakash_clifton` on interface 'floor' damps the chatter";
+    assert!(coulomb.contains("lifted off and landed") && coulomb.contains(hint), "{coulomb}");
+    let regularised = MAGNESIUM_BLOCK
+        .replace("friction = \"f\"", "friction = \"f\"\nprakash_clifton = { length = 3e-5, velocity = 1.0 }");
+    let (converged, text) = run("regularised.toml", &regularised);
+    assert!(converged && !text.contains("lifted off and landed") && !text.contains(hint), "{text}");
+}
+
 // ---------------------------------------------------------------------------------------------
 // The study command.
 
