@@ -46,6 +46,15 @@ impl PrakashClifton {
         followed.min(LAG_CAP * normal)
     }
 
+    /// One step of the law at a node: moves the node's N* (`followed`; `None` before its first
+    /// step, when it starts at the contact's `normal`, a state at rest) on by `dt` and returns
+    /// the normal force the friction bound is drawn with ([`Self::bound_normal`]).
+    pub fn step(&self, followed: &mut Option<f64>, normal: f64, slip_rate: f64, dt: f64) -> f64 {
+        let now = followed.map_or(normal, |before| self.follow(before, normal, slip_rate, dt));
+        *followed = Some(now);
+        Self::bound_normal(now, normal)
+    }
+
     /// N* a step `dt` on from `before`, with the contact's normal force `normal` and the slip
     /// rate `slip_rate` held over the step: the law's equation solved exactly, so it is stable
     /// at any step and gives Coulomb's N* = N as `length` goes to zero.

@@ -154,11 +154,7 @@ pub fn solve<const D: usize>(m: &Model<D>, substeps: usize) -> Result<ExplicitHi
                 // normal velocity change (along -n, away from the wall), per unit mass
                 let dvn = gap.min(0.0) / dt;
                 let bound = match w.regularisation {
-                    Some(law) => {
-                        let followed = w.followed.map_or(dvn.abs(), |b| law.follow(b, dvn.abs(), w.slip_rate, dt));
-                        w.followed = Some(followed);
-                        PrakashClifton::bound_normal(followed, dvn.abs())
-                    }
+                    Some(law) => law.step(&mut w.followed, dvn.abs(), w.slip_rate, dt),
                     None => dvn.abs(),
                 };
                 let mut vt = [0.0; D];

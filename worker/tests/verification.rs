@@ -273,8 +273,8 @@ point = [0.01, 0]
     let run = |name: &str, text: &str| {
         let path = dir.path().join(name);
         std::fs::write(&path, text).unwrap();
-        let out = Command::new(worker_bin()).args(["solve", path.to_str().unwrap()]).output().unwrap();
-        (out.status.success(), String::from_utf8_lossy(&out.stdout).into_owned())
+        let (code, stdout, _) = worker(&["solve", path.to_str().unwrap()]);
+        (code == 0, stdout)
     };
     let (_, coulomb) = run("coulomb.toml", MAGNESIUM_BLOCK);
     let hint = "`prakash_clifton` on interface 'floor' damps the chatter";

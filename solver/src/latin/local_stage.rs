@@ -117,8 +117,10 @@ pub fn apply_law<const D: usize>(
     let rel: [f64; D] = std::array::from_fn(|i| out.w2[i] - out.w1[i]);
     let vn = dot(n, &rel);
     memory.base += gap.weight * vn + 0.5 * gap.dt * vn;
-    // (the Prakash-Clifton law's rate: read at the next step)
-    memory.slip_rate = (dot(&rel, &rel) - vn * vn).max(0.0).sqrt();
+    // the Prakash-Clifton law's rate, read at the next step (no other law reads it)
+    if matches!(law, InterfaceLaw::Friction { regularisation: Some(_), .. }) {
+        memory.slip_rate = (dot(&rel, &rel) - vn * vn).max(0.0).sqrt();
+    }
     out
 }
 
@@ -152,12 +154,7 @@ fn coulomb_contact<const D: usize>(
     // contact: the normal force closes the gap exactly
     let f1n = if trial_gap <= 0.0 { trial_gap / (gap.weight * (h1.normal + h2.normal)) } else { 0.0 };
     let normal = match regularisation {
-        Some(law) => {
-            let followed =
-                memory.followed.map_or(f1n.abs(), |before| law.follow(before, f1n.abs(), memory.slip_rate, gap.dt));
-            memory.followed = Some(followed);
-            PrakashClifton::bound_normal(followed, f1n.abs())
-        }
+        Some(law) => law.step(&mut memory.followed, f1n.abs(), memory.slip_rate, gap.dt),
         None => f1n.abs(),
     };
     if trial_gap <= 0.0 {
