@@ -3,7 +3,9 @@
 real service, their surfaces judged against a dense reference grid.
 
 Each design runs on a coordinator of its own (a fresh database: no study answers or warm-starts
-another's points) with one single-process pool. Once the study and its surface audit are done,
+another's points) with one single-process pool; with --shared all the designs run one after
+the other on one coordinator and database (a later one continues or warm-starts from the earlier
+ones' points: a tighter target after a looser one). Once the study and its surface audit are done,
 the surface that `glissade surface --at` answers is read at every reference point off the design
 and compared with the reference's value: per QoI, the largest and mean |error| relative to the
 QoI's spread over the box (the study's values and the reference's: the surface audit's measure,
@@ -72,10 +74,23 @@ def finished(study):
     return study["state"] in ("done", "cancelled", "failed")
 
 
-def measure(bin_dir, scene, reference, sets, qois, name, args, out):
+def start(point):
+    """How a point began: answered by a stored solution, continued from a stored solution of the
+    same point (at a looser tolerance), warm-started from another point, or cold."""
+    if point.get("answered"):
+        return "answered"
+    source = point.get("started_from")
+    if not source:
+        return "cold"
+    same = all(abs(source["parameters"].get(n, v) - v) <= 1e-12 * max(1.0, abs(v))
+               for n, v in point["parameters"].items())
+    return "continued" if same else "warm"
+
+
+def measure(bin_dir, scene, reference, sets, qois, name, args, out, shared=None):
     work_dir = os.path.join(out, name.replace(" ", "_"))
     os.makedirs(work_dir, exist_ok=True)
-    service = Service(bin_dir, os.path.join(work_dir, "db"), work_dir)
+    service = shared or Service(bin_dir, os.path.join(work_dir, "db"), work_dir)
     try:
         submitted = json.loads(service.cli("submit", scene, *shlex.split(args), "--audit", "0", "--refine", "0",
                                            "--json"))
@@ -96,16 +111,21 @@ def measure(bin_dir, scene, reference, sets, qois, name, args, out):
                           for d in design)]
         at = [",".join(f"{n}={r['point'][n]!r}" for n in params) for r in off]
         ats = [a for x in at for a in ("--at", x)]
-        predicted = json.loads(service.cli("surface", str(sid), "--json", *ats))["points"]
+        predicted = json.loads(service.cli("surface", str(sid), "--json", *ats))["points"] if at else []
     finally:
-        service.close()
+        if shared is None:
+            service.close()
     row = {
         "name": name, "args": args, "study": sid, "points": len(points),
         "work": sum(p["work"] or 0.0 for p in points),
+        # how each point began: a later design on a shared service continues or warm-starts
+        # from the earlier ones' points
+        "starts": {k: sum(start(p) == k for p in points) for k in ("answered", "continued", "warm", "cold")},
         "wall_s": (study["finished_unix_ms"] - study["created_unix_ms"]) / 1e3,
         "tolerance": study["tolerance"], "target": study.get("target"),
         "audit": study.get("surface_accuracy"), "judged_on": len(off), "qoi": {},
         # every number the errors come from, to judge again on another measure
+        "design": [p["parameters"] for p in points],
         "design_values": {q: [p["qoi"].get(q) for p in points] for q in qois},
         "predicted": [{"at": r["point"], "reference": r["qoi"], "set": r["set"], "qoi": p["qoi"]}
                       for r, p in zip(off, predicted)],
@@ -150,8 +170,11 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--bin", default="target/release")
     ap.add_argument("--scene", required=True)
-    ap.add_argument("--reference", required=True, action="append",
+    ap.add_argument("--reference", default=[], action="append",
                     help="results.json of `glissade-worker study` (repeatable: each set judged apart)")
+    ap.add_argument("--shared", action="store_true",
+                    help="run the designs one after the other on one coordinator and database (a later "
+                         "design continues or warm-starts from the earlier ones' points)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--qoi", default="middle_ux,slip_A,slip_B")
     ap.add_argument("designs", nargs="+", help="'NAME|submit arguments'")
@@ -160,12 +183,19 @@ def main():
     reference = [dict(r, set=path) for path in a.reference for r in json.load(open(path))["records"]]
     os.makedirs(a.out, exist_ok=True)
     rows = []
-    for d in a.designs:
-        name, args = d.split("|", 1)
-        started = time.time()
-        rows.append(measure(os.path.abspath(a.bin), a.scene, reference, a.reference, qois, name, args, a.out))
-        print(f"{name}: {time.time() - started:.0f} s", file=sys.stderr)
-        json.dump(rows, open(os.path.join(a.out, "bench.json"), "w"), indent=1)
+    shared = Service(os.path.abspath(a.bin), os.path.join(a.out, "db"), a.out) if a.shared else None
+    try:
+        for d in a.designs:
+            name, args = d.split("|", 1)
+            started = time.time()
+            rows.append(measure(os.path.abspath(a.bin), a.scene, reference, a.reference, qois, name, args, a.out,
+                                shared))
+            print(f"{name}: {time.time() - started:.0f} s, {rows[-1]['points']} points, work {rows[-1]['work']:.0f}, "
+                  f"starts {rows[-1]['starts']}", file=sys.stderr)
+            json.dump(rows, open(os.path.join(a.out, "bench.json"), "w"), indent=1)
+    finally:
+        if shared is not None:
+            shared.close()
     for name_set in a.reference:
         print(table(rows, qois, name_set))
 

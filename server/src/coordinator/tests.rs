@@ -1365,6 +1365,50 @@ fn an_adaptive_study_whose_budget_is_too_small_for_its_target_says_so() {
     assert_eq!(crate::convert::study(&v).target.unwrap().outcome, "budget");
 }
 
+/// A tighter target over the same box begins where a looser one ended: its design chooses the
+/// looser study's points again, in the same order (the same QoIs there), and each of them is
+/// continued from the looser study's stored solution of that very point (a warm restart that only
+/// tightens it: measured, 0.2 x a fresh point's work, docs/surrogate.md "Adaptive to a target"),
+/// then goes on with points of its own.
+#[test]
+fn a_tighter_target_continues_the_points_of_a_looser_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    // (the service's default strategy: a point starts from the nearest stored solution)
+    let submit = |target| {
+        let mut s = submission_of_target(target);
+        s.adaptive = Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 60));
+        c.submit(Submission { strategy: InitStrategy::Nearest, ..s }).unwrap().0
+    };
+    let loose = submit(0.05);
+    let first = solve_all(&c, smooth_law);
+    let earlier: Vec<(DesignPoint, PointId)> =
+        c.study(loose, true).unwrap().points.iter().map(|p| (p.parameters.clone(), p.id)).collect();
+    assert_eq!(earlier.len(), first);
+    let tight = submit(0.005);
+    let at = |p: &DesignPoint| (p.get("f1").unwrap(), p.get("f2").unwrap());
+    let mut leased = Vec::new();
+    while let Some(g) = c.lease("p").unwrap() {
+        assert!(g.tolerance < c.study(loose, false).unwrap().record.tolerance);
+        let origin = g.init.as_ref().map(|w| (at(&w.origin.parameters), w.origin.study, w.origin.point));
+        leased.push((at(&g.parameters), origin));
+        let (done, file) = solution_file_with_qoi(&g, g.tolerance / 2.0, true, &smooth_law(&g.parameters));
+        c.complete(done, file).unwrap();
+    }
+    assert!(leased.len() > first, "the tighter target needs more points: {} after {first}", leased.len());
+    for (k, ((p, origin), (q, id))) in leased.iter().zip(&earlier).enumerate() {
+        assert_eq!(*p, at(q), "point {k}: the looser study's points again, in its order");
+        assert_eq!(*origin, Some((*p, Some(loose), Some(*id))), "point {k}: continued from its own solution");
+    }
+    // the points of its own start warm from others, never from a solution of themselves
+    for (p, origin) in &leased[first..] {
+        let (from, ..) = origin.expect("a warm start");
+        assert_ne!(from, *p);
+    }
+    let outcome = c.study(tight, false).unwrap().record.adaptive.unwrap().outcome.expect("decided");
+    assert!(outcome.reached, "{outcome:?}");
+}
 /// A target out of (0, 1], or without a box, is refused before anything is stored; the
 /// points' tolerance follows the target.
 #[test]
