@@ -329,6 +329,12 @@ pub struct SolverSpec {
     /// form when absent.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub whole_interval_check: Option<bool>,
+    /// a node where substructures of a body meet a wall interface follows the law on its total
+    /// force, one velocity for all its copies (docs/method.md 3, "Local stage"); absent: true in
+    /// 3D, false in 1D and 2D (docs/performance.md, "Nodes two substructures share on a wall").
+    /// Left out of the serialised form when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub joint_wall_nodes: Option<bool>,
 }
 
 /// Without `time_window`, a scene with a friction interface and more than this many steps is
@@ -375,6 +381,7 @@ impl Default for SolverSpec {
             time_window: None,
             window_check: None,
             whole_interval_check: None,
+            joint_wall_nodes: None,
         }
     }
 }

@@ -274,6 +274,9 @@ pub struct SolverSettings {
     pub window_check: bool,
     /// a whole-interval solve is checked by iterating on to a tenth of its tolerance
     pub whole_interval_check: bool,
+    /// the copies of a node substructures share on a wall interface follow the law together
+    /// ([`Model::shared_wall_nodes`])
+    pub joint_wall_nodes: bool,
 }
 
 /// The whole decomposed problem of one design point.
@@ -288,6 +291,10 @@ pub struct Model<const D: usize> {
     pub qois: Vec<Qoi>,
     pub settings: SolverSettings,
     pub parameters: DesignPoint,
+    /// Nodes a wall interface holds twice or more: (interface, node) of each copy, one group per
+    /// physical node ([`shared_wall_nodes`]); the local stage applies the law to each group's
+    /// total force. Empty unless `settings.joint_wall_nodes`.
+    pub shared_wall_nodes: Vec<Vec<(usize, usize)>>,
 }
 
 impl<const D: usize> Model<D> {
@@ -339,6 +346,7 @@ impl<const D: usize> Model<D> {
             time_window: scene.window_steps(),
             window_check: st.window_check.unwrap_or(true),
             whole_interval_check: st.whole_interval_check.unwrap_or(false),
+            joint_wall_nodes: st.joint_wall_nodes.unwrap_or(D == 3),
         };
 
         let mut materials = BTreeMap::new();
@@ -413,7 +421,13 @@ impl<const D: usize> Model<D> {
         let dt = duration / scene.time.steps as f64;
         set_search_directions(&mut interfaces, &substructures, (k0_factor, tangential_factor), assembly_size, dt);
 
+        let shared_wall_nodes = if settings.joint_wall_nodes {
+            shared_wall_nodes(&interfaces, &interface_index, assembly_size)
+        } else {
+            Vec::new()
+        };
         Ok(Model {
+            shared_wall_nodes,
             bodies,
             substructures,
             interfaces,
@@ -425,6 +439,34 @@ impl<const D: usize> Model<D> {
             parameters: values.clone(),
         })
     }
+}
+
+/// The nodes where the substructures of a body meet a wall interface: each is on the piece of
+/// every substructure it belongs to (a declared interface is one piece per substructure), its
+/// copies tied by the perfect interfaces between them. Were the law applied to each copy apart,
+/// the split of the node's force between the copies would be free (the perfect interface carries
+/// any difference), and one copy could slip while the node as a whole sticks: in the 3D sliding
+/// block the residual then sat at those nodes alone before the slip's onset, falling 0.2 % per
+/// iteration (docs/performance.md, "Nodes two substructures share on a wall"). Groups of
+/// (interface, node), by declared interface, in interface order.
+fn shared_wall_nodes<const D: usize>(
+    interfaces: &[Interface<D>],
+    index: &BTreeMap<String, std::ops::Range<usize>>,
+    scale: f64,
+) -> Vec<Vec<(usize, usize)>> {
+    let tol = 1e-9 * scale;
+    let mut groups = Vec::new();
+    for range in index.values().filter(|r| r.len() > 1 && interfaces[r.start].sides.len() == 1) {
+        let mut at: BTreeMap<Vec<i64>, Vec<(usize, usize)>> = BTreeMap::new();
+        for i in range.clone() {
+            for (j, p) in interfaces[i].coords.iter().enumerate() {
+                at.entry(p.iter().map(|x| (x / tol).round() as i64).collect()).or_default().push((i, j));
+            }
+        }
+        groups.extend(at.into_values().filter(|copies| copies.len() > 1));
+    }
+    groups.sort();
+    groups
 }
 
 /// A side of an interface on substructure `s` at these body nodes; its search directions are set

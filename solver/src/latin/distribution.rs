@@ -1,7 +1,8 @@
 //! Which rank holds what: substructures in contiguous blocks balanced by dof count (substructures
 //! are numbered body by body, lexicographically in space, so blocks keep neighbours together),
-//! each interface owned by the rank of its first side. Interface fields cross ranks only between
-//! the two ranks of an interface's sides.
+//! each interface owned by the rank of its first side (the pieces of a wall interface that share
+//! nodes, by the first piece's). Interface fields cross ranks only between an interface's owner
+//! and the ranks of its sides.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::ops::Range;
@@ -44,11 +45,30 @@ impl Distribution {
             substructure_rank.push(ideal.clamp(lo, hi.max(lo)));
             before += d;
         }
-        let interface_rank: Vec<usize> =
+        let mut interface_rank: Vec<usize> =
             model.interfaces.iter().map(|itf| substructure_rank[itf.sides[0].substructure]).collect();
+        // the pieces of a wall interface that share a node are owned together (the local stage
+        // applies the law to the node's copies at once): by the owner of the first of them
+        let mut first: Vec<usize> = (0..model.interfaces.len()).collect();
+        let root = |first: &[usize], mut i: usize| {
+            while first[i] != i {
+                i = first[i];
+            }
+            i
+        };
+        for group in &model.shared_wall_nodes {
+            for &(i, _) in group {
+                let (a, b) = (root(&first, group[0].0), root(&first, i));
+                first[a.max(b)] = a.min(b);
+            }
+        }
+        for i in 0..interface_rank.len() {
+            interface_rank[i] = interface_rank[root(&first, i)];
+        }
         let mut neighbours = BTreeSet::new();
-        for itf in &model.interfaces {
-            let ranks: Vec<usize> = itf.sides.iter().map(|s| substructure_rank[s.substructure]).collect();
+        for (itf, &owner) in model.interfaces.iter().zip(&interface_rank) {
+            let mut ranks: Vec<usize> = itf.sides.iter().map(|s| substructure_rank[s.substructure]).collect();
+            ranks.push(owner);
             if ranks.contains(&rank) {
                 neighbours.extend(ranks.into_iter().filter(|&r| r != rank));
             }

@@ -1051,6 +1051,14 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             },
             dt: m.dt,
         };
+        // the copies of a node a wall interface holds twice: their law below, at once
+        let mut shared: Vec<Vec<bool>> = Vec::new();
+        if !m.shared_wall_nodes.is_empty() {
+            shared = m.interfaces.iter().map(|itf| vec![false; itf.n_nodes()]).collect();
+            for &(i, j) in m.shared_wall_nodes.iter().flatten() {
+                shared[i][j] = true;
+            }
+        }
         for (i, itf) in m.interfaces.iter().enumerate() {
             out[i].clear();
             if !self.dist.owns_interface(i) {
@@ -1069,6 +1077,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             };
             for step in steps.clone() {
                 for (j, memory) in node_memory.iter_mut().enumerate() {
+                    if shared.get(i).is_some_and(|s| s[j]) {
+                        continue;
+                    }
                     let at = |v: &[f64]| -> [f64; D] {
                         let mut out = [0.0; D];
                         out.copy_from_slice(&v[(step * n + j) * D..(step * n + j + 1) * D]);
@@ -1096,6 +1107,82 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         h.force[r].copy_from_slice(&out.f2);
                     }
                 }
+            }
+        }
+        self.shared_wall_stage(stage, fields, steps, rule, out);
+    }
+
+    /// The law at the nodes a wall interface holds twice or more ([`Model::shared_wall_nodes`]),
+    /// on each node's total force, one velocity for all its copies (c: area a_c, direction k_c):
+    /// the copies make one node of area A = sum a_c, direction K = sum a_c k_c / A, force
+    /// F = sum a_c F_c / A and velocity W = K^-1 sum a_c k_c W_c / A, since F^ - F = K (W^ - W)
+    /// is then the sum of the copies' F^_c - F_c = k_c (W^ - W_c). The law gives F^ and W^ there;
+    /// each copy takes W^ and F^_c (so that sum a_c F^_c = A F^). The first copy's memory is the
+    /// node's, copied to the others.
+    fn shared_wall_stage(
+        &self,
+        stage: Stage,
+        fields: &mut [InterfaceField],
+        steps: Range<usize>,
+        rule: GapRule,
+        out: &mut [Vec<NodeMemory>],
+    ) {
+        let m = self.model;
+        for group in m.shared_wall_nodes.iter().filter(|g| self.dist.owns_interface(g[0].0)) {
+            let (i0, j0) = group[0];
+            let law = match stage {
+                Stage::Static => m.interfaces[i0].law,
+                Stage::Dynamic => m.interfaces[i0].law.in_dynamics(),
+            };
+            let area: f64 = group.iter().map(|&(i, j)| m.interfaces[i].area[j]).sum();
+            let mut normal = [0.0; D];
+            for &(i, j) in group {
+                let itf = &m.interfaces[i];
+                (0..D).for_each(|c| normal[c] += itf.area[j] * itf.normal[j][c]);
+            }
+            let length = normal.iter().map(|x| x * x).sum::<f64>().sqrt();
+            normal.iter_mut().for_each(|x| *x /= length);
+            let k = |i: usize| stage.k(&m.interfaces[i].sides[0]);
+            let share = |i: usize, j: usize| m.interfaces[i].area[j] / area;
+            let node = SearchDirection {
+                normal: group.iter().map(|&(i, j)| share(i, j) * k(i).normal).sum(),
+                tangential: group.iter().map(|&(i, j)| share(i, j) * k(i).tangential).sum(),
+            };
+            let mut memory = out[i0][j0];
+            for step in steps.clone() {
+                let at = |i: usize, j: usize| (step * m.interfaces[i].n_nodes() + j) * D;
+                let (mut force, mut kw) = ([0.0; D], [0.0; D]);
+                for &(i, j) in group {
+                    let (s, a) = (&fields[i].s[0], share(i, j));
+                    let w: [f64; D] = std::array::from_fn(|c| s.velocity[at(i, j) + c]);
+                    let kw_c = k(i).apply(&normal, &w);
+                    for c in 0..D {
+                        force[c] += a * s.force[at(i, j) + c];
+                        kw[c] += a * kw_c[c];
+                    }
+                }
+                let input = NodeInput {
+                    w1: node.inverse().apply(&normal, &kw),
+                    f1: force,
+                    w2: [0.0; D],
+                    f2: [0.0; D],
+                    h1: node.inverse(),
+                    h2: SearchDirection::isotropic(0.0),
+                    normal,
+                };
+                let hat = apply_law(law, &input, rule, &mut memory);
+                for &(i, j) in group {
+                    let f = &mut fields[i];
+                    let r = at(i, j)..at(i, j) + D;
+                    let w: [f64; D] = std::array::from_fn(|c| f.s[0].velocity[r.start + c]);
+                    let dk = k(i).apply(&normal, &std::array::from_fn(|c| hat.w1[c] - w[c]));
+                    let force: [f64; D] = std::array::from_fn(|c| f.s[0].force[r.start + c] + dk[c]);
+                    f.hat[0].velocity[r.clone()].copy_from_slice(&hat.w1);
+                    f.hat[0].force[r].copy_from_slice(&force);
+                }
+            }
+            for &(i, j) in group {
+                out[i][j] = memory;
             }
         }
     }
