@@ -53,9 +53,21 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
     assert_eq!(text_pc.matches("prakash_clifton").count(), 2);
     std::fs::write(&regularised, format!("{text_pc}\n[solver]\ntime_window = 10\n")).unwrap();
     let regularised = regularised.to_str().unwrap().to_owned();
-    for (scene, scale) in
-        [(&whole, "single"), (&whole, "multi"), (&windowed, "single"), (&checked, "multi"), (&regularised, "single")]
-    {
+    // and a 3D block cut in 4 on a friction floor: the nodes the cuts share on the floor follow
+    // the law together, their pieces owned by one rank whatever rank holds their substructures
+    let shared = dir.path().join("shared.toml");
+    let block = std::fs::read_to_string(scene_path("sliding-block-3d.toml")).unwrap();
+    assert!(block.contains("substructures = [2, 1, 1]") && !block.contains("joint_wall_nodes"));
+    std::fs::write(&shared, block.replace("substructures = [2, 1, 1]", "substructures = [4, 1, 1]")).unwrap();
+    let shared = shared.to_str().unwrap().to_owned();
+    for (scene, scale) in [
+        (&whole, "single"),
+        (&whole, "multi"),
+        (&windowed, "single"),
+        (&checked, "multi"),
+        (&regularised, "single"),
+        (&shared, "single"),
+    ] {
         let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
         for np in ["1", "2", "3"] {
             let save = dir.path().join(format!("{scale}-{}-{np}.sol", scene.len()));
