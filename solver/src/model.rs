@@ -426,6 +426,7 @@ impl<const D: usize> Model<D> {
         } else {
             Vec::new()
         };
+        untie_shared_wall_nodes(&mut interfaces, &shared_wall_nodes);
         Ok(Model {
             shared_wall_nodes,
             bodies,
@@ -467,6 +468,42 @@ fn shared_wall_nodes<const D: usize>(
     }
     groups.sort();
     groups
+}
+
+/// Drops from the perfect interfaces between substructures the nodes whose copies a wall
+/// interface holds together ([`shared_wall_nodes`]): the local stage there gives every copy one
+/// velocity and balances their forces against the law's (`LatinSolver::shared_wall_stage`),
+/// which ties them as the perfect interface would. Tied twice, the split of the node's force
+/// between the wall and the perfect interface would be free, a mode the iterations hardly damp
+/// (docs/performance.md, "Nodes two substructures share on a wall").
+fn untie_shared_wall_nodes<const D: usize>(interfaces: &mut [Interface<D>], groups: &[Vec<(usize, usize)>]) {
+    let mut group_of: HashMap<(usize, usize), usize> = HashMap::new();
+    for (g, copies) in groups.iter().enumerate() {
+        for &(i, j) in copies {
+            let side = &interfaces[i].sides[0];
+            group_of.insert((side.substructure, side.nodes[j]), g);
+        }
+    }
+    if group_of.is_empty() {
+        return;
+    }
+    for itf in interfaces.iter_mut().filter(|itf| itf.law == InterfaceLaw::Perfect && itf.sides.len() == 2) {
+        let tied = |j: usize| {
+            let [a, b] = [&itf.sides[0], &itf.sides[1]].map(|s| group_of.get(&(s.substructure, s.nodes[j])));
+            a.is_some() && a == b
+        };
+        let keep: Vec<usize> = (0..itf.n_nodes()).filter(|&j| !tied(j)).collect();
+        if keep.len() == itf.n_nodes() {
+            continue;
+        }
+        itf.area = keep.iter().map(|&j| itf.area[j]).collect();
+        itf.normal = keep.iter().map(|&j| itf.normal[j]).collect();
+        itf.coords = keep.iter().map(|&j| itf.coords[j]).collect();
+        itf.gap0 = keep.iter().map(|&j| itf.gap0[j]).collect();
+        for side in itf.sides.iter_mut() {
+            side.nodes = keep.iter().map(|&j| side.nodes[j]).collect();
+        }
+    }
 }
 
 /// A side of an interface on substructure `s` at these body nodes; its search directions are set

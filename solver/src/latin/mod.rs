@@ -1117,8 +1117,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// the copies make one node of area A = sum a_c, direction K = sum a_c k_c / A, force
     /// F = sum a_c F_c / A and velocity W = K^-1 sum a_c k_c W_c / A, since F^ - F = K (W^ - W)
     /// is then the sum of the copies' F^_c - F_c = k_c (W^ - W_c). The law gives F^ and W^ there;
-    /// each copy takes W^ and F^_c (so that sum a_c F^_c = A F^). The first copy's memory is the
-    /// node's, copied to the others.
+    /// each copy takes W^ and F^_c (so that sum a_c F^_c = A F^): the copies are tied as a
+    /// perfect interface ties them (the model drops the node from those). The first copy's
+    /// memory is the node's, copied to the others.
     fn shared_wall_stage(
         &self,
         stage: Stage,
