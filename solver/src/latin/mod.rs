@@ -1142,7 +1142,12 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 (0..D).for_each(|c| normal[c] += itf.area[j] * itf.normal[j][c]);
             }
             let length = normal.iter().map(|x| x * x).sum::<f64>().sqrt();
-            normal.iter_mut().for_each(|x| *x /= length);
+            if length > 0.0 {
+                normal.iter_mut().for_each(|x| *x /= length);
+            } else {
+                // (copies facing opposite ways, an edge folded flat: the first copy's)
+                normal = m.interfaces[i0].normal[j0];
+            }
             let k = |i: usize| stage.k(&m.interfaces[i].sides[0]);
             let share = |i: usize, j: usize| m.interfaces[i].area[j] / area;
             let node = SearchDirection {
