@@ -195,6 +195,7 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             adaptive,
             surface_audit_points: m.surface_audit_points,
             surface_accuracy: m.surface_accuracy,
+            work_budget: m.work_budget,
             meshes: m.meshes.into_iter().map(|f| MeshUpload { file: f.file, data: f.data, sha256: f.sha256 }).collect(),
         })
     }
@@ -537,6 +538,8 @@ pub fn study(v: &StudyView) -> v1::Study {
                 points: outcome.map_or(0, |o| o.validation.points as u32),
                 qoi: outcome.map(|o| surface_errors(&o.validation.qoi)).unwrap_or_default(),
                 refused: outcome.map(|o| o.validation.refused.clone().into_iter().collect()).unwrap_or_default(),
+                work_budget: a.work_budget.unwrap_or(0.0),
+                work: crate::records::work_of(&v.points),
             })
         }),
     }

@@ -182,6 +182,10 @@ pub struct AdaptiveSpec {
     /// How a study with a target ended (None while it runs): no point is chosen after it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub outcome: Option<TargetOutcome>,
+    /// No point is chosen once the points' work reaches this (dynamic iterations + static
+    /// iterations / steps, summed over the points solved).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub work_budget: Option<f64>,
 }
 
 impl AdaptiveSpec {
@@ -190,9 +194,27 @@ impl AdaptiveSpec {
         if self.outcome.is_some() { 0 } else { self.budget.saturating_sub(chosen) }
     }
 
+    /// Whether another point would take the points' work past the work budget: the work so
+    /// far, and the mean work of a solved point for each point in flight and the next one.
+    pub fn work_spent(&self, points: &[PointRecord]) -> bool {
+        self.work_budget.is_some_and(|budget| {
+            let solved = points.iter().filter(|p| p.result.is_some()).count();
+            let in_flight =
+                points.iter().filter(|p| matches!(p.state, PointState::Pending | PointState::Leased { .. })).count();
+            let work = work_of(points);
+            let mean = if solved > 0 { work / solved as f64 } else { 0.0 };
+            work + mean * (in_flight + 1) as f64 > budget
+        })
+    }
+
     pub fn design(&self) -> AdaptiveDesign {
         AdaptiveDesign { ranges: self.ranges.clone(), budget: self.budget as usize, target: self.target }
     }
+}
+
+/// The work of the points solved so far (dynamic iterations + static iterations / steps).
+pub fn work_of(points: &[PointRecord]) -> f64 {
+    points.iter().filter_map(|p| p.result.as_ref()).map(|r| r.work).sum()
 }
 
 /// Where a point is in its life.

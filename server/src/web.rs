@@ -729,6 +729,10 @@ fn target_paragraph(v: &StudyView) -> Markup {
                 None => (format!("not decided yet (budget {} points)", a.budget)),
                 Some(o) => {
                     @if o.reached { (format!("reached at {} points (budget {}): ", o.validation.points, a.budget)) }
+                    @else if a.work_spent(&v.points) {
+                        (format!("NOT reached: the work budget of {:.0} was spent (work {:.0}); at {} points: ",
+                            a.work_budget.unwrap_or(0.0), crate::records::work_of(&v.points), o.validation.points))
+                    }
                     @else { (format!("NOT reached: the budget of {} points was spent; at {} points: ", a.budget, o.validation.points)) }
                     @for (k, (q, e)) in o.validation.qoi.iter().enumerate() {
                         @if k > 0 { ", " }

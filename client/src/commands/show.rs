@@ -385,10 +385,19 @@ pub(crate) fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAcc
         })
         .chain(t.refused.iter().map(|(q, why)| format!("{q} not fitted: {why}")))
         .collect();
+    let budget = if t.work_budget > 0.0 {
+        format!("{} points or work {:.0}", t.budget, t.work_budget)
+    } else {
+        t.budget.to_string()
+    };
     let verdict = match t.outcome.as_str() {
-        "reached" => format!("REACHED at {} points (budget {})", t.points, t.budget),
+        "reached" => format!("REACHED at {} points (budget {budget})", t.points),
+        "budget" if t.work_budget > 0.0 && t.points < t.budget => format!(
+            "NOT REACHED: the work budget of {:.0} was spent (work {:.0}); at {} points",
+            t.work_budget, t.work, t.points
+        ),
         "budget" => format!("NOT REACHED: the budget of {} points was spent; at {} points", t.budget, t.points),
-        _ => format!("not decided yet (budget {})", t.budget),
+        _ => format!("not decided yet (budget {budget})"),
     };
     let mut line = format!(
         "surface accuracy {:.1e} (mean error / spread, cross-validated): {verdict}{}{}",
@@ -487,4 +496,30 @@ pub(crate) fn dominant(a: &v1::StudyAccuracy, d: &v1::StudyDiscretisation) -> Op
     errors.sort_by(|x, y| y.1.total_cmp(&x.1));
     let others: Vec<String> = errors[1..].iter().map(|(who, e)| format!("{who} ({e:.1e})")).collect();
     Some(format!("{} error (~{:.1e}) dominates {}", errors[0].0, errors[0].1, others.join(" and ")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A target's verdict names what stopped it: the points' budget, or the work budget when
+    /// its points are fewer than their budget.
+    #[test]
+    fn a_target_line_names_the_budget_that_was_spent() {
+        let target = |points: u32, work_budget: f64| v1::StudyTarget {
+            surface_accuracy: 1e-3,
+            budget: 60,
+            outcome: "budget".into(),
+            points,
+            work_budget,
+            work: 96.0,
+            ..Default::default()
+        };
+        let line = target_line(&target(12, 100.0), None);
+        assert!(line.contains("NOT REACHED: the work budget of 100 was spent (work 96); at 12 points"), "{line}");
+        let line = target_line(&target(60, 0.0), None);
+        assert!(line.contains("NOT REACHED: the budget of 60 points was spent; at 60 points"), "{line}");
+        let line = target_line(&v1::StudyTarget { outcome: String::new(), ..target(0, 100.0) }, None);
+        assert!(line.contains("not decided yet (budget 60 points or work 100)"), "{line}");
+    }
 }

@@ -32,9 +32,14 @@ pub(crate) struct SubmitArgs {
     /// An adaptive study over the --range box that adds points until the cross-validated mean
     /// error of every QoI's surface is within this share of the QoI's spread (0.02: 2 %), or its
     /// budget (--adaptive N; default 100) is spent, and says which (`glissade show`); its points
-    /// are solved to --tol, default this / 30 (docs/surrogate.md, "Adaptive to a target")
+    /// are solved to --tol, default this / 300 (docs/surrogate.md, "Adaptive to a target")
     #[arg(long, value_name = "SHARE", requires = "range")]
     pub(crate) surface_accuracy: Option<f64>,
+    /// An adaptive study chooses no point once its points' work (dynamic iterations + static
+    /// iterations / steps, summed: `show --points`) reaches W; with a target it then ends NOT
+    /// REACHED (the points in flight finish): e.g. the work of the grid it replaces
+    #[arg(long, value_name = "W", requires = "range")]
+    pub(crate) work_budget: Option<f64>,
     /// Tolerance on the error indicator (default: the scene's).
     #[arg(long, value_name = "T")]
     pub(crate) tol: Option<f64>,
@@ -107,6 +112,9 @@ pub(crate) async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome>
             glissade_core::study::space::DEFAULT_MAX_POINTS,
         )
         .map_err(|e| anyhow!("--range / --adaptive / --surface-accuracy: {e}"))?;
+        if let Some(w) = args.work_budget.filter(|w| !(w.is_finite() && *w > 0.0)) {
+            return Err(anyhow!("--work-budget {w}: must be a finite number above 0"));
+        }
     } else {
         glissade_core::study::space::check_grid(&parsed, &args.grid).map_err(|e| anyhow!("--grid: {e}"))?;
     }
@@ -153,6 +161,7 @@ pub(crate) async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome>
         refine_mesh: args.refine_mesh,
         surface_audit_points: args.surface_audit,
         surface_accuracy: args.surface_accuracy,
+        work_budget: args.work_budget,
     };
     let mut client = user(server).await?;
     let reply = client

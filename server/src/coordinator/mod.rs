@@ -721,8 +721,21 @@ impl Coordinator {
     /// ends the study at the points it has. A study with a target first judges it (recorded once
     /// decided: no point is chosen after).
     fn choose_adaptive_point(&self, entry: &mut StudyEntry) -> Result<(), CoordError> {
-        let Some(spec) = entry.record.adaptive.clone() else { return Ok(()) };
-        let spent = entry.points.len() >= spec.budget as usize;
+        let Some(mut spec) = entry.record.adaptive.clone() else { return Ok(()) };
+        let work_spent = spec.work_spent(&entry.points);
+        if work_spent && spec.target.is_none() && entry.points.len() < spec.budget as usize {
+            // the work budget is spent: the points chosen are the study's (those in flight
+            // finish); a study with a target says so in its outcome instead
+            spec.budget = entry.points.len() as u32;
+            let mut record = entry.record.clone();
+            record.adaptive = Some(spec.clone());
+            let mut batch = Batch::new();
+            batch.put(Tree::Studies, study_key(record.id), encode(&record));
+            self.store.commit(batch)?;
+            tracing::info!(study = %record.id, points = entry.points.len(), "adaptive study: its work budget is spent");
+            entry.record = record;
+        }
+        let spent = entry.points.len() >= spec.budget as usize || work_spent;
         if spec.outcome.is_some() || (spent && spec.target.is_none()) {
             return Ok(());
         }
@@ -1154,7 +1167,7 @@ fn adaptive_step(
     let readings = QoiReadings::of(&entry.scene);
     let surfaces = design.surfaces(entry.plan.space(), &readings, &chosen);
     let in_flight = points.iter().any(|p| matches!(p.state, PointState::Pending | PointState::Leased { .. }));
-    let spent = points.len() >= spec.budget as usize && !in_flight;
+    let spent = (points.len() >= spec.budget as usize || spec.work_spent(points)) && !in_flight;
     let outcome = if spec.outcome.is_none() { design.outcome(&surfaces, spent) } else { None };
     let next = (choose && outcome.is_none()).then(|| design.next(&chosen, &surfaces)).flatten();
     if let Some(o) = &outcome {

@@ -71,6 +71,11 @@ impl Coordinator {
         let scene_hash = scene.content_hash();
         // an adaptive study with a target solves its points to the tolerance the target needs,
         // unless told (core::study::adaptive::point_tolerance)
+        if submission.work_budget.is_some() && submission.adaptive.is_none() {
+            return Err(CoordError::Invalid(
+                "work_budget: a work budget is for an adaptive study: give its ranges (NAME=LOW:HIGH)".into(),
+            ));
+        }
         if let Some(target) = submission.surface_accuracy {
             check_target(target).map_err(CoordError::Invalid)?;
             if submission.adaptive.is_none() {
@@ -192,7 +197,12 @@ impl Coordinator {
                 let design = AdaptiveDesign::parse(ranges, budget as usize, target, &space, self.config.max_points)
                     .map_err(CoordError::Invalid)?;
                 let names = design.ranges.iter().map(|(n, ..)| n.clone()).collect();
-                (names, Vec::new(), Some(AdaptiveSpec { ranges: design.ranges, budget, target, outcome: None }))
+                let work_budget = submission.work_budget;
+                if let Some(w) = work_budget.filter(|w| !(w.is_finite() && *w > 0.0)) {
+                    return Err(CoordError::Invalid(format!("work_budget: {w}: must be a finite number above 0")));
+                }
+                let spec = AdaptiveSpec { ranges: design.ranges, budget, target, outcome: None, work_budget };
+                (names, Vec::new(), Some(spec))
             }
         };
         for (i, point) in points.iter().enumerate() {

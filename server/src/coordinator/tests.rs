@@ -67,6 +67,7 @@ fn submit_audited(
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
+        work_budget: None,
         meshes: vec![],
     };
     c.submit(submission).unwrap().0
@@ -89,6 +90,7 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
+        work_budget: None,
         meshes: vec![],
     };
     match c.submit(submission) {
@@ -380,6 +382,7 @@ fn a_study_says_its_kind_its_scene_and_when_it_finished() {
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
+        work_budget: None,
         meshes: vec![],
     };
     let (listed, ..) = c.submit(listed).unwrap();
@@ -580,6 +583,7 @@ fn submit_refined(
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
+        work_budget: None,
         meshes: vec![],
     };
     c.submit(submission).map(|r| r.0)
@@ -612,6 +616,7 @@ fn a_mesh_level_measures_the_mesh_error_beside_the_time_step() {
         refine_mesh,
         adaptive: None,
         surface_accuracy: None,
+        work_budget: None,
         surface_audit_points: Some(0),
         meshes: vec![],
     };
@@ -871,6 +876,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 8)),
         surface_audit_points: Some(0),
         surface_accuracy: None,
+        work_budget: None,
         meshes: vec![],
     };
     let (id, points, _) = c.submit(submission).unwrap();
@@ -931,6 +937,7 @@ fn joint_submission(meshes: Vec<MeshUpload>) -> Submission {
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
+        work_budget: None,
         meshes,
     }
 }
@@ -1065,6 +1072,7 @@ fn submit_held_out(
         adaptive,
         surface_audit_points: held_out,
         surface_accuracy: None,
+        work_budget: None,
         meshes: vec![],
     };
     c.submit(submission).unwrap().0
@@ -1240,6 +1248,7 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
         adaptive: None,
         surface_audit_points: Some(0),
         surface_accuracy: None,
+        work_budget: None,
         meshes: vec![],
     };
     let id = c.submit(submission).unwrap().0;
@@ -1409,6 +1418,54 @@ fn a_tighter_target_continues_the_points_of_a_looser_one() {
     let outcome = c.study(tight, false).unwrap().record.adaptive.unwrap().outcome.expect("decided");
     assert!(outcome.reached, "{outcome:?}");
 }
+/// A work budget: an adaptive study chooses no point that would take its points' work past it,
+/// at their mean work a point (each solve here costs 8: 12 points do 96 of 100, a 13th would
+/// take it to 104), with or without a target; one it has not reached by then ends NOT REACHED,
+/// the API saying the work budget was spent. A work budget without a box, or not above 0, is
+/// refused.
+#[test]
+fn an_adaptive_study_stops_at_its_work_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    for target in [None, Some(1e-4)] {
+        let submission = Submission {
+            adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 60)),
+            surface_accuracy: target,
+            work_budget: Some(100.0),
+            tolerance: Some(tolerance(1e-3)),
+            ..submission_of_target(0.5)
+        };
+        let id = c.submit(submission).unwrap().0;
+        assert_eq!(solve_all(&c, smooth_law), 12, "target {target:?}");
+        let v = c.study(id, true).unwrap();
+        assert_eq!((v.state, v.progress.done, v.progress.pending), (StudyState::Done, 12, 0), "target {target:?}");
+        let api = crate::convert::study(&v);
+        match target {
+            None => assert!(api.target.is_none()),
+            Some(_) => {
+                let t = api.target.expect("a target");
+                assert_eq!((t.outcome.as_str(), t.work_budget, t.work, t.points), ("budget", 100.0, 96.0, 12));
+                assert_eq!(t.budget, 60, "the points' budget as given: the work budget stopped it");
+            }
+        }
+    }
+    let refused = |work_budget: f64, adaptive: bool| {
+        let mut s = Submission { work_budget: Some(work_budget), surface_accuracy: None, ..submission_of_target(0.5) };
+        if !adaptive {
+            (s.adaptive, s.grid) = (None, vec!["f1=0.1:0.2:3".into()]);
+        }
+        match c.submit(s) {
+            Err(CoordError::Invalid(why)) => why,
+            other => panic!("{work_budget}, adaptive {adaptive}: {other:?}"),
+        }
+    };
+    for bad in [0.0, -5.0, f64::NAN, f64::INFINITY] {
+        assert!(refused(bad, true).starts_with("work_budget: "), "{bad}");
+    }
+    assert!(refused(100.0, false).contains("a work budget is for an adaptive study"));
+}
+
 /// A target out of (0, 1], or without a box, is refused before anything is stored; the
 /// points' tolerance follows the target.
 #[test]
@@ -1456,6 +1513,7 @@ fn submission_of_target(target: f64) -> Submission {
         refine_mesh: false,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 20)),
         surface_accuracy: Some(target),
+        work_budget: None,
         surface_audit_points: Some(0),
         meshes: vec![],
     }

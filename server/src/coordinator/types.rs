@@ -201,6 +201,8 @@ pub struct Submission {
     /// within this share of its spread (its budget: `adaptive`'s, or
     /// [`glissade_core::study::adaptive::TARGET_BUDGET`] where that is 0).
     pub surface_accuracy: Option<f64>,
+    /// An adaptive study chooses no point once its points' work reaches this.
+    pub work_budget: Option<f64>,
     /// Points held out of the study's response surface (None: [`default_surface_audit_points`];
     /// 0: none).
     pub surface_audit_points: Option<u32>,
