@@ -263,6 +263,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "held_out": r.held_out.is_some(),
         "target": r.adaptive.as_ref().and_then(|a| Some(json!({
             "surface_accuracy": a.target?, "budget": a.budget,
+            "work_budget": a.work_budget, "work": crate::records::work_of(&v.points),
             "outcome": a.outcome.as_ref().map(|o| if o.reached { "reached" } else { "budget" }),
             "points": a.outcome.as_ref().map(|o| o.validation.points),
             "qoi": a.outcome.as_ref().map(|o| o.validation.qoi.iter().map(|(q, e)| (q.clone(), json!({

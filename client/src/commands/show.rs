@@ -244,6 +244,8 @@ pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
         "target": s.target.as_ref().map(|t| serde_json::json!({
             "surface_accuracy": t.surface_accuracy,
             "budget": t.budget,
+            "work_budget": (t.work_budget > 0.0).then_some(t.work_budget),
+            "work": t.work,
             "outcome": (!t.outcome.is_empty()).then_some(&t.outcome),
             "points": t.points,
             "refused": t.refused,
