@@ -730,7 +730,9 @@ fn target_paragraph(v: &StudyView) -> Markup {
                 None => (format!("not decided yet (budget {} points)", a.budget)),
                 Some(o) => {
                     @if o.reached { (format!("reached at {} points (budget {}): ", o.validation.points, a.budget)) }
-                    @else if a.work_spent(&v.points) {
+                    // (a work budget stopped it where its points are fewer than their budget: as
+                    // `glissade show` reads the API's target)
+                    @else if a.work_budget.is_some() && (o.validation.points as u32) < a.budget {
                         (format!("NOT reached: the work budget of {:.0} was spent (work {:.0}); at {} points: ",
                             a.work_budget.unwrap_or(0.0), crate::records::work_of(&v.points), o.validation.points))
                     }

@@ -394,6 +394,7 @@ pub(crate) fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAcc
     };
     let verdict = match t.outcome.as_str() {
         "reached" => format!("REACHED at {} points (budget {budget})", t.points),
+        // a work budget stopped it where its points are fewer than their budget
         "budget" if t.work_budget > 0.0 && t.points < t.budget => format!(
             "NOT REACHED: the work budget of {:.0} was spent (work {:.0}); at {} points",
             t.work_budget, t.work, t.points

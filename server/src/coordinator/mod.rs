@@ -721,19 +721,13 @@ impl Coordinator {
     /// ends the study at the points it has. A study with a target first judges it (recorded once
     /// decided: no point is chosen after).
     fn choose_adaptive_point(&self, entry: &mut StudyEntry) -> Result<(), CoordError> {
-        let Some(mut spec) = entry.record.adaptive.clone() else { return Ok(()) };
+        let Some(spec) = entry.record.adaptive.clone() else { return Ok(()) };
         let work_spent = spec.work_spent(&entry.points);
         if work_spent && spec.target.is_none() && entry.points.len() < spec.budget as usize {
-            // the work budget is spent: the points chosen are the study's (those in flight
-            // finish); a study with a target says so in its outcome instead
-            spec.budget = entry.points.len() as u32;
-            let mut record = entry.record.clone();
-            record.adaptive = Some(spec.clone());
-            let mut batch = Batch::new();
-            batch.put(Tree::Studies, study_key(record.id), encode(&record));
-            self.store.commit(batch)?;
-            tracing::info!(study = %record.id, points = entry.points.len(), "adaptive study: its work budget is spent");
-            entry.record = record;
+            // the points chosen are the study's (those in flight finish); a study with a target
+            // says so in its outcome instead
+            tracing::info!(study = %entry.record.id, points = entry.points.len(), "adaptive study: its work budget is spent");
+            return self.end_adaptive_choice(entry, spec);
         }
         let spent = entry.points.len() >= spec.budget as usize || work_spent;
         if spec.outcome.is_some() || (spent && spec.target.is_none()) {
@@ -748,7 +742,6 @@ impl Coordinator {
         if spent {
             return Ok(());
         }
-        let mut batch = Batch::new();
         match next {
             Some(next) => {
                 // every parameter of the point, for the plan: refused before anything is stored
@@ -765,21 +758,30 @@ impl Coordinator {
                     finished_seq: None,
                     finished_unix_ms: None,
                 };
+                let mut batch = Batch::new();
                 batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
                 self.store.commit(batch)?;
                 tracing::info!(study = %entry.record.id, point = point.id.0, at = %point.parameters, "adaptive point chosen");
                 entry.plan.full.push(full);
                 entry.points.push(point);
+                Ok(())
             }
             None => {
-                let mut record = entry.record.clone();
-                record.adaptive = Some(AdaptiveSpec { budget: entry.points.len() as u32, ..spec });
-                batch.put(Tree::Studies, study_key(record.id), encode(&record));
-                self.store.commit(batch)?;
-                tracing::warn!(study = %record.id, points = entry.points.len(), "adaptive study: no room left in the box");
-                entry.record = record;
+                tracing::warn!(study = %entry.record.id, points = entry.points.len(), "adaptive study: no room left in the box");
+                self.end_adaptive_choice(entry, spec)
             }
         }
+    }
+
+    /// Ends an adaptive study's choice at the points it has chosen (their number becomes its
+    /// budget).
+    fn end_adaptive_choice(&self, entry: &mut StudyEntry, spec: AdaptiveSpec) -> Result<(), CoordError> {
+        let mut record = entry.record.clone();
+        record.adaptive = Some(AdaptiveSpec { budget: entry.points.len() as u32, ..spec });
+        let mut batch = Batch::new();
+        batch.put(Tree::Studies, study_key(record.id), encode(&record));
+        self.store.commit(batch)?;
+        entry.record = record;
         Ok(())
     }
 

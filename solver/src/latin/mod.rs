@@ -358,6 +358,9 @@ pub struct LatinSolver<'m, const D: usize> {
     factorisation_seconds: f64,
     /// seconds in macro solves since the last `solve` started
     macro_seconds: f64,
+    /// per interface and node, whether the node is a copy of one a wall interface holds twice
+    /// (`shared_wall_stage` applies their law; empty when there is none)
+    shared_wall: Vec<Vec<bool>>,
 }
 
 /// The factorised operators of a model (substructure operators, macro problems) and where they
@@ -417,6 +420,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             macro_dynamic,
             factorisation_seconds: start.elapsed().as_secs_f64(),
             macro_seconds: 0.0,
+            shared_wall: shared_wall_mask(model),
         })
     }
 
@@ -424,7 +428,17 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// search directions (only interface laws may differ); no factorisation is repeated.
     pub fn with_operators(model: &'m Model<D>, comm: &'m dyn Communicator, operators: Operators) -> Self {
         let Operators { dist, ops, macro_static, macro_dynamic, .. } = operators;
-        Self { model, comm, dist, ops, macro_static, macro_dynamic, factorisation_seconds: 0.0, macro_seconds: 0.0 }
+        Self {
+            model,
+            comm,
+            dist,
+            ops,
+            macro_static,
+            macro_dynamic,
+            factorisation_seconds: 0.0,
+            macro_seconds: 0.0,
+            shared_wall: shared_wall_mask(model),
+        }
     }
 
     /// Gives the factorised operators back, for the next design point.
@@ -1051,14 +1065,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             },
             dt: m.dt,
         };
-        // the copies of a node a wall interface holds twice: their law below, at once
-        let mut shared: Vec<Vec<bool>> = Vec::new();
-        if !m.shared_wall_nodes.is_empty() {
-            shared = m.interfaces.iter().map(|itf| vec![false; itf.n_nodes()]).collect();
-            for &(i, j) in m.shared_wall_nodes.iter().flatten() {
-                shared[i][j] = true;
-            }
-        }
         for (i, itf) in m.interfaces.iter().enumerate() {
             out[i].clear();
             if !self.dist.owns_interface(i) {
@@ -1077,7 +1083,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             };
             for step in steps.clone() {
                 for (j, memory) in node_memory.iter_mut().enumerate() {
-                    if shared.get(i).is_some_and(|s| s[j]) {
+                    // (the copies of a node a wall interface holds twice: their law below, at once)
+                    if self.shared_wall.get(i).is_some_and(|s| s[j]) {
                         continue;
                     }
                     let at = |v: &[f64]| -> [f64; D] {
@@ -1667,6 +1674,19 @@ fn interface_error<const D: usize>(
         }
     }
     (num, den)
+}
+
+/// Per interface and node, whether the node is in one of `model.shared_wall_nodes`' groups;
+/// empty when there is none.
+fn shared_wall_mask<const D: usize>(model: &Model<D>) -> Vec<Vec<bool>> {
+    if model.shared_wall_nodes.is_empty() {
+        return Vec::new();
+    }
+    let mut mask: Vec<Vec<bool>> = model.interfaces.iter().map(|itf| vec![false; itf.n_nodes()]).collect();
+    for &(i, j) in model.shared_wall_nodes.iter().flatten() {
+        mask[i][j] = true;
+    }
+    mask
 }
 
 /// eta from per-interface (numerator, denominator) pairs, summed in interface order so that the
