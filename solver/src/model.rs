@@ -52,6 +52,11 @@ pub struct InterfaceSide {
     pub k_dynamic: SearchDirection,
     /// static search direction (traction per displacement, Pa/m), for the prestress stage
     pub k_static: SearchDirection,
+    /// the search direction's part from node to node on a perfect interface along flat elements
+    /// ([`set_along_directions`]): triplets (j, l, value) over the interface's node numbers of
+    /// E h_n times the interface's Laplacian (Pa m); the static stage adds it to M_Gamma k, the
+    /// dynamic one dt/2 times it. Empty elsewhere.
+    pub k_along: Vec<(usize, usize, f64)>,
 }
 
 /// An interface between two substructures, or between a substructure and a fixed rigid wall.
@@ -427,6 +432,7 @@ impl<const D: usize> Model<D> {
             Vec::new()
         };
         untie_shared_wall_nodes(&mut interfaces, &shared_wall_nodes);
+        set_along_directions(&mut interfaces, &substructures);
         Ok(Model {
             shared_wall_nodes,
             bodies,
@@ -514,6 +520,7 @@ fn interface_side(local_of: &[HashMap<usize, usize>], s: usize, body_nodes: &[us
         nodes: body_nodes.iter().map(|g| local_of[s][g]).collect(),
         k_dynamic: SearchDirection::isotropic(1.0),
         k_static: SearchDirection::isotropic(1.0),
+        k_along: Vec::new(),
     }
 }
 
@@ -917,6 +924,89 @@ fn set_search_directions<const D: usize>(
             side.k_dynamic = SearchDirection { normal: k, tangential };
         }
     }
+}
+
+/// The search direction's part from node to node ([`InterfaceSide::k_along`]) on perfect
+/// interfaces whose elements are at least [`crate::latin::FLAT_ELEMENTS`] times deeper than
+/// long along them. A scalar k cannot serve them: a smooth interface field meets about the
+/// impedance (or E / L statically), one that changes from node to node the stiffness of the
+/// element layer, about E h_n / h_t^2, a^2 times more (docs/performance.md, "Flat elements along
+/// an interface"). k + g M_Gamma^-1 L follows both ends: L the interface's Laplacian, g = E h_n
+/// [`ALONG_FACTOR`] with h_n the depth of each face's element.
+fn set_along_directions<const D: usize>(interfaces: &mut [Interface<D>], substructures: &[Substructure<D>]) {
+    for itf in interfaces.iter_mut() {
+        let flat = itf.element_depth(substructures).is_some_and(|a| a >= crate::latin::FLAT_ELEMENTS);
+        if !flat || itf.sides.len() != 2 || !matches!(itf.law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
+            continue;
+        }
+        let normal = itf.mean_normal();
+        for side in itf.sides.iter_mut() {
+            side.k_along = along_triplets(&substructures[side.substructure], &side.nodes, &normal);
+        }
+    }
+}
+
+/// g = ALONG_FACTOR E h_n (measured: docs/performance.md, "Flat elements along an interface").
+pub const ALONG_FACTOR: f64 = 1.0 / 3.0;
+
+/// The triplets of sum over the side's faces of E h_n ALONG_FACTOR times the face's Laplacian
+/// (2D: 1 / l on its one edge; 3D: the edges of a quadrilateral weighted A / (2 l^2), of a
+/// triangle by the cotangents of the opposite angles over 2), over interface node numbers.
+fn along_triplets<const D: usize>(
+    sub: &Substructure<D>,
+    nodes: &[usize],
+    normal: &[f64; D],
+) -> Vec<(usize, usize, f64)> {
+    let index: HashMap<usize, usize> = nodes.iter().enumerate().map(|(j, &n)| (n, j)).collect();
+    let young = sub.material.young * ALONG_FACTOR;
+    let per = sub.kind.nodes(D);
+    let mut t = Vec::new();
+    // in 3 components whatever D, for the cross products
+    let point = |n: usize| -> [f64; 3] { std::array::from_fn(|c| if c < D { sub.coords[n][c] } else { 0.0 }) };
+    let minus = |a: [f64; 3], b: [f64; 3]| -> [f64; 3] { std::array::from_fn(|c| a[c] - b[c]) };
+    let dot = |a: [f64; 3], b: [f64; 3]| -> f64 { (0..3).map(|c| a[c] * b[c]).sum() };
+    let cross =
+        |u: [f64; 3], v: [f64; 3]| [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    for element in sub.connectivity.chunks(per) {
+        let along = |n: usize| (0..D).map(|c| sub.coords[n][c] * normal[c]).sum::<f64>();
+        let (lo, hi) = element
+            .iter()
+            .map(|&n| along(n))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        let g = young * (hi - lo);
+        for f in 0..sub.kind.faces(D) {
+            let face: Vec<usize> = sub.kind.face_local_nodes(D, f).iter().map(|&a| element[a]).collect();
+            let Some(js) = face.iter().map(|n| index.get(n).copied()).collect::<Option<Vec<usize>>>() else {
+                continue;
+            };
+            let x: Vec<[f64; 3]> = face.iter().map(|&n| point(n)).collect();
+            let edges: Vec<(usize, usize, f64)> = match face.len() {
+                2 => vec![(0, 1, 1.0 / dot(minus(x[1], x[0]), minus(x[1], x[0])).sqrt())],
+                4 => {
+                    let n = cross(minus(x[1], x[0]), minus(x[2], x[0]));
+                    let area = dot(n, n).sqrt();
+                    [(0, 1), (2, 3), (0, 2), (1, 3)]
+                        .into_iter()
+                        .map(|(a, b)| (a, b, area / (2.0 * dot(minus(x[b], x[a]), minus(x[b], x[a])))))
+                        .collect()
+                }
+                3 => [(0, 1, 2), (1, 2, 0), (0, 2, 1)]
+                    .into_iter()
+                    .map(|(a, b, c)| {
+                        let (u, v) = (minus(x[a], x[c]), minus(x[b], x[c]));
+                        let sine = dot(cross(u, v), cross(u, v)).sqrt();
+                        (a, b, 0.5 * dot(u, v) / sine.max(f64::MIN_POSITIVE))
+                    })
+                    .collect(),
+                _ => Vec::new(),
+            };
+            for (a, b, w) in edges {
+                let (ja, jb, w) = (js[a], js[b], g * w);
+                t.extend([(ja, ja, w), (jb, jb, w), (ja, jb, -w), (jb, ja, -w)]);
+            }
+        }
+    }
+    t
 }
 
 /// Accepted values of `[solver] tangential_factor` (checked by `Scene::check_point`).

@@ -31,6 +31,16 @@ impl Stage {
         }
     }
 
+    /// What the static part from node to node ([`InterfaceSide::k_along`]) is multiplied by:
+    /// 1 statically, dt/2 in the dynamic stage (where W is a velocity: within one step a side
+    /// opposes dt/2 times its stiffness to it).
+    pub fn along_factor<const D: usize>(self, model: &Model<D>) -> f64 {
+        match self {
+            Stage::Static => 1.0,
+            Stage::Dynamic => 0.5 * model.dt,
+        }
+    }
+
     pub fn steps<const D: usize>(self, model: &Model<D>) -> usize {
         match self {
             Stage::Static => 1,
@@ -73,6 +83,7 @@ fn interface_blocks<const D: usize>(
     sub: &Substructure<D>,
     interfaces: &[Interface<D>],
     stage: Stage,
+    along_factor: f64,
 ) -> Vec<(usize, usize, f64)> {
     let mut t = Vec::new();
     for &(i, side) in &sub.sides {
@@ -89,8 +100,23 @@ fn interface_blocks<const D: usize>(
                 }
             }
         }
+        for &(j, l, v) in &s.k_along {
+            for c in 0..D {
+                t.push((s.nodes[j] * D + c, s.nodes[l] * D + c, along_factor * v));
+            }
+        }
     }
     t
+}
+
+/// y += factor L v over a side's nodes (its [`InterfaceSide::k_along`]): v and y hold D
+/// components a node, `at` is the first node's offset in v (a step's), y's starts at zero.
+pub fn add_along<const D: usize>(side: &InterfaceSide, factor: f64, v: &[f64], at: usize, y: &mut [f64]) {
+    for &(j, l, w) in &side.k_along {
+        for c in 0..D {
+            y[j * D + c] += factor * w * v[at + l * D + c];
+        }
+    }
 }
 
 impl SubstructureOperators {
@@ -100,10 +126,11 @@ impl SubstructureOperators {
             sub,
             &model.interfaces,
             Stage::Dynamic,
+            Stage::Dynamic.along_factor(model),
         ));
         let dynamic = FactorisedOperator::new(a, &sub.fixed)?;
         let statics = if with_static {
-            let a = sub.stiffness.add_triplets(interface_blocks(sub, &model.interfaces, Stage::Static));
+            let a = sub.stiffness.add_triplets(interface_blocks(sub, &model.interfaces, Stage::Static, 1.0));
             Some(FactorisedOperator::new(a, &sub.fixed)?)
         } else {
             None
@@ -189,6 +216,15 @@ impl SubstructureOperators {
                     self.rhs[node * D + c] += itf.area[j] * (hat.force[at + c] + kw[c]);
                 }
             }
+            if !sd.k_along.is_empty() {
+                let mut lw = vec![0.0; m * D];
+                add_along::<D>(sd, stage.along_factor(model), &hat.velocity, step * m * D, &mut lw);
+                for (j, &node) in sd.nodes.iter().enumerate() {
+                    for c in 0..D {
+                        self.rhs[node * D + c] += lw[j * D + c];
+                    }
+                }
+            }
         }
         let nonzero = match stage {
             Stage::Static => {
@@ -240,6 +276,19 @@ impl SubstructureOperators {
                 for c in 0..D {
                     lin.velocity[at + c] = self.x[node * D + c];
                     lin.force[at + c] = hat.force[at + c] + kj[c];
+                }
+            }
+            if !sd.k_along.is_empty() {
+                let jumps: Vec<f64> = (0..m * D)
+                    .map(|k| {
+                        hat.velocity[step * m * D + k] - self.x[sd.nodes[k / D] * D + k % D]
+                            + macro_field(i, side, k / D, k % D)
+                    })
+                    .collect();
+                let mut lj = vec![0.0; m * D];
+                add_along::<D>(sd, stage.along_factor(model), &jumps, 0, &mut lj);
+                for k in 0..m * D {
+                    lin.force[step * m * D + k] += lj[k] / itf.area[k / D];
                 }
             }
         }

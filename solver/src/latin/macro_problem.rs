@@ -12,7 +12,7 @@ use faer::{Mat, MatMut, Side};
 use crate::comm::Communicator;
 use crate::model::{Interface, Model};
 
-use super::linear_stage::{Stage, SubstructureOperators, node_vector};
+use super::linear_stage::{Stage, SubstructureOperators, add_along, node_vector};
 use glissade_core::field::InterfaceField;
 
 /// Relative M_Gamma-norm below which a candidate macro field is dependent on the previous ones.
@@ -187,10 +187,12 @@ impl MacroProblem {
                 let k = stage.k(sd);
                 for (mode, e) in basis[i].iter().enumerate() {
                     let mut rhs = vec![0.0; sub.n_dofs()];
+                    let mut le = vec![0.0; e.len()];
+                    add_along::<D>(sd, stage.along_factor(model), e, 0, &mut le);
                     for (j, &node) in sd.nodes.iter().enumerate() {
                         let ke = k.apply(&itf.normal[j], &node_vector(&e[j * D..(j + 1) * D]));
                         for c in 0..D {
-                            rhs[node * D + c] = itf.area[j] * ke[c];
+                            rhs[node * D + c] = itf.area[j] * ke[c] + le[j * D + c];
                         }
                     }
                     let response = op.solve_homogeneous(stage, &rhs);
@@ -208,15 +210,19 @@ impl MacroProblem {
                     let own = (c.interface, c.side) == (cp.interface, cp.side);
                     let ec = &basis[c.interface][c.mode];
                     let mut sum = 0.0;
-                    for (j, &node) in sd.nodes.iter().enumerate() {
-                        let jump: [f64; D] = std::array::from_fn(|d| {
-                            let base = if own { ec[j * D + d] } else { 0.0 };
-                            base - c.response[node * D + d]
-                        });
-                        let kj = k.apply(&itf.normal[j], &jump);
+                    let jumps: Vec<f64> = (0..e.len())
+                        .map(|q| if own { ec[q] } else { 0.0 } - c.response[sd.nodes[q / D] * D + q % D])
+                        .collect();
+                    for (j, jump) in jumps.chunks(D).enumerate() {
+                        let kj = k.apply(&itf.normal[j], &node_vector(jump));
                         for d in 0..D {
                             sum += itf.area[j] * e[j * D + d] * kj[d];
                         }
+                    }
+                    if !sd.k_along.is_empty() {
+                        let mut lj = vec![0.0; e.len()];
+                        add_along::<D>(sd, stage.along_factor(model), &jumps, 0, &mut lj);
+                        sum += e.iter().zip(&lj).map(|(a, b)| a * b).sum::<f64>();
                     }
                     operator[c.dof * n + cp.dof] += sum;
                 }
@@ -260,6 +266,15 @@ impl MacroProblem {
                 let jump: [f64; D] = std::array::from_fn(|c| hat.velocity[at + c] - x[node * D + c]);
                 let kj = k.apply(&itf.normal[j], &jump);
                 self.f1.extend((0..D).map(|c| hat.force[at + c] + kj[c]));
+            }
+            if !sd.k_along.is_empty() {
+                let jumps: Vec<f64> =
+                    (0..m * D).map(|q| hat.velocity[step * m * D + q] - x[sd.nodes[q / D] * D + q % D]).collect();
+                let mut lj = vec![0.0; m * D];
+                add_along::<D>(sd, stage.along_factor(model), &jumps, 0, &mut lj);
+                for (q, v) in lj.iter().enumerate() {
+                    self.f1[q] += v / itf.area[q / D];
+                }
             }
             for (mode, e) in self.basis[i].iter().enumerate() {
                 let mut proj = 0.0;
@@ -321,7 +336,13 @@ mod tests {
         }
         let n = coords.len();
         let iso = SearchDirection::isotropic(1.0);
-        let side = InterfaceSide { substructure: 0, nodes: (0..n).collect(), k_dynamic: iso, k_static: iso };
+        let side = InterfaceSide {
+            substructure: 0,
+            nodes: (0..n).collect(),
+            k_dynamic: iso,
+            k_static: iso,
+            k_along: Vec::new(),
+        };
         Interface {
             name: "t".into(),
             law: InterfaceLaw::Perfect,

@@ -1,6 +1,7 @@
 //! The LATIN mixed domain-decomposition solver (docs/method.md 3): linear stage (substructures),
 //! relaxation, local stage (interfaces), error indicator — iterated over the whole time interval.
 
+mod along;
 pub mod distribution;
 pub mod linear_stage;
 pub mod local_stage;
@@ -21,6 +22,7 @@ use glissade_core::scene::Scale;
 
 use crate::newmark::NewmarkState;
 use crate::search_direction::SearchDirection;
+use along::AlongSolves;
 use distribution::Distribution;
 use glissade_core::field::{InterfaceField, InterfaceSolution, SideField, StageSolution};
 use linear_stage::{Stage, SubstructureOperators};
@@ -79,6 +81,8 @@ pub enum SolverError {
         "{stage} stage, iteration {iteration}: quantity of interest '{qoi}' is not finite (the iterations diverged; try a k0_factor or tangential_factor nearer 1)"
     )]
     NonFiniteQoi { stage: &'static str, iteration: usize, qoi: String },
+    #[error("interface '{interface}': its system from node to node: {source}")]
+    AlongSystem { interface: String, source: SparseError },
     #[error("cannot distribute the model: {0}")]
     Distribution(String),
     #[error("initial solution does not fit this model: {0}")]
@@ -361,6 +365,8 @@ pub struct LatinSolver<'m, const D: usize> {
     /// per interface and node, whether the node is a copy of one a wall interface holds twice
     /// (`shared_wall_stage` applies their law; empty when there is none)
     shared_wall: Vec<Vec<bool>>,
+    /// the local stage of perfect interfaces whose directions couple their nodes
+    along: AlongSolves,
 }
 
 /// The factorised operators of a model (substructure operators, macro problems) and where they
@@ -371,6 +377,7 @@ pub struct Operators {
     ops: Vec<Option<SubstructureOperators>>,
     macro_static: Option<MacroProblem>,
     macro_dynamic: Option<MacroProblem>,
+    along: AlongSolves,
 }
 
 /// Called after each step of a linear stage with (substructure, step, u, v); step 0 is the
@@ -411,6 +418,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let macro_static = if with_static { Some(build(&mut ops, Stage::Static)?) } else { None };
         let macro_dynamic =
             if model.settings.scale == Scale::Multi { Some(build(&mut ops, Stage::Dynamic)?) } else { None };
+        let along = AlongSolves::new(model, &dist)
+            .map_err(|(i, source)| SolverError::AlongSystem { interface: model.interfaces[i].name.clone(), source })?;
         Ok(Self {
             model,
             comm,
@@ -421,13 +430,14 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             factorisation_seconds: start.elapsed().as_secs_f64(),
             macro_seconds: 0.0,
             shared_wall: shared_wall_mask(model),
+            along,
         })
     }
 
     /// A solver reusing operators factorised for a model with the same substructures, loads and
     /// search directions (only interface laws may differ); no factorisation is repeated.
     pub fn with_operators(model: &'m Model<D>, comm: &'m dyn Communicator, operators: Operators) -> Self {
-        let Operators { dist, ops, macro_static, macro_dynamic, .. } = operators;
+        let Operators { dist, ops, macro_static, macro_dynamic, along } = operators;
         Self {
             model,
             comm,
@@ -438,12 +448,19 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             factorisation_seconds: 0.0,
             macro_seconds: 0.0,
             shared_wall: shared_wall_mask(model),
+            along,
         }
     }
 
     /// Gives the factorised operators back, for the next design point.
     pub fn into_operators(self) -> Operators {
-        Operators { dist: self.dist, ops: self.ops, macro_static: self.macro_static, macro_dynamic: self.macro_dynamic }
+        Operators {
+            dist: self.dist,
+            ops: self.ops,
+            macro_static: self.macro_static,
+            macro_dynamic: self.macro_dynamic,
+            along: self.along,
+        }
     }
 
     /// One linear stage over the whole time interval: at every step micro problem 1 in each
@@ -1077,6 +1094,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let f = &mut fields[i];
             let node_memory = &mut out[i];
             node_memory.extend_from_slice(&memory[i]);
+            if self.along.local_stage(m, stage, i, f, steps.clone()) {
+                continue;
+            }
             let law = match stage {
                 Stage::Static => itf.law,
                 Stage::Dynamic => itf.law.in_dynamics(),
