@@ -2635,3 +2635,149 @@ fn a_node_substructures_share_on_a_wall_follows_the_law_as_one() {
     eprintln!("cut [2, 1, 2], copies apart: converged {}, {:.1} sweeps", apart.converged(), apart.dynamic.sweeps);
     assert!(!apart.converged(), "apart converges now: the test no longer shows what joint copies cure");
 }
+
+/// A brass strip of our own, clamped at x = 0 and loaded at its tip, its elements (10 x 0.05 mm)
+/// 200 x deeper than long along the cuts between its three substructures.
+const FLAT_BRASS_STRIP_2D: &str = r#"
+dimension = 2
+[time]
+duration = 3e-5
+steps = 60
+[materials.brass]
+E = 100e9
+nu = 0.34
+rho = 8500
+[[bodies]]
+name = "strip"
+material = "brass"
+size = [0.03, 0.006]
+elements = [3, 120]
+substructures = [3, 1]
+[[boundary]]
+face = "strip.x-"
+clamped = true
+[[loads]]
+face = "strip.x+"
+traction = [2e6, -3e6]
+history = [[0, 0], [1e-5, 1.0], [2e-5, 0.0]]
+"#;
+
+/// The same in 3D: elements 10 x 0.25 x 0.25 mm, 40 x deeper than long along the cut.
+const FLAT_BRASS_BAR_3D: &str = r#"
+dimension = 3
+[time]
+duration = 3e-5
+steps = 30
+[materials.brass]
+E = 100e9
+nu = 0.34
+rho = 8500
+[[bodies]]
+name = "bar"
+material = "brass"
+size = [0.02, 0.004, 0.004]
+elements = [2, 16, 16]
+substructures = [2, 1, 1]
+[[boundary]]
+face = "bar.x-"
+clamped = true
+[[loads]]
+face = "bar.x+"
+traction = [2e6, -3e6, 1e6]
+history = [[0, 0], [1e-5, 1.0], [2e-5, 0.0]]
+"#;
+
+/// A titanium block of our own in 2D (24 x 12 mm, f 0.25), pressed onto a rigid floor and
+/// pushed until it slides, its elements (6 x 0.1 mm) 60 x deeper than long along the cut
+/// between its two substructures (CUT: [2, 1] or [1, 1]).
+const FLAT_TITANIUM_BLOCK_2D: &str = r#"
+dimension = 2
+[time]
+duration = 2.4e-4
+steps = 120
+[materials.ti]
+E = 114e9
+nu = 0.34
+rho = 4430
+[[bodies]]
+name = "block"
+material = "ti"
+size = [0.024, 0.012]
+elements = [4, 120]
+substructures = CUT
+[[interfaces]]
+name = "floor"
+a = "block.y-"
+b = "wall"
+law = "friction"
+friction = 0.25
+[[loads]]
+face = "block.y+"
+pressure = 6e6
+[[loads]]
+face = "block.x-"
+traction = [9e6, 0]
+history = [[0, 0], [2.4e-4, 1]]
+[[qoi]]
+name = "slip"
+kind = "slip"
+interface = "floor"
+point = [0.012, 0]
+[[qoi]]
+name = "friction_force"
+kind = "force"
+interface = "floor"
+component = "x"
+[[qoi]]
+name = "normal_force"
+kind = "force"
+interface = "floor"
+component = "y"
+"#;
+
+/// Issue 30, aspect ratio 100: along a cut between substructures through elements many times
+/// deeper than long along it, a scalar search direction meets stiffnesses from the impedance
+/// (smooth fields) to the element layer's, about E h_n / h_t^2 (from node to node), and the
+/// iterations stall; the direction k + g M^-1 L (g = E h_n / 3, L the cut's Laplacian) follows
+/// both ends (docs/performance.md, "A search direction from node to node"). Checked against the
+/// monolithic solve on a strip (2D, a = 200) and a bar (3D, a = 40), and on a sliding titanium
+/// block (a = 60) against the same mesh uncut, every QoI history, at 1e-5.
+#[test]
+fn elements_flat_along_a_cut_converge_to_the_uncut_answer() {
+    use glissade_solver::latin::CheckOutcome;
+    let strip: Model<2> = build(FLAT_BRASS_STRIP_2D, &[]);
+    let coupled = |m: &Model<2>, name: &str| {
+        let itf = m.interfaces.iter().find(|i| i.name == name).expect("interface");
+        itf.sides.iter().all(|s| !s.k_along.is_empty())
+    };
+    assert!(coupled(&strip, "strip:0-1") && coupled(&strip, "strip:1-2"));
+    let (e, iterations) = latin_vs_monolithic(&strip);
+    eprintln!("strip 2D: {iterations} iterations, {e:.2e} from the monolithic solve");
+    assert!(e < strip.settings.tolerance, "{e}");
+    let bar: Model<3> = build(FLAT_BRASS_BAR_3D, &[]);
+    assert!(bar.interfaces.iter().all(|i| i.sides.iter().all(|s| !s.k_along.is_empty())));
+    let (e, iterations) = latin_vs_monolithic(&bar);
+    eprintln!("bar 3D: {iterations} iterations, {e:.2e} from the monolithic solve");
+    assert!(e < bar.settings.tolerance, "{e}");
+
+    let block = |cut: &str| {
+        let mut m: Model<2> = build(&FLAT_TITANIUM_BLOCK_2D.replace("CUT", cut), &[]);
+        m.settings.tolerance = 1e-5;
+        m
+    };
+    let (uncut, cut) = (block("[1, 1]"), block("[2, 1]"));
+    // the floor's elements are flat the other way, and a wall: a scalar direction there
+    assert!(!coupled(&cut, "floor") && coupled(&cut, "block:0-1"));
+    let reference = solve(&uncut, false);
+    let slip = *reference.qoi[0].values.last().unwrap();
+    assert!(slip > 1e-4, "it slides: {slip}");
+    let r = solve(&cut, false);
+    let check = r.dynamic.window_check.as_ref().expect("checked");
+    let e = largest_history_difference(&r, &reference);
+    eprintln!(
+        "titanium block cut 2 x 1: {:.1} sweeps, check {:?}; histories {e:.2e} from the uncut block's",
+        r.dynamic.sweeps, check.outcome
+    );
+    assert_eq!(check.outcome, CheckOutcome::Agreed);
+    assert!(e < 2.0 * cut.settings.tolerance, "{e}");
+}
