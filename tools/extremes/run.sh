@@ -6,6 +6,7 @@
 #   bash tools/extremes/run.sh [OUT_DIR]        (about 10-20 minutes on two cores)
 # With PRAKASH_CLIFTON="LENGTH VELOCITY" every friction interface is given that regularisation
 # (docs/verification.md 4e; the table "... with the Prakash-Clifton law").
+# With CASES="asp 0.4;sb_x1 6" only those cases (scene and f, separated by ';').
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 W=${GLISSADE_WORKER:-$here/../../target/release/glissade-worker}
@@ -35,9 +36,11 @@ print(f"{l.split('/')[-1]}\tconverged={d['converged']}\twork={work:.1f}\tit={d['
       + " ".join(f"{k}={v['final']:.5e}" for k, v in d['qoi'].items()))
 PY
 }
+all=("sb_x1 0.4" "sb_d2 0.4" "sb_d4 0.4" "sb_d10 0.4" "sb_x1 0.2" "sb_d10 0.2" "sb_x1 1" "sb_x1 6" "sb_x1 10"
+     "one_el 0.4" "fine 0.4" "asp 0.4" "nu499 0.4" "nu4999 0.4" "twob 0.2" "twob10 0.2" "sb3d 0.25")
+if [[ -n "${CASES:-}" ]]; then IFS=';' read -r -a all <<<"$CASES"; fi
 for tol in 2e-4 1e-5; do
-  for c in "sb_x1 0.4" "sb_d2 0.4" "sb_d4 0.4" "sb_d10 0.4" "sb_x1 0.2" "sb_d10 0.2" "sb_x1 1" "sb_x1 6" "sb_x1 10" \
-           "one_el 0.4" "fine 0.4" "asp 0.4" "nu499 0.4" "nu4999 0.4" "twob 0.2" "twob10 0.2" "sb3d 0.25"; do
+  for c in "${all[@]}"; do
     set -- $c
     one "${1}_f${2}_t$tol" "$1" "$2" "$tol"
   done
