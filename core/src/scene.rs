@@ -823,6 +823,16 @@ impl Scene {
         })
     }
 
+    /// Whether a whole-interval solve iterates on to check its answer: `solver.whole_interval_check`,
+    /// or where the scene has a contact or friction interface (a contact that lifts off and lands
+    /// fools the stopping test's rate 2-4 x and more; on perfect interfaces the rate holds:
+    /// docs/method.md 3, "Two tolerances").
+    pub fn whole_interval_check(&self) -> bool {
+        self.solver.whole_interval_check.unwrap_or_else(|| {
+            self.interfaces.iter().any(|i| matches!(i.law, LawSpec::Contact | LawSpec::Friction))
+        })
+    }
+
     /// The dynamic stage's scale: `solver.scale`, or multiscale where the solver chooses time
     /// windows ([`Scene::window_steps`]) and single scale elsewhere: in windows of 10 steps the
     /// macro problem cost nothing on the sliding blocks measured and took one element per

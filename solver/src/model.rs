@@ -350,7 +350,7 @@ impl<const D: usize> Model<D> {
             warm_tolerance_ratio: st.warm_tolerance_ratio,
             time_window: scene.window_steps(),
             window_check: st.window_check.unwrap_or(true),
-            whole_interval_check: st.whole_interval_check.unwrap_or(false),
+            whole_interval_check: scene.whole_interval_check(),
             joint_wall_nodes: st.joint_wall_nodes.unwrap_or(D == 3),
         };
 
