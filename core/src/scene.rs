@@ -828,9 +828,9 @@ impl Scene {
     /// fools the stopping test's rate 2-4 x and more; on perfect interfaces the rate holds:
     /// docs/method.md 3, "Two tolerances").
     pub fn whole_interval_check(&self) -> bool {
-        self.solver.whole_interval_check.unwrap_or_else(|| {
-            self.interfaces.iter().any(|i| matches!(i.law, LawSpec::Contact | LawSpec::Friction))
-        })
+        self.solver
+            .whole_interval_check
+            .unwrap_or_else(|| self.interfaces.iter().any(|i| matches!(i.law, LawSpec::Contact | LawSpec::Friction)))
     }
 
     /// The dynamic stage's scale: `solver.scale`, or multiscale where the solver chooses time

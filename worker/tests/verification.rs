@@ -60,6 +60,19 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
     assert!(block.contains("substructures = [2, 1, 1]") && !block.contains("joint_wall_nodes"));
     std::fs::write(&shared, block.replace("substructures = [2, 1, 1]", "substructures = [4, 1, 1]")).unwrap();
     let shared = shared.to_str().unwrap().to_owned();
+    // and cuts along flat elements, whose local stage solves one system over each cut on the
+    // rank that owns it (the search direction from node to node)
+    let flat = dir.path().join("flat.toml");
+    let block = std::fs::read_to_string(scene_path("sliding-block-2d.toml")).unwrap();
+    assert!(["elements = [8, 4]", "substructures = [2, 1]", "steps = 100"].iter().all(|k| block.contains(k)));
+    assert!(!block.contains("[solver]"));
+    // (elements 0.25 mm along the cuts, 5 mm deep; 20 steps, unchecked: 3 ranks spin on 2 cores)
+    let block = block
+        .replace("elements = [8, 4]", "elements = [4, 40]")
+        .replace("substructures = [2, 1]", "substructures = [4, 1]")
+        .replace("steps = 100", "steps = 20");
+    std::fs::write(&flat, format!("{block}\n[solver]\nwhole_interval_check = false\n")).unwrap();
+    let flat = flat.to_str().unwrap().to_owned();
     for (scene, scale) in [
         (&whole, "single"),
         (&whole, "multi"),
@@ -67,6 +80,7 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
         (&checked, "multi"),
         (&regularised, "single"),
         (&shared, "single"),
+        (&flat, "multi"),
     ] {
         let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
         for np in ["1", "2", "3"] {
