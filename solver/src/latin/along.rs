@@ -12,7 +12,7 @@ use std::sync::Mutex;
 use glissade_core::field::InterfaceField;
 
 use super::distribution::Distribution;
-use super::linear_stage::{Stage, add_along};
+use super::linear_stage::{Stage, add_along, along_traction};
 use crate::model::{InterfaceLaw, Model};
 use crate::sparse::{CsrMatrix, FactorisedOperator, SparseError};
 
@@ -100,9 +100,8 @@ impl AlongSolves {
             }
             // F^1 = F1 + (k_1 + g_1 M^-1 L_1) (W^ - W1)
             let change: Vec<f64> = (0..n * D).map(|q| what[q] - w1[q]).collect();
-            let mut l_change = vec![0.0; n * D];
-            add_along::<D>(s1, factor, &change, 0, &mut l_change);
-            let f1h: Vec<f64> = (0..n * D).map(|q| f1[q] + k1 * change[q] + l_change[q] / itf.area[q / D]).collect();
+            let traction = along_traction::<D>(s1, factor, &change, &itf.area);
+            let f1h: Vec<f64> = (0..n * D).map(|q| f1[q] + k1 * change[q] + traction[q]).collect();
             let w2h: Vec<f64> = (0..n * D).map(|q| what[q] - shortening * itf.normal[q / D][q % D]).collect();
             f.hat[0].velocity[at..at + n * D].copy_from_slice(&what);
             f.hat[0].force[at..at + n * D].copy_from_slice(&f1h);

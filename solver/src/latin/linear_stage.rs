@@ -119,6 +119,17 @@ pub fn add_along<const D: usize>(side: &InterfaceSide, factor: f64, v: &[f64], a
     }
 }
 
+/// The traction of the part from node to node at each node, M_Gamma^-1 factor L v (v: D
+/// components a node, one step).
+pub fn along_traction<const D: usize>(side: &InterfaceSide, factor: f64, v: &[f64], area: &[f64]) -> Vec<f64> {
+    let mut y = vec![0.0; v.len()];
+    add_along::<D>(side, factor, v, 0, &mut y);
+    for (q, y) in y.iter_mut().enumerate() {
+        *y /= area[q / D];
+    }
+    y
+}
+
 impl SubstructureOperators {
     pub fn new<const D: usize>(model: &Model<D>, s: usize, with_static: bool) -> Result<Self, SparseError> {
         let sub = &model.substructures[s];
@@ -285,10 +296,9 @@ impl SubstructureOperators {
                             + macro_field(i, side, k / D, k % D)
                     })
                     .collect();
-                let mut lj = vec![0.0; m * D];
-                add_along::<D>(sd, stage.along_factor(model), &jumps, 0, &mut lj);
-                for k in 0..m * D {
-                    lin.force[step * m * D + k] += lj[k] / itf.area[k / D];
+                let traction = along_traction::<D>(sd, stage.along_factor(model), &jumps, &itf.area);
+                for (f, t) in lin.force[step * m * D..(step + 1) * m * D].iter_mut().zip(traction) {
+                    *f += t;
                 }
             }
         }

@@ -12,7 +12,7 @@ use faer::{Mat, MatMut, Side};
 use crate::comm::Communicator;
 use crate::model::{Interface, Model};
 
-use super::linear_stage::{Stage, SubstructureOperators, add_along, node_vector};
+use super::linear_stage::{Stage, SubstructureOperators, add_along, along_traction, node_vector};
 use glissade_core::field::InterfaceField;
 
 /// Relative M_Gamma-norm below which a candidate macro field is dependent on the previous ones.
@@ -270,10 +270,9 @@ impl MacroProblem {
             if !sd.k_along.is_empty() {
                 let jumps: Vec<f64> =
                     (0..m * D).map(|q| hat.velocity[step * m * D + q] - x[sd.nodes[q / D] * D + q % D]).collect();
-                let mut lj = vec![0.0; m * D];
-                add_along::<D>(sd, stage.along_factor(model), &jumps, 0, &mut lj);
-                for (q, v) in lj.iter().enumerate() {
-                    self.f1[q] += v / itf.area[q / D];
+                let traction = along_traction::<D>(sd, stage.along_factor(model), &jumps, &itf.area);
+                for (f, t) in self.f1.iter_mut().zip(traction) {
+                    *f += t;
                 }
             }
             for (mode, e) in self.basis[i].iter().enumerate() {
