@@ -2248,6 +2248,7 @@ point = [0.008, 0]
 /// (docs/method.md 3, "Two tolerances"): on a block of our own (copper, pressed and pushed along
 /// a rigid floor, landing while it slides), the distance it reports is the first answer's
 /// error measured against a tight solve, and the answer it returns is within the tolerance.
+/// It is the default where a scene has contact or friction, and only there.
 #[test]
 fn a_whole_interval_solve_measures_its_error_by_iterating_on() {
     use glissade_solver::latin::CheckOutcome;
@@ -2338,6 +2339,13 @@ component = "y"
     let first = error(&unchecked);
     assert!(c.passes == 1 && (c.discrepancy / first - 1.0).abs() < 0.5, "{} against {first}", c.discrepancy);
     assert!(error(&checked) < 0.5 * first);
+    // the default: checked where a scene has a contact or friction interface (its rate can be
+    // fooled), unchecked on perfect interfaces alone (the rate holds there)
+    let default = Scene::parse(&block(true).replace("whole_interval_check = true\n", "")).expect("scene");
+    assert!(default.solver.whole_interval_check.is_none() && default.whole_interval_check());
+    assert!(build::<2>(&block(true).replace("whole_interval_check = true\n", ""), &[]).settings.whole_interval_check);
+    let linear = Scene::parse(PLATE_2D).expect("scene");
+    assert!(!linear.whole_interval_check() && !build::<2>(PLATE_2D, &[]).settings.whole_interval_check);
 }
 
 /// Elements far from squares along an interface are measured (`Interface::element_aspect`) and
