@@ -961,12 +961,6 @@ fn along_triplets<const D: usize>(
     let young = sub.material.young * ALONG_FACTOR;
     let per = sub.kind.nodes(D);
     let mut t = Vec::new();
-    // in 3 components whatever D, for the cross products
-    let point = |n: usize| -> [f64; 3] { std::array::from_fn(|c| if c < D { sub.coords[n][c] } else { 0.0 }) };
-    let minus = |a: [f64; 3], b: [f64; 3]| -> [f64; 3] { std::array::from_fn(|c| a[c] - b[c]) };
-    let dot = |a: [f64; 3], b: [f64; 3]| -> f64 { (0..3).map(|c| a[c] * b[c]).sum() };
-    let cross =
-        |u: [f64; 3], v: [f64; 3]| [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
     for element in sub.connectivity.chunks(per) {
         let along = |n: usize| (0..D).map(|c| sub.coords[n][c] * normal[c]).sum::<f64>();
         let (lo, hi) = element
@@ -979,34 +973,46 @@ fn along_triplets<const D: usize>(
             let Some(js) = face.iter().map(|n| index.get(n).copied()).collect::<Option<Vec<usize>>>() else {
                 continue;
             };
-            let x: Vec<[f64; 3]> = face.iter().map(|&n| point(n)).collect();
-            let edges: Vec<(usize, usize, f64)> = match face.len() {
-                2 => vec![(0, 1, 1.0 / dot(minus(x[1], x[0]), minus(x[1], x[0])).sqrt())],
-                4 => {
-                    let n = cross(minus(x[1], x[0]), minus(x[2], x[0]));
-                    let area = dot(n, n).sqrt();
-                    [(0, 1), (2, 3), (0, 2), (1, 3)]
-                        .into_iter()
-                        .map(|(a, b)| (a, b, area / (2.0 * dot(minus(x[b], x[a]), minus(x[b], x[a])))))
-                        .collect()
-                }
-                3 => [(0, 1, 2), (1, 2, 0), (0, 2, 1)]
-                    .into_iter()
-                    .map(|(a, b, c)| {
-                        let (u, v) = (minus(x[a], x[c]), minus(x[b], x[c]));
-                        let sine = dot(cross(u, v), cross(u, v)).sqrt();
-                        (a, b, 0.5 * dot(u, v) / sine.max(f64::MIN_POSITIVE))
-                    })
-                    .collect(),
-                _ => Vec::new(),
-            };
-            for (a, b, w) in edges {
+            // in 3 components whatever D
+            let x: Vec<[f64; 3]> =
+                face.iter().map(|&n| std::array::from_fn(|c| if c < D { sub.coords[n][c] } else { 0.0 })).collect();
+            for (a, b, w) in face_laplacian(&x) {
                 let (ja, jb, w) = (js[a], js[b], g * w);
                 t.extend([(ja, ja, w), (jb, jb, w), (ja, jb, -w), (jb, ja, -w)]);
             }
         }
     }
     t
+}
+
+/// The edges (a, b, weight) of one face's Laplacian: a segment's 1 / l; a quadrilateral in tensor
+/// order (its sides 0-1, 2-3, 0-2, 1-3) A / (2 l^2) a side, which sums to the five-point
+/// Laplacian on a grid of rectangles; a triangle the cotangent of the angle opposite each side
+/// over 2, its linear elements' Laplacian (an obtuse angle's negative weight dropped: the
+/// operator stays positive).
+fn face_laplacian(x: &[[f64; 3]]) -> Vec<(usize, usize, f64)> {
+    let minus = |a: [f64; 3], b: [f64; 3]| -> [f64; 3] { std::array::from_fn(|c| a[c] - b[c]) };
+    let dot = |a: [f64; 3], b: [f64; 3]| -> f64 { (0..3).map(|c| a[c] * b[c]).sum() };
+    let cross =
+        |u: [f64; 3], v: [f64; 3]| [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    let squared = |a: usize, b: usize| dot(minus(x[b], x[a]), minus(x[b], x[a]));
+    match x.len() {
+        2 => vec![(0, 1, 1.0 / squared(0, 1).sqrt())],
+        4 => {
+            let n = cross(minus(x[1], x[0]), minus(x[2], x[0]));
+            let area = dot(n, n).sqrt();
+            [(0, 1), (2, 3), (0, 2), (1, 3)].into_iter().map(|(a, b)| (a, b, area / (2.0 * squared(a, b)))).collect()
+        }
+        3 => [(0, 1, 2), (1, 2, 0), (0, 2, 1)]
+            .into_iter()
+            .map(|(a, b, c)| {
+                let (u, v) = (minus(x[a], x[c]), minus(x[b], x[c]));
+                let sine = dot(cross(u, v), cross(u, v)).sqrt();
+                (a, b, (0.5 * dot(u, v) / sine.max(f64::MIN_POSITIVE)).max(0.0))
+            })
+            .collect(),
+        _ => Vec::new(),
+    }
 }
 
 /// Accepted values of `[solver] tangential_factor` (checked by `Scene::check_point`).
@@ -1276,4 +1282,33 @@ fn assemble_substructure<const D: usize>(
         initial_velocity,
         sides: Vec::new(),
     })
+}
+
+#[cfg(test)]
+mod face_laplacian_tests {
+    use super::face_laplacian;
+
+    /// Each face's Laplacian against its closed form: a segment, a rectangle (the five-point
+    /// weights) and a right triangle (the cotangent weights: 1/2 cot 45 on each leg, 0 on the
+    /// hypotenuse, which faces the right angle).
+    #[test]
+    fn face_laplacians_have_their_closed_forms() {
+        let weights = |x: &[[f64; 3]]| face_laplacian(x).into_iter().map(|(a, b, w)| ((a, b), w)).collect::<Vec<_>>();
+        assert_eq!(weights(&[[0.0; 3], [0.0, 0.25, 0.0]]), vec![((0, 1), 4.0)]);
+        // a 2 x 0.5 rectangle in tensor order: sides along 2 weigh 0.5 / 4, sides along 0.5 weigh 2
+        let rect = weights(&[[0.0; 3], [2.0, 0.0, 0.0], [0.0, 0.0, 0.5], [2.0, 0.0, 0.5]]);
+        for ((a, b), w) in rect {
+            let expected = if (a, b) == (0, 1) || (a, b) == (2, 3) { 0.125 } else { 2.0 };
+            assert!((w - expected).abs() < 1e-12, "{a}-{b}: {w}");
+        }
+        // the right isosceles triangle (0, 0), (1, 0), (0, 1): the legs 0-1 and 0-2 face 45
+        // degrees (cot 1, weight 1/2), the hypotenuse 1-2 faces the right angle (cot 0)
+        let tri = weights(&[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+        for ((a, b), w) in tri {
+            let expected = if (a, b) == (1, 2) { 0.0 } else { 0.5 };
+            assert!((w - expected).abs() < 1e-12, "{a}-{b}: {w}");
+        }
+        // an obtuse angle's weight is dropped, not negative
+        assert!(face_laplacian(&[[0.0; 3], [2.0, 0.0, 0.0], [1.0, 0.1, 0.0]]).iter().all(|e| e.2 >= 0.0));
+    }
 }
