@@ -12,7 +12,7 @@ use std::sync::Mutex;
 use glissade_core::field::InterfaceField;
 
 use super::distribution::Distribution;
-use super::linear_stage::{Stage, add_along, along_traction};
+use super::linear_stage::{Stage, add_along};
 use crate::model::{InterfaceLaw, Model};
 use crate::sparse::{CsrMatrix, FactorisedOperator, SparseError};
 
@@ -77,37 +77,43 @@ impl AlongSolves {
         let (s1, s2) = (&itf.sides[0], &itf.sides[1]);
         let (k1, k2) = (stage.k(s1).normal, stage.k(s2).normal);
         let (mut rhs, mut x) = (vec![0.0; n], vec![0.0; n]);
+        // (buffers of one step, D components a node, allocated once)
+        let (mut w2, mut coupled, mut change, mut l_change) =
+            (vec![0.0; n * D], vec![0.0; n * D], vec![0.0; n * D], vec![0.0; n * D]);
+        let shift = |q: usize| shortening * itf.normal[q / D][q % D];
         for step in steps {
-            let at = step * n * D;
-            let w1 = &f.s[0].velocity[at..at + n * D];
-            let f1 = &f.s[0].force[at..at + n * D];
-            let f2 = &f.s[1].force[at..at + n * D];
-            let w2: Vec<f64> =
-                (0..n * D).map(|q| f.s[1].velocity[at + q] + shortening * itf.normal[q / D][q % D]).collect();
-            let mut along = vec![0.0; n * D];
-            add_along::<D>(s1, factor, w1, 0, &mut along);
-            add_along::<D>(s2, factor, &w2, 0, &mut along);
-            let mut what = vec![0.0; n * D];
+            let r = step * n * D..(step + 1) * n * D;
+            let (w1, f1, f2) = (&f.s[0].velocity[r.clone()], &f.s[0].force[r.clone()], &f.s[1].force[r.clone()]);
+            for (q, w) in w2.iter_mut().enumerate() {
+                *w = f.s[1].velocity[r.start + q] + shift(q);
+            }
+            coupled.fill(0.0);
+            add_along::<D>(s1, factor, w1, 0, &mut coupled);
+            add_along::<D>(s2, factor, &w2, 0, &mut coupled);
+            let (hat1, hat2) = f.hat.split_at_mut(1);
+            let (hat1, hat2) = (&mut hat1[0], &mut hat2[0]);
+            let what = &mut hat1.velocity[r.clone()];
             for c in 0..D {
                 for j in 0..n {
                     let q = j * D + c;
-                    rhs[j] = itf.area[j] * (k1 * w1[q] + k2 * w2[q] - f1[q] - f2[q]) + along[q];
+                    rhs[j] = itf.area[j] * (k1 * w1[q] + k2 * w2[q] - f1[q] - f2[q]) + coupled[q];
                 }
                 system.solve(&rhs, &mut x, false);
                 for j in 0..n {
                     what[j * D + c] = x[j];
                 }
             }
-            // F^1 = F1 + (k_1 + g_1 M^-1 L_1) (W^ - W1)
-            let change: Vec<f64> = (0..n * D).map(|q| what[q] - w1[q]).collect();
-            let traction = along_traction::<D>(s1, factor, &change, &itf.area);
-            let f1h: Vec<f64> = (0..n * D).map(|q| f1[q] + k1 * change[q] + traction[q]).collect();
-            let w2h: Vec<f64> = (0..n * D).map(|q| what[q] - shortening * itf.normal[q / D][q % D]).collect();
-            f.hat[0].velocity[at..at + n * D].copy_from_slice(&what);
-            f.hat[0].force[at..at + n * D].copy_from_slice(&f1h);
-            f.hat[1].velocity[at..at + n * D].copy_from_slice(&w2h);
-            for (h, v) in f.hat[1].force[at..at + n * D].iter_mut().zip(&f1h) {
-                *h = -v;
+            // F^1 = F1 + (k_1 + g_1 M^-1 L_1) (W^ - W1), F^2 = -F^1, W^2 = W^1 - s n
+            for q in 0..n * D {
+                change[q] = what[q] - w1[q];
+            }
+            l_change.fill(0.0);
+            add_along::<D>(s1, factor, &change, 0, &mut l_change);
+            for q in 0..n * D {
+                let f1h = f1[q] + k1 * change[q] + l_change[q] / itf.area[q / D];
+                hat2.velocity[r.start + q] = what[q] - shift(q);
+                hat1.force[r.start + q] = f1h;
+                hat2.force[r.start + q] = -f1h;
             }
         }
         true

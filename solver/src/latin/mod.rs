@@ -420,17 +420,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if model.settings.scale == Scale::Multi { Some(build(&mut ops, Stage::Dynamic)?) } else { None };
         let along = AlongSolves::new(model, &dist)
             .map_err(|(i, source)| SolverError::AlongSystem { interface: model.interfaces[i].name.clone(), source })?;
+        let operators = Operators { dist, ops, macro_static, macro_dynamic, along };
         Ok(Self {
-            model,
-            comm,
-            dist,
-            ops,
-            macro_static,
-            macro_dynamic,
             factorisation_seconds: start.elapsed().as_secs_f64(),
-            macro_seconds: 0.0,
-            shared_wall: shared_wall_mask(model),
-            along,
+            ..Self::with_operators(model, comm, operators)
         })
     }
 
