@@ -175,8 +175,7 @@ impl<const D: usize> Interface<D> {
     /// How far the elements along the interface are from cubes: [`Self::element_depth`] or its
     /// inverse, the larger (none in 1D). A scalar search direction sits between the smallest and
     /// the largest stiffness a side opposes to the interface; elements of aspect ratio a widen
-    /// that range about a^2 times (docs/performance.md, "Flat elements along an interface
-    /// (aspect ratio 100, 2026-11-26)").
+    /// that range about a^2 times (docs/performance.md, "Flat elements along an interface").
     pub fn element_aspect(&self, substructures: &[Substructure<D>]) -> Option<f64> {
         self.element_depth(substructures).map(|r| r.max(1.0 / r))
     }

@@ -200,7 +200,7 @@ impl StageReport {
         let flat = match self.worst_interface_aspect {
             Some(a) if a >= FLAT_ELEMENTS => format!(
                 " (its elements are {a:.0} x longer one way than the other: cut them closer to cubes; \
-                 docs/performance.md, \"Flat elements along an interface (aspect ratio 100, 2026-11-26)\")"
+                 docs/performance.md, \"Flat elements along an interface\")"
             ),
             _ => String::new(),
         };
