@@ -18,6 +18,7 @@ pub mod mesh;
 pub mod model;
 pub mod monolithic;
 pub mod newmark;
+pub mod profile;
 pub mod refine;
 pub mod run;
 pub mod search_direction;

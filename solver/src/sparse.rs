@@ -14,6 +14,18 @@ pub enum SparseError {
     NotPositiveDefinite(String),
 }
 
+/// Threads that factorisations and solves (sparse and the dense macro problem's) may use, for
+/// the whole process: 1 runs them on the calling thread. faer's default is a pool of as many
+/// threads as the machine has cores in every process; MPI ranks, one a core, are glissade's
+/// parallelism, and 16 ranks each with a pool of 16 oversubscribe a 16-core node
+/// (docs/performance.md, "Where a rank's time goes"). Called once at a binary's start.
+pub fn set_solver_threads(threads: usize) {
+    faer::set_global_parallelism(match threads {
+        0 | 1 => Par::Seq,
+        n => Par::rayon(n),
+    });
+}
+
 /// A square sparse matrix in CSR form; used for matrix-vector products (mass, stiffness).
 #[derive(Debug, Clone, Default)]
 pub struct CsrMatrix {

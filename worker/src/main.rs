@@ -12,6 +12,7 @@ use glissade_core::io::solution_file;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{Scale, Scene, SceneError, Tolerance};
 use glissade_solver::comm::Communicator;
+use glissade_solver::profile::{Profile, Profiled};
 use glissade_solver::run::{SolveRequest, SolveSummary, solve_scene_on};
 use glissade_worker::io::fields;
 use glissade_worker::mpi_comm::Mpi;
@@ -325,6 +326,10 @@ struct SolveArgs {
     /// Print one JSON object instead of the human summary
     #[arg(long)]
     json: bool,
+    /// Time every rank's compute, waits at collectives, transfers and exchanges, and print the
+    /// split (`profile` in the JSON; docs/performance.md, "Where a rank's time goes")
+    #[arg(long)]
+    profile: bool,
 }
 
 /// Field files written by `--fields`.
@@ -345,6 +350,9 @@ struct Output<'a> {
     /// the `--save` solution file, or null
     saved_to: Option<String>,
     fields: Option<FieldFiles>,
+    /// `--profile`: each rank's time split, or absent
+    #[serde(skip_serializing_if = "Option::is_none")]
+    profile: Option<Profile>,
 }
 
 /// The design point of `--set NAME=VALUE`s (a name set twice takes its last value).
@@ -439,8 +447,11 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
     };
 
     tracing::info!(scene = %scene_path.display(), hash = %scene_hash, "solving");
-    let outcome = solve_scene_on(comm, &scene, &request, init.as_ref())
-        .with_context(|| format!("scene {}", scene_path.display()))?;
+    let profiled = args.profile.then(|| Profiled::new(comm));
+    let outcome =
+        solve_scene_on(profiled.as_ref().map_or(comm, |p| p as &dyn Communicator), &scene, &request, init.as_ref())
+            .with_context(|| format!("scene {}", scene_path.display()))?;
+    let profile = profiled.and_then(Profiled::finish);
     let s = &outcome.summary;
     tracing::info!(
         converged = s.converged,
@@ -474,6 +485,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             initialised_from: args.init.as_ref().map(|p| p.display().to_string()),
             saved_to: args.save.as_ref().map(|p| p.display().to_string()),
             fields: field_files,
+            profile,
         };
         println!("{}", serde_json::to_string(&out)?);
     } else {
@@ -540,6 +552,9 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         if let Some(f) = &field_files {
             println!("  fields written to {} (open {} in ParaView)", f.h5, f.xdmf);
         }
+        if let Some(p) = &profile {
+            print_profile(p);
+        }
     }
     for w in s.contact.iter().filter_map(|c| c.warning()) {
         eprintln!("warning: {w}");
@@ -566,6 +581,45 @@ fn print_contact_evidence(scene: &Scene, contact: &[glissade_solver::contact_act
     }
 }
 
+/// Threads each process's factorisations and solves may use (default 1: the ranks are the
+/// parallelism).
+const SOLVER_THREADS_VAR: &str = "GLISSADE_SOLVER_THREADS";
+
+/// `solve --profile`: each rank's wall time split, then the collectives by kind and size.
+fn print_profile(p: &Profile) {
+    println!(
+        "  profile (s): imbalance {:.2} (largest compute / mean), jitter {:.3} s (the slowest rank changing between synchronisations)",
+        p.imbalance, p.jitter
+    );
+    println!("    rank     wall  compute     wait transfer exchange  last-in  messages     bytes");
+    for r in &p.ranks {
+        println!(
+            "    {:>4} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>8} {:>9} {:>9}",
+            r.rank,
+            r.wall,
+            r.compute,
+            r.wait,
+            r.transfer,
+            r.exchange,
+            r.last_to_arrive,
+            r.messages_sent + r.messages_received,
+            r.bytes_sent + r.bytes_received
+        );
+    }
+    for g in &p.collectives {
+        println!(
+            "    {} of {} {}: {} calls, transfer {:.3} s, wait {:.3} s over the ranks, slowest rank's excess compute {:.3} s",
+            g.kind,
+            g.len,
+            if g.kind == "sum" { "values" } else { "bytes" },
+            g.calls,
+            g.transfer,
+            g.wait,
+            g.slowest_excess
+        );
+    }
+}
+
 fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -576,6 +630,16 @@ fn main() -> ExitCode {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .init();
     let cli = Cli::parse();
+    // one thread a rank unless asked (glissade_solver::sparse::set_solver_threads says why)
+    let threads = match std::env::var(SOLVER_THREADS_VAR).ok().map(|v| v.trim().parse::<usize>()) {
+        None => 1,
+        Some(Ok(n)) if (1..=1024).contains(&n) => n,
+        Some(_) => {
+            eprintln!("error: {SOLVER_THREADS_VAR}: give a number of threads from 1 to 1024");
+            return ExitCode::FAILURE;
+        }
+    };
+    glissade_solver::sparse::set_solver_threads(threads);
     let result = match cli.command {
         Command::Solve(args) => {
             // Without mpiexec this is a one-rank world (MPI singleton).

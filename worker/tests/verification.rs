@@ -119,6 +119,63 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
     }
 }
 
+/// `solve --profile` on two real ranks: each rank's compute, wait, transfer and exchange add up
+/// to the solve's own wall time (measured apart, in the solver's run) within 5 %; the stage
+/// timers of the solver agree with it; what one rank sent the other received, byte for byte;
+/// both saw the same collectives, one of them once a time step; and profiling changes nothing
+/// in the answer.
+#[test]
+fn mpi_profile_adds_up_on_two_ranks() {
+    let scene = scene_path("three-blocks-tiny.toml");
+    let run = |profile: bool| {
+        let mut args = vec!["-n", "2", worker_bin(), "solve", &scene, "--scale", "multi", "--tol", "1e-2", "--json"];
+        if profile {
+            args.push("--profile");
+        }
+        let out = mpiexec(&args);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).expect("one JSON object")
+    };
+    let plain = run(false);
+    let json = run(true);
+    assert!(plain.get("profile").is_none(), "no profile unless asked");
+    for key in ["iterations", "error_indicator", "qoi"] {
+        assert_eq!(plain[key], json[key], "--profile changed {key}");
+    }
+    let p = &json["profile"];
+    let ranks = p["ranks"].as_array().expect("a profile per rank");
+    assert_eq!(ranks.len(), 2);
+    let f = |r: &serde_json::Value, k: &str| r[k].as_f64().unwrap_or_else(|| panic!("{k} in {r}"));
+    let wall = json["wall_seconds"].as_f64().unwrap();
+    let t = &json["timings"];
+    let stages: f64 = ["factorisation", "linear_stage", "local_stage", "post_processing"].iter().map(|k| f(t, k)).sum();
+    for r in ranks {
+        let sum = f(r, "compute") + f(r, "wait") + f(r, "transfer") + f(r, "exchange");
+        assert!((sum - wall).abs() <= 0.05 * wall, "rank {r}: the terms add to {sum} s, the solve took {wall} s");
+        for k in ["compute", "wait", "transfer", "exchange"] {
+            assert!(f(r, k) >= 0.0, "{k} < 0: {r}");
+        }
+    }
+    // rank 0's stage timers (factorisation, stages, post-processing) cover its wall time but
+    // the model's build; its communication timer is part of what the profile counts
+    assert!(stages <= wall && stages >= 0.5 * wall, "stages {stages} s of {wall} s");
+    let r0 = &ranks[0];
+    assert!(f(t, "communication") <= f(r0, "wait") + f(r0, "transfer") + f(r0, "exchange") + 1e-3);
+    assert_eq!(ranks[0]["messages_sent"], ranks[1]["messages_received"]);
+    assert_eq!(ranks[0]["bytes_sent"], ranks[1]["bytes_received"]);
+    assert_eq!(ranks[1]["messages_sent"], ranks[0]["messages_received"]);
+    assert_eq!(ranks[1]["bytes_sent"], ranks[0]["bytes_received"]);
+    assert!(ranks[0]["messages_sent"].as_u64().unwrap() > 0);
+    assert_eq!(ranks[0]["collectives"], ranks[1]["collectives"]);
+    let last: u64 = ranks.iter().map(|r| r["last_to_arrive"].as_u64().unwrap()).sum();
+    assert_eq!(last, ranks[0]["collectives"].as_u64().unwrap(), "one rank arrives last at each");
+    // the macro right-hand side: one reduction a time step of every dynamic iteration
+    let steps = json["time_steps"].as_u64().unwrap();
+    let dynamic = json["iterations"].as_u64().unwrap() - json["static_stage"]["iterations"].as_u64().unwrap_or(0);
+    let groups = p["collectives"].as_array().unwrap();
+    assert!(groups.iter().any(|g| g["calls"].as_u64().unwrap() >= steps * dynamic), "a reduction a step: {groups:?}");
+}
+
 /// A rank that fails makes the whole job exit non-zero with the error on stderr, never a hang:
 /// rank 1 gets a malformed scene (MPMD launch) while rank 0 starts solving a good one.
 #[test]
