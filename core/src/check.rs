@@ -86,6 +86,14 @@ impl Scene {
         if self.time.steps == 0 {
             return Err(invalid("time.steps", "must be >= 1"));
         }
+        if let Some(g) = self.time.newmark_gamma
+            && !(0.5..=1.0).contains(&g)
+        {
+            return Err(invalid(
+                "time.newmark_gamma",
+                format!("must be in [0.5, 1] (0.5: the trapezoidal rule), got {g}"),
+            ));
+        }
         if r.get("solver.k0_factor", &self.solver.k0_factor)? <= 0.0 {
             return Err(invalid("solver.k0_factor", "must be > 0"));
         }

@@ -102,6 +102,11 @@ pub struct TimeSpec {
     /// the mass matrix of the elements (docs/scenes.md, `[time]`)
     #[serde(default)]
     pub mass: MassMatrix,
+    /// Newmark's gamma (docs/scenes.md, `[time]`): absent or 1/2, the trapezoidal rule; above,
+    /// a scheme that damps the highest frequencies. Left out of the serialised form when absent,
+    /// so that the scene hash stays what it was before the option.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub newmark_gamma: Option<f64>,
 }
 
 /// How the elements' mass is discretised.

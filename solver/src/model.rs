@@ -1,6 +1,7 @@
 //! The decomposed model of one design point: substructures (operators assembled once) and
 //! interfaces (node pairs, nodal areas, normals, laws), built from a scene and parameter values.
 
+use crate::newmark::Newmark;
 use std::collections::{BTreeMap, HashMap};
 
 use crate::element::{ElementKind, Material, face_area_and_normal};
@@ -291,6 +292,8 @@ pub struct Model<const D: usize> {
     pub interfaces: Vec<Interface<D>>,
     pub histories: Vec<History>,
     pub dt: f64,
+    /// the time scheme of the substructures and the interfaces' gaps (`[time] newmark_gamma`)
+    pub newmark: Newmark,
     pub steps: usize,
     pub qois: Vec<Qoi>,
     pub settings: SolverSettings,
@@ -439,6 +442,7 @@ impl<const D: usize> Model<D> {
             interfaces,
             histories,
             dt,
+            newmark: scene.time.newmark_gamma.map_or(Newmark::TRAPEZOIDAL, Newmark::with_gamma),
             steps: scene.time.steps,
             qois,
             settings,

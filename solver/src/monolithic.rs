@@ -162,7 +162,7 @@ pub fn solve<const D: usize>(m: &Model<D>) -> Result<MonolithicHistory, Monolith
     let mut a = Assembly::new(m, false)?;
     let n = a.n;
     let start = std::time::Instant::now();
-    let mut step_op = FactorisedOperator::new(step_operator(&a.mass, &a.stiffness, m.dt), &a.fixed)?;
+    let mut step_op = FactorisedOperator::new(step_operator(m.newmark, &a.mass, &a.stiffness, m.dt), &a.fixed)?;
     let mut state = NewmarkState::new(n);
     let mut rhs = vec![0.0; n];
     if m.needs_static_stage() {
@@ -185,10 +185,10 @@ pub fn solve<const D: usize>(m: &Model<D>) -> Result<MonolithicHistory, Monolith
     for step in 0..m.steps {
         let t = (step + 1) as f64 * m.dt;
         a.external(m, t, &mut rhs);
-        state.add_history(&a.mass, &a.stiffness, m.dt, &mut rhs);
+        state.add_history(m.newmark, &a.mass, &a.stiffness, m.dt, &mut rhs);
         let nonzero = prescribed_velocities(&a.prescribed, &m.histories, t, &mut x);
         step_op.solve(&rhs, &mut x, nonzero);
-        state.advance(&x, m.dt);
+        state.advance(m.newmark, &x, m.dt);
         displacement.push(state.u.clone());
         velocity.push(state.v.clone());
     }

@@ -1,4 +1,4 @@
-//! Linear stage: each substructure's dynamics (Newmark average acceleration, velocity form) or
+//! Linear stage: each substructure's dynamics (Newmark, velocity form: `crate::newmark`) or
 //! statics, driven by the local-stage fields through the search direction E- (docs/method.md 3).
 //!
 //! A = (2/dt) M + (dt/2) K + N^T M_Gamma k N (or K + N^T M_Gamma k N in the static stage) is
@@ -32,12 +32,12 @@ impl Stage {
     }
 
     /// What the static part from node to node ([`InterfaceSide::k_along`]) is multiplied by:
-    /// 1 statically, dt/2 in the dynamic stage (where W is a velocity: within one step a side
-    /// opposes dt/2 times its stiffness to it).
+    /// 1 statically, beta dt / gamma (dt/2 for the trapezoidal rule) in the dynamic stage (where
+    /// W is a velocity: within one step a side opposes that times its stiffness to it).
     pub fn along_factor<const D: usize>(self, model: &Model<D>) -> f64 {
         match self {
             Stage::Static => 1.0,
-            Stage::Dynamic => 0.5 * model.dt,
+            Stage::Dynamic => model.newmark.new_velocity_weight(model.dt),
         }
     }
 
@@ -133,7 +133,7 @@ pub fn along_traction<const D: usize>(side: &InterfaceSide, factor: f64, v: &[f6
 impl SubstructureOperators {
     pub fn new<const D: usize>(model: &Model<D>, s: usize, with_static: bool) -> Result<Self, SparseError> {
         let sub = &model.substructures[s];
-        let a = step_operator(&sub.mass, &sub.stiffness, model.dt).add_triplets(interface_blocks(
+        let a = step_operator(model.newmark, &sub.mass, &sub.stiffness, model.dt).add_triplets(interface_blocks(
             sub,
             &model.interfaces,
             Stage::Dynamic,
@@ -248,7 +248,7 @@ impl SubstructureOperators {
                 nonzero
             }
             Stage::Dynamic => {
-                self.state.add_history(&sub.mass, &sub.stiffness, model.dt, &mut self.rhs);
+                self.state.add_history(model.newmark, &sub.mass, &sub.stiffness, model.dt, &mut self.rhs);
                 prescribed_velocities(&sub.prescribed, &model.histories, t, &mut self.x)
             }
         };
@@ -304,7 +304,7 @@ impl SubstructureOperators {
         }
         match stage {
             Stage::Static => self.state.u.copy_from_slice(&self.x),
-            Stage::Dynamic => self.state.advance(&self.x, model.dt),
+            Stage::Dynamic => self.state.advance(model.newmark, &self.x, model.dt),
         }
     }
 }

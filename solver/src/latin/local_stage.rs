@@ -30,12 +30,17 @@ pub struct NodeOutput<const D: usize> {
 }
 
 /// How a step's normal gap follows from velocities: `g = base + weight * n.(W2 - W1)`, `base`
-/// from the node's [`NodeMemory`] (trapezoidal rule, weight dt/2, docs/method.md 2; in the static
+/// from the node's [`NodeMemory`] (the time scheme's weight, dt/2 for the trapezoidal rule,
+/// docs/method.md 2; the scheme's acceleration term, 0 for the trapezoidal rule and
+/// -0.004 dt^2 a for gamma 0.6, is left out of the gap; in the static
 /// stage the initial gap, weight 1, W = displacement), and the step `dt` the memory moves on by.
 #[derive(Debug, Clone, Copy)]
 pub struct GapRule {
     pub weight: f64,
     pub dt: f64,
+    /// the step's normal velocity's share of the next step's base: dt (1 - beta / gamma), dt/2
+    /// for the trapezoidal rule; 0 in the static stage
+    pub carry: f64,
 }
 
 /// What the law of one node carries from a step to the next: the gap rule's base (the gap at the
@@ -116,7 +121,7 @@ pub fn apply_law<const D: usize>(
     };
     let rel: [f64; D] = std::array::from_fn(|i| out.w2[i] - out.w1[i]);
     let vn = dot(n, &rel);
-    memory.base += gap.weight * vn + 0.5 * gap.dt * vn;
+    memory.base += gap.weight * vn + gap.carry * vn;
     // the Prakash-Clifton law's rate, read at the next step (no other law reads it)
     if matches!(law, InterfaceLaw::Friction { regularisation: Some(_), .. }) {
         memory.slip_rate = (dot(&rel, &rel) - vn * vn).max(0.0).sqrt();
@@ -207,7 +212,12 @@ mod tests {
     #[test]
     fn perfect_gives_equal_velocities() {
         let x = input([1.0, 2.0], [0.3, -0.1], [-1.0, 0.5], [0.2, 0.4]);
-        let o = apply_law(InterfaceLaw::Perfect, &x, GapRule { weight: 1.0, dt: 0.0 }, &mut NodeMemory::new(0.0));
+        let o = apply_law(
+            InterfaceLaw::Perfect,
+            &x,
+            GapRule { weight: 1.0, dt: 0.0, carry: 0.0 },
+            &mut NodeMemory::new(0.0),
+        );
         assert_search_direction(&x, &o);
         for i in 0..2 {
             assert!((o.w1[i] - o.w2[i]).abs() < 1e-12);
@@ -220,7 +230,7 @@ mod tests {
         let o = apply_law(
             InterfaceLaw::Prestress { shortening: 0.125 },
             &x,
-            GapRule { weight: 1.0, dt: 0.0 },
+            GapRule { weight: 1.0, dt: 0.0, carry: 0.0 },
             &mut NodeMemory::new(0.0),
         );
         assert_search_direction(&x, &o);
@@ -236,7 +246,7 @@ mod tests {
         let o = apply_law(
             InterfaceLaw::Friction { coefficient: 0.5, regularisation: None },
             &x,
-            GapRule { weight: 0.1, dt: 0.2 },
+            GapRule { weight: 0.1, dt: 0.2, carry: 0.1 },
             &mut NodeMemory::new(0.0),
         );
         assert_eq!(o.f1, [0.0, 0.0]);
@@ -247,7 +257,7 @@ mod tests {
     fn contact_closes_gap_and_respects_coulomb() {
         // side 2 moves towards side 1 and slides along x
         let x = input([0.0, 0.0], [0.0, 0.0], [3.0, -1.0], [0.0, 0.0]);
-        let rule = GapRule { weight: 0.1, dt: 0.2 };
+        let rule = GapRule { weight: 0.1, dt: 0.2, carry: 0.1 };
         for mu in [0.0, 0.1, 10.0] {
             let o = apply_law(
                 InterfaceLaw::Friction { coefficient: mu, regularisation: None },
@@ -276,7 +286,7 @@ mod tests {
     #[test]
     fn a_regularised_cone_follows_the_normal_force_with_a_lag() {
         let x = input([0.0, 0.0], [0.0, 0.0], [3.0, -1.0], [0.0, 0.0]);
-        let rule = GapRule { weight: 0.1, dt: 0.2 };
+        let rule = GapRule { weight: 0.1, dt: 0.2, carry: 0.1 };
         let coulomb = apply_law(
             InterfaceLaw::Friction { coefficient: 0.3, regularisation: None },
             &x,
@@ -326,7 +336,12 @@ mod tests {
             normal: [-1.0],
         };
         // side 1 moves along -x towards a wall whose outward normal from side 1 is -x
-        let o = apply_law(InterfaceLaw::Contact, &x, GapRule { weight: 0.1, dt: 0.2 }, &mut NodeMemory::new(0.0));
+        let o = apply_law(
+            InterfaceLaw::Contact,
+            &x,
+            GapRule { weight: 0.1, dt: 0.2, carry: 0.1 },
+            &mut NodeMemory::new(0.0),
+        );
         assert_eq!(o.w2, [0.0]);
         assert!(o.w1[0].abs() < 1e-12, "side 1 stopped by the wall");
         assert!(o.f1[0] > 0.0, "wall pushes along +x");
@@ -339,7 +354,7 @@ mod tests {
         let normal = [s, -s, s];
         let h1 = SearchDirection { normal: 1.0, tangential: 3.0 }.inverse();
         let h2 = SearchDirection { normal: 2.0, tangential: 1.0 }.inverse();
-        let rule = GapRule { weight: 0.1, dt: 0.2 };
+        let rule = GapRule { weight: 0.1, dt: 0.2, carry: 0.1 };
         let dot3 = |a: &[f64; 3], b: &[f64; 3]| (0..3).map(|i| a[i] * b[i]).sum::<f64>();
         // perfect: equal velocities
         let x = NodeInput {

@@ -1071,9 +1071,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let rule = GapRule {
             weight: match stage {
                 Stage::Static => 1.0,
-                Stage::Dynamic => 0.5 * m.dt,
+                Stage::Dynamic => m.newmark.new_velocity_weight(m.dt),
             },
             dt: m.dt,
+            carry: m.newmark.old_velocity_weight(m.dt),
         };
         for (i, itf) in m.interfaces.iter().enumerate() {
             out[i].clear();
@@ -1213,10 +1214,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         }
     }
 
-    /// Every interface node's memory at t_0 of a stage: the gap, and in dynamics the gap half a
-    /// step on at the initial normal velocity.
+    /// Every interface node's memory at t_0 of a stage: the gap, and in dynamics the gap carried
+    /// a step on at the initial normal velocity (half a step for the trapezoidal rule).
     fn initial_memory(&self, stage: Stage, gap_start: &[Vec<f64>], vn_start: &[Vec<f64>]) -> Vec<Vec<NodeMemory>> {
-        let half_dt = 0.5 * self.model.dt;
+        let half_dt = self.model.newmark.old_velocity_weight(self.model.dt);
         gap_start
             .iter()
             .enumerate()
@@ -1642,10 +1643,13 @@ fn slip_history<const D: usize>(
     let mut slip = [0.0; D];
     out.push(0.0);
     let mut prev = tangential(None);
+    // the slip integrates as the bodies' displacements do (the scheme's two velocity weights)
+    let old = m.newmark.old_velocity_weight(m.dt);
+    let extra = m.newmark.new_velocity_weight(m.dt) - old;
     for step in 0..m.steps {
         let cur = tangential(Some(step));
         for c in 0..D {
-            slip[c] += 0.5 * m.dt * (prev[c] + cur[c]);
+            slip[c] += old * (prev[c] + cur[c]) + extra * cur[c];
         }
         out.push(match component {
             Some(c) => slip[c],
