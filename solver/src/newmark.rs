@@ -1,6 +1,6 @@
-//! Newmark's family in velocity form (docs/method.md 3): with gamma and beta,
-//! [M / (gamma dt) + (beta dt / gamma) K] v_{n+1} = f_{n+1} + M (v_n / (gamma dt) + (1 - gamma) / gamma a_n)
-//!   - K (u_n + dt (1 - beta / gamma) v_n + dt^2 (1/2 - beta / gamma) a_n).
+//! Newmark's family in velocity form (docs/method.md 3). With gamma and beta, each step solves
+//! `[M / (gamma dt) + (beta dt / gamma) K] v_{n+1} = f_{n+1} + M (v_n / (gamma dt) + (1 - gamma) / gamma a_n) -
+//! K (u_n + dt (1 - beta / gamma) v_n + dt^2 (1/2 - beta / gamma) a_n)`.
 //! gamma = 1/2, beta = 1/4 is the trapezoidal rule (average acceleration: second order, no
 //! numerical dissipation); gamma > 1/2 with beta = (gamma + 1/2)^2 / 4 damps the highest
 //! frequencies (first order), which holds a chattering contact's answer over a range of steps
