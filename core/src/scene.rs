@@ -4,7 +4,7 @@
 //! design point's values and checks every physical constraint, naming the offending key.
 
 use crate::point::{DesignPoint, MAX_PARAMETERS};
-use crate::text::{MAX_NAME_CHARS, excerpt, is_plain_name};
+use crate::text::{MAX_NAME_CHARS, excerpt, is_plain_name, is_plain_text};
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
@@ -740,6 +740,21 @@ impl Scene {
                 ));
             }
         }
+        // the title and the units are printed by every client: nothing that acts on a terminal
+        let texts = self.title.iter().map(|t| ("title".to_string(), t)).chain(
+            self.parameters.iter().filter_map(|(n, p)| Some((format!("parameters.{n}.unit"), p.unit.as_ref()?))),
+        );
+        for (key, text) in texts {
+            if !is_plain_text(text) {
+                return Err(invalid(
+                    key,
+                    format!(
+                        "`{}` holds control or direction characters (escapes, carriage returns, overrides)",
+                        excerpt(&text.escape_debug().to_string(), MAX_NAME_CHARS)
+                    ),
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -1067,6 +1082,23 @@ initial_velocity = ["v0"]
             };
             assert_eq!(Scene::parse(&windowed).unwrap().content_hash(), hash, "{file} with windows");
         }
+    }
+
+    /// A title or a unit that would act on a terminal (an escape, a carriage return, a direction
+    /// override) is refused naming its key; accents and other scripts are text.
+    #[test]
+    fn titles_and_units_that_would_act_on_a_terminal_are_refused() {
+        for (from, to, key) in [
+            ("title = \"bar\"", "title = \"bar\\u001b]0;owned\\u0007\"", "title"),
+            ("title = \"bar\"", "title = \"bar\\rforged\"", "title"),
+            ("unit = \"m/s\"", "unit = \"m/s\\u202e\"", "parameters.v0.unit"),
+        ] {
+            let text = HASHED.replacen(from, to, 1);
+            assert_ne!(text, HASHED);
+            let err = Scene::parse(&text).unwrap_err().to_string();
+            assert!(err.contains(key) && err.contains("control or direction"), "{to}: {err}");
+        }
+        assert!(Scene::parse(&HASHED.replacen("title = \"bar\"", "title = \"barre d'acier, 応力\"", 1)).is_ok());
     }
 
     #[test]

@@ -11,13 +11,40 @@ pub const MAX_NAME_CHARS: usize = 64;
 /// [`MAX_NAME_CHARS`] printable characters, not all blank (names key records, label plots and
 /// come back in messages).
 pub fn is_plain_name(name: &str) -> bool {
-    !name.trim().is_empty() && name.chars().count() <= MAX_NAME_CHARS && !name.chars().any(char::is_control)
+    !name.trim().is_empty() && name.chars().count() <= MAX_NAME_CHARS && is_plain_text(name)
 }
 
-/// A message on one line (toml's parse errors span several), at most [`MAX_MESSAGE_CHARS`].
+/// Whether a character would act on a terminal or a text's direction rather than print: the
+/// control characters (NUL, ESC that starts an escape sequence, CR that rewrites a line, the C1
+/// set with OSC) and the bidirectional overrides and isolates that reorder what follows.
+pub fn is_unprintable(c: char) -> bool {
+    c.is_control() || matches!(c, '\u{200e}' | '\u{200f}' | '\u{202a}'..='\u{202e}' | '\u{2066}'..='\u{2069}')
+}
+
+/// Whether `text` prints as it reads: no [`is_unprintable`] character (a label, a title, a unit).
+pub fn is_plain_text(text: &str) -> bool {
+    !text.chars().any(is_unprintable)
+}
+
+/// `text` with each [`is_unprintable`] character written as its escape (`\u{1b}`): what a
+/// terminal, a log or a page can print whatever a client or a pool sent.
+pub fn printable(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        if is_unprintable(c) {
+            out.extend(c.escape_unicode());
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+/// A message on one line (toml's parse errors span several), at most [`MAX_MESSAGE_CHARS`],
+/// printable ([`printable`]: a pool's or a parser's message may echo anything).
 pub fn one_line(text: &str) -> String {
     let joined = text.lines().map(str::trim).filter(|l| !l.is_empty()).collect::<Vec<_>>().join(" ");
-    excerpt(&joined, MAX_MESSAGE_CHARS)
+    excerpt(&printable(&joined), MAX_MESSAGE_CHARS)
 }
 
 /// `text` cut to `max` characters, saying how much was left out.
@@ -31,7 +58,8 @@ pub fn excerpt(text: &str, max: usize) -> String {
 }
 
 /// A CSV table (RFC 4180 quoting, by the `csv` crate), one record a line: the one writer of the
-/// study results, the CLI's surface and the web page's `surface.csv`.
+/// study results, the CLI's surface and the web page's `surface.csv`. A field that a spreadsheet
+/// would take for a formula ([`spreadsheet_cell`]) is written as text.
 pub fn csv_table<R, F>(records: impl IntoIterator<Item = R>) -> String
 where
     R: IntoIterator<Item = F>,
@@ -39,11 +67,30 @@ where
 {
     let mut writer = csv::WriterBuilder::new().flexible(true).from_writer(Vec::new());
     for record in records {
+        let cells: Vec<std::borrow::Cow<'_, [u8]>> =
+            record.into_iter().map(|f| spreadsheet_cell(f.as_ref()).into_owned().into()).collect();
         // (in memory, and every field is text: nothing can fail)
-        writer.write_record(record).expect("a CSV record in memory");
+        writer.write_record(&cells).expect("a CSV record in memory");
     }
     let bytes = writer.into_inner().expect("a CSV table in memory");
     String::from_utf8(bytes).expect("CSV of UTF-8 fields")
+}
+
+/// A CSV field as a spreadsheet should read it: one that starts like a formula (`=`, `+`, `-`,
+/// `@`, a tab or a carriage return) and is not a number gets a leading `'`, which spreadsheets
+/// take as "text" (a parameter named `=cmd|' /C calc'!A0` or `-2+3` must not run or compute);
+/// a number, negative ones included, stays a number.
+pub fn spreadsheet_cell(field: &[u8]) -> std::borrow::Cow<'_, [u8]> {
+    let formula = matches!(field.first(), Some(b'=' | b'+' | b'-' | b'@' | b'\t' | b'\r'));
+    let number = std::str::from_utf8(field).is_ok_and(|s| s.trim().parse::<f64>().is_ok());
+    if formula && !number {
+        let mut out = Vec::with_capacity(field.len() + 1);
+        out.push(b'\'');
+        out.extend_from_slice(field);
+        out.into()
+    } else {
+        field.into()
+    }
 }
 
 /// Significant digits of a parameter's value printed for people ([`parameter`]).
@@ -113,6 +160,32 @@ mod tests {
             vec!["two\nlines", ""],
         ]);
         assert_eq!(table, "name,value\nplain,1e-3\n\"a, b\",\"say \"\"hi\"\"\"\n\"two\nlines\",\n");
+    }
+
+    /// Formula-looking fields are written as text; numbers, negative ones too, stay numbers.
+    #[test]
+    fn a_csv_table_writes_formulas_as_text() {
+        let table = csv_table([
+            vec!["=cmd|' /C calc'!A0", "+HYPERLINK(\"x\")", "-2+3", "@SUM(A1)", "\tx"],
+            vec!["-2.5e-5", "+1", "-inf", "name-with-dash", "0"],
+        ]);
+        let mut lines = table.lines();
+        assert_eq!(lines.next(), Some("'=cmd|' /C calc'!A0,\"'+HYPERLINK(\"\"x\"\")\",'-2+3,'@SUM(A1),'\tx"));
+        assert_eq!(lines.next(), Some("-2.5e-5,+1,-inf,name-with-dash,0"));
+    }
+
+    /// Escapes, carriage returns, NUL, OSC and direction overrides come out as their escapes;
+    /// other text, accents and CJK included, as it is.
+    #[test]
+    fn terminal_controls_are_printed_as_escapes() {
+        let hostile = "a\u{1b}[2Jb\rc\0d\u{9d}e\u{202e}f\u{2066}g";
+        assert!(!is_plain_text(hostile));
+        let shown = printable(hostile);
+        assert_eq!(shown, "a\\u{1b}[2Jb\\u{d}c\\u{0}d\\u{9d}e\\u{202e}f\\u{2066}g");
+        assert!(is_plain_text(&shown));
+        assert_eq!(printable("Ti-6Al-4V, 応力 ü"), "Ti-6Al-4V, 応力 ü");
+        assert!(one_line("pool failed: \u{1b}]0;owned\u{7}").chars().all(|c| !is_unprintable(c)));
+        assert!(!is_plain_name("f\u{202e}1"));
     }
 
     #[test]

@@ -169,6 +169,12 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
         if m.label.len() > 1024 {
             return Err(Invalid("label: longer than 1024 bytes".into()));
         }
+        if !glissade_core::text::is_plain_text(&m.label) {
+            return Err(Invalid(format!(
+                "label `{}`: control or direction characters (escapes, carriage returns, overrides) are not allowed",
+                glissade_core::text::printable(&m.label)
+            )));
+        }
         if m.meshes.len() > MAX_MESH_FILES {
             return Err(Invalid(format!("meshes: {} files, more than the {MAX_MESH_FILES} allowed", m.meshes.len())));
         }
@@ -633,6 +639,28 @@ mod tests {
         assert_eq!(strategy(v1::InitStrategy::Nearest as i32, 0).unwrap(), InitStrategy::Nearest);
         assert!(strategy(v1::InitStrategy::Linear as i32, 9).unwrap_err().0.contains("at most 8"));
         assert!(strategy(99, 0).is_err());
+    }
+
+    /// A study's label is printed by every client and logged: one with an escape, a carriage
+    /// return, NUL or a direction override is refused (saying which), before anything is kept.
+    #[test]
+    fn a_label_that_would_act_on_a_terminal_is_refused() {
+        for label in ["a\u{1b}[2J", "ok\rforged", "nul\0", "\u{202e}txt.exe", "osc\u{9d}0;x\u{7}"] {
+            let m = v1::SubmitStudyRequest {
+                scene: "x".into(),
+                grid: vec!["f=0.1".into()],
+                label: label.into(),
+                ..Default::default()
+            };
+            let err = Submission::try_from(m).unwrap_err().0;
+            assert!(err.contains("label") && err.contains("control or direction"), "{label:?}: {err}");
+            assert!(glissade_core::text::is_plain_text(&err), "the refusal itself prints safely: {err:?}");
+        }
+        let m =
+            v1::SubmitStudyRequest { scene: "x".into(), label: "Ti-6Al-4V, 応力 sweep".into(), ..Default::default() };
+        if let Err(e) = Submission::try_from(m) {
+            assert!(!e.0.contains("label"), "a plain label passes: {}", e.0);
+        }
     }
 
     /// A pool's contact reports are checked like the rest of its completion: a report no solver
