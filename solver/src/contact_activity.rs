@@ -14,8 +14,19 @@ use crate::model::{Interface, InterfaceLaw};
 const CLOSED_SHARE: f64 = 1e-6;
 
 /// A node slides when its tangential relative velocity exceeds this share of the interface's
-/// largest.
+/// largest, and its tangential traction is at the friction limit (within [`AT_LIMIT`]).
 const SLIDING_SHARE: f64 = 1e-3;
+
+/// The share of f times the pressure a tangential traction reaches when the node slides: a node
+/// that sticks stays below it, whatever round-off moves it by (a block that sticks at f = 6 was
+/// called sliding, and ill-posed, on its velocities alone: issue 45).
+const AT_LIMIT: f64 = 0.99;
+
+/// The contact slides when the nodes that slide carry at least this share of its normal force: a
+/// block that sticks may slip at an edge where the pressure falls to nothing (the copper block of
+/// `sliding_above_friction_one_is_reported_ill_posed` at f = 6 does), and that is not the sliding
+/// the evidence and the ill-posedness are about.
+const SLIDING_FORCE_SHARE: f64 = 0.5;
 
 /// The contact activity of every frictional interface of a dynamic solution (levels 0..=steps),
 /// one entry per interface name in the model's order.
@@ -45,7 +56,7 @@ pub fn contact_activity<const D: usize>(
 fn activity<const D: usize>(pieces: &[Cut<D>], dt: f64) -> ContactActivity {
     let itf = pieces[0].0;
     let InterfaceLaw::Friction { coefficient: friction, .. } = itf.law else { unreachable!("frictional pieces only") };
-    let first_slip = pieces.iter().filter_map(|(_, p)| p.first_slip()).min();
+    let first_slip = first_slip(pieces);
     // landings of each node in contact, by its position
     let mut nodes: BTreeMap<[u64; D], usize> = BTreeMap::new();
     let mut total = vec![0.0; pieces.iter().map(|(_, p)| p.levels).max().unwrap_or(0)];
@@ -82,6 +93,20 @@ fn activity<const D: usize>(pieces: &[Cut<D>], dt: f64) -> ContactActivity {
     a
 }
 
+/// The first step at which the interface slides: its sliding nodes carry [`SLIDING_FORCE_SHARE`]
+/// of its normal force or more.
+fn first_slip<const D: usize>(pieces: &[Cut<D>]) -> Option<usize> {
+    let levels = pieces.iter().map(|(_, p)| p.levels).min().unwrap_or(0);
+    (0..levels).find(|&s| {
+        let sliding: f64 = pieces.iter().map(|(_, p)| p.sliding_force(s)).sum();
+        let total: f64 = pieces
+            .iter()
+            .map(|(_, p)| (0..p.n).map(|j| p.area[j] * p.pressure[s * p.n + j].max(0.0)).sum::<f64>())
+            .sum();
+        sliding > 0.0 && sliding >= SLIDING_FORCE_SHARE * total
+    })
+}
+
 /// A piece of an interface and its histories.
 type Cut<'a, const D: usize> = (&'a Interface<D>, Piece<'a>);
 
@@ -93,6 +118,8 @@ struct Piece<'a> {
     area: &'a [f64],
     pressure: Vec<f64>,
     sliding: Vec<f64>,
+    /// whether the tangential traction is at f times the pressure
+    at_limit: Vec<bool>,
     closed_at: f64,
     sliding_at: f64,
 }
@@ -103,8 +130,13 @@ impl<'a> Piece<'a> {
         let levels = if n == 0 { 0 } else { field.hat[0].force.len() / (n * D) };
         let at = |v: &[f64], step: usize, j: usize| -> [f64; D] { std::array::from_fn(|c| v[(step * n + j) * D + c]) };
         let dot = |a: &[f64; D], b: &[f64; D]| (0..D).map(|c| a[c] * b[c]).sum::<f64>();
+        let friction = match itf.law {
+            InterfaceLaw::Friction { coefficient, .. } => coefficient,
+            _ => 0.0,
+        };
         let mut pressure = vec![0.0; levels * n];
         let mut sliding = vec![0.0; levels * n];
+        let mut at_limit = vec![false; levels * n];
         for step in 0..levels {
             for j in 0..n {
                 let normal = &itf.normal[j];
@@ -115,23 +147,34 @@ impl<'a> Piece<'a> {
                 let rn = dot(&rel, normal);
                 let t: [f64; D] = std::array::from_fn(|c| rel[c] - rn * normal[c]);
                 sliding[step * n + j] = dot(&t, &t).sqrt();
+                let force = at(&field.hat[0].force, step, j);
+                let fnorm = dot(&force, normal);
+                let ft: [f64; D] = std::array::from_fn(|c| force[c] - fnorm * normal[c]);
+                let p = pressure[step * n + j];
+                at_limit[step * n + j] = p > 0.0 && dot(&ft, &ft).sqrt() >= AT_LIMIT * friction * p;
             }
         }
         let closed_at = CLOSED_SHARE * pressure.iter().cloned().fold(0.0, f64::max);
         let sliding_at = SLIDING_SHARE * sliding.iter().cloned().fold(0.0, f64::max);
-        Self { n, levels, area: &itf.area, pressure, sliding, closed_at, sliding_at }
+        Self { n, levels, area: &itf.area, pressure, sliding, at_limit, closed_at, sliding_at }
     }
 
     fn closed(&self, step: usize, j: usize) -> bool {
         self.closed_at > 0.0 && self.pressure[step * self.n + j] > self.closed_at
     }
 
-    /// The first step at which a node in contact slides.
-    fn first_slip(&self) -> Option<usize> {
-        (0..self.levels).find(|&s| {
-            self.sliding_at > 0.0
-                && (0..self.n).any(|j| self.closed(s, j) && self.sliding[s * self.n + j] > self.sliding_at)
-        })
+    /// Whether node `j` slides at step `s`: in contact, moving along the wall, its traction at
+    /// the friction limit.
+    fn slides(&self, s: usize, j: usize) -> bool {
+        self.sliding_at > 0.0
+            && self.closed(s, j)
+            && self.sliding[s * self.n + j] > self.sliding_at
+            && self.at_limit[s * self.n + j]
+    }
+
+    /// The normal force the sliding nodes carry at step `s`.
+    fn sliding_force(&self, s: usize) -> f64 {
+        (0..self.n).filter(|&j| self.slides(s, j)).map(|j| self.area[j] * self.pressure[s * self.n + j]).sum()
     }
 
     /// The nodes in contact at some level.

@@ -2243,7 +2243,9 @@ fn the_prestress_is_converged_tight_enough_for_the_dynamics_it_starts() {
 
 /// A copper block of our own pushed along a rigid floor by a traction that grows with f, so that
 /// it slides at any f: above f = 1 the sliding is ill-posed (docs/verification.md 4d) and the
-/// solve says so with its evidence; below, it slides as well and is not flagged.
+/// solve says so with its evidence; below, it slides as well and is not flagged. And a block
+/// that sticks at f = 6 and 10 (the push of f = 0.6) is neither sliding nor ill-posed (issue 45:
+/// its velocities' round-off alone made it "slide").
 #[test]
 fn sliding_above_friction_one_is_reported_ill_posed() {
     use glissade_solver::run::{SolveRequest, solve_scene};
@@ -2285,6 +2287,14 @@ interface = "floor"
 point = [0.008, 0]
 "#;
     let scene = Scene::parse(COPPER_BLOCK).expect("scene");
+    for f in [6.0, 10.0] {
+        let at = point(&[("f", f), ("push", 12e6 * 0.6)]);
+        let o = solve_scene(&scene, &SolveRequest { point: at, ..SolveRequest::default() }, None).expect("solve");
+        let [a] = &o.summary.contact[..] else { panic!("one frictional interface: {:?}", o.summary.contact) };
+        eprintln!("f = {f}, sticking: {a:?}, slip {:.3e}", o.summary.qoi["slip"].final_value);
+        assert!(o.summary.converged && o.summary.qoi["slip"].final_value.abs() < 1e-12, "f = {f}: it sticks");
+        assert!(a.first_slip_time.is_none() && !a.ill_posed && a.warning().is_none(), "f = {f}: {a:?}");
+    }
     for f in [0.6, 1.5] {
         // the push reaches 12 f MPa: twice what a rigid block needs to slide
         let at = point(&[("f", f), ("push", 12e6 * f)]);
