@@ -85,7 +85,8 @@ enum Command {
         /// The study id (from `glissade submit`).
         study: u64,
     },
-    /// List the studies with their state and progress.
+    /// List the studies with their state and progress (also `glissade list`).
+    #[command(visible_alias = "list")]
     Studies {
         /// Print one JSON object instead of a table.
         #[arg(long)]
@@ -303,4 +304,19 @@ fn root_cause(error: &(dyn std::error::Error + 'static)) -> String {
     let text = current.to_string();
     // Timeouts surface as a bare "timed out" from tower/hyper without an io::Error.
     if text.contains("timed out") { format!("no answer within {}s", CONNECT_TIMEOUT.as_secs()) } else { text }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `glissade list` is what a newcomer types first: it lists the studies, and a mistyped
+    /// command gets clap's suggestion.
+    #[test]
+    fn list_is_the_studies_command() {
+        let cli = Cli::try_parse_from(["glissade", "list", "--json"]).expect("list parses");
+        assert!(matches!(cli.command, Command::Studies { json: true }));
+        let err = Cli::try_parse_from(["glissade", "studes"]).unwrap_err().to_string();
+        assert!(err.contains("studies"), "{err}");
+    }
 }
