@@ -505,6 +505,11 @@ pub fn read_mesh_file(path: &std::path::Path) -> Result<Vec<u8>, String> {
     Ok(bytes)
 }
 
+/// Most quantities of interest a scene may declare: each is a history in every point's record and
+/// a surface on the study's page (1000 of them made a 326 MB page, issue 48); the shipped scenes
+/// declare at most 4.
+pub const MAX_QOIS: usize = 64;
+
 impl Scene {
     /// Parses TOML text; errors carry the TOML key path and line.
     pub fn parse(text: &str) -> Result<Self, SceneError> {
@@ -517,6 +522,15 @@ impl Scene {
             let n = scene.parameters.len();
             return Err(invalid("parameters", format!("{n} parameters, more than the {MAX_PARAMETERS} accepted")));
         }
+        if scene.qoi.len() > MAX_QOIS {
+            let n = scene.qoi.len();
+            return Err(invalid("qoi", format!("{n} quantities of interest, more than the {MAX_QOIS} accepted")));
+        }
+        for q in &scene.qoi {
+            if q.point.iter().flatten().any(|c| matches!(c, Scalar::Number(x) if !x.is_finite())) {
+                return Err(invalid(format!("qoi.{}.point", q.name), "coordinates must be finite numbers"));
+            }
+        }
         check_tolerance("solver.tolerance", scene.solver.tolerance)?;
         check_max_iterations("solver.max_iterations", scene.solver.max_iterations as u64)?;
         for (name, p) in &scene.parameters {
@@ -528,6 +542,9 @@ impl Scene {
                 && !(lo.is_finite() && hi.is_finite() && lo <= hi)
             {
                 return Err(invalid(key, format!("range [{lo}, {hi}] is not a finite interval")));
+            }
+            if p.min.is_some_and(|lo| p.default < lo) || p.max.is_some_and(|hi| p.default > hi) {
+                return Err(invalid(key, format!("default {} lies outside its own range", p.default)));
             }
         }
         Ok(scene)
@@ -1082,6 +1099,29 @@ initial_velocity = ["v0"]
             };
             assert_eq!(Scene::parse(&windowed).unwrap().content_hash(), hash, "{file} with windows");
         }
+    }
+
+    /// Counts and values that every pool would refuse are refused at parse, where the
+    /// coordinator reads a submission: more QoIs than [`MAX_QOIS`], a QoI point that is not
+    /// finite (TOML has `nan` and `inf`), a parameter's default outside its own range.
+    #[test]
+    fn counts_and_values_every_pool_would_refuse_are_refused_at_parse() {
+        let many: String = (0..=MAX_QOIS)
+            .map(|i| format!("[[qoi]]\nname = \"q{i}\"\nkind = \"displacement\"\nbody = \"bar\"\npoint = [0.5]\ncomponent = \"x\"\n"))
+            .collect();
+        let err = Scene::parse(&format!("{HASHED}\n{many}")).unwrap_err().to_string();
+        assert!(err.contains("qoi") && err.contains(&MAX_QOIS.to_string()), "{err}");
+        for bad in ["nan", "inf", "-inf"] {
+            let text =
+                format!("{HASHED}\n[[qoi]]\nname = \"q\"\nkind = \"displacement\"\nbody = \"bar\"\npoint = [{bad}]\n");
+            let err = Scene::parse(&text).unwrap_err().to_string();
+            assert!(err.contains("qoi.q.point") && err.contains("finite"), "{bad}: {err}");
+        }
+        let text = HASHED.replacen("default = 1.0, min = 0.1", "default = 20.0, min = 0.1", 1);
+        assert_ne!(text, HASHED);
+        let err = Scene::parse(&text).unwrap_err().to_string();
+        assert!(err.contains("parameters.v0") && err.contains("outside its own range"), "{err}");
+        assert!(Scene::parse(HASHED).is_ok());
     }
 
     /// A title or a unit that would act on a terminal (an escape, a carriage return, a direction
