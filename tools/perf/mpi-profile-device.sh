@@ -12,7 +12,7 @@
 set -euo pipefail
 bundle=${1:?usage: mpi-profile-device.sh BUNDLE.tgz OUT_DIR [RUNS]}
 out=${2:?usage: mpi-profile-device.sh BUNDLE.tgz OUT_DIR [RUNS]}
-runs=${3:-"16:1 16:16 1:1 8:1 4:1 2:1 1:16"}
+runs=${3:-"16:1 1:16 1:1 8:1 4:1 2:1 16:16"}
 scene=${SCENE:-scenes/three-blocks-paper.toml}
 iterations=${ITERATIONS:-3}
 scale=${SCALE:-multi}
