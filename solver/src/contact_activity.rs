@@ -99,10 +99,7 @@ fn first_slip<const D: usize>(pieces: &[Cut<D>]) -> Option<usize> {
     let levels = pieces.iter().map(|(_, p)| p.levels).min().unwrap_or(0);
     (0..levels).find(|&s| {
         let sliding: f64 = pieces.iter().map(|(_, p)| p.sliding_force(s)).sum();
-        let total: f64 = pieces
-            .iter()
-            .map(|(_, p)| (0..p.n).map(|j| p.area[j] * p.pressure[s * p.n + j].max(0.0)).sum::<f64>())
-            .sum();
+        let total: f64 = pieces.iter().map(|(_, p)| p.normal_force_at(s)).sum();
         sliding > 0.0 && sliding >= SLIDING_FORCE_SHARE * total
     })
 }
@@ -190,11 +187,14 @@ impl<'a> Piece<'a> {
         if was_closed { landings } else { landings.saturating_sub(1) }
     }
 
+    /// The total normal force at level `s`.
+    fn normal_force_at(&self, s: usize) -> f64 {
+        (0..self.n).map(|j| self.area[j] * self.pressure[s * self.n + j].max(0.0)).sum()
+    }
+
     /// The total normal force at each level.
     fn normal_force(&self) -> Vec<f64> {
-        (0..self.levels)
-            .map(|s| (0..self.n).map(|j| self.area[j] * self.pressure[s * self.n + j].max(0.0)).sum())
-            .collect()
+        (0..self.levels).map(|s| self.normal_force_at(s)).collect()
     }
 }
 

@@ -43,6 +43,14 @@ impl Newmark {
         dt * (1.0 - self.beta / self.gamma)
     }
 
+    /// The displacement a step of length dt adds from its two velocities, leaving out the
+    /// acceleration's term (what the slip and the contact gap integrate): dt/2 (v_old + v_new)
+    /// for the trapezoidal rule, bit for bit.
+    pub fn displacement_increment(self, dt: f64, v_old: f64, v_new: f64) -> f64 {
+        let s = self.step(dt);
+        s.old * (v_old + v_new) + s.extra_new * v_new
+    }
+
     /// Coefficients of one step of length dt; for the trapezoidal rule every one of them is what
     /// its literal formulas give, bit for bit (the products by 0 and 1 vanish exactly).
     fn step(self, dt: f64) -> Step {

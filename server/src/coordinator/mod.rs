@@ -8,7 +8,7 @@
 //! Heartbeats only move deadlines forward in memory; after a restart every lease gets a fresh
 //! deadline, so pools have one lease period to come back.
 
-use glissade_core::text::{one_line, printable};
+use glissade_core::text::one_line;
 pub use glissade_proto::now_unix_ms;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -1022,7 +1022,7 @@ impl Coordinator {
         let error = one_line(&f.error);
         let point = apply(&entry.points[i], Transition::Fail { result, error: error.clone() })?;
         self.commit(entry, vec![(point.clone(), Some(EventKind::Failed))], None, Batch::new())?;
-        tracing::warn!(study = %f.study, point = i, pool = %printable(&f.pool), error = %error, "point failed");
+        tracing::warn!(study = %f.study, point = i, pool = %f.pool, error = %error, "point failed");
         state.leases.remove(&f.lease_id);
         state.lease_progress.remove(&f.lease_id);
         Ok(point)

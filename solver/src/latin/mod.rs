@@ -1217,13 +1217,13 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     /// Every interface node's memory at t_0 of a stage: the gap, and in dynamics the gap carried
     /// a step on at the initial normal velocity (half a step for the trapezoidal rule).
     fn initial_memory(&self, stage: Stage, gap_start: &[Vec<f64>], vn_start: &[Vec<f64>]) -> Vec<Vec<NodeMemory>> {
-        let half_dt = self.model.newmark.old_velocity_weight(self.model.dt);
+        let carry = self.model.newmark.old_velocity_weight(self.model.dt);
         gap_start
             .iter()
             .enumerate()
             .map(|(i, g)| match stage {
                 Stage::Static => g.iter().map(|&g| NodeMemory::new(g)).collect(),
-                Stage::Dynamic => g.iter().zip(&vn_start[i]).map(|(g, vn)| NodeMemory::new(g + half_dt * vn)).collect(),
+                Stage::Dynamic => g.iter().zip(&vn_start[i]).map(|(g, vn)| NodeMemory::new(g + carry * vn)).collect(),
             })
             .collect()
     }
@@ -1643,13 +1643,11 @@ fn slip_history<const D: usize>(
     let mut slip = [0.0; D];
     out.push(0.0);
     let mut prev = tangential(None);
-    // the slip integrates as the bodies' displacements do (the scheme's two velocity weights)
-    let old = m.newmark.old_velocity_weight(m.dt);
-    let extra = m.newmark.new_velocity_weight(m.dt) - old;
     for step in 0..m.steps {
         let cur = tangential(Some(step));
         for c in 0..D {
-            slip[c] += old * (prev[c] + cur[c]) + extra * cur[c];
+            // the slip integrates as the bodies' displacements do
+            slip[c] += m.newmark.displacement_increment(m.dt, prev[c], cur[c]);
         }
         out.push(match component {
             Some(c) => slip[c],
