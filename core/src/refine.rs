@@ -108,9 +108,13 @@ pub struct Estimate {
 /// the step's: the finest level's error is then said to be below it, the first's to be its
 /// distance to the finest.
 pub fn richardson(finals: &[f64], ratio: usize, noise: f64) -> Estimate {
+    richardson_relative_to(finals, ratio, noise, finals.iter().fold(0.0f64, |s, x| s.max(x.abs())))
+}
+
+/// [`richardson`] with the errors relative to `scale` instead of the largest |final|.
+pub fn richardson_relative_to(finals: &[f64], ratio: usize, noise: f64, scale: f64) -> Estimate {
     let r = ratio as f64;
     let k = finals.len() - 1;
-    let scale = finals.iter().fold(0.0f64, |s, x| s.max(x.abs()));
     let rel = |x: f64| if scale > 0.0 { x / scale } else { 0.0 };
     let last = finals[k] - finals[k - 1];
     if rel(last.abs()) <= noise {
@@ -157,6 +161,101 @@ pub fn richardson(finals: &[f64], ratio: usize, noise: f64) -> Estimate {
         erratic: false,
         below_tolerance: false,
     }
+}
+
+/// The accuracy a user asks for (`--accuracy`): every QoI's final value within this fraction of
+/// the QoI's scale (the largest magnitude its history reaches) of the value the scene would
+/// give with dt, h and the iteration error all going to zero (docs/accuracy.md, "Ask for an
+/// accuracy").
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Accuracy(f64);
+
+/// The range an accuracy may be asked in: tighter than 1e-6 is below what the iterations resolve
+/// in double precision on the shipped scenes; looser than 0.5 is no answer.
+pub const ACCURACY_RANGE: (f64, f64) = (1e-6, 0.5);
+
+/// The share of the asked accuracy left to the iterations; the rest goes to the discretisation.
+pub const ITERATION_SHARE: f64 = 0.1;
+
+/// The time step's share of what is left when the mesh is refined too (then the mesh has the
+/// same); without a mesh ladder the time step has all of it.
+pub const TIME_SHARE_WITH_MESH: f64 = 0.5;
+
+/// The order assumed where only two levels are known: first, not the scheme's second, because
+/// the contact scenes' slips converge at orders 0.7-1.3 (docs/scenes.md); the second order of a
+/// smooth QoI is then only used once three levels observe it.
+pub const TWO_LEVEL_ORDER: f64 = 1.0;
+
+#[derive(Debug, thiserror::Error)]
+#[error("{flag} {value}: give an accuracy between {min:e} and {max} (a fraction of each QoI's scale: 0.05 is 5 %)", min = ACCURACY_RANGE.0, max = ACCURACY_RANGE.1)]
+pub struct AccuracyError {
+    pub flag: String,
+    pub value: f64,
+}
+
+impl Accuracy {
+    pub fn new(flag: &str, value: f64) -> Result<Self, AccuracyError> {
+        if value.is_finite() && (ACCURACY_RANGE.0..=ACCURACY_RANGE.1).contains(&value) {
+            Ok(Accuracy(value))
+        } else {
+            Err(AccuracyError { flag: flag.to_string(), value })
+        }
+    }
+
+    pub fn get(self) -> f64 {
+        self.0
+    }
+
+    /// The iteration tolerance that keeps the iterations' share of a final value
+    /// ([`NOISE_PER_TOLERANCE`] times the tolerance) within [`ITERATION_SHARE`] of the accuracy:
+    /// 1e-3 for 5 %, 2e-4 (the default) for 1 %.
+    pub fn tolerance(self) -> f64 {
+        self.iteration_error() / NOISE_PER_TOLERANCE
+    }
+
+    /// What the iterations may add to a final value's error.
+    pub fn iteration_error(self) -> f64 {
+        ITERATION_SHARE * self.0
+    }
+
+    /// What the time step (or the mesh) may add: the rest, split in two when both are refined.
+    pub fn discretisation_share(self, with_mesh: bool) -> f64 {
+        let rest = (1.0 - ITERATION_SHARE) * self.0;
+        if with_mesh { TIME_SHARE_WITH_MESH * rest } else { rest }
+    }
+}
+
+/// The estimated error of a ladder's finest level, relative to `scale`, and how it was reached.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct FinestError {
+    pub estimate: f64,
+    /// the order the last three levels show, `None` from two levels or when erratic
+    pub order: Option<f64>,
+    /// the changes switch sign or fall at an order outside [0.5, 4]: the estimate is the larger
+    /// of the last two changes
+    pub erratic: bool,
+    /// the last change within the iterations' noise: the estimate is the noise
+    pub below_noise: bool,
+}
+
+/// The error of the finest of `finals` (levels of ratio `ratio`), on the safe side of
+/// [`richardson_relative_to`]: from two levels the order is [`TWO_LEVEL_ORDER`]; when erratic the
+/// error is no smaller than either of the last two changes.
+pub fn finest_error(finals: &[f64], ratio: usize, noise: f64, scale: f64) -> FinestError {
+    let e = richardson_relative_to(finals, ratio, noise, scale);
+    let k = finals.len() - 1;
+    let rel = |x: f64| if scale > 0.0 { x.abs() / scale } else { 0.0 };
+    let last = rel(finals[k] - finals[k - 1]);
+    let estimate = if e.below_tolerance {
+        e.error_finest
+    } else if k == 1 {
+        last / ((ratio as f64).powf(TWO_LEVEL_ORDER) - 1.0)
+    } else if e.erratic {
+        last.max(rel(finals[k - 1] - finals[k - 2]))
+    } else {
+        e.error_finest
+    };
+    FinestError { estimate, order: e.order, erratic: e.erratic, below_noise: e.below_tolerance }
 }
 
 #[cfg(test)]
@@ -223,5 +322,44 @@ mod tests {
             read += 1;
         }
         assert!(read >= 10, "{read} scenes");
+    }
+
+    #[test]
+    fn the_finest_error_is_on_the_safe_side() {
+        // two levels: first order assumed, whatever the true order (here 2: the estimate is 3 x)
+        let q = |h: f64| 1.0 + 0.3 * h * h;
+        let two = finest_error(&[q(1.0), q(0.5)], 2, 1e-9, 1.0);
+        assert!((two.estimate - (q(1.0) - q(0.5))).abs() < 1e-12 && two.order.is_none(), "{two:?}");
+        // three levels observe the order and extrapolate: the exact error of the finest
+        let three = finest_error(&[q(1.0), q(0.5), q(0.25)], 2, 1e-9, 1.0);
+        assert!((three.estimate - 0.3 / 16.0).abs() < 1e-12 && (three.order.unwrap() - 2.0).abs() < 1e-9);
+        // relative to the scale given, not to the finals
+        let scaled = finest_error(&[q(1.0), q(0.5), q(0.25)], 2, 1e-9, 10.0);
+        assert!((scaled.estimate - 0.3 / 160.0).abs() < 1e-12);
+        // erratic: the larger of the last two changes
+        let e = finest_error(&[1.0, 1.2, 1.1], 2, 1e-6, 1.0);
+        assert!(e.erratic && (e.estimate - 0.2).abs() < 1e-12, "{e:?}");
+        // growing changes are erratic too (order below 0.5)
+        let g = finest_error(&[1.0, 1.01, 1.1], 2, 1e-6, 1.0);
+        assert!(g.erratic && (g.estimate - 0.09).abs() < 1e-12, "{g:?}");
+        // within the noise: the noise; a QoI that is zero at every level: the noise too
+        let n = finest_error(&[1.0, 1.0 + 1e-7], 2, 1e-4, 1.0);
+        assert!(n.below_noise && n.estimate == 1e-4);
+        assert_eq!(finest_error(&[0.0, 0.0, 0.0], 2, 1e-4, 0.0).estimate, 1e-4);
+    }
+
+    #[test]
+    fn an_accuracy_sets_the_tolerance_and_the_shares() {
+        let a = Accuracy::new("--accuracy", 0.05).unwrap();
+        assert!((a.tolerance() - 1e-3).abs() < 1e-15);
+        assert!((Accuracy::new("--accuracy", 0.01).unwrap().tolerance() - 2e-4).abs() < 1e-15);
+        // the parts add up to the whole
+        let total = a.iteration_error() + 2.0 * a.discretisation_share(true);
+        assert!((total - 0.05).abs() < 1e-15);
+        assert!((a.iteration_error() + a.discretisation_share(false) - 0.05).abs() < 1e-15);
+        for bad in [0.0, -0.1, 0.6, 1e-7, f64::NAN, f64::INFINITY] {
+            let e = Accuracy::new("--accuracy", bad).unwrap_err().to_string();
+            assert!(e.contains("--accuracy") && e.contains("0.05 is 5 %"), "{e}");
+        }
     }
 }

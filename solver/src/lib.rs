@@ -8,6 +8,7 @@
 //! on a ladder of time steps and meshes). The scene, the solution store and the study engine live
 //! in `glissade_core`; MPI, field output and the worker pool in `glissade_worker`.
 
+pub mod accuracy;
 pub mod comm;
 pub mod contact_activity;
 pub mod element;

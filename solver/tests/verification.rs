@@ -2878,3 +2878,122 @@ fn elements_flat_along_a_cut_converge_to_the_uncut_answer() {
     assert_eq!(check.outcome, CheckOutcome::Agreed);
     assert!(e < 2.0 * cut.settings.tolerance, "{e}");
 }
+
+/// A clamped aluminium bar of our own (0.3 m, 12 elements, 3 substructures), pushed at its free
+/// end by a pressure rising along a sampled 1 - cos over 100 us, then held: no contact, so its
+/// QoIs converge at the scheme's and the elements' order.
+const PUSHED_AL_BAR: &str = r#"
+dimension = 1
+[time]
+duration = 2e-4
+steps = 20
+[materials.al]
+E = 70e9
+rho = 2700
+[[bodies]]
+name = "bar"
+material = "al"
+size = [0.3]
+elements = [12]
+substructures = [3]
+[[boundary]]
+face = "bar.x-"
+clamped = true
+[[loads]]
+face = "bar.x+"
+pressure = 5e7
+history = [[0, 0], [2e-5, 0.0955], [4e-5, 0.3455], [6e-5, 0.6545], [8e-5, 0.9045], [1e-4, 1], [2e-4, 1]]
+[[qoi]]
+name = "tip_ux"
+kind = "displacement"
+body = "bar"
+point = [0.3]
+component = "x"
+[[qoi]]
+name = "middle_ux"
+kind = "displacement"
+body = "bar"
+point = [0.15]
+component = "x"
+"#;
+
+/// `--accuracy` (docs/accuracy.md, "Ask for an accuracy") on a bar: the time ladder observes the
+/// trapezoidal rule's second order, and every QoI of the answer is within the asked 1 % of the
+/// monolithic solve (no LATIN iterations) two levels finer in both dt and h.
+#[test]
+fn an_asked_accuracy_holds_on_a_bar_against_the_monolithic_two_levels_finer() {
+    use glissade_core::refine::{Accuracy, Refinement, refined_scene};
+    use glissade_solver::accuracy::{AccuracyLimits, solve_to_accuracy};
+    let scene = Scene::parse(PUSHED_AL_BAR).unwrap();
+    let accuracy = Accuracy::new("--accuracy", 1e-2).unwrap();
+    let request = glissade_solver::run::SolveRequest::default();
+    let (report, answer) = solve_to_accuracy(
+        &glissade_solver::comm::Serial,
+        &scene,
+        &request,
+        accuracy,
+        AccuracyLimits::default(),
+        |_| {},
+    )
+    .unwrap();
+    eprintln!("{}", serde_json::to_string(&report).unwrap());
+    assert!(report.reached, "{:?}", report.why_not);
+    assert!((report.tolerance - 2e-4).abs() < 1e-15 && answer.summary.tolerance == report.tolerance);
+    assert!(report.mesh_refined && report.levels.len() >= 5, "three time levels, then two more meshes");
+    // the orders observed over dt, dt / 2, dt / 4 (pre-asymptotic at the loaded end: about 1)
+    let order = |name: &str| report.qois.iter().find(|q| q.name == name).unwrap().time.error.order;
+    assert!(order("middle_ux").is_some_and(|p| (1.6..=2.5).contains(&p)), "{:?}", order("middle_ux"));
+    assert!(order("tip_ux").is_some_and(|p| (0.8..=2.5).contains(&p)), "{:?}", order("tip_ux"));
+    // the reference: two levels finer in dt and in h, solved without iterations
+    let fine = refined_scene(
+        &refined_scene(&scene, Refinement::Time, 4 * report.time_factor).unwrap(),
+        Refinement::Mesh,
+        4 * report.mesh_factor,
+    )
+    .unwrap();
+    let values = fine.parameter_values(&DesignPoint::new()).unwrap();
+    let m = Model::<1>::build(&fine, &values).unwrap();
+    let reference = monolithic::solve(&m).unwrap();
+    for q in &report.qois {
+        let target = &m.qois.iter().find(|t| t.name == q.name).unwrap().target;
+        let exact = *monolithic_qoi::<1>(&reference, target).last().unwrap();
+        let error = (q.value - exact).abs() / q.scale;
+        eprintln!("{}: {:.6e} against {exact:.6e}: {error:.2e} (estimated {:.2e})", q.name, q.value, q.total);
+        // the promise, and an estimate that bounds the error it estimates
+        assert!(q.within && error <= accuracy.get() && error <= q.total, "{}: {error}", q.name);
+        assert_eq!(q.value, answer.summary.qoi[&q.name].final_value);
+    }
+}
+
+/// `--accuracy` on a sliding block of our own (the steel block, 4 x 2 quads, 100 steps, f = 0.15,
+/// under gamma = 0.6): the slip is within the asked 2 % of the rigid block's closed form
+/// a (t - t*)^3 / (6 m), with dt and h chosen by the ladders.
+#[test]
+fn an_asked_accuracy_holds_on_a_sliding_block_against_its_closed_form() {
+    use glissade_core::refine::Accuracy;
+    use glissade_solver::accuracy::{AccuracyLimits, solve_to_accuracy};
+    let text = PUSHED_STEEL_BLOCK
+        .replace("steps = 200", "steps = 100\nnewmark_gamma = 0.6")
+        .replace("elements = [6, 3]", "elements = [4, 2]");
+    let scene = Scene::parse(&text).unwrap();
+    let accuracy = Accuracy::new("--accuracy", 2e-2).unwrap();
+    let request = glissade_solver::run::SolveRequest { point: point(&[("f", 0.15)]), ..Default::default() };
+    let (report, _) = solve_to_accuracy(
+        &glissade_solver::comm::Serial,
+        &scene,
+        &request,
+        accuracy,
+        AccuracyLimits::default(),
+        |_| {},
+    )
+    .unwrap();
+    eprintln!("{}", serde_json::to_string(&report).unwrap());
+    assert!(report.reached, "{:?}", report.why_not);
+    let (mass, normal, rate, end): (f64, f64, f64, f64) =
+        (7850.0 * 0.024 * 0.012, 8e6 * 0.024, 6e6 * 0.012 / 4e-4, 4e-4);
+    let rigid = rate * (end - 0.15 * normal / rate).powi(3) / (6.0 * mass);
+    let slip = report.qois.iter().find(|q| q.name == "slip").unwrap();
+    let error = (slip.value - rigid).abs() / slip.scale;
+    eprintln!("slip {:.5e} against the rigid block's {rigid:.5e}: {error:.2e}", slip.value);
+    assert!(error <= accuracy.get(), "{error}");
+}

@@ -11,6 +11,7 @@ use serde::Serialize;
 use glissade_core::io::solution_file;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{Scale, Scene, SceneError, Tolerance};
+use glissade_solver::accuracy::{AccuracyLimits, AccuracyReport, solve_to_accuracy};
 use glissade_solver::comm::Communicator;
 use glissade_solver::profile::{Profile, Profiled};
 use glissade_solver::run::{SolveRequest, SolveSummary, solve_scene_on};
@@ -39,7 +40,10 @@ Examples:
   glissade-worker solve scenes/bar-impact-1d.toml --set v0=1.1 --init v1.sol
   glissade-worker solve scenes/bar-impact-1d.toml --fields out.h5   # then open out.xdmf in ParaView
 
-Exit status: 0 converged, 1 error (one line on stderr), 2 not converged within the iteration limit.
+  glissade-worker solve scenes/sliding-block-2d.toml --accuracy 0.02   # dt, h and tol chosen
+
+Exit status: 0 converged, 1 error (one line on stderr), 2 not converged within the iteration limit,
+3 (--accuracy) every level converged but the accuracy was not reached (the report says why).
 Progress: RUST_LOG=glissade_worker=info (per solve) or glissade_solver=debug (per LATIN iteration).";
 
 #[derive(Subcommand)]
@@ -330,6 +334,32 @@ struct SolveArgs {
     /// split (`profile` in the JSON; docs/performance.md, "Where a rank's time goes")
     #[arg(long)]
     profile: bool,
+    /// Solve to this accuracy: every QoI's final value within A of its scale (the largest
+    /// magnitude of its history), dt, h (box bodies) and the tolerance chosen for it
+    /// (docs/accuracy.md, "Ask for an accuracy")
+    #[arg(long, value_name = "A", conflicts_with_all = ["tol", "init", "profile"])]
+    accuracy: Option<f64>,
+    /// With --accuracy: the finest time step it may take, dt / N (a power of 2)
+    #[arg(long, value_name = "N", default_value_t = 16, requires = "accuracy")]
+    max_dt_factor: usize,
+    /// With --accuracy: the finest mesh it may take, h / N along each axis (a power of 2; 1: the
+    /// mesh is kept)
+    #[arg(long, value_name = "N", default_value_t = 4, requires = "accuracy")]
+    max_h_factor: usize,
+}
+
+/// How a command ended, for the exit status.
+enum Exit {
+    Done,
+    NotConverged,
+    /// `--accuracy`: every level converged, the accuracy was not reached
+    AccuracyNotReached,
+}
+
+impl From<bool> for Exit {
+    fn from(converged: bool) -> Self {
+        if converged { Exit::Done } else { Exit::NotConverged }
+    }
 }
 
 /// Field files written by `--fields`.
@@ -353,6 +383,10 @@ struct Output<'a> {
     /// `--profile`: each rank's time split, or absent
     #[serde(skip_serializing_if = "Option::is_none")]
     profile: Option<Profile>,
+    /// `--accuracy`: the discretisation chosen, its ladders and each QoI's error; the summary
+    /// above is the chosen level's
+    #[serde(skip_serializing_if = "Option::is_none")]
+    accuracy: Option<AccuracyReport>,
 }
 
 /// The design point of `--set NAME=VALUE`s (a name set twice takes its last value).
@@ -414,10 +448,9 @@ fn check_output(flag: &str, path: &Path) -> Result<()> {
 }
 
 /// One solve; under `mpiexec.mpich -n P` every rank runs it and rank 0 writes the files and prints.
-fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
+fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
     let scene_path = &args.point.scene;
     let (scene, mut request) = args.point.read()?;
-    let scene_hash = scene.content_hash();
     request.scale = args.scale;
     request.record_fields = args.fields.is_some();
     if let Some(p) = &args.save {
@@ -446,11 +479,22 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         None => None,
     };
 
-    tracing::info!(scene = %scene_path.display(), hash = %scene_hash, "solving");
+    tracing::info!(scene = %scene_path.display(), hash = %scene.content_hash(), "solving");
     let profiled = args.profile.then(|| Profiled::new(comm));
-    let outcome =
-        solve_scene_on(profiled.as_ref().map_or(comm, |p| p as &dyn Communicator), &scene, &request, init.as_ref())
+    let (scene, outcome, accuracy) = match args.accuracy {
+        Some(a) => solve_accurately(comm, scene, &request, a, &args)?,
+        None => {
+            let outcome = solve_scene_on(
+                profiled.as_ref().map_or(comm, |p| p as &dyn Communicator),
+                &scene,
+                &request,
+                init.as_ref(),
+            )
             .with_context(|| format!("scene {}", scene_path.display()))?;
+            (scene, outcome, None)
+        }
+    };
+    let scene_hash = scene.content_hash();
     let profile = profiled.and_then(Profiled::finish);
     let s = &outcome.summary;
     tracing::info!(
@@ -461,9 +505,14 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         "solved"
     );
 
+    let exit = match &accuracy {
+        Some(a) if s.converged && !a.reached => Exit::AccuracyNotReached,
+        _ => Exit::from(s.converged),
+    };
     if comm.rank() != 0 {
-        return Ok(s.converged);
+        return Ok(exit);
     }
+    let why_not = accuracy.as_ref().and_then(|a| a.why_not.clone());
     // Files first: the summary is printed only once everything asked for is written.
     if let Some(p) = &args.save {
         let meta = glissade_worker::pool::solution_meta(&scene, &outcome);
@@ -486,6 +535,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
             saved_to: args.save.as_ref().map(|p| p.display().to_string()),
             fields: field_files,
             profile,
+            accuracy,
         };
         println!("{}", serde_json::to_string(&out)?);
     } else {
@@ -555,6 +605,9 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
         if let Some(p) = &profile {
             print_profile(p);
         }
+        if let Some(a) = &accuracy {
+            print_accuracy(a);
+        }
     }
     for w in s.contact.iter().filter_map(|c| c.warning()) {
         eprintln!("warning: {w}");
@@ -562,7 +615,119 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<bool> {
     if let Some(why) = s.shortfall() {
         eprintln!("error: not converged: {why}");
     }
-    Ok(s.converged)
+    if let Some(why) = why_not {
+        eprintln!("error: accuracy not reached: {why}");
+    }
+    Ok(exit)
+}
+
+/// `solve --accuracy`: the ladders (progress on stderr), and the scene of the level answered.
+fn solve_accurately(
+    comm: &dyn Communicator,
+    scene: Scene,
+    request: &SolveRequest,
+    accuracy: f64,
+    args: &SolveArgs,
+) -> Result<(Scene, glissade_solver::run::SolveOutcome, Option<AccuracyReport>)> {
+    use glissade_core::refine::{Accuracy, Refinement, refined_scene};
+    let accuracy = Accuracy::new("--accuracy", accuracy)?;
+    for (flag, n) in [("--max-dt-factor", args.max_dt_factor), ("--max-h-factor", args.max_h_factor)] {
+        if !(n.is_power_of_two() && n <= 1024) {
+            bail!("{flag} {n}: give a power of 2 from 1 to 1024");
+        }
+    }
+    let limits = AccuracyLimits { max_time_factor: args.max_dt_factor, max_mesh_factor: args.max_h_factor };
+    let root = comm.rank() == 0;
+    if root {
+        eprintln!(
+            "solving to accuracy {:.1e}: tolerance {:.1e}, dt down to dt / {}, h down to h / {}",
+            accuracy.get(),
+            accuracy.tolerance(),
+            limits.max_time_factor,
+            limits.max_mesh_factor
+        );
+    }
+    let (report, outcome) = solve_to_accuracy(comm, &scene, request, accuracy, limits, |l| {
+        if root {
+            eprintln!(
+                "  dt / {}, h / {}: {} steps, {} dofs, {} after {} iterations ({:.1} sweeps), {:.2} s",
+                l.time_factor,
+                l.mesh_factor,
+                l.steps,
+                l.dofs,
+                if l.converged { "converged" } else { "NOT converged" },
+                l.iterations,
+                l.work,
+                l.wall_seconds
+            );
+        }
+    })
+    .with_context(|| format!("scene {}", args.point.scene.display()))?;
+    let answered = refined_scene(
+        &refined_scene(&scene, Refinement::Time, report.time_factor)?,
+        Refinement::Mesh,
+        report.mesh_factor,
+    )?;
+    Ok((answered, outcome, Some(report)))
+}
+
+/// `solve --accuracy`: the level chosen and each QoI's error with its parts.
+fn print_accuracy(a: &AccuracyReport) {
+    println!(
+        "  accuracy {:.1e} asked: {} at dt / {}{} ({} steps), tolerance {:.1e}; {} levels solved, {:.1} sweeps, {:.2} s in all",
+        a.accuracy,
+        if a.reached { "REACHED" } else { "NOT REACHED" },
+        a.time_factor,
+        if a.mesh_refined { format!(", h / {}", a.mesh_factor) } else { " (mesh kept)".to_string() },
+        a.steps,
+        a.tolerance,
+        a.levels.len(),
+        a.work,
+        a.wall_seconds
+    );
+    println!("    errors relative to each QoI's scale (the largest magnitude of its history):");
+    println!(
+        "    {:<20} {:>14} {:>10} {:>9} {:>9} {:>9} {:>9}",
+        "QoI", "value", "scale", "time", "mesh", "iter.", "total"
+    );
+    for q in &a.qois {
+        let mark = |e: &glissade_solver::accuracy::LadderError| {
+            if !e.error.estimate.is_finite() {
+                return "unknown".to_string();
+            }
+            if e.error.below_noise {
+                return format!("<{:.1e}", e.error.estimate);
+            }
+            let tag = if e.error.erratic {
+                "!"
+            } else if e.error.order.is_some() {
+                ""
+            } else {
+                "~"
+            };
+            format!("{:.1e}{tag}", e.error.estimate)
+        };
+        println!(
+            "    {:<20} {:>14.6e} {:>10.3e} {:>9} {:>9} {:>9.1e} {:>9.1e}{}",
+            q.name,
+            q.value,
+            q.scale,
+            mark(&q.time),
+            q.mesh.as_ref().map_or("-".to_string(), mark),
+            q.iteration,
+            q.total,
+            if q.within {
+                ""
+            } else if q.total.is_finite() {
+                "  ABOVE"
+            } else {
+                "  UNKNOWN"
+            }
+        );
+    }
+    println!(
+        "    (< the last change within the iterations' noise; ! the changes do not fall steadily: the larger of the last two; ~ from two levels, first order assumed)"
+    );
 }
 
 /// Each contact that lifted off and landed while it slid, and below friction 1, where its
@@ -666,13 +831,14 @@ fn main() -> ExitCode {
             }
             result
         }
-        Command::Pool(args) => pool(args),
-        Command::Refine(args) => refine(args),
-        Command::Study(args) => study_cli::study(args),
+        Command::Pool(args) => pool(args).map(Exit::from),
+        Command::Refine(args) => refine(args).map(Exit::from),
+        Command::Study(args) => study_cli::study(args).map(Exit::from),
     };
     match result {
-        Ok(true) => ExitCode::SUCCESS,
-        Ok(false) => ExitCode::from(2),
+        Ok(Exit::Done) => ExitCode::SUCCESS,
+        Ok(Exit::NotConverged) => ExitCode::from(2),
+        Ok(Exit::AccuracyNotReached) => ExitCode::from(3),
         Err(e) => {
             eprintln!("error: {}", one_line(&format!("{e:#}")));
             ExitCode::FAILURE

@@ -439,3 +439,99 @@ fn study_command_writes_its_tables() {
     assert_eq!(json["summary"]["points"], 2);
     assert_eq!(json["records"][1]["sources"][0]["id"], 0);
 }
+
+// ---------------------------------------------------------------------------------------------
+// `solve --accuracy`.
+
+/// A steel block pushed along a rigid floor hard enough to chatter as it slides (10 MPa on
+/// 24 x 12 mm, f = 0.4): under the trapezoidal rule its slip moves 8-9 % with each halving of dt.
+const CHATTERING_STEEL_BLOCK: &str = r#"
+dimension = 2
+[time]
+duration = 4e-4
+steps = 200
+[parameters]
+f = { default = 0.4, min = 0.0, max = 10.0 }
+[materials.steel]
+E = 210e9
+nu = 0.28
+rho = 7850
+[[bodies]]
+name = "block"
+material = "steel"
+size = [0.024, 0.012]
+elements = [6, 3]
+substructures = [2, 1]
+[[interfaces]]
+name = "floor"
+a = "block.y-"
+b = "wall"
+law = "friction"
+friction = "f"
+[[loads]]
+face = "block.y+"
+pressure = 8e6
+history = [[0, 0], [8e-5, 1]]
+[[loads]]
+face = "block.x-"
+traction = [1e7, 0]
+history = [[0, 0], [4e-4, 1]]
+[[qoi]]
+name = "slip"
+kind = "slip"
+interface = "floor"
+point = [0.012, 0]
+[[qoi]]
+name = "corner_ux"
+kind = "displacement"
+body = "block"
+point = [0.024, 0.012]
+component = "x"
+"#;
+
+/// An accuracy the ladder cannot reach is said so: exit status 3, every level converged, the
+/// QoI above it named with its parts, the answer the finest level's; its flags are checked
+/// before any solve.
+#[test]
+fn an_accuracy_out_of_reach_is_reported_with_its_ladder() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("chatter.toml");
+    std::fs::write(&path, CHATTERING_STEEL_BLOCK).unwrap();
+    let scene = path.to_str().unwrap();
+    let (code, stdout, stderr) =
+        worker(&["solve", scene, "--accuracy", "0.02", "--max-dt-factor", "4", "--max-h-factor", "1", "--json"]);
+    assert_eq!(code, 3, "{stderr}");
+    assert_eq!(stderr.matches("converged after").count(), 3, "three levels, each converged: {stderr}");
+    assert!(stderr.contains("accuracy not reached: '") && stderr.contains("the mesh was kept"), "{stderr}");
+    let out: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let a = &out["accuracy"];
+    assert_eq!(
+        (a["reached"].as_bool(), a["time_factor"].as_u64(), a["mesh_factor"].as_u64()),
+        (Some(false), Some(4), Some(1))
+    );
+    assert_eq!(out["time_steps"].as_u64(), Some(800), "the answer is the finest level's");
+    assert!((a["tolerance"].as_f64().unwrap() - 4e-4).abs() < 1e-15 && out["tolerance"] == a["tolerance"]);
+    for q in a["qois"].as_array().unwrap() {
+        let name = q["name"].as_str().unwrap();
+        assert_eq!(q["value"], out["qoi"][name]["final"], "{name}");
+        assert_eq!(q["time"]["finals"].as_array().unwrap().len(), 3);
+        assert!(q["total"].as_f64().unwrap() > 0.02 && q["within"] == false, "{q}");
+    }
+    // two levels observe no order: the table, and why it stops there
+    let (code, stdout, stderr) =
+        worker(&["solve", scene, "--accuracy", "0.1", "--max-dt-factor", "2", "--max-h-factor", "1"]);
+    assert_eq!(code, 3, "{stderr}");
+    assert!(stdout.contains("NOT REACHED at dt / 2 (mesh kept)") && stdout.contains("~"), "{stdout}");
+    assert!(stderr.contains("the dt ladder needs 3 levels (dt / 4) and may go to dt / 2 only"), "{stderr}");
+    for (args, says) in [
+        (vec!["--accuracy", "0.7"], "give an accuracy between"),
+        (vec!["--accuracy", "0"], "give an accuracy between"),
+        (vec!["--accuracy", "0.1", "--max-dt-factor", "3"], "--max-dt-factor 3: give a power of 2"),
+        (vec!["--accuracy", "0.1", "--tol", "1e-3"], "cannot be used with"),
+        (vec!["--max-h-factor", "2"], "--accuracy"),
+    ] {
+        let (code, _, stderr) = worker(&[&["solve", scene][..], &args].concat());
+        assert!(code == 1 || code == 2, "{args:?}: {code} {stderr}");
+        assert!(stderr.contains(says) && !stderr.contains("converged after"), "{args:?}: {stderr}");
+    }
+}
