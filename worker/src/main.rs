@@ -539,56 +539,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
         };
         println!("{}", serde_json::to_string(&out)?);
     } else {
-        println!(
-            "{}: {} after {} iterations, eta = {:.3e} (tolerance {:.1e}), {} dofs in {} substructures, {:.2} s",
-            scene_path.display(),
-            if s.converged { "converged" } else { "NOT converged" },
-            s.iterations,
-            s.error_indicator,
-            s.tolerance,
-            s.dofs,
-            s.substructures,
-            s.wall_seconds
-        );
-        if s.dynamic_windows > 1 {
-            // an iteration of a time window sweeps the window only: the work is in sweeps
-            println!(
-                "  time windows: {} of {} steps, the dynamic work {:.1} sweeps of the interval",
-                s.dynamic_windows, s.time_window, s.dynamic_sweeps
-            );
-            if s.dynamic_windows_stalled > 0 {
-                println!(
-                    "  {} window(s) stalled on a QoI still small and were accepted against the whole histories; {} iterated again",
-                    s.dynamic_windows_stalled, s.dynamic_windows_redone
-                );
-            }
-        }
-        if let Some(c) = &s.window_check {
-            // the solve's own estimate cannot see an error that grows from window to window
-            println!(
-                "  checked {}: {} passes, {:.1} sweeps; the answers {} by {:.2e} on '{}' \
-                 (the answer returned iterated to {:.1e})",
-                if c.whole_interval() {
-                    "by iterating on, 10 x tighter".to_string()
-                } else {
-                    format!("in windows of {} and {} steps", c.windows[0], c.windows[1])
-                },
-                c.passes,
-                c.sweeps,
-                if c.outcome == glissade_solver::latin::CheckOutcome::Agreed { "agree" } else { "part" },
-                c.discrepancy,
-                c.qoi,
-                c.iteration_tolerance
-            );
-            if let Some(floor) = c.floor {
-                println!(
-                    "  a pass did not converge at {floor:.1e} (its iterations stall short of it) and was tried again looser"
-                );
-            }
-            if let Some(p) = &c.parting {
-                println!("  {}", p.evidence());
-            }
-        }
+        print_solve(scene_path, s);
         print_contact_evidence(&scene, &s.contact);
         if let Some(p) = &args.init {
             println!("  initialised from {}", p.display());
@@ -619,6 +570,60 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
         eprintln!("error: accuracy not reached: {why}");
     }
     Ok(exit)
+}
+
+/// The human summary of a solve: its outcome, its windows and its self-check.
+fn print_solve(scene_path: &Path, s: &SolveSummary) {
+    println!(
+        "{}: {} after {} iterations, eta = {:.3e} (tolerance {:.1e}), {} dofs in {} substructures, {:.2} s",
+        scene_path.display(),
+        if s.converged { "converged" } else { "NOT converged" },
+        s.iterations,
+        s.error_indicator,
+        s.tolerance,
+        s.dofs,
+        s.substructures,
+        s.wall_seconds
+    );
+    if s.dynamic_windows > 1 {
+        // an iteration of a time window sweeps the window only: the work is in sweeps
+        println!(
+            "  time windows: {} of {} steps, the dynamic work {:.1} sweeps of the interval",
+            s.dynamic_windows, s.time_window, s.dynamic_sweeps
+        );
+        if s.dynamic_windows_stalled > 0 {
+            println!(
+                "  {} window(s) stalled on a QoI still small and were accepted against the whole histories; {} iterated again",
+                s.dynamic_windows_stalled, s.dynamic_windows_redone
+            );
+        }
+    }
+    if let Some(c) = &s.window_check {
+        // the solve's own estimate cannot see an error that grows from window to window
+        println!(
+            "  checked {}: {} passes, {:.1} sweeps; the answers {} by {:.2e} on '{}' \
+             (the answer returned iterated to {:.1e})",
+            if c.whole_interval() {
+                "by iterating on, 10 x tighter".to_string()
+            } else {
+                format!("in windows of {} and {} steps", c.windows[0], c.windows[1])
+            },
+            c.passes,
+            c.sweeps,
+            if c.outcome == glissade_solver::latin::CheckOutcome::Agreed { "agree" } else { "part" },
+            c.discrepancy,
+            c.qoi,
+            c.iteration_tolerance
+        );
+        if let Some(floor) = c.floor {
+            println!(
+                "  a pass did not converge at {floor:.1e} (its iterations stall short of it) and was tried again looser"
+            );
+        }
+        if let Some(p) = &c.parting {
+            println!("  {}", p.evidence());
+        }
+    }
 }
 
 /// `solve --accuracy`: the ladders (progress on stderr), and the scene of the level answered.
