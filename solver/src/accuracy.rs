@@ -8,8 +8,10 @@
 
 use std::collections::BTreeMap;
 
+use glissade_core::point::DesignPoint;
 use glissade_core::refine::{Accuracy, FinestError, Refinement, finest_error, refined_scene};
 use glissade_core::scene::{Scene, Tolerance};
+use glissade_core::study::space::ParameterSpace;
 use serde::Serialize;
 
 use crate::comm::Communicator;
@@ -363,5 +365,154 @@ fn describe(refinement: Refinement, o: &SolveOutcome, time_factor: usize, mesh_f
         iterations: s.iterations,
         work: s.work(),
         wall_seconds: s.wall_seconds,
+    }
+}
+
+/// Design points in a spread-out order: the one nearest the points' centre first, then each
+/// time the one farthest (normalised distance) from all those already taken. A study to an
+/// accuracy solves the first few as pilots and checks the next few as held-out points: the
+/// pilots span the box (its centre, then its corners), the held-out points lie between them.
+pub fn spread_order(points: &[DesignPoint], space: &ParameterSpace, n: usize) -> Vec<usize> {
+    if points.is_empty() {
+        return Vec::new();
+    }
+    let coords: Vec<Vec<f64>> = points.iter().map(|p| space.normalised_coordinates(p)).collect();
+    let dim = coords[0].len();
+    let centre: Vec<f64> = (0..dim).map(|d| coords.iter().map(|c| c[d]).sum::<f64>() / coords.len() as f64).collect();
+    let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
+    let first =
+        (0..points.len()).min_by(|&a, &b| distance(&coords[a], &centre).total_cmp(&distance(&coords[b], &centre)));
+    let mut order: Vec<usize> = first.into_iter().collect();
+    while order.len() < n.min(points.len()) {
+        let farthest = (0..points.len()).filter(|i| !order.contains(i)).max_by(|&a, &b| {
+            let d = |i: usize| order.iter().map(|&o| distance(&coords[i], &coords[o])).fold(f64::INFINITY, f64::min);
+            d(a).total_cmp(&d(b))
+        });
+        match farthest {
+            Some(i) => order.push(i),
+            None => break,
+        }
+    }
+    order
+}
+
+/// The discretisation a study takes from its pilots: the finest any of them needed.
+pub fn study_level(pilots: &[AccuracyReport]) -> (usize, usize) {
+    let time = pilots.iter().map(|r| r.time_factor).max().unwrap_or(1);
+    let mesh = pilots.iter().map(|r| r.mesh_factor).max().unwrap_or(1);
+    (time, mesh)
+}
+
+/// One QoI of a held-out point: the study's answer against the same point one level finer.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOutQoi {
+    pub name: String,
+    pub study: f64,
+    pub finer: f64,
+    /// the finer solve's scale of this QoI (as [`QoiAccuracy::scale`])
+    pub scale: f64,
+    /// |study - finer| / scale: at first order, the study's discretisation error
+    pub difference: f64,
+    pub within: bool,
+}
+
+/// A held-out point re-solved one level finer (dt / 2, and h / 2 when the study refined the
+/// mesh), cold, at the study's tolerance.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOutCheck {
+    pub point: DesignPoint,
+    pub time_factor: usize,
+    pub mesh_factor: usize,
+    pub converged: bool,
+    pub qois: Vec<HeldOutQoi>,
+    /// converged, and every QoI within the accuracy
+    pub within: bool,
+    pub work: f64,
+    pub wall_seconds: f64,
+}
+
+/// Re-solves `point` of `scene` one level finer than the study's (`time_factor`, `mesh_factor`)
+/// and compares its finals with the study's answer there.
+#[allow(clippy::too_many_arguments)]
+pub fn check_held_out(
+    comm: &dyn Communicator,
+    scene: &Scene,
+    point: &DesignPoint,
+    study: &BTreeMap<String, f64>,
+    (time_factor, mesh_factor): (usize, usize),
+    refine_mesh: bool,
+    accuracy: Accuracy,
+) -> Result<HeldOutCheck, RefineError> {
+    let finer_mesh = if refine_mesh { mesh_factor * RATIO } else { mesh_factor };
+    let finer =
+        refined_scene(&refined_scene(scene, Refinement::Time, time_factor * RATIO)?, Refinement::Mesh, finer_mesh)?;
+    let request = SolveRequest {
+        point: point.clone(),
+        tolerance: Some(
+            Tolerance::new("the accuracy's tolerance", accuracy.tolerance()).map_err(crate::run::RunError::from)?,
+        ),
+        ..SolveRequest::default()
+    };
+    let outcome = solve_scene_on(comm, &finer, &request, None)?;
+    let scales = scales(scene, &outcome);
+    let qois: Vec<HeldOutQoi> = outcome
+        .summary
+        .qoi
+        .iter()
+        .filter_map(|(name, q)| {
+            let s = *study.get(name)?;
+            let scale = scales[name];
+            let difference = if scale > 0.0 { (s - q.final_value).abs() / scale } else { 0.0 };
+            Some(HeldOutQoi {
+                name: name.clone(),
+                study: s,
+                finer: q.final_value,
+                scale,
+                difference,
+                within: difference <= accuracy.get(),
+            })
+        })
+        .collect();
+    let converged = outcome.summary.converged;
+    Ok(HeldOutCheck {
+        point: point.clone(),
+        time_factor: time_factor * RATIO,
+        mesh_factor: finer_mesh,
+        converged,
+        within: converged && qois.iter().all(|q| q.within),
+        qois,
+        work: outcome.summary.work(),
+        wall_seconds: outcome.summary.wall_seconds,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glissade_core::study::space::{GridAxis, design_points};
+
+    #[test]
+    fn the_spread_order_starts_at_the_centre_then_takes_the_corners() {
+        let scene = Scene::parse(
+            "dimension = 1\n[time]\nduration = 1e-4\nsteps = 10\n[parameters]\na = { default = 0.5, min = 0.0, max = 1.0 }\nb = { default = 0.5, min = 0.0, max = 1.0 }\n[materials.m]\nE = 1e9\nrho = 1000\n[[bodies]]\nname = \"bar\"\nmaterial = \"m\"\nsize = [1.0]\nelements = [2]\n",
+        )
+        .unwrap();
+        let space = ParameterSpace::from_scene(&scene);
+        let axes = ["a=0:1:5", "b=0:1:5"].map(|g| GridAxis::parse(g, &space).unwrap());
+        let points = design_points(&axes, 100).unwrap();
+        let order = spread_order(&points, &space, 7);
+        let at = |i: usize| (points[order[i]].get("a").unwrap(), points[order[i]].get("b").unwrap());
+        assert_eq!(at(0), (0.5, 0.5), "the centre first");
+        let corners: Vec<(f64, f64)> = (1..5).map(at).collect();
+        for c in [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0)] {
+            assert!(corners.contains(&c), "{c:?} in {corners:?}");
+        }
+        // then edge midpoints, each far from every point taken
+        assert_eq!(order.len(), 7);
+        let mut unique = order.clone();
+        unique.sort();
+        unique.dedup();
+        assert_eq!(unique.len(), 7);
+        assert_eq!(spread_order(&points[..1], &space, 3), vec![0]);
     }
 }

@@ -838,7 +838,7 @@ fn main() -> ExitCode {
         }
         Command::Pool(args) => pool(args).map(Exit::from),
         Command::Refine(args) => refine(args).map(Exit::from),
-        Command::Study(args) => study_cli::study(args).map(Exit::from),
+        Command::Study(args) => study_cli::study(args),
     };
     match result {
         Ok(Exit::Done) => ExitCode::SUCCESS,

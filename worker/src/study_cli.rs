@@ -7,13 +7,19 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use clap::Args;
 
+use glissade_core::point::DesignPoint;
+use glissade_core::refine::{Accuracy, Refinement, refined_scene};
 use glissade_core::scene::{Scale, Tolerance};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::MemoryStore;
 use glissade_core::study::strategy::StrategyKind;
 use glissade_core::study::{PointRecord, StudyOptions, StudyResult, run_study};
-use glissade_solver::run::PointSolver;
+use glissade_solver::accuracy::{
+    AccuracyLimits, AccuracyReport, HeldOutCheck, check_held_out, solve_to_accuracy, spread_order, study_level,
+};
+use glissade_solver::comm::Serial;
+use glissade_solver::run::{PointSolver, SolveRequest};
 
 pub const STUDY_EXAMPLES: &str = "\
 Examples:
@@ -68,17 +74,88 @@ pub struct StudyArgs {
     /// Refuse a grid of more design points than this
     #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_POINTS)]
     max_points: usize,
+    /// Solve the study to this accuracy: pilot points solved to it choose dt, h and the
+    /// tolerance, held-out points re-solved one level finer confirm it (docs/accuracy.md, "A
+    /// study to an accuracy")
+    #[arg(long, value_name = "A", conflicts_with = "tol")]
+    accuracy: Option<f64>,
+    /// With --accuracy: how many pilot points (the box's centre, then its corners)
+    #[arg(long, value_name = "N", default_value_t = 3, requires = "accuracy")]
+    pilots: usize,
+    /// With --accuracy: how many held-out points to re-solve one level finer
+    #[arg(long, value_name = "N", default_value_t = 2, requires = "accuracy")]
+    held_out: usize,
+    /// With --accuracy: the finest time step a pilot may take, dt / N (a power of 2)
+    #[arg(long, value_name = "N", default_value_t = 16, requires = "accuracy")]
+    max_dt_factor: usize,
+    /// With --accuracy: the finest mesh a pilot may take, h / N (a power of 2; 1: kept)
+    #[arg(long, value_name = "N", default_value_t = 4, requires = "accuracy")]
+    max_h_factor: usize,
 }
 
-/// Runs the study; Ok(false) when some point did not converge.
-pub fn study(args: StudyArgs) -> Result<bool> {
+/// `study --accuracy`: what the pilots chose and what the held-out points said.
+#[derive(serde::Serialize)]
+struct StudyAccuracy {
+    accuracy: f64,
+    tolerance: f64,
+    /// the study's level: dt / time_factor, h / mesh_factor
+    time_factor: usize,
+    mesh_factor: usize,
+    pilots: Vec<Pilot>,
+    held_out: Vec<HeldOutCheck>,
+    /// every pilot reached the accuracy and every held-out point confirmed it
+    confirmed: bool,
+    /// why not, in one sentence
+    why_not: Option<String>,
+    /// pilots', study's and held-out points' work (sweeps) and wall time
+    work: AccuracyWork,
+}
+
+#[derive(serde::Serialize)]
+struct Pilot {
+    point: DesignPoint,
+    report: AccuracyReport,
+}
+
+#[derive(serde::Serialize, Default)]
+struct AccuracyWork {
+    pilots: f64,
+    study: f64,
+    held_out: f64,
+    wall_seconds: f64,
+}
+
+#[derive(serde::Serialize)]
+struct StudyOutput<'a> {
+    #[serde(flatten)]
+    result: Option<&'a StudyResult>,
+    accuracy: &'a StudyAccuracy,
+}
+
+/// Runs the study (to an accuracy: its pilots first, its held-out points last).
+pub fn study(args: StudyArgs) -> Result<super::Exit> {
     let path = &args.scene;
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scene {}", path.display()))?;
-    let scene = super::parse_scene(&text, path)?;
-    let space = ParameterSpace::from_scene(&scene);
+    let given = super::parse_scene(&text, path)?;
+    let space = ParameterSpace::from_scene(&given);
     let axes = args.grid.iter().map(|g| GridAxis::parse(g, &space)).collect::<Result<Vec<_>, _>>()?;
     let points = design_points(&axes, args.max_points)?;
-    let tolerance = args.tol.map(|t| Tolerance::new("--tol", t)).transpose()?;
+    let mut tolerance = args.tol.map(|t| Tolerance::new("--tol", t)).transpose()?;
+    let mut accuracy = match args.accuracy {
+        Some(a) => Some(pilots(&args, &given, &points, &space, Accuracy::new("--accuracy", a)?)?),
+        None => None,
+    };
+    if let Some(a) = accuracy.as_ref().filter(|a| a.why_not.is_some()) {
+        // a pilot could not reach the accuracy: no level is picked, the grid is not solved
+        return finish_without_study(&args, a);
+    }
+    let scene = match &accuracy {
+        Some(a) => {
+            tolerance = Some(Tolerance::new("the accuracy's tolerance", a.tolerance)?);
+            refined_scene(&refined_scene(&given, Refinement::Time, a.time_factor)?, Refinement::Mesh, a.mesh_factor)?
+        }
+        None => given.clone(),
+    };
     let kind = args.strategy.unwrap_or(StrategyKind::DEFAULT);
     let k = args.k.unwrap_or_else(|| kind.default_neighbours());
     if k == 0 {
@@ -118,13 +195,19 @@ pub fn study(args: StudyArgs) -> Result<bool> {
     let result =
         run_study(&scene, &points, &options, policy.as_mut(), &mut store, &mut PointSolver::default(), &mut progress)?;
 
+    if let Some(a) = accuracy.as_mut() {
+        held_out(&args, &given, &points, &space, &result, a)?;
+    }
     if let Some(dir) = &args.out {
         write_atomically(&dir.join("results.csv"), result.to_csv().as_bytes())?;
         write_atomically(&dir.join("results.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
     }
     let s = &result.summary;
     if args.json {
-        println!("{}", serde_json::to_string(&result)?);
+        match &accuracy {
+            Some(a) => println!("{}", serde_json::to_string(&StudyOutput { result: Some(&result), accuracy: a })?),
+            None => println!("{}", serde_json::to_string(&result)?),
+        }
     } else {
         println!(
             "{}: {} points ({} converged, {} reused, {} not converged, {} failed), strategy {}, order {}, tolerance {:.1e}",
@@ -158,8 +241,178 @@ pub fn study(args: StudyArgs) -> Result<bool> {
         if let Some(dir) = &args.out {
             println!("  results: {}, {}", dir.join("results.csv").display(), dir.join("results.json").display());
         }
+        if let Some(a) = &accuracy {
+            print_study_accuracy(a);
+        }
     }
-    Ok(all_converged(&result))
+    Ok(match &accuracy {
+        _ if !all_converged(&result) => super::Exit::NotConverged,
+        Some(a) if !a.confirmed => {
+            eprintln!("error: accuracy not confirmed: {}", a.why_not.as_deref().unwrap_or(""));
+            super::Exit::AccuracyNotReached
+        }
+        _ => super::Exit::Done,
+    })
+}
+
+/// The pilots of `study --accuracy`, each solved to the accuracy (progress on stderr), and the
+/// level the study takes from them.
+fn pilots(
+    args: &StudyArgs,
+    scene: &glissade_core::scene::Scene,
+    points: &[DesignPoint],
+    space: &ParameterSpace,
+    accuracy: Accuracy,
+) -> Result<StudyAccuracy> {
+    for (flag, n) in [("--max-dt-factor", args.max_dt_factor), ("--max-h-factor", args.max_h_factor)] {
+        if !(n.is_power_of_two() && n <= 1024) {
+            bail!("{flag} {n}: give a power of 2 from 1 to 1024");
+        }
+    }
+    if args.pilots == 0 || args.pilots > 16 || args.held_out > 16 {
+        bail!("--pilots {} --held-out {}: from 1 to 16 pilots, at most 16 held-out points", args.pilots, args.held_out);
+    }
+    let limits = AccuracyLimits { max_time_factor: args.max_dt_factor, max_mesh_factor: args.max_h_factor };
+    let chosen = spread_order(points, space, args.pilots);
+    let mut pilots = Vec::new();
+    for (k, &i) in chosen.iter().enumerate() {
+        let request = SolveRequest {
+            point: points[i].clone(),
+            max_iterations: args.max_iter,
+            scale: args.scale,
+            ..Default::default()
+        };
+        let (report, _) = solve_to_accuracy(&Serial, scene, &request, accuracy, limits, |_| {})?;
+        eprintln!(
+            "[pilot {}/{}] {}: {} at dt / {}, h / {} ({} levels, {:.2} s){}",
+            k + 1,
+            chosen.len(),
+            points[i],
+            if report.reached { "reached" } else { "NOT reached" },
+            report.time_factor,
+            report.mesh_factor,
+            report.levels.len(),
+            report.wall_seconds,
+            report.why_not.as_ref().map_or(String::new(), |w| format!(": {w}"))
+        );
+        pilots.push(Pilot { point: points[i].clone(), report });
+    }
+    let (time_factor, mesh_factor) = study_level(&pilots.iter().map(|p| p.report.clone()).collect::<Vec<_>>());
+    let why_not = pilots.iter().find(|p| !p.report.reached).map(|p| {
+        format!(
+            "the pilot {} did not reach the accuracy, so no level is chosen: {}",
+            p.point,
+            p.report.why_not.as_deref().unwrap_or("")
+        )
+    });
+    let work = AccuracyWork {
+        pilots: pilots.iter().map(|p| p.report.work).sum(),
+        wall_seconds: pilots.iter().map(|p| p.report.wall_seconds).sum(),
+        ..Default::default()
+    };
+    Ok(StudyAccuracy {
+        accuracy: accuracy.get(),
+        tolerance: accuracy.tolerance(),
+        time_factor,
+        mesh_factor,
+        confirmed: why_not.is_none(),
+        why_not,
+        pilots,
+        held_out: Vec::new(),
+        work,
+    })
+}
+
+/// The held-out points of `study --accuracy`: the next points of the spread order after the
+/// pilots, each re-solved one level finer against the study's answer.
+fn held_out(
+    args: &StudyArgs,
+    scene: &glissade_core::scene::Scene,
+    points: &[DesignPoint],
+    space: &ParameterSpace,
+    result: &StudyResult,
+    a: &mut StudyAccuracy,
+) -> Result<()> {
+    let accuracy = Accuracy::new("--accuracy", a.accuracy)?;
+    let refine_mesh = a.pilots.iter().any(|p| p.report.mesh_refined);
+    a.work.study = result.summary.work;
+    a.work.wall_seconds += result.summary.wall_seconds;
+    for &i in spread_order(points, space, a.pilots.len() + args.held_out).iter().skip(a.pilots.len()) {
+        let Some(record) = result.records.iter().find(|r| r.point == points[i] && r.converged) else { continue };
+        let check = check_held_out(
+            &Serial,
+            scene,
+            &points[i],
+            &record.qoi,
+            (a.time_factor, a.mesh_factor),
+            refine_mesh,
+            accuracy,
+        )?;
+        let worst = check.qois.iter().max_by(|x, y| x.difference.total_cmp(&y.difference));
+        eprintln!(
+            "[held out] {} at dt / {}, h / {}: {}{}",
+            points[i],
+            check.time_factor,
+            check.mesh_factor,
+            if check.within { "confirms" } else { "ABOVE" },
+            worst.map_or(String::new(), |q| format!(" (largest difference {:.1e} on '{}')", q.difference, q.name))
+        );
+        a.work.held_out += check.work;
+        a.work.wall_seconds += check.wall_seconds;
+        a.held_out.push(check);
+    }
+    if let Some(c) = a.held_out.iter().find(|c| !c.within) {
+        let worst = c.qois.iter().filter(|q| !q.within).max_by(|x, y| x.difference.total_cmp(&y.difference));
+        a.why_not = Some(match worst {
+            Some(q) => format!(
+                "at the held-out point {}, '{}' moves by {:.1e} of its scale one level finer, above the accuracy {:.1e}",
+                c.point, q.name, q.difference, a.accuracy
+            ),
+            None => format!("the held-out point {} did not converge one level finer", c.point),
+        });
+        a.confirmed = false;
+    }
+    Ok(())
+}
+
+/// `study --accuracy` whose pilots fell short: the pilots' evidence, no study.
+fn finish_without_study(args: &StudyArgs, a: &StudyAccuracy) -> Result<super::Exit> {
+    if args.json {
+        println!("{}", serde_json::to_string(&StudyOutput { result: None, accuracy: a })?);
+    } else {
+        print_study_accuracy(a);
+    }
+    eprintln!("error: accuracy not reached: {}", a.why_not.as_deref().unwrap_or(""));
+    Ok(super::Exit::AccuracyNotReached)
+}
+
+fn print_study_accuracy(a: &StudyAccuracy) {
+    println!(
+        "  accuracy {:.1e}: {} at dt / {}, h / {}, tolerance {:.1e}; {} pilots, {} held-out points",
+        a.accuracy,
+        if a.confirmed { "CONFIRMED" } else { "NOT CONFIRMED" },
+        a.time_factor,
+        a.mesh_factor,
+        a.tolerance,
+        a.pilots.len(),
+        a.held_out.len()
+    );
+    println!(
+        "  work (sweeps): pilots {:.1}, study {:.1}, held-out {:.1}; {:.2} s in all",
+        a.work.pilots, a.work.study, a.work.held_out, a.work.wall_seconds
+    );
+    for c in &a.held_out {
+        let worst = c.qois.iter().max_by(|x, y| x.difference.total_cmp(&y.difference));
+        if let Some(q) = worst {
+            println!(
+                "  held out {}: largest difference one level finer {:.1e} ('{}'){}",
+                c.point,
+                q.difference,
+                q.name,
+                if c.within { "" } else { "  ABOVE" }
+            );
+        }
+    }
 }
 
 fn all_converged(result: &StudyResult) -> bool {

@@ -535,3 +535,113 @@ fn an_accuracy_out_of_reach_is_reported_with_its_ladder() {
         assert!(stderr.contains(says) && !stderr.contains("converged after"), "{args:?}: {stderr}");
     }
 }
+
+/// A clamped steel bar of our own (0.2 m, 10 elements, 2 substructures) under an end pressure `p`
+/// rising along a sampled 1 - cos over 80 us: no contact.
+const PRESSED_STEEL_BAR: &str = r#"
+dimension = 1
+[time]
+duration = 1.5e-4
+steps = 15
+[parameters]
+p = { default = 4e7, min = 1e7, max = 1e8, unit = "Pa" }
+[materials.steel]
+E = 200e9
+rho = 7800
+[[bodies]]
+name = "bar"
+material = "steel"
+size = [0.2]
+elements = [10]
+substructures = [2]
+[[boundary]]
+face = "bar.x-"
+clamped = true
+[[loads]]
+face = "bar.x+"
+pressure = "p"
+history = [[0, 0], [2e-5, 0.146], [4e-5, 0.5], [6e-5, 0.854], [8e-5, 1], [1.5e-4, 1]]
+[[qoi]]
+name = "tip_ux"
+kind = "displacement"
+body = "bar"
+point = [0.2]
+component = "x"
+[[qoi]]
+name = "quarter_ux"
+kind = "displacement"
+body = "bar"
+point = [0.04]
+component = "x"
+"#;
+
+/// `study --accuracy`: three pilots solved to the accuracy choose the level, the grid is solved
+/// there at the accuracy's tolerance (a pilot's answer and the study's at the same point agree),
+/// and the held-out points re-solved one level finer confirm it; a study whose pilot cannot reach
+/// its accuracy picks no level and solves no point.
+#[test]
+fn a_study_to_an_accuracy_takes_its_level_from_pilots_and_confirms_it_on_held_out_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let bar = dir.path().join("bar.toml");
+    std::fs::write(&bar, PRESSED_STEEL_BAR).unwrap();
+    let (code, stdout, stderr) =
+        worker(&["study", bar.to_str().unwrap(), "--grid", "p=2e7:8e7:4", "--accuracy", "1e-2", "--json"]);
+    assert_eq!(code, 0, "{stderr}");
+    let out: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let a = &out["accuracy"];
+    assert_eq!(a["confirmed"], true, "{a}");
+    assert!((out["tolerance"].as_f64().unwrap() - 2e-4).abs() < 1e-15, "the accuracy's tolerance");
+    let (tf, mf) = (a["time_factor"].as_u64().unwrap(), a["mesh_factor"].as_u64().unwrap());
+    assert!(tf >= 4 && mf >= 2, "dt / {tf}, h / {mf}");
+    let pilots = a["pilots"].as_array().unwrap();
+    assert_eq!(pilots.len(), 3);
+    let records = out["records"].as_array().unwrap();
+    for p in pilots {
+        let r = &p["report"];
+        assert_eq!(r["reached"], true);
+        if (r["time_factor"].as_u64(), r["mesh_factor"].as_u64()) != (Some(tf), Some(mf)) {
+            continue;
+        }
+        let record = records.iter().find(|rec| rec["point"] == p["point"]).expect("a pilot is a point of the grid");
+        for q in r["qois"].as_array().unwrap() {
+            let (pilot, study) =
+                (q["value"].as_f64().unwrap(), record["qoi"][q["name"].as_str().unwrap()].as_f64().unwrap());
+            assert!(
+                (pilot - study).abs() <= 1e-3 * 1e-2 * q["scale"].as_f64().unwrap(),
+                "{q}: {pilot} against {study}"
+            );
+        }
+    }
+    let held = a["held_out"].as_array().unwrap();
+    assert_eq!(held.len(), 1, "four points, three pilots: one held out");
+    for c in held {
+        assert_eq!((c["time_factor"].as_u64(), c["within"].as_bool()), (Some(2 * tf), Some(true)), "{c}");
+        assert!(pilots.iter().all(|p| p["point"] != c["point"]), "held out, not a pilot");
+        for q in c["qois"].as_array().unwrap() {
+            assert!(q["difference"].as_f64().unwrap() <= 1e-2, "{q}");
+        }
+    }
+    assert!(stderr.contains("[pilot 3/3]") && stderr.contains("[held out]") && stderr.contains("confirms"), "{stderr}");
+
+    let block = dir.path().join("chatter.toml");
+    std::fs::write(&block, CHATTERING_STEEL_BLOCK).unwrap();
+    let (code, stdout, stderr) = worker(&[
+        "study",
+        block.to_str().unwrap(),
+        "--grid",
+        "f=0.35,0.4",
+        "--accuracy",
+        "0.02",
+        "--pilots",
+        "1",
+        "--max-dt-factor",
+        "4",
+        "--max-h-factor",
+        "1",
+        "--json",
+    ]);
+    assert_eq!(code, 3, "{stderr}");
+    let out: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(out.get("records").is_none() && out["accuracy"]["confirmed"] == false, "{out}");
+    assert!(stderr.contains("no level is chosen") && !stderr.contains("[1/2]"), "{stderr}");
+}
