@@ -67,8 +67,13 @@ pub struct AccuracyLevel {
 pub struct LadderError {
     /// the final value at each level of the ladder
     pub finals: Vec<f64>,
+    /// (the estimate: the larger of the ladder's and `at_answer`)
     #[serde(flatten)]
     pub error: FinestError,
+    /// the time ladder only, when the mesh was refined: the step's error estimated again on the
+    /// answer's mesh, from one solve at twice the step
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub at_answer: Option<f64>,
 }
 
 /// One QoI of the answer.
@@ -166,6 +171,22 @@ pub fn solve_to_accuracy(
         (None, last, 1)
     };
 
+    // The time ladder ran on the scene's mesh; a finer mesh carries higher frequencies that the
+    // step may resolve worse. One more solve, at dt x 2 on the answer's mesh, checks the step's
+    // error where the answer is.
+    let time_at_answer = if mesh_factor > 1 && time_factor >= RATIO {
+        let s = refined_scene(
+            &refined_scene(scene, Refinement::Time, time_factor / RATIO)?,
+            Refinement::Mesh,
+            mesh_factor,
+        )?;
+        let coarser = solve_scene_on(comm, &s, &request, None)?;
+        record(Refinement::Time, &coarser, time_factor / RATIO, mesh_factor);
+        coarser.summary.converged.then(|| finals_of(&coarser))
+    } else {
+        None
+    };
+
     let scales = scales(scene, &answer);
     let qois: Vec<QoiAccuracy> = answer
         .summary
@@ -175,8 +196,20 @@ pub fn solve_to_accuracy(
             let ladder = |finals: &[BTreeMap<String, f64>], errors: &BTreeMap<String, FinestError>| LadderError {
                 finals: finals.iter().map(|f| f[name]).collect(),
                 error: errors[name],
+                at_answer: None,
             };
-            let time = ladder(&time_finals, &time_errors);
+            let mut time = ladder(&time_finals, &time_errors);
+            // at the answer's mesh: the change from dt x 2, at the order the ladder observed (else
+            // the first)
+            time.at_answer = time_at_answer.as_ref().map(|coarser| {
+                let order = time.error.order.unwrap_or(glissade_core::refine::TWO_LEVEL_ORDER);
+                let change =
+                    if scales[name] > 0.0 { (q.final_value - coarser[name]).abs() / scales[name] } else { 0.0 };
+                change / ((RATIO as f64).powf(order) - 1.0)
+            });
+            if let Some(e) = time.at_answer {
+                time.error.estimate = time.error.estimate.max(e);
+            }
             let mesh = mesh.as_ref().map(|(f, e, _)| ladder(f, e));
             let total = time.error.estimate + mesh.as_ref().map_or(0.0, |m| m.error.estimate) + noise;
             QoiAccuracy {
