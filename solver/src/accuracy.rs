@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 
 use glissade_core::point::DesignPoint;
 use glissade_core::refine::{Accuracy, FinestError, Refinement, finest_error, refined_scene};
-use glissade_core::scene::{Scene, Tolerance};
+use glissade_core::scene::{LawSpec, Scene, Tolerance};
 use glissade_core::study::space::ParameterSpace;
 use serde::Serialize;
 
@@ -30,6 +30,25 @@ pub const ZERO_SHARE: f64 = 1e-6;
 /// agree by chance: the chattering block of docs/verification.md moves 0.4 % from dt to dt / 2
 /// under gamma = 0.6, then 9 % at dt / 4.
 pub const MIN_LEVELS: usize = 3;
+
+/// The Newmark gamma a solve to accuracy takes for a scene with contact or friction that does not
+/// set its own: a little numerical dissipation. Measured (docs/accuracy.md, "The time scheme"):
+/// under the trapezoidal rule the bar impact stops converging at dt / 4 (eta stuck at 3e-4, the
+/// impact's force oscillating between iterations); at 0.55 it converges in 35-306 iterations from
+/// dt to dt / 10, its wall force 2-6 x closer to d'Alembert's, and a chattering block drifts less.
+/// The first order it costs is measured by the ladders like any other error.
+pub const CONTACT_GAMMA: f64 = 0.55;
+
+/// The scene a solve to accuracy solves: the given one, with [`CONTACT_GAMMA`] where it has a
+/// contact or friction interface and no `newmark_gamma` of its own.
+pub fn accuracy_scene(scene: &Scene) -> Scene {
+    let mut s = scene.clone();
+    let contact = s.interfaces.iter().any(|i| matches!(i.law, LawSpec::Contact | LawSpec::Friction));
+    if contact && s.time.newmark_gamma.is_none() {
+        s.time.newmark_gamma = Some(CONTACT_GAMMA);
+    }
+    s
+}
 
 /// How far a solve to accuracy may refine.
 #[derive(Debug, Clone, Copy, Serialize)]
@@ -101,6 +120,8 @@ pub struct AccuracyReport {
     pub accuracy: f64,
     /// the iteration tolerance the accuracy set
     pub tolerance: f64,
+    /// the time scheme's gamma (0.5: the trapezoidal rule; [`CONTACT_GAMMA`] where chosen)
+    pub newmark_gamma: f64,
     /// the answer's level: dt / time_factor, h / mesh_factor
     pub time_factor: usize,
     pub mesh_factor: usize,
@@ -131,8 +152,8 @@ struct Climb {
     stopped: Option<String>,
 }
 
-/// Solves `request`'s design point of `scene` to `accuracy` (module doc). `on_level` sees every
-/// level as it is solved, for progress.
+/// Solves `request`'s design point of `scene` to `accuracy` (module doc), `scene` as
+/// [`accuracy_scene`] has it. `on_level` sees every level as it is solved, for progress.
 pub fn solve_to_accuracy(
     comm: &dyn Communicator,
     scene: &Scene,
@@ -141,6 +162,7 @@ pub fn solve_to_accuracy(
     limits: AccuracyLimits,
     mut on_level: impl FnMut(&AccuracyLevel),
 ) -> Result<(AccuracyReport, SolveOutcome), RefineError> {
+    let scene = &accuracy_scene(scene);
     let tolerance = accuracy.tolerance();
     let request = SolveRequest {
         tolerance: Some(Tolerance::new("the accuracy's tolerance", tolerance).map_err(crate::run::RunError::from)?),
@@ -248,6 +270,7 @@ pub fn solve_to_accuracy(
     }
     let why_not = (!reasons.is_empty()).then(|| reasons.join("; "));
     let report = AccuracyReport {
+        newmark_gamma: scene.time.newmark_gamma.unwrap_or(0.5),
         accuracy: accuracy.get(),
         tolerance,
         time_factor,
@@ -476,6 +499,7 @@ pub fn check_held_out(
     refine_mesh: bool,
     accuracy: Accuracy,
 ) -> Result<HeldOutCheck, RefineError> {
+    let scene = &accuracy_scene(scene);
     let finer_mesh = if refine_mesh { mesh_factor * RATIO } else { mesh_factor };
     let finer =
         refined_scene(&refined_scene(scene, Refinement::Time, time_factor * RATIO)?, Refinement::Mesh, finer_mesh)?;

@@ -669,7 +669,7 @@ fn solve_accurately(
     })
     .with_context(|| format!("scene {}", args.point.scene.display()))?;
     let answered = refined_scene(
-        &refined_scene(&scene, Refinement::Time, report.time_factor)?,
+        &refined_scene(&glissade_solver::accuracy::accuracy_scene(&scene), Refinement::Time, report.time_factor)?,
         Refinement::Mesh,
         report.mesh_factor,
     )?;
@@ -679,12 +679,13 @@ fn solve_accurately(
 /// `solve --accuracy`: the level chosen and each QoI's error with its parts.
 fn print_accuracy(a: &AccuracyReport) {
     println!(
-        "  accuracy {:.1e} asked: {} at dt / {}{} ({} steps), tolerance {:.1e}; {} levels solved, {:.1} sweeps, {:.2} s in all",
+        "  accuracy {:.1e} asked: {} at dt / {}{} ({} steps, Newmark gamma {}), tolerance {:.1e}; {} levels solved, {:.1} sweeps, {:.2} s in all",
         a.accuracy,
         if a.reached { "REACHED" } else { "NOT REACHED" },
         a.time_factor,
         if a.mesh_refined { format!(", h / {}", a.mesh_factor) } else { " (mesh kept)".to_string() },
         a.steps,
+        a.newmark_gamma,
         a.tolerance,
         a.levels.len(),
         a.work,

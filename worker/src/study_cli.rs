@@ -152,7 +152,8 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
     let scene = match &accuracy {
         Some(a) => {
             tolerance = Some(Tolerance::new("the accuracy's tolerance", a.tolerance)?);
-            refined_scene(&refined_scene(&given, Refinement::Time, a.time_factor)?, Refinement::Mesh, a.mesh_factor)?
+            let s = glissade_solver::accuracy::accuracy_scene(&given);
+            refined_scene(&refined_scene(&s, Refinement::Time, a.time_factor)?, Refinement::Mesh, a.mesh_factor)?
         }
         None => given.clone(),
     };
@@ -276,8 +277,9 @@ fn pilots(
     let chosen = spread_order(points, space, args.pilots);
     let mut pilots = Vec::new();
     for (k, &i) in chosen.iter().enumerate() {
+        let point = space.complete(&points[i])?;
         let request = SolveRequest {
-            point: points[i].clone(),
+            point: point.clone(),
             max_iterations: args.max_iter,
             scale: args.scale,
             ..Default::default()
@@ -295,7 +297,7 @@ fn pilots(
             report.wall_seconds,
             report.why_not.as_ref().map_or(String::new(), |w| format!(": {w}"))
         );
-        pilots.push(Pilot { point: points[i].clone(), report });
+        pilots.push(Pilot { point, report });
     }
     let (time_factor, mesh_factor) = study_level(&pilots.iter().map(|p| p.report.clone()).collect::<Vec<_>>());
     let why_not = pilots.iter().find(|p| !p.report.reached).map(|p| {
@@ -338,11 +340,17 @@ fn held_out(
     a.work.study = result.summary.work;
     a.work.wall_seconds += result.summary.wall_seconds;
     for &i in spread_order(points, space, a.pilots.len() + args.held_out).iter().skip(a.pilots.len()) {
-        let Some(record) = result.records.iter().find(|r| r.point == points[i] && r.converged) else { continue };
+        // (a record's point carries every parameter, the grid's only those swept)
+        let complete = space.complete(&points[i])?;
+        let Some(record) = result.records.iter().find(|r| r.point == complete && r.converged) else {
+            a.confirmed = false;
+            a.why_not = Some(format!("the held-out point {} did not converge in the study", points[i]));
+            continue;
+        };
         let check = check_held_out(
             &Serial,
             scene,
-            &points[i],
+            &complete,
             &record.qoi,
             (a.time_factor, a.mesh_factor),
             refine_mesh,
@@ -360,6 +368,9 @@ fn held_out(
         a.work.held_out += check.work;
         a.work.wall_seconds += check.wall_seconds;
         a.held_out.push(check);
+    }
+    if a.held_out.is_empty() && args.held_out > 0 && a.why_not.is_none() {
+        eprintln!("[held out] none: every point of the grid was a pilot");
     }
     if let Some(c) = a.held_out.iter().find(|c| !c.within) {
         let worst = c.qois.iter().filter(|q| !q.within).max_by(|x, y| x.difference.total_cmp(&y.difference));
