@@ -57,6 +57,8 @@ pub struct ServerOptions {
     pub idle: Duration,
     /// Most connections open at once.
     pub max_connections: usize,
+    /// Most connections open at once from one client address.
+    pub max_connections_per_client: usize,
     /// The user and pool tokens; None: no authentication, which is allowed on loopback only
     /// unless `open` says otherwise.
     pub tokens: Option<auth::Tokens>,
@@ -78,6 +80,11 @@ pub const DEFAULT_MAX_PENDING: usize = 5 * DEFAULT_MAX_POINTS;
 /// database's files.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 768;
 
+/// Default of `--max-connections-per-client`: a quarter of the connections, so that one host
+/// (slow bodies, pinging sockets) cannot hold them all; a site whose pools reach the coordinator
+/// through one NAT address raises it.
+pub const DEFAULT_MAX_CONNECTIONS_PER_CLIENT: usize = DEFAULT_MAX_CONNECTIONS / 4;
+
 impl ServerOptions {
     /// The defaults of `glissade-server` for a database in `data`.
     pub fn new(data: impl Into<PathBuf>) -> Self {
@@ -92,6 +99,7 @@ impl ServerOptions {
             point_budget: Duration::from_secs(86400),
             idle: Duration::from_secs(60),
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            max_connections_per_client: DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
             tokens: None,
             open: false,
             tls: None,
@@ -139,7 +147,8 @@ pub async fn bind(
     }
     let tokens = options.tokens.clone();
     let tls = options.tls.is_some();
-    let (idle, max_connections) = (options.idle, options.max_connections);
+    let (idle, max_connections, per_client) =
+        (options.idle, options.max_connections, options.max_connections_per_client);
     // Pings keep a live HTTP/2 client's connection busy (conn.rs closes a silent one); one that
     // leaves a ping unanswered for the idle time is gone.
     let mut builder = Server::builder().http2_keepalive_interval(Some(idle / 4)).http2_keepalive_timeout(Some(idle));
@@ -156,7 +165,7 @@ pub async fn bind(
             tonic::service::Routes::new(standard_health).add_service(reflection_v1).add_service(reflection_v1alpha);
         let routes = routes(standard, &coordinator, &metrics, tokens.as_ref(), tls);
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
-            conn::Incoming::new(listener, max_connections, idle),
+            conn::Incoming::new(listener, max_connections, per_client, idle),
             {
                 let c = coordinator.clone();
                 async move {
@@ -210,6 +219,7 @@ fn check_options(options: &ServerOptions, listen: SocketAddr) -> Result<()> {
         ("--max-points", options.max_points),
         ("--max-pending", options.max_pending),
         ("--max-connections", options.max_connections),
+        ("--max-connections-per-client", options.max_connections_per_client),
     ] {
         if value == 0 {
             anyhow::bail!("{name} 0: give at least 1");

@@ -60,6 +60,11 @@ struct Args {
     /// process's file limit (`ulimit -n`).
     #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_CONNECTIONS, env = "GLISSADE_MAX_CONNECTIONS")]
     max_connections: usize,
+    /// Most connections open at once from one client address (a host that holds its share has
+    /// its next connections closed as they arrive); raise it where many pools reach the
+    /// coordinator through one NAT address
+    #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_CONNECTIONS_PER_CLIENT, env = "GLISSADE_MAX_CONNECTIONS_PER_CLIENT")]
+    max_connections_per_client: usize,
     /// Largest estimated memory of one solve of a submitted scene, MiB (estimated from the
     /// scene's text: dofs and interface size; docs/performance.md, "Memory per design point, and of one solve").
     #[arg(long, value_name = "MIB", default_value_t = glissade_server::DEFAULT_MAX_SCENE_MIB, env = "GLISSADE_MAX_SCENE_MIB")]
@@ -120,6 +125,7 @@ async fn run(args: Args) -> Result<()> {
         point_budget: seconds("--point-seconds", args.point_seconds, 1.0)?,
         idle: seconds("--idle-seconds", args.idle_seconds, 0.1)?,
         max_connections: args.max_connections,
+        max_connections_per_client: args.max_connections_per_client,
         max_pending: args.max_pending,
         data: args.data,
         lease: Duration::from_secs_f64(args.lease_seconds),

@@ -1,7 +1,7 @@
 //! What a hostile or careless user can no longer do (issue 28): hold a pool for ever with a
 //! tolerance or iteration limit out of reach, keep a solve running after a cancel, outlast the
-//! per-point budget, keep a pool busy through two signals, leave sockets open, fill the
-//! coordinator with pending points.
+//! per-point budget, keep a pool busy through two signals, leave sockets open, hold every
+//! connection from one host, fill the coordinator with pending points.
 
 use crate::common::*;
 
@@ -202,6 +202,42 @@ fn idle_connections_are_closed_and_their_number_is_bounded() -> anyhow::Result<(
         }
         anyhow::Ok(())
     })?;
+    Ok(())
+}
+
+/// One client address holds at most its share of the connections (issue 48: 800 pinging sockets
+/// from one host locked everyone out): four silent sockets from 127.0.0.2 fill its share of 4,
+/// its fifth is closed at once, the four stay open, and a client from 127.0.0.1 is served.
+#[test]
+fn one_client_cannot_hold_every_connection() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let args = ["--max-connections", "16", "--max-connections-per-client", "4"];
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &args);
+    let rt = runtime();
+    let from = |ip: &str| -> anyhow::Result<std::net::TcpStream> {
+        rt.block_on(async {
+            let socket = tokio::net::TcpSocket::new_v4()?;
+            socket.bind(format!("{ip}:0").parse()?)?;
+            let stream = socket.connect(addr).await?.into_std()?;
+            stream.set_nonblocking(false)?;
+            anyhow::Ok(stream)
+        })
+    };
+    let mut held: Vec<std::net::TcpStream> = (0..4).map(|_| from("127.0.0.2")).collect::<Result<_, _>>()?;
+    std::thread::sleep(Duration::from_millis(200));
+    let mut fifth = from("127.0.0.2")?;
+    assert!(closed_within(&mut fifth, Duration::from_millis(1500)), "a connection past the client's share stayed open");
+    let health = glissade(Some(&format!("http://{addr}")), &["health"]);
+    assert!(health.status.success(), "another client is locked out: {}", text(&health.stderr));
+    for s in &mut held {
+        assert!(!closed_within(s, Duration::from_millis(100)), "a connection within the share was closed");
+    }
+    // a closed connection gives its slot back
+    drop(held.pop());
+    std::thread::sleep(Duration::from_millis(200));
+    let mut again = from("127.0.0.2")?;
+    assert!(!closed_within(&mut again, Duration::from_millis(300)), "a freed slot was not given back");
     Ok(())
 }
 
