@@ -2997,3 +2997,39 @@ fn an_asked_accuracy_holds_on_a_sliding_block_against_its_closed_form() {
     eprintln!("slip {:.5e} against the rigid block's {rigid:.5e}: {error:.2e}", slip.value);
     assert!(error <= accuracy.get(), "{error}");
 }
+
+/// docs/accuracy.md's generated table is this solver's: its three-blocks-tiny rows, solved cold
+/// now, give the slip and the iterations the page prints. A page measured with another solver
+/// fails here; regenerate it with the command at its end.
+#[test]
+fn the_generated_accuracy_page_is_this_solvers() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let page = std::fs::read_to_string(dir.join("docs/accuracy.md")).unwrap();
+    let scene = Scene::read(&dir.join("scenes/three-blocks-tiny.toml")).unwrap();
+    let mut checked = 0;
+    for row in page.lines().filter(|l| l.starts_with("| three-blocks-tiny ") && l.contains("| cold |")) {
+        let cells: Vec<&str> = row.split('|').map(str::trim).collect();
+        // | mesh | tolerance | start | converged | iterations (static + dynamic) | wall s | slip_A | error |
+        let tol: f64 = cells[2].parse().unwrap();
+        let iterations: usize = cells[5].split(' ').next().unwrap().parse().unwrap();
+        let slip: f64 = cells[7].parse().unwrap();
+        let request = glissade_solver::run::SolveRequest {
+            point: point(&[("f1", 0.11), ("f2", 0.10)]),
+            tolerance: tolerance(tol),
+            max_iterations: Some(5000),
+            ..Default::default()
+        };
+        let s = glissade_solver::run::solve_scene(&scene, &request, None).unwrap().summary;
+        let now = s.qoi["slip_A"].final_value;
+        eprintln!("tol {tol:e}: slip_A {now:.6e} in {} iterations; the page: {slip:.6e} in {iterations}", s.iterations);
+        // (7 digits printed; an iteration or two may differ with the machine's SIMD)
+        assert!((now - slip).abs() <= 1e-5 * slip.abs(), "tol {tol:e}: slip_A {now:e}, the page {slip:e}: stale");
+        assert!(
+            s.iterations.abs_diff(iterations) <= 2 + iterations / 50,
+            "tol {tol:e}: {} iterations, the page {iterations}",
+            s.iterations
+        );
+        checked += 1;
+    }
+    assert!(checked >= 3, "{checked} rows of three-blocks-tiny, cold");
+}
