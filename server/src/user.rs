@@ -15,6 +15,18 @@ use tonic::{Request, Response, Status};
 use crate::convert::{self, SurfaceQuery};
 use crate::coordinator::{CoordError, Coordinator, EventKind, SolutionSelector, Submission};
 
+/// Studies in a page of ListStudies when the request does not say, and the most it may ask.
+const LIST_PAGE: usize = 200;
+const LIST_PAGE_MAX: usize = 1000;
+
+/// The studies a ListStudies page holds for the `limit` asked.
+fn page_limit(asked: u32) -> usize {
+    match asked {
+        0 => LIST_PAGE,
+        n => (n as usize).min(LIST_PAGE_MAX),
+    }
+}
+
 type Streamed<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 
 /// Runs a coordinator call on tokio's blocking pool.
@@ -72,10 +84,14 @@ impl User for UserService {
 
     async fn list_studies(
         &self,
-        _request: Request<v1::ListStudiesRequest>,
+        request: Request<v1::ListStudiesRequest>,
     ) -> Result<Response<v1::ListStudiesReply>, Status> {
-        let studies = self.coordinator.studies().iter().map(convert::study).collect();
-        Ok(Response::new(v1::ListStudiesReply { studies }))
+        let r = request.into_inner();
+        // a page, not the whole list: thousands of studies with long labels would pass a
+        // client's message limit (issue 48)
+        let (page, more) = self.coordinator.studies_page(StudyId(r.after), page_limit(r.limit));
+        let next_after = if more { page.last().map_or(0, |v| v.record.id.0) } else { 0 };
+        Ok(Response::new(v1::ListStudiesReply { studies: page.iter().map(convert::study).collect(), next_after }))
     }
 
     async fn cancel_study(&self, request: Request<v1::CancelStudyRequest>) -> Result<Response<v1::Study>, Status> {
@@ -165,5 +181,15 @@ async fn forward_events(
             }
             Err(broadcast::error::RecvError::Closed) => return,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_page_holds_the_default_or_what_is_asked_up_to_the_most() {
+        assert_eq!(super::page_limit(0), super::LIST_PAGE);
+        assert_eq!(super::page_limit(7), 7);
+        assert_eq!(super::page_limit(u32::MAX), super::LIST_PAGE_MAX);
     }
 }

@@ -273,8 +273,14 @@ class Client:
         return self._call(self._user.GetStudy, pb.GetStudyRequest(study_id=_study_id(study), points=points, scene=scene))
 
     def studies(self) -> list:
-        """Every study (Study messages without their points), newest last."""
-        return list(self._call(self._user.ListStudies, pb.ListStudiesRequest()).studies)
+        """Every study (Study messages without their points), newest last, fetched page by page."""
+        studies, after = [], 0
+        while True:
+            page = self._call(self._user.ListStudies, pb.ListStudiesRequest(after=after))
+            studies.extend(page.studies)
+            if page.next_after == 0 or page.next_after <= after:
+                return studies
+            after = page.next_after
 
     def cancel(self, study: StudyRef):
         """Stops handing out the study's points; the Study after it."""

@@ -9,13 +9,21 @@ use super::show::study_json;
 use crate::{Server, refused, user};
 
 pub(crate) async fn studies(server: &Server, json: bool) -> Result<()> {
-    let list = user(server)
-        .await?
-        .list_studies(v1::ListStudiesRequest {})
-        .await
-        .map_err(|s| refused("list studies", s))?
-        .into_inner()
-        .studies;
+    // page by page: the whole list at once could pass the message limit
+    let mut client = user(server).await?;
+    let (mut list, mut after) = (Vec::new(), 0);
+    loop {
+        let page = client
+            .list_studies(v1::ListStudiesRequest { after, limit: 0 })
+            .await
+            .map_err(|s| refused("list studies", s))?
+            .into_inner();
+        list.extend(page.studies);
+        if page.next_after == 0 || page.next_after <= after {
+            break;
+        }
+        after = page.next_after;
+    }
     if json {
         outln!("{}", serde_json::Value::Array(list.iter().map(study_json).collect()));
         return Ok(());

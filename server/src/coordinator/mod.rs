@@ -383,6 +383,15 @@ impl Coordinator {
         state.studies.values().map(|e| Self::view(&state, e, false)).collect()
     }
 
+    /// One page of the studies in id order: at most `limit` after `after`, and whether more
+    /// follow (only the page's views are built).
+    pub fn studies_page(&self, after: StudyId, limit: usize) -> (Vec<StudyView>, bool) {
+        let state = self.lock();
+        let mut rest = state.studies.range((std::ops::Bound::Excluded(after), std::ops::Bound::Unbounded));
+        let page: Vec<StudyView> = rest.by_ref().take(limit).map(|(_, e)| Self::view(&state, e, false)).collect();
+        (page, rest.next().is_some())
+    }
+
     /// The events replaying a study's state, and a subscription for what follows (taken under
     /// the same lock, so nothing falls between them).
     pub fn watch(&self, id: StudyId) -> Result<(Vec<Event>, broadcast::Receiver<Event>), CoordError> {

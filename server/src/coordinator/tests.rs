@@ -1518,3 +1518,29 @@ fn submission_of_target(target: f64) -> Submission {
         meshes: vec![],
     }
 }
+
+/// The studies come page by page in id order, each page built alone (issue 48: 5000 studies
+/// with long labels made one reply too large for every client).
+#[test]
+fn studies_come_in_pages_in_id_order() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    let ids: Vec<StudyId> =
+        (0..5).map(|k| submit(&c, &[&format!("f1={}", 0.1 + 0.01 * k as f64)], 1e-3, InitStrategy::Cold)).collect();
+    let mut after = StudyId(0);
+    let mut seen = Vec::new();
+    loop {
+        let (page, more) = c.studies_page(after, 2);
+        assert!(page.len() <= 2 && (more || page.len() <= 2));
+        seen.extend(page.iter().map(|v| v.record.id));
+        match page.last() {
+            Some(v) if more => after = v.record.id,
+            _ => break,
+        }
+    }
+    let all: Vec<StudyId> = c.studies().iter().map(|v| v.record.id).collect();
+    assert_eq!(seen, all, "every study once, in order");
+    assert!(ids.iter().all(|id| seen.contains(id)));
+    let (last, more) = c.studies_page(*all.last().unwrap(), 2);
+    assert!(last.is_empty() && !more);
+}

@@ -30,7 +30,7 @@ async fn run(url: String, scene: String, n: usize, m: usize) -> Result<serde_jso
     let mut listed = 0;
     for _ in 0..m {
         let start = Instant::now();
-        listed = user.list_studies(v1::ListStudiesRequest {}).await?.into_inner().studies.len();
+        listed = user.list_studies(v1::ListStudiesRequest::default()).await?.into_inner().studies.len();
         ms.push(start.elapsed().as_secs_f64() * 1e3);
     }
     ms.sort_by(f64::total_cmp);

@@ -184,7 +184,7 @@ fn wrong_or_oversize_mesh_files_are_refused_by_name() -> anyhow::Result<()> {
             .expect_err("must be refused");
         assert!(status.message().contains("too large"), "{status:?}");
         // the coordinator is unharmed, has stored nothing, and takes a proper submission
-        let studies = client.list_studies(v1::ListStudiesRequest {}).await?.into_inner().studies;
+        let studies = client.list_studies(v1::ListStudiesRequest::default()).await?.into_inner().studies;
         assert!(studies.is_empty(), "{studies:?}");
         let reply = client.submit_study(request(vec![mesh("bar.msh", good, &digest)])).await?.into_inner();
         assert_eq!(reply.points, 1);

@@ -34,7 +34,7 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
     let s = rt.block_on(stranger.submit_study(grid_request(&["f1=0.1"], STUDY_TOL))).expect_err("no token");
     assert_eq!(s.code(), Code::Unauthenticated, "{s:?}");
     let mut posing = UserClient::with_interceptor(channel.clone(), with(pool_token));
-    let s = rt.block_on(posing.list_studies(v1::ListStudiesRequest {})).expect_err("pool token");
+    let s = rt.block_on(posing.list_studies(v1::ListStudiesRequest::default())).expect_err("pool token");
     assert_eq!(s.code(), Code::PermissionDenied, "{s:?}");
     // ...and a user posing as a pool cannot lease or complete.
     let mut fake = PoolClient::with_interceptor(channel.clone(), with(user_token));
