@@ -1089,7 +1089,10 @@ impl Coordinator {
         // Progress only for the leases just found to be this pool's.
         let held = |id: u64| lease_ids.iter().zip(&deadlines).any(|(&l, d)| l == id && d.is_some());
         for &(lease_id, iterations, eta) in progress.iter().filter(|p| p.2.is_finite() && held(p.0)) {
-            lease_progress.insert(lease_id, (iterations, eta));
+            // a heartbeat that finds the solve where the last one left it tells watchers nothing
+            if lease_progress.insert(lease_id, (iterations, eta)).is_some_and(|(before, _)| before == iterations) {
+                continue;
+            }
             let (study, point) = leases[&lease_id];
             let entry = &studies[&study];
             self.send_event(EventKind::Progress, entry, Some(&entry.points[point.0 as usize]), Some((iterations, eta)));
