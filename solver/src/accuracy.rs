@@ -59,6 +59,32 @@ pub struct AccuracyLimits {
     pub max_mesh_factor: usize,
 }
 
+/// A limit that is not a power of 2 from 1 to 1024.
+#[derive(Debug, thiserror::Error)]
+#[error("{flag} {value}: give a power of 2 from 1 to 1024")]
+pub struct LimitError {
+    pub flag: &'static str,
+    pub value: usize,
+}
+
+impl AccuracyLimits {
+    /// The limits `--max-dt-factor` and `--max-h-factor` ask for, checked.
+    pub fn new(max_time_factor: usize, max_mesh_factor: usize) -> Result<Self, LimitError> {
+        for (flag, value) in [("--max-dt-factor", max_time_factor), ("--max-h-factor", max_mesh_factor)] {
+            if !(value.is_power_of_two() && value <= 1024) {
+                return Err(LimitError { flag, value });
+            }
+        }
+        Ok(AccuracyLimits { max_time_factor, max_mesh_factor })
+    }
+}
+
+/// The scene solved at a level: [`accuracy_scene`] with dt / `time_factor` and h / `mesh_factor`.
+pub fn scene_at(scene: &Scene, time_factor: usize, mesh_factor: usize) -> Result<Scene, RefineError> {
+    let timed = refined_scene(&accuracy_scene(scene), Refinement::Time, time_factor)?;
+    Ok(refined_scene(&timed, Refinement::Mesh, mesh_factor)?)
+}
+
 impl Default for AccuracyLimits {
     fn default() -> Self {
         AccuracyLimits { max_time_factor: 16, max_mesh_factor: 4 }
@@ -197,11 +223,7 @@ pub fn solve_to_accuracy(
     // step may resolve worse. One more solve, at dt x 2 on the answer's mesh, checks the step's
     // error where the answer is.
     let time_at_answer = if mesh_factor > 1 && time_factor >= RATIO {
-        let s = refined_scene(
-            &refined_scene(scene, Refinement::Time, time_factor / RATIO)?,
-            Refinement::Mesh,
-            mesh_factor,
-        )?;
+        let s = scene_at(scene, time_factor / RATIO, mesh_factor)?;
         let coarser = solve_scene_on(comm, &s, &request, None)?;
         record(Refinement::Time, &coarser, time_factor / RATIO, mesh_factor);
         coarser.summary.converged.then(|| finals_of(&coarser))
@@ -501,8 +523,7 @@ pub fn check_held_out(
 ) -> Result<HeldOutCheck, RefineError> {
     let scene = &accuracy_scene(scene);
     let finer_mesh = if refine_mesh { mesh_factor * RATIO } else { mesh_factor };
-    let finer =
-        refined_scene(&refined_scene(scene, Refinement::Time, time_factor * RATIO)?, Refinement::Mesh, finer_mesh)?;
+    let finer = scene_at(scene, time_factor * RATIO, finer_mesh)?;
     let request = SolveRequest {
         point: point.clone(),
         tolerance: Some(

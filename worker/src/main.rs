@@ -634,14 +634,8 @@ fn solve_accurately(
     accuracy: f64,
     args: &SolveArgs,
 ) -> Result<(Scene, glissade_solver::run::SolveOutcome, Option<AccuracyReport>)> {
-    use glissade_core::refine::{Accuracy, Refinement, refined_scene};
-    let accuracy = Accuracy::new("--accuracy", accuracy)?;
-    for (flag, n) in [("--max-dt-factor", args.max_dt_factor), ("--max-h-factor", args.max_h_factor)] {
-        if !(n.is_power_of_two() && n <= 1024) {
-            bail!("{flag} {n}: give a power of 2 from 1 to 1024");
-        }
-    }
-    let limits = AccuracyLimits { max_time_factor: args.max_dt_factor, max_mesh_factor: args.max_h_factor };
+    let accuracy = glissade_core::refine::Accuracy::new("--accuracy", accuracy)?;
+    let limits = AccuracyLimits::new(args.max_dt_factor, args.max_h_factor)?;
     let root = comm.rank() == 0;
     if root {
         eprintln!(
@@ -668,11 +662,7 @@ fn solve_accurately(
         }
     })
     .with_context(|| format!("scene {}", args.point.scene.display()))?;
-    let answered = refined_scene(
-        &refined_scene(&glissade_solver::accuracy::accuracy_scene(&scene), Refinement::Time, report.time_factor)?,
-        Refinement::Mesh,
-        report.mesh_factor,
-    )?;
+    let answered = glissade_solver::accuracy::scene_at(&scene, report.time_factor, report.mesh_factor)?;
     Ok((answered, outcome, Some(report)))
 }
 

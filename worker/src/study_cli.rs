@@ -8,7 +8,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 
 use glissade_core::point::DesignPoint;
-use glissade_core::refine::{Accuracy, Refinement, refined_scene};
+use glissade_core::refine::Accuracy;
 use glissade_core::scene::{Scale, Tolerance};
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::space::{DEFAULT_MAX_POINTS, GridAxis, ParameterSpace, design_points};
@@ -152,8 +152,7 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
     let scene = match &accuracy {
         Some(a) => {
             tolerance = Some(Tolerance::new("the accuracy's tolerance", a.tolerance)?);
-            let s = glissade_solver::accuracy::accuracy_scene(&given);
-            refined_scene(&refined_scene(&s, Refinement::Time, a.time_factor)?, Refinement::Mesh, a.mesh_factor)?
+            glissade_solver::accuracy::scene_at(&given, a.time_factor, a.mesh_factor)?
         }
         None => given.clone(),
     };
@@ -265,15 +264,10 @@ fn pilots(
     space: &ParameterSpace,
     accuracy: Accuracy,
 ) -> Result<StudyAccuracy> {
-    for (flag, n) in [("--max-dt-factor", args.max_dt_factor), ("--max-h-factor", args.max_h_factor)] {
-        if !(n.is_power_of_two() && n <= 1024) {
-            bail!("{flag} {n}: give a power of 2 from 1 to 1024");
-        }
-    }
+    let limits = AccuracyLimits::new(args.max_dt_factor, args.max_h_factor)?;
     if args.pilots == 0 || args.pilots > 16 || args.held_out > 16 {
         bail!("--pilots {} --held-out {}: from 1 to 16 pilots, at most 16 held-out points", args.pilots, args.held_out);
     }
-    let limits = AccuracyLimits { max_time_factor: args.max_dt_factor, max_mesh_factor: args.max_h_factor };
     let chosen = spread_order(points, space, args.pilots);
     let mut pilots = Vec::new();
     for (k, &i) in chosen.iter().enumerate() {
