@@ -11,6 +11,7 @@
 //!   warm starts, ordering) and the study engine that both the local study and the coordinator run;
 //! - [`text`]: bounded, single-line text for messages that quote user input.
 
+pub mod accuracy;
 pub mod check;
 pub mod contact;
 pub mod field;

@@ -226,7 +226,7 @@ impl Accuracy {
 }
 
 /// The estimated error of a ladder's finest level, relative to `scale`, and how it was reached.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct FinestError {
     pub estimate: f64,
     /// the order the last three levels show, `None` from two levels or when erratic

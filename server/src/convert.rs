@@ -202,6 +202,8 @@ impl TryFrom<v1::SubmitStudyRequest> for Submission {
             surface_audit_points: m.surface_audit_points,
             surface_accuracy: m.surface_accuracy,
             work_budget: m.work_budget,
+            accuracy: m.accuracy,
+            accuracy_pilots: m.accuracy_pilots,
             meshes: m.meshes.into_iter().map(|f| MeshUpload { file: f.file, data: f.data, sha256: f.sha256 }).collect(),
         })
     }
@@ -320,6 +322,15 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
         }
         let contact =
             m.contact.into_iter().map(ContactActivity::try_from).collect::<Result<Vec<_>, _>>().map_err(Invalid)?;
+        // (bounded by the QoIs the solution file names, which check_meta holds to the header's)
+        if let Some((name, x)) =
+            m.qoi_largest.iter().find(|(n, x)| !(x.is_finite() && **x >= 0.0 && m.qoi.contains_key(*n)))
+        {
+            return Err(Invalid(format!(
+                "qoi_largest: '{}' = {x}: a QoI of `qoi`, finite and 0 or more",
+                one_line(name)
+            )));
+        }
         Ok(Completion {
             pool: pool_id(&m.pool_id)?,
             lease_id: m.lease_id,
@@ -334,6 +345,7 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
             work: m.work,
             started_cold: m.started_cold,
             contact,
+            qoi_largest: m.qoi_largest,
         })
     }
 }
@@ -442,9 +454,48 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
     }
 }
 
+/// A study to an accuracy as the API gives it: per QoI the pilot of the largest estimate.
+fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64) -> v1::StudyToAccuracy {
+    let reports: Vec<&glissade_core::accuracy::AccuracyReport> = t.reports.iter().flatten().collect();
+    let mut qoi: BTreeMap<String, v1::QoiToAccuracy> = BTreeMap::new();
+    for q in reports.iter().flat_map(|r| &r.qois) {
+        let this = v1::QoiToAccuracy {
+            total: q.total,
+            time: q.time.error.estimate,
+            mesh: q.mesh.as_ref().map_or(-1.0, |m| m.error.estimate),
+            iteration: q.iteration,
+            within: q.within,
+        };
+        let kept = qoi.entry(q.name.clone()).or_insert(this);
+        let within = kept.within && this.within;
+        if this.total > kept.total {
+            *kept = this;
+        }
+        kept.within = within;
+    }
+    v1::StudyToAccuracy {
+        accuracy: t.accuracy,
+        tolerance,
+        pilot_points: t.pilots.clone(),
+        pilots_done: reports.len() as u32,
+        chosen: t.chosen.is_some(),
+        time_factor: t.chosen.map_or(0, |(k, _)| k as u32),
+        mesh_factor: t.chosen.map_or(0, |(_, m)| m as u32),
+        reached: t.chosen.is_some(),
+        why_not: t.why_not.clone().unwrap_or_default(),
+        qoi,
+        level_study_ids: t.levels.iter().map(|l| l.2.0).collect(),
+        pilot_work: reports.iter().map(|r| r.work).sum(),
+        pilot_wall_seconds: reports.iter().map(|r| r.wall_seconds).sum(),
+        newmark_gamma: reports.first().map_or(0.0, |r| r.newmark_gamma),
+    }
+}
+
 pub fn study(v: &StudyView) -> v1::Study {
     let r = &v.record;
     v1::Study {
+        to_accuracy: r.to_accuracy.as_ref().map(|t| to_accuracy(t, r.tolerance)),
+        pilot_of: r.pilot_of.map_or(0, |s| s.0),
         study_id: r.id.0,
         label: r.label.clone(),
         scene_hash: r.scene_hash.clone(),

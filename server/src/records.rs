@@ -119,6 +119,43 @@ pub struct StudyRecord {
     /// surface predicted at them, before they were solved.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub held_out: Option<HeldOut>,
+    /// A study to an accuracy: its pilots' ladders and the level chosen.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub to_accuracy: Option<ToAccuracy>,
+    /// A level of the pilots of this study (a study to an accuracy): its scene is that level's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pilot_of: Option<StudyId>,
+}
+
+/// A study to an accuracy (core::accuracy, docs/accuracy.md): its pilot points climb the
+/// ladders of levels one lease at a time, each level a study of its own (`pilot_of`), refined
+/// from the study's scene as submitted (its `scene` until the level is chosen); once every pilot
+/// is done the study takes the finest level any needed, and its points are solved there.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ToAccuracy {
+    pub accuracy: f64,
+    pub limits: glissade_core::accuracy::AccuracyLimits,
+    /// The study's points that are its pilots.
+    pub pilots: Vec<u64>,
+    /// Per pilot, the levels its ladder asked for, in order: (refinement, dt / k, h / m).
+    pub asked: Vec<Vec<(glissade_core::refine::Refinement, usize, usize)>>,
+    /// The studies of the levels, as opened: (dt / k, h / m, study).
+    pub levels: Vec<(usize, usize, StudyId)>,
+    /// Per pilot, its report once its ladder is read to the end.
+    pub reports: Vec<Option<glissade_core::accuracy::AccuracyReport>>,
+    /// Once every pilot is done: the level (dt / k, h / m) the study is solved at.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chosen: Option<(usize, usize)>,
+    /// Why no level was chosen (a pilot did not reach the accuracy): the points are cancelled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub why_not: Option<String>,
+}
+
+impl ToAccuracy {
+    /// The pilots' ladders are all read.
+    pub fn decided(&self) -> bool {
+        self.chosen.is_some() || self.why_not.is_some()
+    }
 }
 
 /// How a surface audit's points were drawn, and what its study predicted at them (None until
@@ -268,6 +305,9 @@ pub struct PointResult {
     /// before it existed).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contact: Vec<ContactActivity>,
+    /// The largest magnitude of each QoI's history (none from older pools and records).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub qoi_largest: BTreeMap<String, f64>,
 }
 
 /// One design point of a study.
@@ -320,6 +360,9 @@ pub struct SolutionRecord {
     /// answers carries it (none in records written before it existed).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contact: Vec<ContactActivity>,
+    /// The largest magnitude of each QoI's history (none from older pools and records).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub qoi_largest: BTreeMap<String, f64>,
 }
 
 impl SolutionRecord {

@@ -32,7 +32,8 @@ pub struct StudyPlan {
     /// Every parameter at each point, by point id.
     pub full: Vec<DesignPoint>,
     /// Stored points are answered though the study's solves start cold (a discretisation
-    /// audit's level: its cold solves measure the step, a stored solve of its scene does too).
+    /// audit's level, a level of a study's pilots: its cold solves measure the step, a stored
+    /// solve of its scene does too).
     answers_stored: bool,
 }
 
@@ -52,7 +53,7 @@ impl StudyPlan {
         let engine = StudyEngine::new(scene, record.strategy, Some(tolerance));
         let full = points.iter().map(|p| engine.space().complete(&p.parameters)).collect::<Result<_, _>>();
         let full = full.map_err(|e| invalid("the study's points", e.to_string()))?;
-        let answers_stored = record.refines.is_some();
+        let answers_stored = record.refines.is_some() || record.pilot_of.is_some();
         Ok(Self { policy: record.order.policy(engine.space()), engine, full, answers_stored })
     }
 

@@ -91,6 +91,14 @@ fn describe(s: &v1::Study) {
     } else if s.audit_of != 0 {
         outln!("  audits    study {} (its points re-solved cold at this tighter tolerance)", s.audit_of);
     }
+    if s.pilot_of != 0 {
+        outln!("  pilots    of study {} (one level of its pilots' ladders)", s.pilot_of);
+    }
+    if let Some(t) = &s.to_accuracy {
+        for line in to_accuracy_lines(t) {
+            outln!("{line}");
+        }
+    }
     if let Some(t) = &s.target {
         outln!("  target    {}", target_line(t, s.surface_accuracy.as_ref()));
     }
@@ -210,7 +218,7 @@ fn point_lines(s: &v1::Study) {
 
 pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
     let p = s.progress.unwrap_or_default();
-    serde_json::json!({
+    let mut v = serde_json::json!({
         "study_id": s.study_id,
         "label": s.label,
         "scene_hash": s.scene_hash,
@@ -285,7 +293,11 @@ pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
                 "work_seconds": d.mesh_work_seconds,
             })),
         })),
-    })
+    });
+    // (apart: one json! of every field passes the macro's recursion limit)
+    v["pilot_of"] = serde_json::json!((s.pilot_of != 0).then_some(s.pilot_of));
+    v["to_accuracy"] = serde_json::json!(s.to_accuracy.as_ref().map(to_accuracy_json));
+    v
 }
 
 pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
@@ -343,6 +355,71 @@ pub(crate) fn accuracy_line(a: &v1::StudyAccuracy) -> String {
 
 /// `7 of 7 held-out points (seed 1234) solved cold at 2e-6 (study 4) against the surface of 121 points:
 /// slip_A largest 1.3e-1 mean 5.0e-3 within 2 sd 86 %, ...`; errors relative to each QoI's spread.
+/// A study to an accuracy in `show --json`.
+fn to_accuracy_json(t: &v1::StudyToAccuracy) -> serde_json::Value {
+    serde_json::json!({
+        "accuracy": t.accuracy,
+        "tolerance": t.tolerance,
+        "pilot_points": t.pilot_points,
+        "pilots_done": t.pilots_done,
+        "chosen": t.chosen,
+        "time_factor": t.chosen.then_some(t.time_factor),
+        "mesh_factor": t.chosen.then_some(t.mesh_factor),
+        "reached": t.reached,
+        "why_not": (!t.why_not.is_empty()).then_some(&t.why_not),
+        "newmark_gamma": t.newmark_gamma,
+        "level_study_ids": t.level_study_ids,
+        "pilot_work": t.pilot_work,
+        "pilot_wall_seconds": t.pilot_wall_seconds,
+        "qoi": t.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
+            "total": e.total, "time": e.time, "mesh": (e.mesh >= 0.0).then_some(e.mesh),
+            "iteration": e.iteration, "within": e.within,
+        }))).collect::<serde_json::Map<_, _>>(),
+    })
+}
+
+/// A study to an accuracy: what was asked, what the pilots chose (or why nothing), and per QoI
+/// the largest estimate over the pilots with its parts, as fractions of the QoI's scale.
+pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
+    let pct = |x: f64| format!("{:.2} %", 100.0 * x);
+    let mut lines = vec![format!(
+        "  accuracy  asked {} of each QoI's scale (the largest magnitude of its history): tolerance {:.1e}, Newmark gamma {}",
+        pct(t.accuracy),
+        t.tolerance,
+        if t.newmark_gamma > 0.0 { format!("{}", t.newmark_gamma) } else { "(pilots running)".into() }
+    )];
+    let levels = t.level_study_ids.iter().map(|id| id.to_string()).collect::<Vec<_>>().join(", ");
+    let pilots = format!(
+        "{} of {} pilots done (points {}; levels in studies {}), work {:.1}, {:.1} s",
+        t.pilots_done,
+        t.pilot_points.len(),
+        t.pilot_points.iter().map(|p| p.to_string()).collect::<Vec<_>>().join(", "),
+        if levels.is_empty() { "none yet".into() } else { levels },
+        t.pilot_work,
+        t.pilot_wall_seconds
+    );
+    lines.push(format!("  pilots    {pilots}"));
+    if t.chosen {
+        lines.push(format!(
+            "  level     REACHED at dt / {}, h / {}: the study's points are solved there",
+            t.time_factor, t.mesh_factor
+        ));
+    } else if !t.why_not.is_empty() {
+        lines.push(format!("  level     NOT REACHED: {}", t.why_not));
+    }
+    for (name, q) in &t.qoi {
+        let mesh = if q.mesh >= 0.0 { pct(q.mesh) } else { "not estimated".into() };
+        lines.push(format!(
+            "            {name}: {} (time step {}, mesh {mesh}, iterations {}){}",
+            pct(q.total),
+            pct(q.time),
+            pct(q.iteration),
+            if q.within { "" } else { " ABOVE" }
+        ));
+    }
+    lines
+}
+
 pub(crate) fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
     let mut parts: Vec<String> = a
         .qoi

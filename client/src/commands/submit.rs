@@ -40,6 +40,14 @@ pub(crate) struct SubmitArgs {
     /// REACHED (the points in flight finish): e.g. the work of the grid it replaces
     #[arg(long, value_name = "W", requires = "range")]
     pub(crate) work_budget: Option<f64>,
+    /// Solve the study to this accuracy (0.05: every QoI within 5 % of its scale): pilot points
+    /// solved on ladders of time steps and meshes choose dt, h and the tolerance (A / 50) first,
+    /// then the grid is solved there (docs/accuracy.md, "A study to an accuracy")
+    #[arg(long, value_name = "A", conflicts_with_all = ["tol", "adaptive_kind", "refine", "refine_mesh", "audit", "surface_audit"])]
+    pub(crate) accuracy: Option<f64>,
+    /// With --accuracy: how many pilots (the box's centre, then its corners; 1 to 16)
+    #[arg(long, value_name = "N", requires = "accuracy")]
+    pub(crate) pilots: Option<u32>,
     /// Tolerance on the error indicator (default: the scene's).
     #[arg(long, value_name = "T")]
     pub(crate) tol: Option<f64>,
@@ -100,6 +108,9 @@ pub(crate) fn read_scene(path: &Path) -> Result<(String, Scene)> {
 pub(crate) async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome> {
     // checked as the coordinator will, before connecting
     let tolerance = args.tol.map(|t| Tolerance::new("--tol", t)).transpose()?;
+    if let Some(a) = args.accuracy {
+        glissade_core::refine::Accuracy::new("--accuracy", a)?;
+    }
     let (scene, parsed) = read_scene(&args.scene)?;
     if args.adaptive.is_some() || args.surface_accuracy.is_some() {
         let space = glissade_core::study::space::ParameterSpace::from_scene(&parsed);
@@ -162,6 +173,8 @@ pub(crate) async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome>
         surface_audit_points: args.surface_audit,
         surface_accuracy: args.surface_accuracy,
         work_budget: args.work_budget,
+        accuracy: args.accuracy,
+        accuracy_pilots: args.pilots,
     };
     let mut client = user(server).await?;
     let reply = client

@@ -35,6 +35,7 @@ mod discretisation;
 mod held_out;
 mod submit;
 mod surface;
+mod to_accuracy;
 mod transitions;
 mod types;
 use crate::study::{PointStart, SceneSolutions, StudyPlan, WarmStart};
@@ -343,6 +344,7 @@ impl Coordinator {
         let r = &entry.record;
         let kind = match (r.audit_of, &r.adaptive, r.listed) {
             (Some(_), ..) => "audit",
+            _ if r.pilot_of.is_some() => "pilots",
             (_, Some(_), _) => "adaptive",
             (_, _, true) => "list",
             _ => "grid",
@@ -552,6 +554,7 @@ impl Coordinator {
         self.expire_leases()?;
         self.predict_held_out()?;
         let mut state = self.lock();
+        self.advance_to_accuracy(&mut state)?;
         let version =
             state.pools.get(pool).ok_or_else(|| CoordError::UnknownPool(pool.to_owned()))?.solver_version.clone();
         state.pools_seen.insert(pool.to_owned(), Instant::now());
@@ -574,6 +577,10 @@ impl Coordinator {
                     },
                 };
                 let entry = studies.get_mut(&id).expect("id listed above");
+                // a study to an accuracy waits for its pilots' level
+                if entry.record.to_accuracy.as_ref().is_some_and(|t| t.chosen.is_none()) {
+                    break;
+                }
                 if let Some(budget) = audit_budget.filter(|b| b.remaining() < 1.0) {
                     self.stop_audit(entry, &budget)?;
                     break;
@@ -829,6 +836,7 @@ impl Coordinator {
             eta_history: Vec::new(),
             work: 0.0,
             contact: answer.contact.clone(),
+            qoi_largest: answer.qoi_largest.clone(),
         };
         let point = apply(&entry.points[i], Transition::Answer { result, finished_seq: seq })?;
         self.commit(entry, vec![(point, Some(EventKind::Finished))], None, Batch::new())?;
@@ -941,6 +949,7 @@ impl Coordinator {
             file_bytes: file.len() as u64,
             stored_bytes: compressed.len() as u64,
             contact: c.contact.clone(),
+            qoi_largest: c.qoi_largest.clone(),
         };
         let converged = meta.converged && c.error_indicator <= entry.record.tolerance;
         let result = PointResult {
@@ -955,6 +964,7 @@ impl Coordinator {
             eta_history: c.eta_history.clone(),
             work: c.work,
             contact: c.contact.clone(),
+            qoi_largest: c.qoi_largest.clone(),
         };
         let tolerance = entry.record.tolerance;
         let point = apply(&entry.points[i], Transition::Complete { result, finished_seq: seq, tolerance })?;
@@ -1026,6 +1036,7 @@ impl Coordinator {
             eta_history: Vec::new(),
             work: 0.0,
             contact: Vec::new(),
+            qoi_largest: BTreeMap::new(),
         };
         // a pool's message, bounded and printable before it is stored, logged or shown
         let error = one_line(&f.error);

@@ -41,6 +41,8 @@ struct Admitted {
     refine_points: usize,
     refined: Vec<Level>,
     held_out_points: usize,
+    /// a study to an accuracy: its pilots (its tolerance is the accuracy's)
+    to_accuracy: Option<records::ToAccuracy>,
 }
 
 impl Coordinator {
@@ -92,6 +94,14 @@ impl Coordinator {
             ),
             _ => None,
         };
+        let (names, points, adaptive) = self.design(submission, &scene)?;
+        let to_accuracy = super::to_accuracy::admit(submission, &scene, &points)?;
+        let derived = match &to_accuracy {
+            Some((_, accuracy)) => {
+                Some(Tolerance::new("accuracy", accuracy.tolerance()).map_err(|e| CoordError::Invalid(e.to_string()))?)
+            }
+            None => derived,
+        };
         let tolerance = Tolerance::or_scene(submission.tolerance.or(derived), &scene);
         let max_iterations = match submission.max_iterations {
             Some(n) => glissade_core::scene::check_max_iterations("max_iterations", n.into())
@@ -99,13 +109,31 @@ impl Coordinator {
             // (the scene's was checked as it parsed)
             None => scene.solver.max_iterations as u32,
         };
-        let (names, points, adaptive) = self.design(submission, &scene)?;
         if submission.strategy != InitStrategy::Cold {
             // The index refuses scenes of too many parameters: say so now, not at the first lease.
             SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
                 .map_err(|e| CoordError::Invalid(format!("strategy {}: {e}", submission.strategy.name())))?;
         }
         let new_meshes = self.new_meshes(&scene)?;
+        // A study to an accuracy solves at the level its pilots choose, which the audits, written
+        // now from the scene as given, would not be at: it has none.
+        if to_accuracy.is_some() {
+            return Ok(Admitted {
+                scene,
+                scene_hash,
+                tolerance,
+                max_iterations,
+                names,
+                points,
+                adaptive,
+                new_meshes,
+                audit_points: 0,
+                refine_points: 0,
+                refined: Vec::new(),
+                held_out_points: 0,
+                to_accuracy: to_accuracy.map(|(spec, _)| spec),
+            });
+        }
         // (an adaptive study's points are not known yet: it has no audit)
         let audit_points = match submission.audit_points {
             None => default_audit_points(points.len()),
@@ -140,6 +168,7 @@ impl Coordinator {
             refine_points,
             refined,
             held_out_points,
+            to_accuracy: None,
         })
     }
 
@@ -362,6 +391,8 @@ impl Admitted {
             // set below, once the audits' records are written from this one
             surface_audit: None,
             held_out: None,
+            to_accuracy: self.to_accuracy.take(),
+            pilot_of: None,
         };
         // The audit: points spread over the list, re-solved cold at a tighter tolerance.
         let audit = audit_id.map(|audit_id| {

@@ -183,6 +183,7 @@ mod tests {
             eta_history: Vec::new(),
             work: 12.0,
             contact: Vec::new(),
+            qoi_largest: BTreeMap::new(),
         }
     }
 

@@ -206,6 +206,10 @@ pub struct Submission {
     /// Points held out of the study's response surface (None: [`default_surface_audit_points`];
     /// 0: none).
     pub surface_audit_points: Option<u32>,
+    /// Solve the study to this accuracy: pilots choose dt, h and the tolerance first.
+    pub accuracy: Option<f64>,
+    /// With `accuracy`: how many pilots (None: [`glissade_core::accuracy::DEFAULT_PILOTS`]).
+    pub accuracy_pilots: Option<u32>,
     /// The mesh files the scene names.
     pub meshes: Vec<MeshUpload>,
 }
@@ -402,6 +406,8 @@ pub struct Completion {
     /// solved from cold in spite of the lease's warm start
     pub started_cold: bool,
     pub contact: Vec<ContactActivity>,
+    /// the largest magnitude of each QoI's history
+    pub qoi_largest: BTreeMap<String, f64>,
 }
 
 /// A pool's failure report.

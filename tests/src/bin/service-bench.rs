@@ -129,6 +129,7 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
             work: 1.0,
             started_cold: false,
             contact: Vec::new(),
+            qoi_largest: Default::default(),
         };
         let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
         messages.extend(

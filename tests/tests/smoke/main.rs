@@ -20,5 +20,6 @@ mod security;
 mod service;
 mod slurm;
 mod surface_audit;
+mod to_accuracy;
 mod toolchain;
 mod worker_cli;

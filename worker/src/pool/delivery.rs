@@ -66,6 +66,11 @@ impl Delivery {
             work: s.work(),
             started_cold,
             contact: s.contact.iter().map(Into::into).collect(),
+            qoi_largest: s
+                .qoi
+                .iter()
+                .map(|(k, q)| (k.clone(), q.values.iter().fold(0.0f64, |m, v| m.max(v.abs()))))
+                .collect(),
         };
         Delivery::Complete { header, bytes }
     }

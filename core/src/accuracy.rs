@@ -1,0 +1,521 @@
+//! One design point solved to an asked accuracy (`--accuracy`, docs/accuracy.md, "Ask for an
+//! accuracy"), as a pure rule: [`next_step`] reads the levels solved so far and says which level
+//! to solve next, or gives the report. The solver's `solve_to_accuracy` drives it with solves in
+//! one process; the coordinator drives it with leases, one level at a time. Either way: the
+//! iteration tolerance set from the accuracy, the time step halved until the time ladder says
+//! the step's error is within its share, then, for box bodies, the mesh halved at that step
+//! until the mesh ladder says the same of h, then the step checked again on the answer's mesh.
+//! The answer is the finest level solved; per QoI its estimated error, split into time step,
+//! mesh and iterations. When the changes between levels do not fall within the largest factor
+//! allowed, the report says the accuracy was not reached, with the ladder as evidence.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use crate::point::DesignPoint;
+use crate::refine::{Accuracy, FinestError, RefineError, Refinement, TWO_LEVEL_ORDER, finest_error, refined_scene};
+use crate::scene::{LawSpec, Scene};
+use crate::study::space::ParameterSpace;
+
+/// The ratio between levels: dt / 2, h / 2.
+pub const RATIO: usize = 2;
+
+/// A QoI smaller than this fraction of the largest QoI of its unit is measured against that
+/// largest instead of itself: a stuck slip of 1e-21 m beside displacements of 1e-5 m is zero,
+/// not a value whose rounding could never settle.
+pub const ZERO_SHARE: f64 = 1e-6;
+
+/// The levels a ladder needs before it may stop: three, so that an order is observed. Two can
+/// agree by chance: the chattering block of docs/verification.md moves 0.4 % from dt to dt / 2
+/// under gamma = 0.6, then 9 % at dt / 4.
+pub const MIN_LEVELS: usize = 3;
+
+/// The Newmark gamma a solve to accuracy takes for a scene with contact or friction that does not
+/// set its own: a little numerical dissipation. Measured (docs/accuracy.md, "The time scheme"):
+/// under the trapezoidal rule the bar impact stops converging at dt / 4 (eta stuck at 3e-4, the
+/// impact's force oscillating between iterations); at 0.55 it converges in 35-306 iterations from
+/// dt to dt / 10, its wall force 2-6 x closer to d'Alembert's, and a chattering block drifts less.
+/// The first order it costs is measured by the ladders like any other error.
+pub const CONTACT_GAMMA: f64 = 0.55;
+
+/// The scene a solve to accuracy solves: the given one, with [`CONTACT_GAMMA`] where it has a
+/// contact or friction interface and no `newmark_gamma` of its own.
+pub fn accuracy_scene(scene: &Scene) -> Scene {
+    let mut s = scene.clone();
+    let contact = s.interfaces.iter().any(|i| matches!(i.law, LawSpec::Contact | LawSpec::Friction));
+    if contact && s.time.newmark_gamma.is_none() {
+        s.time.newmark_gamma = Some(CONTACT_GAMMA);
+    }
+    s
+}
+
+/// The scene solved at a level: [`accuracy_scene`] with dt / `time_factor` and h / `mesh_factor`.
+pub fn scene_at(scene: &Scene, time_factor: usize, mesh_factor: usize) -> Result<Scene, RefineError> {
+    let timed = refined_scene(&accuracy_scene(scene), Refinement::Time, time_factor)?;
+    refined_scene(&timed, Refinement::Mesh, mesh_factor)
+}
+
+/// [`scene_at`]'s text: what a coordinator stores and leases for a level (comments and layout
+/// are lost; the content hash of the text read back, meshes attached, is the level's scene's).
+pub fn scene_text_at(scene: &Scene, time_factor: usize, mesh_factor: usize) -> Result<String, RefineError> {
+    let at = scene_at(scene, time_factor, mesh_factor)?;
+    let text = toml::to_string(&at).map_err(|e| RefineError::Write(e.to_string()))?;
+    Ok(format!("# written by glissade (a study to an accuracy): dt / {time_factor}, h / {mesh_factor}\n{text}"))
+}
+
+/// How far a solve to accuracy may refine.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AccuracyLimits {
+    /// the finest time step allowed: dt / this (a power of 2)
+    pub max_time_factor: usize,
+    /// the finest mesh allowed: h / this along each axis (1: the mesh is not refined)
+    pub max_mesh_factor: usize,
+}
+
+/// A limit that is not a power of 2 from 1 to 1024.
+#[derive(Debug, thiserror::Error)]
+#[error("{flag} {value}: give a power of 2 from 1 to 1024")]
+pub struct LimitError {
+    pub flag: &'static str,
+    pub value: usize,
+}
+
+impl AccuracyLimits {
+    /// The limits `--max-dt-factor` and `--max-h-factor` ask for, checked.
+    pub fn new(max_time_factor: usize, max_mesh_factor: usize) -> Result<Self, LimitError> {
+        for (flag, value) in [("--max-dt-factor", max_time_factor), ("--max-h-factor", max_mesh_factor)] {
+            if !(value.is_power_of_two() && value <= 1024) {
+                return Err(LimitError { flag, value });
+            }
+        }
+        Ok(AccuracyLimits { max_time_factor, max_mesh_factor })
+    }
+}
+
+impl Default for AccuracyLimits {
+    fn default() -> Self {
+        AccuracyLimits { max_time_factor: 16, max_mesh_factor: 4 }
+    }
+}
+
+/// One solve of the ladders.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AccuracyLevel {
+    pub refinement: Refinement,
+    /// dt / time_factor, h / mesh_factor
+    pub time_factor: usize,
+    pub mesh_factor: usize,
+    pub steps: usize,
+    /// 0 where the solve did not say (a pool's lease)
+    pub dofs: usize,
+    pub converged: bool,
+    pub iterations: usize,
+    /// sweeps of the whole interval, the self-check included
+    pub work: f64,
+    pub wall_seconds: f64,
+}
+
+/// A level solved, as the rule reads it: the level, and per QoI its final value and the largest
+/// magnitude its history reached.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LevelSolved {
+    pub level: AccuracyLevel,
+    pub finals: BTreeMap<String, f64>,
+    pub largest: BTreeMap<String, f64>,
+}
+
+/// What one ladder says of one QoI.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LadderError {
+    /// the final value at each level of the ladder
+    pub finals: Vec<f64>,
+    /// (the estimate: the larger of the ladder's and `at_answer`)
+    #[serde(flatten)]
+    pub error: FinestError,
+    /// the time ladder only, when the mesh was refined: the step's error estimated again on the
+    /// answer's mesh, from one solve at twice the step
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub at_answer: Option<f64>,
+}
+
+/// One QoI of the answer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct QoiAccuracy {
+    pub name: String,
+    /// the finest level's final value
+    pub value: f64,
+    /// what the errors are relative to: the largest magnitude of the QoI's history at the finest
+    /// level (no less than [`ZERO_SHARE`] of the largest QoI of the same unit)
+    pub scale: f64,
+    pub time: LadderError,
+    /// `None` when the mesh was not refined
+    pub mesh: Option<LadderError>,
+    /// the iterations' share: [`crate::refine::NOISE_PER_TOLERANCE`] x the tolerance
+    pub iteration: f64,
+    /// time + mesh + iteration, relative to `scale`
+    pub total: f64,
+    pub within: bool,
+}
+
+/// The answer to an accuracy: the discretisation chosen, its ladders and each QoI's error.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AccuracyReport {
+    pub accuracy: f64,
+    /// the iteration tolerance the accuracy set
+    pub tolerance: f64,
+    /// the time scheme's gamma (0.5: the trapezoidal rule; [`CONTACT_GAMMA`] where chosen)
+    pub newmark_gamma: f64,
+    /// the answer's level: dt / time_factor, h / mesh_factor
+    pub time_factor: usize,
+    pub mesh_factor: usize,
+    pub steps: usize,
+    /// whether the mesh was refined (box bodies only, and `max_mesh_factor` 2 or more); when
+    /// not, the mesh's error is in no estimate and the accuracy is not said to be reached
+    pub mesh_refined: bool,
+    pub limits: AccuracyLimits,
+    /// every QoI within the accuracy
+    pub reached: bool,
+    /// why not, in one sentence; `None` when reached
+    pub why_not: Option<String>,
+    pub levels: Vec<AccuracyLevel>,
+    pub qois: Vec<QoiAccuracy>,
+    /// work and wall time of every level together
+    pub work: f64,
+    pub wall_seconds: f64,
+}
+
+/// What to do next: solve a level, or read the report.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Step {
+    Solve { refinement: Refinement, time_factor: usize, mesh_factor: usize },
+    Done(Box<AccuracyReport>),
+}
+
+/// A ladder climbed as far as its levels go.
+struct Climb {
+    finals: Vec<BTreeMap<String, f64>>,
+    errors: BTreeMap<String, FinestError>,
+    /// the finest level
+    last: LevelSolved,
+    /// why it stopped short of the share: a level not converged, the factor limit
+    stopped: Option<String>,
+}
+
+/// One ladder's rule: what it refines, how far, and the share of the accuracy its finest level
+/// must be within.
+struct Ladder<'a> {
+    refinement: Refinement,
+    max_factor: usize,
+    share: f64,
+    noise: f64,
+    scene: &'a Scene,
+}
+
+impl Ladder<'_> {
+    fn what(&self) -> &'static str {
+        match self.refinement {
+            Refinement::Time => "dt",
+            Refinement::Mesh => "h",
+        }
+    }
+
+    fn factor(&self, l: &LevelSolved) -> usize {
+        match self.refinement {
+            Refinement::Time => l.level.time_factor,
+            Refinement::Mesh => l.level.mesh_factor,
+        }
+    }
+
+    /// Reads `solved` (factors 1, 2, 4, ... of this ladder, in order): the ladder as it stands
+    /// when every QoI's finest error is within the share, a level did not converge or the next
+    /// factor passes the limit or cannot be built (`build`); else the next factor to solve.
+    fn climb(&self, solved: &[&LevelSolved], build: impl Fn(usize) -> Result<(), RefineError>) -> Result<Climb, usize> {
+        let Some(&last) = solved.last() else { return Err(1) };
+        let finals: Vec<BTreeMap<String, f64>> = solved.iter().map(|l| l.finals.clone()).collect();
+        let factor = self.factor(last);
+        let what = self.what();
+        let errors = self.errors(&finals, last);
+        let climb = |stopped: Option<String>| Climb {
+            finals: finals.clone(),
+            errors: errors.clone(),
+            last: last.clone(),
+            stopped,
+        };
+        if !last.level.converged {
+            return Ok(climb(Some(format!("the solve at {what} / {factor} did not converge: the ladder stops there"))));
+        }
+        if finals.len() >= MIN_LEVELS && errors.values().all(|e| e.estimate <= self.share) {
+            return Ok(climb(None));
+        }
+        let next = factor * RATIO;
+        if next > self.max_factor {
+            return Ok(climb((finals.len() < MIN_LEVELS).then(|| {
+                format!(
+                    "the {what} ladder needs {MIN_LEVELS} levels ({what} / {}) and may go to {what} / {} only",
+                    RATIO.pow(MIN_LEVELS as u32 - 1),
+                    self.max_factor
+                )
+            })));
+        }
+        match build(next) {
+            Ok(()) => Err(next),
+            Err(e) => Ok(climb(Some(format!("the {what} ladder stops at {what} / {factor}: {e}")))),
+        }
+    }
+
+    /// Every QoI's finest error (infinite from a single level: nothing is known yet).
+    fn errors(&self, finals: &[BTreeMap<String, f64>], last: &LevelSolved) -> BTreeMap<String, FinestError> {
+        let scales = scales(self.scene, last);
+        finals[0]
+            .keys()
+            .map(|name| {
+                let f: Vec<f64> = finals.iter().map(|l| l.get(name).copied().unwrap_or(f64::NAN)).collect();
+                let e = if f.len() < 2 {
+                    FinestError { estimate: f64::INFINITY, order: None, erratic: false, below_noise: false }
+                } else {
+                    finest_error(&f, RATIO, self.noise, scales[name])
+                };
+                (name.clone(), e)
+            })
+            .collect()
+    }
+}
+
+/// Each QoI's scale: the largest magnitude of its history, no less than [`ZERO_SHARE`] of the
+/// largest of the QoIs of the same unit.
+pub fn scales(scene: &Scene, solved: &LevelSolved) -> BTreeMap<String, f64> {
+    let unit = |name: &str| scene.qoi.iter().find(|q| q.name == name).map_or("", |q| q.kind.unit(scene.dimension));
+    let own = &solved.largest;
+    solved
+        .finals
+        .keys()
+        .map(|name| {
+            let s = own.get(name).copied().unwrap_or(0.0);
+            let largest = own.iter().filter(|(n, _)| unit(n) == unit(name)).fold(0.0f64, |m, (_, &v)| m.max(v));
+            (name.clone(), s.max(ZERO_SHARE * largest))
+        })
+        .collect()
+}
+
+/// The next step of a solve of `scene` (as given: [`accuracy_scene`] is applied here) to
+/// `accuracy` within `limits`, from the levels solved so far, in the order they were solved.
+pub fn next_step(scene: &Scene, accuracy: Accuracy, limits: AccuracyLimits, solved: &[LevelSolved]) -> Step {
+    let scene = &accuracy_scene(scene);
+    let mesh_refined = limits.max_mesh_factor >= RATIO && refined_scene(scene, Refinement::Mesh, RATIO).is_ok();
+    let share = accuracy.discretisation_share(mesh_refined);
+    let noise = accuracy.iteration_error();
+    let solve = |refinement, time_factor, mesh_factor| Step::Solve { refinement, time_factor, mesh_factor };
+
+    let time_ladder = Ladder { refinement: Refinement::Time, max_factor: limits.max_time_factor, share, noise, scene };
+    let on_scene_mesh: Vec<&LevelSolved> = solved.iter().filter(|l| l.level.mesh_factor == 1).collect();
+    let time = match time_ladder.climb(&on_scene_mesh, |f| scene_at(scene, f, 1).map(drop)) {
+        Ok(c) => c,
+        Err(next) => return solve(Refinement::Time, next, 1),
+    };
+    let time_factor = time.last.level.time_factor;
+    let mesh = if mesh_refined && time.stopped.is_none() {
+        let mesh_ladder =
+            Ladder { refinement: Refinement::Mesh, max_factor: limits.max_mesh_factor, share, noise, scene };
+        let at_step: Vec<&LevelSolved> = std::iter::once(&time.last)
+            .chain(solved.iter().filter(|l| {
+                l.level.refinement == Refinement::Mesh && l.level.time_factor == time_factor && l.level.mesh_factor > 1
+            }))
+            .collect();
+        match mesh_ladder.climb(&at_step, |f| scene_at(scene, time_factor, f).map(drop)) {
+            Ok(c) => Some(c),
+            Err(next) => return solve(Refinement::Mesh, time_factor, next),
+        }
+    } else {
+        None
+    };
+    let answer = mesh.as_ref().map_or(&time.last, |m| &m.last);
+    let mesh_factor = answer.level.mesh_factor;
+
+    // The time ladder ran on the scene's mesh; a finer mesh carries higher frequencies that the
+    // step may resolve worse. One more solve, at dt x 2 on the answer's mesh, checks the step's
+    // error where the answer is.
+    let time_at_answer = if mesh_factor > 1 && time_factor >= RATIO {
+        let coarser = solved.iter().find(|l| {
+            l.level.refinement == Refinement::Time
+                && l.level.time_factor == time_factor / RATIO
+                && l.level.mesh_factor == mesh_factor
+        });
+        match coarser {
+            None => return solve(Refinement::Time, time_factor / RATIO, mesh_factor),
+            Some(c) => c.level.converged.then_some(&c.finals),
+        }
+    } else {
+        None
+    };
+    Step::Done(Box::new(report(scene, accuracy, limits, solved, Answered { time, mesh, time_at_answer, mesh_refined })))
+}
+
+/// The ladders read to the end.
+struct Answered<'a> {
+    time: Climb,
+    mesh: Option<Climb>,
+    time_at_answer: Option<&'a BTreeMap<String, f64>>,
+    mesh_refined: bool,
+}
+
+fn report(
+    scene: &Scene,
+    accuracy: Accuracy,
+    limits: AccuracyLimits,
+    solved: &[LevelSolved],
+    answered: Answered<'_>,
+) -> AccuracyReport {
+    let Answered { time: time_climb, mesh: mesh_climb, time_at_answer, mesh_refined } = answered;
+    let noise = accuracy.iteration_error();
+    let answer = mesh_climb.as_ref().map_or(&time_climb.last, |m| &m.last);
+    let scales = scales(scene, answer);
+    let ladder = |c: &Climb, name: &str| LadderError {
+        finals: c.finals.iter().map(|f| f.get(name).copied().unwrap_or(f64::NAN)).collect(),
+        error: c.errors[name],
+        at_answer: None,
+    };
+    let qois: Vec<QoiAccuracy> = answer
+        .finals
+        .iter()
+        .map(|(name, &value)| {
+            let mut time = ladder(&time_climb, name);
+            // at the answer's mesh: the change from dt x 2, at the order the ladder observed (else
+            // the first)
+            time.at_answer = time_at_answer.map(|coarser| {
+                let order = time.error.order.unwrap_or(TWO_LEVEL_ORDER);
+                let change = if scales[name] > 0.0 {
+                    (value - coarser.get(name).copied().unwrap_or(f64::NAN)).abs() / scales[name]
+                } else {
+                    0.0
+                };
+                change / ((RATIO as f64).powf(order) - 1.0)
+            });
+            if let Some(e) = time.at_answer {
+                time.error.estimate = time.error.estimate.max(e);
+            }
+            let mesh = mesh_climb.as_ref().map(|m| ladder(m, name));
+            let total = time.error.estimate + mesh.as_ref().map_or(0.0, |m| m.error.estimate) + noise;
+            QoiAccuracy {
+                name: name.clone(),
+                value,
+                scale: scales[name],
+                time,
+                mesh,
+                iteration: noise,
+                total,
+                within: total <= accuracy.get() * (1.0 + 1e-12),
+            }
+        })
+        .collect();
+    let mut reasons: Vec<String> =
+        time_climb.stopped.iter().chain(mesh_climb.as_ref().and_then(|m| m.stopped.as_ref())).cloned().collect();
+    // (an infinite estimate comes from a ladder that stopped at one level: its reason says why)
+    let finite_above = qois.iter().filter(|q| !q.within && q.total.is_finite());
+    if let Some(q) = finite_above.max_by(|a, b| a.total.total_cmp(&b.total)) {
+        reasons.push(format!(
+            "'{}' is estimated {:.1e} off, above the accuracy {:.1e} (its parts: time step {:.1e}, mesh {}, iterations {:.1e})",
+            q.name,
+            q.total,
+            accuracy.get(),
+            q.time.error.estimate,
+            q.mesh.as_ref().map_or("not estimated".to_string(), |m| format!("{:.1e}", m.error.estimate)),
+            q.iteration
+        ));
+    }
+    if !mesh_refined {
+        reasons.push(if refined_scene(scene, Refinement::Mesh, RATIO).is_ok() {
+            format!("the mesh was kept (its largest factor is {}): its error is in no estimate", limits.max_mesh_factor)
+        } else {
+            "the mesh is read from a file and cannot be refined: its error is in no estimate".to_string()
+        });
+    }
+    let why_not = (!reasons.is_empty()).then(|| reasons.join("; "));
+    let levels: Vec<AccuracyLevel> = solved.iter().map(|l| l.level.clone()).collect();
+    AccuracyReport {
+        newmark_gamma: scene.time.newmark_gamma.unwrap_or(0.5),
+        accuracy: accuracy.get(),
+        tolerance: accuracy.tolerance(),
+        time_factor: answer.level.time_factor,
+        mesh_factor: answer.level.mesh_factor,
+        steps: answer.level.steps,
+        mesh_refined: mesh_climb.is_some(),
+        limits,
+        reached: why_not.is_none(),
+        why_not,
+        work: levels.iter().map(|l| l.work).sum(),
+        wall_seconds: levels.iter().map(|l| l.wall_seconds).sum(),
+        levels,
+        qois,
+    }
+}
+
+/// Design points in a spread-out order: the one nearest the points' centre first, then each
+/// time the one farthest (normalised distance) from all those already taken. A study to an
+/// accuracy solves the first few as pilots and checks the next few as held-out points: the
+/// pilots span the box (its centre, then its corners), the held-out points lie between them.
+pub fn spread_order(points: &[DesignPoint], space: &ParameterSpace, n: usize) -> Vec<usize> {
+    if points.is_empty() {
+        return Vec::new();
+    }
+    let coords: Vec<Vec<f64>> = points.iter().map(|p| space.normalised_coordinates(p)).collect();
+    let dim = coords[0].len();
+    let centre: Vec<f64> = (0..dim).map(|d| coords.iter().map(|c| c[d]).sum::<f64>() / coords.len() as f64).collect();
+    let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
+    let first =
+        (0..points.len()).min_by(|&a, &b| distance(&coords[a], &centre).total_cmp(&distance(&coords[b], &centre)));
+    let mut order: Vec<usize> = first.into_iter().collect();
+    while order.len() < n.min(points.len()) {
+        let farthest = (0..points.len()).filter(|i| !order.contains(i)).max_by(|&a, &b| {
+            let d = |i: usize| order.iter().map(|&o| distance(&coords[i], &coords[o])).fold(f64::INFINITY, f64::min);
+            d(a).total_cmp(&d(b))
+        });
+        match farthest {
+            Some(i) => order.push(i),
+            None => break,
+        }
+    }
+    order
+}
+
+/// The pilots a study to an accuracy takes unless told.
+pub const DEFAULT_PILOTS: usize = 3;
+
+/// The most pilots a study to an accuracy may ask for (each climbs its own ladders).
+pub const MAX_PILOTS: usize = 16;
+
+/// The discretisation a study takes from its pilots' levels: the finest any of them needed.
+pub fn study_level(pilots: impl IntoIterator<Item = (usize, usize)>) -> (usize, usize) {
+    pilots.into_iter().fold((1, 1), |(t, m), (pt, pm)| (t.max(pt), m.max(pm)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::study::space::{GridAxis, design_points};
+
+    #[test]
+    fn the_spread_order_starts_at_the_centre_then_takes_the_corners() {
+        let scene = Scene::parse(
+            "dimension = 1\n[time]\nduration = 1e-4\nsteps = 10\n[parameters]\na = { default = 0.5, min = 0.0, max = 1.0 }\nb = { default = 0.5, min = 0.0, max = 1.0 }\n[materials.m]\nE = 1e9\nrho = 1000\n[[bodies]]\nname = \"bar\"\nmaterial = \"m\"\nsize = [1.0]\nelements = [2]\n",
+        )
+        .unwrap();
+        let space = ParameterSpace::from_scene(&scene);
+        let axes = ["a=0:1:5", "b=0:1:5"].map(|g| GridAxis::parse(g, &space).unwrap());
+        let points = design_points(&axes, 100).unwrap();
+        let order = spread_order(&points, &space, 7);
+        let at = |i: usize| (points[order[i]].get("a").unwrap(), points[order[i]].get("b").unwrap());
+        assert_eq!(at(0), (0.5, 0.5), "the centre first");
+        let corners: Vec<(f64, f64)> = (1..5).map(at).collect();
+        for c in [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0)] {
+            assert!(corners.contains(&c), "{c:?} in {corners:?}");
+        }
+        // then edge midpoints, each far from every point taken
+        assert_eq!(order.len(), 7);
+        let mut unique = order.clone();
+        unique.sort();
+        unique.dedup();
+        assert_eq!(unique.len(), 7);
+        assert_eq!(spread_order(&points[..1], &space, 3), vec![0]);
+    }
+}

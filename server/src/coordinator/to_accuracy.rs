@@ -1,0 +1,420 @@
+//! A study to an accuracy (`SubmitStudyRequest.accuracy`, docs/accuracy.md): its pilot points
+//! climb core::accuracy's ladders as `glissade-worker solve --accuracy` does, one level at a
+//! time, each level a study of its own (`pilot_of`) whose points pools lease as any other; the
+//! rule ([`next_step`]) reads the levels done and says which to open next. Once every pilot is
+//! done the study takes the finest level any pilot needed (its scene becomes that level's) and
+//! its points are solved there, the pilots' own answered by their stored solutions; when a
+//! pilot did not reach the accuracy no level is chosen and the study is cancelled with why.
+
+use std::sync::Arc;
+
+use glissade_core::accuracy::{
+    AccuracyLevel, AccuracyLimits, DEFAULT_PILOTS, LevelSolved, MAX_PILOTS, Step, next_step, scene_at, scene_text_at,
+    spread_order, study_level,
+};
+use glissade_core::point::DesignPoint;
+use glissade_core::refine::{Accuracy, Refinement};
+use glissade_core::scene::Scene;
+use glissade_core::study::space::ParameterSpace;
+use glissade_core::text::one_line;
+use glissade_proto::{PointId, StudyId};
+
+use super::transitions::{Transition, apply};
+use super::{CoordError, Coordinator, State, StudyEntry, Submission, now_unix_ms};
+use crate::records::{
+    NEXT_STUDY_KEY, PointRecord, PointResult, PointState, StudyRecord, ToAccuracy, encode, point_key, study_key,
+};
+use crate::store::{Batch, Tree};
+use crate::study::{SceneSolutions, StudyPlan};
+
+/// What a submission to an accuracy is, checked: its record's part (pilots chosen among
+/// `points`), or None when it asks for none. Refused with the reason when the study asks for
+/// what an accuracy sets (a tolerance), for an adaptive design, the refine options, or when its
+/// scene reads a mesh file (its mesh cannot be refined: its error would be in no estimate).
+pub(super) fn admit(
+    submission: &Submission,
+    scene: &Scene,
+    points: &[DesignPoint],
+) -> Result<Option<(ToAccuracy, Accuracy)>, CoordError> {
+    let Some(asked) = submission.accuracy else {
+        if submission.accuracy_pilots.is_some() {
+            return Err(CoordError::Invalid("accuracy_pilots: pilots are for a study to an accuracy".into()));
+        }
+        return Ok(None);
+    };
+    let accuracy = Accuracy::new("accuracy", asked).map_err(|e| CoordError::Invalid(e.to_string()))?;
+    let refused = |what: &str| {
+        Err(CoordError::Invalid(format!("accuracy: {what}: an accuracy chooses the tolerance, dt and h itself")))
+    };
+    if submission.tolerance.is_some() {
+        return refused("not with a tolerance");
+    }
+    if submission.adaptive.is_some() || submission.surface_accuracy.is_some() {
+        return refused("not with an adaptive study (give a grid or points)");
+    }
+    // (0 and 2 are every client's default levels)
+    if submission.refine_points.is_some_and(|n| n > 0) || submission.refine_levels > 2 || submission.refine_mesh {
+        return refused("not with a discretisation audit");
+    }
+    if submission.audit_points.is_some_and(|n| n > 0) || submission.surface_audit_points.is_some_and(|n| n > 0) {
+        return Err(CoordError::Invalid(
+            "accuracy: a study to an accuracy has no iteration or surface audit yet (they would run at the scene as given, not at the level its pilots choose)".into(),
+        ));
+    }
+    if !scene.mesh_digests.is_empty() {
+        return Err(CoordError::Invalid(
+            "accuracy: the scene reads a mesh file, which cannot be refined: its mesh error would be in no estimate (give box bodies, or solve at a tolerance)".into(),
+        ));
+    }
+    let n = match submission.accuracy_pilots {
+        None => DEFAULT_PILOTS,
+        Some(n) if (1..=MAX_PILOTS as u32).contains(&n) => n as usize,
+        Some(n) => return Err(CoordError::Invalid(format!("accuracy_pilots {n}: from 1 to {MAX_PILOTS}"))),
+    };
+    let pilots: Vec<u64> =
+        spread_order(points, &ParameterSpace::from_scene(scene), n).into_iter().map(|i| i as u64).collect();
+    let spec = ToAccuracy {
+        accuracy: asked,
+        limits: AccuracyLimits::default(),
+        asked: vec![Vec::new(); pilots.len()],
+        reports: vec![None; pilots.len()],
+        pilots,
+        levels: Vec::new(),
+        chosen: None,
+        why_not: None,
+    };
+    Ok(Some((spec, accuracy)))
+}
+
+/// A level's study before it is stored: its record, points and scene.
+struct NewLevel {
+    record: StudyRecord,
+    points: Vec<PointRecord>,
+    scene: Scene,
+}
+
+impl Coordinator {
+    /// Moves every study to an accuracy whose level is not chosen yet as far as its pilots'
+    /// levels done allow: the levels each pilot needs next opened (or its point added to an open
+    /// one), the reports of the pilots done kept, the level chosen once all are.
+    pub(super) fn advance_to_accuracy(&self, state: &mut State) -> Result<(), CoordError> {
+        let ids: Vec<StudyId> = state
+            .studies
+            .values()
+            .filter(|e| !e.record.cancelled && e.record.to_accuracy.as_ref().is_some_and(|t| !t.decided()))
+            .map(|e| e.record.id)
+            .collect();
+        for id in ids {
+            self.advance(state, id)?;
+        }
+        Ok(())
+    }
+
+    fn advance(&self, state: &mut State, id: StudyId) -> Result<(), CoordError> {
+        let entry = &state.studies[&id];
+        let mut spec = entry.record.to_accuracy.clone().expect("listed by the caller");
+        let given = entry.scene.clone();
+        let accuracy = Accuracy::new("accuracy", spec.accuracy).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        let mut changed = false;
+        // (pilot, level) pairs to solve next
+        let mut wanted: Vec<(usize, usize, usize)> = Vec::new();
+        for p in 0..spec.pilots.len() {
+            if spec.reports[p].is_some() {
+                continue;
+            }
+            let at = &entry.points[spec.pilots[p] as usize].parameters;
+            let mut solved = Vec::new();
+            let mut waiting = false;
+            for &(refinement, k, m) in &spec.asked[p] {
+                let point = level_point(state, &spec, k, m, at);
+                match point.map(|q| (&q.state, &q.result, &q.error)) {
+                    Some((PointState::Done | PointState::Failed, Some(r), _)) => {
+                        solved.push(level_solved(&given, refinement, k, m, r))
+                    }
+                    Some((PointState::Failed, None, error)) => {
+                        spec.why_not = Some(format!(
+                            "the pilot at {at}: its solve at dt / {k}, h / {m} failed ({}), so no level is chosen",
+                            error.as_deref().unwrap_or("no reason given")
+                        ));
+                        break;
+                    }
+                    _ => {
+                        waiting = true;
+                        break;
+                    }
+                }
+            }
+            if spec.why_not.is_some() {
+                break;
+            }
+            if waiting {
+                continue;
+            }
+            changed = true;
+            match next_step(&given, accuracy, spec.limits, &solved) {
+                Step::Solve { refinement, time_factor, mesh_factor } => {
+                    spec.asked[p].push((refinement, time_factor, mesh_factor));
+                    wanted.push((p, time_factor, mesh_factor));
+                }
+                Step::Done(report) => spec.reports[p] = Some(*report),
+            }
+        }
+        if let Some(r) = spec.reports.iter().flatten().find(|r| !r.reached) {
+            let p = spec.reports.iter().position(|x| x.as_ref() == Some(r)).expect("found above");
+            let at = &entry.points[spec.pilots[p] as usize].parameters;
+            spec.why_not = Some(format!(
+                "the pilot at {at} did not reach the accuracy, so no level is chosen: {}",
+                r.why_not.as_deref().unwrap_or("")
+            ));
+        }
+        if spec.why_not.is_some() {
+            return self.refuse_level(state, id, spec);
+        }
+        if !changed {
+            return Ok(());
+        }
+        if spec.reports.iter().all(Option::is_some) {
+            return self.choose_level(state, id, spec, &given);
+        }
+        self.open_levels(state, id, spec, &given, wanted)
+    }
+
+    /// Adds each pilot's next level: a point of that level's study, opened if need be; the
+    /// study's record with its ladders, in the same batch.
+    fn open_levels(
+        &self,
+        state: &mut State,
+        id: StudyId,
+        mut spec: ToAccuracy,
+        given: &Scene,
+        wanted: Vec<(usize, usize, usize)>,
+    ) -> Result<(), CoordError> {
+        let mut batch = Batch::new();
+        let mut opened: Vec<NewLevel> = Vec::new();
+        let mut added: Vec<(StudyId, PointRecord, DesignPoint)> = Vec::new();
+        let study = state.studies[&id].record.clone();
+        let mut next_id = state.next_study;
+        for (p, k, m) in wanted {
+            let at = state.studies[&id].points[spec.pilots[p] as usize].parameters.clone();
+            let open = spec.levels.iter().find(|l| (l.0, l.1) == (k, m)).map(|l| l.2);
+            match open {
+                // opened in this pass: not in the state yet
+                Some(sid) if opened.iter().any(|l| l.record.id == sid) => {
+                    let level = opened.iter_mut().find(|l| l.record.id == sid).expect("found above");
+                    let point = pending_point(sid, level.points.len(), at);
+                    batch.put(Tree::Points, point_key(sid, point.id), encode(&point));
+                    level.points.push(point);
+                }
+                Some(sid) => {
+                    let level = &state.studies[&sid];
+                    let n = level.points.len() + added.iter().filter(|(s, ..)| *s == sid).count();
+                    let full = level.plan.space().complete(&at).map_err(|e| CoordError::Invalid(e.to_string()))?;
+                    let point = pending_point(sid, n, at);
+                    batch.put(Tree::Points, point_key(sid, point.id), encode(&point));
+                    added.push((sid, point, full));
+                }
+                None => {
+                    let sid = StudyId(next_id);
+                    next_id += 1;
+                    let level = new_level(&study, sid, given, k, m, at)?;
+                    if self.store.get(Tree::Scenes, level.record.scene_hash.as_bytes())?.is_none() {
+                        batch.put(Tree::Scenes, level.record.scene_hash.as_bytes(), level.record.scene.as_bytes());
+                    }
+                    batch.put(Tree::Studies, study_key(sid), encode(&level.record));
+                    for q in &level.points {
+                        batch.put(Tree::Points, point_key(sid, q.id), encode(q));
+                    }
+                    spec.levels.push((k, m, sid));
+                    tracing::info!(study = %id, level = %sid, time_factor = k, mesh_factor = m, "a level of the pilots opened");
+                    opened.push(level);
+                }
+            }
+        }
+        batch.put(Tree::Meta, NEXT_STUDY_KEY, next_id.to_be_bytes());
+        let mut record = study;
+        record.to_accuracy = Some(spec);
+        batch.put(Tree::Studies, study_key(id), encode(&record));
+        self.store.commit(batch)?;
+        state.next_study = next_id;
+        let entry = state.studies.get_mut(&id).expect("advanced");
+        entry.record = record;
+        // its watchers hear of each step of its pilots (its own points wait)
+        self.emit(super::EventKind::Snapshot, entry, None);
+        for (sid, point, full) in added {
+            let level = state.studies.get_mut(&sid).expect("an open level");
+            level.plan.full.push(full);
+            level.points.push(point);
+        }
+        for level in opened {
+            self.enter_level(state, level)?;
+        }
+        self.work.notify_waiters();
+        Ok(())
+    }
+
+    /// A level's study in the state, with its plan and its scene's index.
+    fn enter_level(&self, state: &mut State, level: NewLevel) -> Result<(), CoordError> {
+        let NewLevel { record, points, scene } = level;
+        let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        index_scene(state, &record.scene_hash, plan.space(), self);
+        let id = record.id;
+        state.studies.insert(id, StudyEntry { record, points, plan, scene: Arc::new(scene) });
+        self.answer_stored(state, id)
+    }
+
+    /// Every pilot is done and reached the accuracy: the study's scene becomes the finest level
+    /// any needed, and its points are solved there (the pilots' own answered by their stored
+    /// solutions where the level is theirs).
+    fn choose_level(
+        &self,
+        state: &mut State,
+        id: StudyId,
+        mut spec: ToAccuracy,
+        given: &Scene,
+    ) -> Result<(), CoordError> {
+        let (k, m) = study_level(spec.reports.iter().flatten().map(|r| (r.time_factor, r.mesh_factor)));
+        let text = scene_text_at(given, k, m).map_err(|e| CoordError::Invalid(format!("accuracy: {e}")))?;
+        let scene = Scene::parse(&text)
+            .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;
+        spec.chosen = Some((k, m));
+        let entry = &state.studies[&id];
+        let mut record = entry.record.clone();
+        record.scene_hash = scene.content_hash();
+        record.scene = text;
+        record.to_accuracy = Some(spec);
+        let plan = StudyPlan::new(&scene, &record, &entry.points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        let mut batch = Batch::new();
+        if self.store.get(Tree::Scenes, record.scene_hash.as_bytes())?.is_none() {
+            batch.put(Tree::Scenes, record.scene_hash.as_bytes(), record.scene.as_bytes());
+        }
+        batch.put(Tree::Studies, study_key(id), encode(&record));
+        self.store.commit(batch)?;
+        tracing::info!(study = %id, time_factor = k, mesh_factor = m, "a study to an accuracy chose its level");
+        index_scene(state, &record.scene_hash, plan.space(), self);
+        let entry = state.studies.get_mut(&id).expect("advanced");
+        entry.record = record;
+        entry.plan = plan;
+        entry.scene = Arc::new(scene);
+        self.emit(super::EventKind::Snapshot, entry, None);
+        self.answer_stored(state, id)?;
+        self.work.notify_waiters();
+        Ok(())
+    }
+
+    /// No level: the study's pending points are cancelled with the reason, and the study with them.
+    fn refuse_level(&self, state: &mut State, id: StudyId, spec: ToAccuracy) -> Result<(), CoordError> {
+        let why = spec.why_not.clone().unwrap_or_default();
+        tracing::warn!(study = %id, why = %why, "a study to an accuracy chose no level");
+        let entry = state.studies.get_mut(&id).expect("advanced");
+        let mut record = entry.record.clone();
+        record.to_accuracy = Some(spec);
+        record.cancelled = true;
+        let changes = entry
+            .points
+            .iter()
+            .filter(|p| p.state == PointState::Pending)
+            .map(|p| {
+                let mut cancelled = apply(p, Transition::Cancel)?;
+                cancelled.error = Some(format!("not solved: {why}"));
+                Ok((cancelled, None))
+            })
+            .collect::<Result<Vec<_>, CoordError>>()?;
+        self.commit(entry, changes, Some(record), Batch::new())
+    }
+}
+
+/// The point of the level (dt / k, h / m) at the pilot `at`, if that level has it.
+fn level_point<'a>(
+    state: &'a State,
+    spec: &ToAccuracy,
+    k: usize,
+    m: usize,
+    at: &DesignPoint,
+) -> Option<&'a PointRecord> {
+    let sid = spec.levels.iter().find(|l| (l.0, l.1) == (k, m))?.2;
+    state.studies.get(&sid)?.points.iter().find(|p| &p.parameters == at)
+}
+
+/// A level's point as the rule reads it. Where the pool did not send the QoIs' largest
+/// magnitudes (an older pool, a stored answer from before), the finals stand for them.
+fn level_solved(given: &Scene, refinement: Refinement, k: usize, m: usize, r: &PointResult) -> LevelSolved {
+    let largest = r.qoi.iter().map(|(n, v)| (n.clone(), r.qoi_largest.get(n).copied().unwrap_or(v.abs()))).collect();
+    LevelSolved {
+        level: AccuracyLevel {
+            refinement,
+            time_factor: k,
+            mesh_factor: m,
+            steps: scene_at(given, k, m).map_or(0, |s| s.time.steps),
+            dofs: 0,
+            converged: r.converged,
+            iterations: r.iterations as usize,
+            work: r.work,
+            wall_seconds: r.wall_seconds,
+        },
+        finals: r.qoi.clone(),
+        largest,
+    }
+}
+
+/// The study of level (dt / k, h / m) of `study`'s pilots, with its first point at `at`.
+fn new_level(
+    study: &StudyRecord,
+    id: StudyId,
+    given: &Scene,
+    k: usize,
+    m: usize,
+    at: DesignPoint,
+) -> Result<NewLevel, CoordError> {
+    let text = scene_text_at(given, k, m).map_err(|e| CoordError::Invalid(format!("accuracy: {e}")))?;
+    let scene = Scene::parse(&text)
+        .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;
+    let record = StudyRecord {
+        id,
+        label: format!("pilots of study {}: dt / {k}, h / {m}", study.id),
+        scene_hash: scene.content_hash(),
+        scene: text,
+        // more steps may take more iterations: the limit grows with them, within every solve's
+        max_iterations: study.max_iterations.saturating_mul(k as u32).min(glissade_core::scene::MAX_ITERATIONS as u32),
+        strategy: glissade_core::study::strategy::InitStrategy::Cold,
+        order: glissade_core::study::order::OrderKind::Asc,
+        created_unix_ms: now_unix_ms(),
+        cancelled: false,
+        audit_of: None,
+        audit: None,
+        adaptive: None,
+        listed: true,
+        refined_by: Vec::new(),
+        refines: None,
+        surface_audit: None,
+        held_out: None,
+        to_accuracy: None,
+        pilot_of: Some(study.id),
+        ..study.clone()
+    };
+    let points = vec![pending_point(id, 0, at)];
+    Ok(NewLevel { record, points, scene })
+}
+
+fn pending_point(study: StudyId, i: usize, parameters: DesignPoint) -> PointRecord {
+    PointRecord {
+        study,
+        id: PointId(i as u64),
+        parameters,
+        state: PointState::Pending,
+        attempts: 0,
+        result: None,
+        error: None,
+        finished_seq: None,
+        finished_unix_ms: None,
+    }
+}
+
+/// The warm-start index of a scene, if it has none yet (none for a scene of too many parameters:
+/// its studies are cold).
+fn index_scene(state: &mut State, hash: &str, space: &ParameterSpace, c: &Coordinator) {
+    if !state.by_scene.contains_key(hash)
+        && let Ok(index) = SceneSolutions::new(hash.to_owned(), space.clone(), c.store.clone())
+    {
+        state.by_scene.insert(hash.to_owned(), index);
+    }
+}

@@ -1,0 +1,165 @@
+//! A study to an accuracy on a real coordinator with a real pool: its pilots climb the ladders
+//! one lease at a time, and the level the study takes, the tolerance and every pilot's answer
+//! are those of `glissade-worker solve --accuracy` at the same points.
+
+use crate::common::*;
+
+/// A titanium bar of our own (no shipped scene): clamped, pushed at its free end by a pressure
+/// that ramps in smoothly and holds; the pressure is the swept parameter.
+const PUSHED_TI_BAR: &str = r#"
+dimension = 1
+[time]
+duration = 1.5e-4
+steps = 16
+[parameters]
+p = { default = 4e7, min = 1e7, max = 8e7, unit = "Pa" }
+[materials.ti]
+E = 110e9
+rho = 4500
+[[bodies]]
+name = "bar"
+material = "ti"
+size = [0.2]
+elements = [8]
+substructures = [2]
+[[boundary]]
+face = "bar.x-"
+clamped = true
+[[loads]]
+face = "bar.x+"
+pressure = "p"
+history = [[0, 0], [2.5e-5, 0.146], [5e-5, 0.5], [7.5e-5, 0.854], [1e-4, 1], [1.5e-4, 1]]
+[[qoi]]
+name = "tip_ux"
+kind = "displacement"
+body = "bar"
+point = [0.2]
+component = "x"
+[[qoi]]
+name = "tip_vx"
+kind = "velocity"
+body = "bar"
+point = [0.2]
+component = "x"
+"#;
+
+const ACCURACY: f64 = 0.05;
+
+#[test]
+fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let scene_path = dir.path().join("ti-bar.toml");
+    std::fs::write(&scene_path, PUSHED_TI_BAR)?;
+    let (server_log, pool_log) = (dir.path().join("server.log"), dir.path().join("pool.log"));
+    let (_server, addr) = start_server(&dir.path().join("db"), &server_log);
+    let url = format!("http://{addr}");
+    let mut pool = start_single_pool(&url, "pool", &pool_log);
+    let rt = runtime();
+    let logs = || format!("server:\n{}\npool:\n{}", log_of(&server_log), log_of(&pool_log));
+
+    // refused: what an accuracy chooses itself
+    let refused = rt.block_on(async {
+        let mut client = user(&url).await?;
+        let request = v1::SubmitStudyRequest {
+            scene: PUSHED_TI_BAR.into(),
+            grid: vec!["p=2e7:6e7:3".into()],
+            accuracy: Some(ACCURACY),
+            tolerance: Some(1e-4),
+            ..Default::default()
+        };
+        anyhow::Ok(client.submit_study(request).await.expect_err("refused"))
+    })?;
+    assert_eq!(refused.code(), tonic::Code::InvalidArgument);
+    assert!(refused.message().contains("accuracy: not with a tolerance"), "{}", refused.message());
+
+    let out = glissade(
+        Some(&url),
+        &["submit", scene_path.to_str().unwrap(), "--grid", "p=2e7:6e7:3", "--accuracy", "0.05", "--pilots", "2"],
+    );
+    assert!(out.status.success(), "submit: {}", text(&out.stderr));
+    let id: u64 = text(&out.stdout).trim().parse()?;
+    let ran = rt.block_on(async {
+        let mut client = user(&url).await?;
+        watch(&mut client, id, |_| true).await?;
+        let s = study(&mut client, id).await?;
+        let mut levels = Vec::new();
+        for level in &s.to_accuracy.as_ref().expect("to an accuracy").level_study_ids {
+            levels.push(study(&mut client, *level).await?);
+        }
+        anyhow::Ok((s, levels))
+    });
+    let (s, levels) = ran.map_err(|e| anyhow::anyhow!("{e}\n{}", logs()))?;
+    let t = s.to_accuracy.clone().expect("to an accuracy");
+    assert!(t.chosen && t.reached && t.why_not.is_empty(), "{t:?}\n{}", logs());
+    assert_eq!((t.pilot_points.len(), t.pilots_done), (2, 2), "{t:?}");
+    assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}\n{}", logs());
+    assert!((s.tolerance - ACCURACY / 50.0).abs() < 1e-15, "{}", s.tolerance);
+    // every level a study of its own, pilots of this one, solved cold at the study's tolerance
+    assert!(levels.len() >= 3, "three time levels at least: {levels:?}");
+    for level in &levels {
+        assert_eq!((level.pilot_of, level.kind.as_str()), (id, "pilots"));
+        assert_eq!(level.tolerance, s.tolerance);
+        assert!(level.points.iter().all(|p| p.state == v1::PointState::Done as i32), "{level:?}");
+    }
+    // the study's scene is its level's
+    assert!(levels.iter().any(|l| l.scene_hash == s.scene_hash), "the chosen level is one of the pilots'");
+
+    // each pilot, on the worker: the same ladders, the same level, the same answer
+    let (mut time_factor, mut mesh_factor) = (1, 1);
+    for &pilot in &t.pilot_points {
+        let point = &s.points[pilot as usize];
+        let p = point.parameters["p"];
+        let out = run_with_timeout(
+            command(&workspace_bin("glissade-worker")).arg("solve").arg(&scene_path).args([
+                "--set",
+                &format!("p={p}"),
+                "--accuracy",
+                &ACCURACY.to_string(),
+                "--json",
+            ]),
+            LIMIT,
+        );
+        assert!(out.status.success(), "solve --accuracy: {}", text(&out.stderr));
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+        let report = &json["accuracy"];
+        time_factor = time_factor.max(report["time_factor"].as_u64().unwrap());
+        mesh_factor = mesh_factor.max(report["mesh_factor"].as_u64().unwrap());
+        for q in report["qois"].as_array().expect("qois") {
+            let name = q["name"].as_str().unwrap();
+            let (worker, service) = (q["total"].as_f64().unwrap(), t.qoi[name].total);
+            // the study's largest estimate over its pilots is no smaller than this pilot's
+            assert!(service >= worker * (1.0 - 1e-9), "{name}: service {service}, worker {worker}");
+        }
+        // the study's point at the pilot, at the chosen level: answered from the pilot's own
+        // stored solve where its level is the study's
+        if (report["time_factor"].as_u64(), report["mesh_factor"].as_u64())
+            == (Some(t.time_factor as u64), Some(t.mesh_factor as u64))
+        {
+            assert!(point.answered, "{point:?}");
+            for q in report["qois"].as_array().unwrap() {
+                let name = q["name"].as_str().unwrap();
+                let (worker, service) = (q["value"].as_f64().unwrap(), point.qoi[name]);
+                assert!(
+                    (worker - service).abs() <= 1e-9 * worker.abs().max(1e-30),
+                    "{name}: worker {worker}, service {service}"
+                );
+            }
+        }
+    }
+    assert_eq!((t.time_factor as u64, t.mesh_factor as u64), (time_factor, mesh_factor), "{t:?}");
+    for (name, q) in &t.qoi {
+        assert!(q.within && q.total <= ACCURACY && q.mesh >= 0.0, "{name}: {q:?}");
+    }
+
+    // `glissade show` says what was chosen and why
+    let out = glissade(Some(&url), &["show", &id.to_string()]);
+    assert!(out.status.success(), "show: {}", text(&out.stderr));
+    let shown = text(&out.stdout);
+    let level = format!("  level     REACHED at dt / {}, h / {}", t.time_factor, t.mesh_factor);
+    assert!(shown.contains("  accuracy  asked 5.00 % of each QoI's scale") && shown.contains(&level), "{shown}");
+    let out = glissade(Some(&url), &["show", &id.to_string(), "--json"]);
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(json["to_accuracy"]["time_factor"], serde_json::json!(t.time_factor), "{json}");
+    assert!(terminate(&mut pool.0).success());
+    Ok(())
+}
