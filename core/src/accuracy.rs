@@ -518,4 +518,59 @@ mod tests {
         assert_eq!(unique.len(), 7);
         assert_eq!(spread_order(&points[..1], &space, 3), vec![0]);
     }
+
+    #[test]
+    fn the_rule_climbs_time_then_mesh_then_checks_the_step_on_the_answers_mesh() {
+        // a 1D bar of boxes, no contact (gamma kept); a QoI of second order in dt and in h
+        let scene = Scene::parse(
+            "dimension = 1\n[time]\nduration = 1e-4\nsteps = 10\n[materials.m]\nE = 1e9\nrho = 1000\n[[bodies]]\nname = \"bar\"\nmaterial = \"m\"\nsize = [1.0]\nelements = [4]\n[[boundary]]\nface = \"bar.x-\"\nclamped = true\n[[qoi]]\nname = \"u\"\nkind = \"displacement\"\nbody = \"bar\"\npoint = [1.0]\ncomponent = \"x\"\n",
+        )
+        .unwrap();
+        let q = |k: usize, m: usize| 1.0 + 0.2 / (k * k) as f64 + 0.05 / (m * m) as f64;
+        let accuracy = Accuracy::new("--accuracy", 0.01).unwrap();
+        let mut solved: Vec<LevelSolved> = Vec::new();
+        let mut asked = Vec::new();
+        let report = loop {
+            match next_step(&scene, accuracy, AccuracyLimits::default(), &solved) {
+                Step::Solve { refinement, time_factor, mesh_factor } => {
+                    asked.push((refinement, time_factor, mesh_factor));
+                    assert!(asked.len() < 20, "{asked:?}");
+                    let v = q(time_factor, mesh_factor);
+                    solved.push(LevelSolved {
+                        level: AccuracyLevel {
+                            refinement,
+                            time_factor,
+                            mesh_factor,
+                            steps: 10 * time_factor,
+                            dofs: 0,
+                            converged: true,
+                            iterations: 1,
+                            work: 1.0,
+                            wall_seconds: 0.0,
+                        },
+                        finals: [("u".to_string(), v)].into(),
+                        largest: [("u".to_string(), v)].into(),
+                    });
+                }
+                Step::Done(report) => break report,
+            }
+        };
+        use Refinement::{Mesh, Time};
+        // the share of each ladder is 0.45 %: the step's error 0.2 / k^2 is 1.1 % at dt / 4 and
+        // 0.3 % at dt / 8; the mesh's 0.05 / m^2 is 0.3 % at h / 4; then dt / 4 on h / 4
+        let expected =
+            vec![(Time, 1, 1), (Time, 2, 1), (Time, 4, 1), (Time, 8, 1), (Mesh, 8, 2), (Mesh, 8, 4), (Time, 4, 4)];
+        assert_eq!(asked, expected);
+        assert!(report.reached, "{:?}", report.why_not);
+        assert_eq!((report.time_factor, report.mesh_factor, report.levels.len()), (8, 4, 7));
+        let u = &report.qois[0];
+        assert_eq!((u.value, u.scale), (q(8, 4), q(8, 4)));
+        // Richardson at the observed order 2 is exact here: the errors 0.2 / 64 and 0.05 / 16
+        assert!((u.time.error.estimate - 0.2 / 64.0 / u.scale).abs() < 1e-12, "{u:?}");
+        assert!((u.mesh.as_ref().unwrap().error.estimate - 0.05 / 16.0 / u.scale).abs() < 1e-12, "{u:?}");
+        assert!((u.total - (0.2 / 64.0 + 0.05 / 16.0) / u.scale - 1e-3).abs() < 1e-12, "{u:?}");
+        // the levels' scenes: the text the coordinator leases reads back as the level
+        let text = scene_text_at(&scene, 4, 2).unwrap();
+        assert_eq!(Scene::parse(&text).unwrap().content_hash(), scene_at(&scene, 4, 2).unwrap().content_hash());
+    }
 }

@@ -240,7 +240,7 @@ fn study(web: &Web, id: &str, points: bool) -> Result<StudyView, Refusal> {
 fn study_json(v: &StudyView) -> serde_json::Value {
     let p = v.progress;
     let r = &v.record;
-    json!({
+    let mut out = json!({
         "study_id": r.id.0,
         "label": r.label,
         "state": state_word(v.state),
@@ -303,7 +303,12 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             }
             _ => None,
         }).collect::<Vec<_>>(),
-    })
+    });
+    // a study to an accuracy: what was asked, each pilot's ladders and report, the level chosen
+    // (records::ToAccuracy); a level of its pilots names it
+    out["to_accuracy"] = json!(r.to_accuracy);
+    out["pilot_of"] = json!(r.pilot_of.map(|s| s.0));
+    out
 }
 
 fn point_json(p: &PointRecord) -> serde_json::Value {

@@ -227,6 +227,8 @@ class Client:
         refine: Optional[int] = None,
         refine_levels: int = 0,
         surface_audit: Optional[int] = None,
+        accuracy: Optional[float] = None,
+        pilots: Optional[int] = None,
     ) -> Submitted:
         """Submits a study of the scene file `scene` (its mesh files, next to it, travel with it).
 
@@ -236,6 +238,9 @@ class Client:
         "nearest", "blend" or "linear" (default the coordinator's); `order`: "ascending",
         "descending" or "greedy"; `audit`, `refine`, `surface_audit`: points of the audits
         (None: the coordinator's default, 0: none), as `glissade submit --help` says.
+        `accuracy`: solve the study to this accuracy (0.05: every QoI within 5 % of its scale),
+        its `pilots` (default 3) choosing dt, h and the tolerance first; the study's
+        `to_accuracy` then says what they chose (docs/accuracy.md, "A study to an accuracy").
         """
         given = [x for x in (grid, points, adaptive) if x is not None]
         if len(given) != 1:
@@ -262,6 +267,8 @@ class Client:
             ("audit_points", audit),
             ("refine_points", refine),
             ("surface_audit_points", surface_audit),
+            ("accuracy", accuracy),
+            ("accuracy_pilots", pilots),
         ]:
             if value is not None:
                 setattr(request, name, value)

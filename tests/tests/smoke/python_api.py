@@ -84,6 +84,13 @@ with glissade.Client(url, token=token) as c:
     except glissade.GlissadeError as e:
         assert e.code_name == "INVALID_ARGUMENT", e
         out["invalid"] = e.message
+    # an accuracy reaches the coordinator (which refuses it beside a tolerance it would choose)
+    try:
+        c.submit(scene, grid={"f1": [0.15]}, accuracy=0.05, tol=1e-3)
+        raise AssertionError("an accuracy with a tolerance accepted")
+    except glissade.GlissadeError as e:
+        assert e.code_name == "INVALID_ARGUMENT" and "accuracy: not with a tolerance" in e.message, e
+        out["accuracy_refused"] = e.message
     try:
         c.cancel(s)
         raise AssertionError("a done study cancelled")

@@ -160,6 +160,12 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
     let out = glissade(Some(&url), &["show", &id.to_string(), "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     assert_eq!(json["to_accuracy"]["time_factor"], serde_json::json!(t.time_factor), "{json}");
+    // the web API gives each pilot's ladders and report
+    let (status, _, api) = http_get(&addr, &format!("/api/studies/{id}"));
+    assert_eq!(status, 200);
+    let api: serde_json::Value = serde_json::from_str(&api)?;
+    assert_eq!(api["to_accuracy"]["chosen"], serde_json::json!([t.time_factor, t.mesh_factor]), "{api}");
+    assert_eq!(api["to_accuracy"]["reports"].as_array().map(Vec::len), Some(2), "{api}");
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }
