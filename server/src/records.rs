@@ -333,6 +333,23 @@ pub struct PointRecord {
     pub finished_unix_ms: Option<i64>,
 }
 
+impl PointRecord {
+    /// Point `id` of `study` at `parameters` (the swept ones), pending, never leased.
+    pub fn pending(study: StudyId, id: PointId, parameters: DesignPoint) -> Self {
+        PointRecord {
+            study,
+            id,
+            parameters,
+            state: PointState::Pending,
+            attempts: 0,
+            result: None,
+            error: None,
+            finished_seq: None,
+            finished_unix_ms: None,
+        }
+    }
+}
+
 /// Metadata of a stored solution; its fields are in `solution_fields` under the same key.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SolutionRecord {

@@ -762,18 +762,7 @@ impl Coordinator {
             Some(next) => {
                 // every parameter of the point, for the plan: refused before anything is stored
                 let full = entry.plan.space().complete(&next).map_err(|e| CoordError::Invalid(e.to_string()))?;
-                let parameters = next;
-                let point = PointRecord {
-                    study: entry.record.id,
-                    id: PointId(entry.points.len() as u64),
-                    parameters,
-                    state: PointState::Pending,
-                    attempts: 0,
-                    result: None,
-                    error: None,
-                    finished_seq: None,
-                    finished_unix_ms: None,
-                };
+                let point = PointRecord::pending(entry.record.id, PointId(entry.points.len() as u64), next);
                 let mut batch = Batch::new();
                 batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
                 self.store.commit(batch)?;

@@ -15,7 +15,7 @@ use super::{
     default_surface_audit_points, held_out, now_unix_ms,
 };
 use crate::records::{
-    self, AdaptiveSpec, MeshRef, NEXT_STUDY_KEY, PointRecord, PointState, StudyRecord, encode, point_key, study_key,
+    self, AdaptiveSpec, MeshRef, NEXT_STUDY_KEY, PointRecord, StudyRecord, encode, point_key, study_key,
 };
 use crate::store::{Batch, Tree};
 use crate::study::{SceneSolutions, StudyPlan};
@@ -313,6 +313,16 @@ impl Coordinator {
         Ok(())
     }
 
+    /// The warm-start index of a scene, if it has none yet (none for a scene of too many
+    /// parameters: its studies are cold, checked at submit).
+    pub(super) fn index_scene(&self, state: &mut State, hash: &str, space: &ParameterSpace) {
+        if !state.by_scene.contains_key(hash)
+            && let Ok(index) = SceneSolutions::new(hash.to_owned(), space.clone(), self.store.clone())
+        {
+            state.by_scene.insert(hash.to_owned(), index);
+        }
+    }
+
     /// A stored study in the coordinator's state, with its plan and its scene's index.
     fn enter_study(
         &self,
@@ -324,13 +334,7 @@ impl Coordinator {
         // (a discretisation audit's level has its own, refined scene)
         let scene = admitted.refined.iter().find(|l| l.hash == record.scene_hash).map_or(&admitted.scene, |l| &l.scene);
         let plan = StudyPlan::new(scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
-        if !state.by_scene.contains_key(&record.scene_hash) {
-            // None for a scene of too many parameters: its studies are cold (checked at submit).
-            if let Ok(index) = SceneSolutions::new(record.scene_hash.clone(), plan.space().clone(), self.store.clone())
-            {
-                state.by_scene.insert(record.scene_hash.clone(), index);
-            }
-        }
+        self.index_scene(state, &record.scene_hash, plan.space());
         // (the parsed scene kept without its mesh bytes, as a reopened database has it)
         let mut kept = scene.clone();
         kept.meshes.clear();
@@ -449,17 +453,7 @@ fn pending(study: StudyId, points: Vec<DesignPoint>) -> Vec<PointRecord> {
     points
         .into_iter()
         .enumerate()
-        .map(|(i, parameters)| PointRecord {
-            study,
-            id: PointId(i as u64),
-            parameters,
-            state: PointState::Pending,
-            attempts: 0,
-            result: None,
-            error: None,
-            finished_seq: None,
-            finished_unix_ms: None,
-        })
+        .map(|(i, parameters)| PointRecord::pending(study, PointId(i as u64), parameters))
         .collect()
 }
 

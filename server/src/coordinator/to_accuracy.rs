@@ -9,7 +9,7 @@
 use std::sync::Arc;
 
 use glissade_core::accuracy::{
-    AccuracyLevel, AccuracyLimits, DEFAULT_PILOTS, LevelSolved, MAX_PILOTS, Step, next_step, scene_at, scene_text_at,
+    AccuracyLevel, AccuracyLimits, DEFAULT_PILOTS, LevelSolved, MAX_PILOTS, Step, next_step, scene_text_at,
     spread_order, study_level,
 };
 use glissade_core::point::DesignPoint;
@@ -25,7 +25,7 @@ use crate::records::{
     NEXT_STUDY_KEY, PointRecord, PointResult, PointState, StudyRecord, ToAccuracy, encode, point_key, study_key,
 };
 use crate::store::{Batch, Tree};
-use crate::study::{SceneSolutions, StudyPlan};
+use crate::study::StudyPlan;
 
 /// What a submission to an accuracy is, checked: its record's part (pilots chosen among
 /// `points`), or None when it asks for none. Refused with the reason when the study asks for
@@ -201,7 +201,7 @@ impl Coordinator {
                 // opened in this pass: not in the state yet
                 Some(sid) if opened.iter().any(|l| l.record.id == sid) => {
                     let level = opened.iter_mut().find(|l| l.record.id == sid).expect("found above");
-                    let point = pending_point(sid, level.points.len(), at);
+                    let point = PointRecord::pending(sid, PointId(level.points.len() as u64), at);
                     batch.put(Tree::Points, point_key(sid, point.id), encode(&point));
                     level.points.push(point);
                 }
@@ -209,7 +209,7 @@ impl Coordinator {
                     let level = &state.studies[&sid];
                     let n = level.points.len() + added.iter().filter(|(s, ..)| *s == sid).count();
                     let full = level.plan.space().complete(&at).map_err(|e| CoordError::Invalid(e.to_string()))?;
-                    let point = pending_point(sid, n, at);
+                    let point = PointRecord::pending(sid, PointId(n as u64), at);
                     batch.put(Tree::Points, point_key(sid, point.id), encode(&point));
                     added.push((sid, point, full));
                 }
@@ -256,7 +256,7 @@ impl Coordinator {
     fn enter_level(&self, state: &mut State, level: NewLevel) -> Result<(), CoordError> {
         let NewLevel { record, points, scene } = level;
         let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
-        index_scene(state, &record.scene_hash, plan.space(), self);
+        self.index_scene(state, &record.scene_hash, plan.space());
         let id = record.id;
         state.studies.insert(id, StudyEntry { record, points, plan, scene: Arc::new(scene) });
         self.answer_stored(state, id)
@@ -290,7 +290,7 @@ impl Coordinator {
         batch.put(Tree::Studies, study_key(id), encode(&record));
         self.store.commit(batch)?;
         tracing::info!(study = %id, time_factor = k, mesh_factor = m, "a study to an accuracy chose its level");
-        index_scene(state, &record.scene_hash, plan.space(), self);
+        self.index_scene(state, &record.scene_hash, plan.space());
         let entry = state.studies.get_mut(&id).expect("advanced");
         entry.record = record;
         entry.plan = plan;
@@ -344,7 +344,8 @@ fn level_solved(given: &Scene, refinement: Refinement, k: usize, m: usize, r: &P
             refinement,
             time_factor: k,
             mesh_factor: m,
-            steps: scene_at(given, k, m).map_or(0, |s| s.time.steps),
+            // (refining the time multiplies the steps; the mesh keeps them)
+            steps: given.time.steps * k,
             dofs: 0,
             converged: r.converged,
             iterations: r.iterations as usize,
@@ -391,30 +392,6 @@ fn new_level(
         pilot_of: Some(study.id),
         ..study.clone()
     };
-    let points = vec![pending_point(id, 0, at)];
+    let points = vec![PointRecord::pending(id, PointId(0), at)];
     Ok(NewLevel { record, points, scene })
-}
-
-fn pending_point(study: StudyId, i: usize, parameters: DesignPoint) -> PointRecord {
-    PointRecord {
-        study,
-        id: PointId(i as u64),
-        parameters,
-        state: PointState::Pending,
-        attempts: 0,
-        result: None,
-        error: None,
-        finished_seq: None,
-        finished_unix_ms: None,
-    }
-}
-
-/// The warm-start index of a scene, if it has none yet (none for a scene of too many parameters:
-/// its studies are cold).
-fn index_scene(state: &mut State, hash: &str, space: &ParameterSpace, c: &Coordinator) {
-    if !state.by_scene.contains_key(hash)
-        && let Ok(index) = SceneSolutions::new(hash.to_owned(), space.clone(), c.store.clone())
-    {
-        state.by_scene.insert(hash.to_owned(), index);
-    }
 }
