@@ -151,6 +151,34 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
         assert!(q.within && q.total <= ACCURACY && q.mesh >= 0.0, "{name}: {q:?}");
     }
 
+    // the promise, on the point no pilot solved: every QoI (the velocity too) within the accuracy
+    // of a reference two levels finer in dt and in h, at a tolerance 1000 x tighter
+    let other = s.points.iter().find(|p| !t.pilot_points.contains(&p.point_id)).expect("3 points, 2 pilots");
+    let fine = PUSHED_TI_BAR
+        .replace("steps = 16", &format!("steps = {}", 16 * 4 * t.time_factor))
+        .replace("elements = [8]", &format!("elements = [{}]", 8 * 4 * t.mesh_factor));
+    let fine_path = dir.path().join("ti-bar-fine.toml");
+    std::fs::write(&fine_path, fine)?;
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker")).arg("solve").arg(&fine_path).args([
+            "--set",
+            &format!("p={}", other.parameters["p"]),
+            "--tol",
+            "1e-6",
+            "--json",
+        ]),
+        LIMIT,
+    );
+    assert!(out.status.success(), "the reference: {}", text(&out.stderr));
+    let reference: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    for (name, q) in reference["qoi"].as_object().expect("qoi") {
+        let values: Vec<f64> = q["values"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let scale = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let error = (other.qoi[name] - q["final"].as_f64().unwrap()).abs() / scale;
+        eprintln!("{name}: {error:.2e} off the reference two levels finer (asked {ACCURACY})");
+        assert!(error <= ACCURACY, "{name}: {error:.2e} off the reference two levels finer");
+    }
+
     // `glissade show` says what was chosen and why
     let out = glissade(Some(&url), &["show", &id.to_string()]);
     assert!(out.status.success(), "show: {}", text(&out.stderr));
