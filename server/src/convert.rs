@@ -742,4 +742,22 @@ mod tests {
         let too_many = vec![report; MAX_CONTACT_REPORTS + 1];
         assert!(Completion::try_from(header(too_many)).unwrap_err().0.contains("at most"));
     }
+
+    /// A QoI's largest magnitude (the accuracy's scale) is one of the header's QoIs, finite and
+    /// not negative: anything else is refused with the name.
+    #[test]
+    fn a_qois_largest_magnitude_is_checked() {
+        let header = |name: &str, largest: f64| v1::CompletePointHeader {
+            pool_id: "p".into(),
+            iterations: 5,
+            qoi: [("u".to_string(), -2.0)].into(),
+            qoi_largest: [(name.to_string(), largest)].into(),
+            ..Default::default()
+        };
+        assert_eq!(Completion::try_from(header("u", 3.0)).unwrap().qoi_largest["u"], 3.0);
+        for (name, bad) in [("u", f64::NAN), ("u", -1.0), ("u", f64::INFINITY), ("v", 1.0)] {
+            let e = Completion::try_from(header(name, bad)).unwrap_err().0;
+            assert!(e.contains("qoi_largest") && e.contains(&format!("'{name}'")), "{e}");
+        }
+    }
 }

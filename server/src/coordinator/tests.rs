@@ -1565,3 +1565,75 @@ fn studies_come_in_pages_in_id_order() {
     let (last, more) = c.studies_page(*all.last().unwrap(), 2);
     assert!(last.is_empty() && !more);
 }
+
+#[test]
+fn a_submission_to_an_accuracy_is_checked_and_its_points_wait_for_its_pilots() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    let base = Submission {
+        scene_text: TINY.into(),
+        grid: vec!["f1=0.1:0.2:3".into()],
+        points: vec![],
+        tolerance: None,
+        max_iterations: None,
+        strategy: InitStrategy::Nearest,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: None,
+        refine_points: None,
+        refine_levels: 0,
+        refine_mesh: false,
+        adaptive: None,
+        surface_audit_points: None,
+        accuracy: Some(0.05),
+        accuracy_pilots: None,
+        surface_accuracy: None,
+        work_budget: None,
+        meshes: vec![],
+    };
+    let cases = [
+        (Submission { accuracy: Some(f64::NAN), ..base.clone() }, "give an accuracy between"),
+        (Submission { accuracy: Some(1e300), ..base.clone() }, "give an accuracy between"),
+        (Submission { accuracy: Some(0.0), ..base.clone() }, "give an accuracy between"),
+        (Submission { accuracy_pilots: Some(0), ..base.clone() }, "accuracy_pilots 0: from 1 to 16"),
+        (Submission { accuracy_pilots: Some(u32::MAX), ..base.clone() }, "from 1 to 16"),
+        (Submission { tolerance: Some(tolerance(1e-4)), ..base.clone() }, "not with a tolerance"),
+        (Submission { refine_mesh: true, ..base.clone() }, "not with a discretisation audit"),
+        (Submission { audit_points: Some(2), ..base.clone() }, "no iteration or surface audit"),
+        (
+            Submission { accuracy: None, accuracy_pilots: Some(2), ..base.clone() },
+            "pilots are for a study to an accuracy",
+        ),
+    ];
+    for (bad, needle) in cases {
+        match c.submit(bad) {
+            Err(CoordError::Invalid(m)) => assert!(m.contains(needle), "{m}"),
+            other => panic!("{needle}: must be refused, got {:?}", other.map(|r| r.0)),
+        }
+    }
+    assert!(c.studies().is_empty(), "nothing stored");
+
+    let (id, n, hash) = c.submit(base).unwrap();
+    assert_eq!(n, 3);
+    let view = c.study(id, true).unwrap();
+    assert!((view.record.tolerance - 1e-3).abs() < 1e-15, "A / 50");
+    let t = view.record.to_accuracy.clone().unwrap();
+    assert_eq!(t.pilots[0], 1, "the centre first");
+    assert_eq!(t.pilots.iter().sum::<u64>(), 3, "then the ends: {:?}", t.pilots);
+    // the first leases are the pilots' first level, a study of its own at the accuracy's scheme
+    // (gamma 0.55 for this contact scene), none of the study's own points
+    pool(&c, "p", VERSION);
+    let mut grants = Vec::new();
+    while let Some(g) = c.lease("p").unwrap() {
+        grants.push(g);
+    }
+    assert_eq!(grants.len(), 3);
+    let level = c.study(grants[0].study, false).unwrap();
+    assert_eq!((level.record.pilot_of, level.kind), (Some(id), "pilots"));
+    assert!(grants.iter().all(|g| g.study == level.record.id && g.tolerance == view.record.tolerance));
+    assert_ne!(grants[0].scene_hash, hash);
+    assert_eq!(Scene::parse(&grants[0].scene_text).unwrap().time.newmark_gamma, Some(0.55));
+    let view = c.study(id, false).unwrap();
+    assert_eq!((view.progress.pending, view.progress.leased), (3, 0));
+    assert_eq!(view.record.to_accuracy.unwrap().levels, vec![(1, 1, level.record.id)]);
+}
