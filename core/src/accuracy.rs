@@ -481,6 +481,9 @@ pub fn spread_order(points: &[DesignPoint], space: &ParameterSpace, n: usize) ->
 /// The pilots a study to an accuracy takes unless told.
 pub const DEFAULT_PILOTS: usize = 3;
 
+/// The held-out points a study to an accuracy re-solves one level finer to confirm it.
+pub const DEFAULT_HELD_OUT: usize = 2;
+
 /// The most pilots a study to an accuracy may ask for (each climbs its own ladders).
 pub const MAX_PILOTS: usize = 16;
 

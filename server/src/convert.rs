@@ -13,8 +13,8 @@ use glissade_proto::{PointId, StudyId};
 use tonic::{Code, Status};
 
 use crate::coordinator::{
-    Completion, CoordError, Event, EventKind, Failure, MeshUpload, PoolInfo, Progress, SolutionSelector, StudyState,
-    StudyView, Submission, Surface, SurfaceSource,
+    Completion, CoordError, Event, EventKind, Failure, HeldOutCheck, MeshUpload, PoolInfo, Progress, SolutionSelector,
+    StudyState, StudyView, Submission, Surface, SurfaceSource,
 };
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::{InitStrategy, StrategyKind};
@@ -455,7 +455,7 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
 }
 
 /// A study to an accuracy as the API gives it: per QoI the pilot of the largest estimate.
-fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64) -> v1::StudyToAccuracy {
+fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64, check: Option<&HeldOutCheck>) -> v1::StudyToAccuracy {
     let reports: Vec<&glissade_core::accuracy::AccuracyReport> = t.reports.iter().flatten().collect();
     let mut qoi: BTreeMap<String, v1::QoiToAccuracy> = BTreeMap::new();
     for q in reports.iter().flat_map(|r| &r.qois) {
@@ -488,13 +488,21 @@ fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64) -> v1::StudyToAcc
         pilot_work: reports.iter().map(|r| r.work).sum(),
         pilot_wall_seconds: reports.iter().map(|r| r.wall_seconds).sum(),
         newmark_gamma: reports.first().map_or(0.0, |r| r.newmark_gamma),
+        held_out_study_id: check.map_or(0, |c| c.study.0),
+        held_out_time_factor: check.map_or(0, |c| c.time_factor as u32),
+        held_out_mesh_factor: check.map_or(0, |c| c.mesh_factor as u32),
+        held_out_planned: check.map_or(0, |c| c.planned),
+        held_out_done: check.map_or(0, |c| c.done),
+        held_out_failed: check.map_or(0, |c| c.failed),
+        held_out_difference: check.map(|c| c.difference.clone().into_iter().collect()).unwrap_or_default(),
+        confirmed: check.and_then(|c| c.confirmed),
     }
 }
 
 pub fn study(v: &StudyView) -> v1::Study {
     let r = &v.record;
     v1::Study {
-        to_accuracy: r.to_accuracy.as_ref().map(|t| to_accuracy(t, r.tolerance)),
+        to_accuracy: r.to_accuracy.as_ref().map(|t| to_accuracy(t, r.tolerance, v.held_out_check.as_ref())),
         pilot_of: r.pilot_of.map_or(0, |s| s.0),
         study_id: r.id.0,
         label: r.label.clone(),

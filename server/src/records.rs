@@ -125,6 +125,10 @@ pub struct StudyRecord {
     /// A level of the pilots of this study (a study to an accuracy): its scene is that level's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pilot_of: Option<StudyId>,
+    /// The held-out check of this study to an accuracy: some of its points re-solved cold one
+    /// level finer (dt / 2 and h / 2 of the level chosen).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub confirms: Option<StudyId>,
 }
 
 /// A study to an accuracy (core::accuracy, docs/accuracy.md): its pilot points climb the
@@ -146,6 +150,13 @@ pub struct ToAccuracy {
     /// Once every pilot is done: the level (dt / k, h / m) the study is solved at.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub chosen: Option<(usize, usize)>,
+    /// The study's points re-solved one level finer once it has ended (the spread order's next
+    /// after the pilots: between them).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub held_out_points: Vec<u64>,
+    /// The study of that check (opened with the level).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub held_out: Option<StudyId>,
     /// Why no level was chosen (a pilot did not reach the accuracy): the points are cancelled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub why_not: Option<String>,

@@ -308,6 +308,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
     // (records::ToAccuracy); a level of its pilots names it
     out["to_accuracy"] = json!(r.to_accuracy);
     out["pilot_of"] = json!(r.pilot_of.map(|s| s.0));
+    out["held_out_check"] = json!(v.held_out_check);
     out
 }
 

@@ -83,7 +83,7 @@ pub struct StudyArgs {
     #[arg(long, value_name = "N", default_value_t = 3, requires = "accuracy")]
     pilots: usize,
     /// With --accuracy: how many held-out points to re-solve one level finer
-    #[arg(long, value_name = "N", default_value_t = 2, requires = "accuracy")]
+    #[arg(long, value_name = "N", default_value_t = glissade_core::accuracy::DEFAULT_HELD_OUT, requires = "accuracy")]
     held_out: usize,
     /// With --accuracy: the finest time step a pilot may take, dt / N (a power of 2)
     #[arg(long, value_name = "N", default_value_t = 16, requires = "accuracy")]

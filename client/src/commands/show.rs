@@ -368,6 +368,16 @@ fn to_accuracy_json(t: &v1::StudyToAccuracy) -> serde_json::Value {
         "reached": t.reached,
         "why_not": (!t.why_not.is_empty()).then_some(&t.why_not),
         "newmark_gamma": t.newmark_gamma,
+        "held_out": (t.held_out_study_id != 0).then(|| serde_json::json!({
+            "study_id": t.held_out_study_id,
+            "time_factor": t.held_out_time_factor,
+            "mesh_factor": t.held_out_mesh_factor,
+            "planned": t.held_out_planned,
+            "done": t.held_out_done,
+            "failed": t.held_out_failed,
+            "difference": t.held_out_difference,
+            "confirmed": t.confirmed,
+        })),
         "level_study_ids": t.level_study_ids,
         "pilot_work": t.pilot_work,
         "pilot_wall_seconds": t.pilot_wall_seconds,
@@ -406,6 +416,29 @@ pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
         ));
     } else if !t.why_not.is_empty() {
         lines.push(format!("  level     NOT REACHED: {}", t.why_not));
+    }
+    if t.held_out_study_id != 0 {
+        let verdict = match t.confirmed {
+            Some(true) => "CONFIRMED: every difference within the accuracy".to_string(),
+            Some(false) if t.held_out_failed > 0 => format!("NOT CONFIRMED: {} re-solves failed", t.held_out_failed),
+            Some(false) => "ABOVE: a difference passes the accuracy".to_string(),
+            None => "running once the study has ended".to_string(),
+        };
+        let differences: Vec<String> =
+            t.held_out_difference.iter().map(|(name, d)| format!("{name} {}", pct(*d))).collect();
+        lines.push(format!(
+            "  held-out  {} of {} points re-solved at dt / {}, h / {} (study {}){}: {verdict}",
+            t.held_out_done,
+            t.held_out_planned,
+            t.held_out_time_factor,
+            t.held_out_mesh_factor,
+            t.held_out_study_id,
+            if differences.is_empty() {
+                String::new()
+            } else {
+                format!(", largest difference {}", differences.join(", "))
+            }
+        ));
     }
     for (name, q) in &t.qoi {
         let mesh = if q.mesh >= 0.0 { pct(q.mesh) } else { "not estimated".into() };

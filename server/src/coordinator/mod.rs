@@ -371,6 +371,13 @@ impl Coordinator {
                 .surface_audit
                 .and_then(|a| studies.get(&a))
                 .map(|a| held_out::measure(entry, a)),
+            held_out_check: entry
+                .record
+                .to_accuracy
+                .as_ref()
+                .and_then(|t| t.held_out)
+                .and_then(|c| studies.get(&c))
+                .map(|c| to_accuracy::held_out_check(entry, c)),
         }
     }
 
@@ -454,8 +461,9 @@ impl Coordinator {
             .into_iter()
             .chain(entry.record.refined_by.clone())
             .chain(entry.record.surface_audit)
+            .chain(entry.record.to_accuracy.iter().flat_map(|t| t.levels.iter().map(|l| l.2).chain(t.held_out)))
             .collect();
-        // its audits have nothing left to measure
+        // its audits (and its pilots' levels) have nothing left to measure
         for audit in audits {
             if state.studies.get(&audit).is_some_and(|a| a.state() == StudyState::Active) {
                 drop(state);
@@ -572,7 +580,11 @@ impl Coordinator {
                         // a discretisation level waits as an audit does, but the iteration
                         // audit's work cap is not its: a level cut short measures nothing (its
                         // bounds: MAX_REFINE_POINTS, MAX_REFINE_LEVELS)
-                        Some(_) if studies[&id].record.refines.is_some() => None,
+                        // (nor the held-out check of a study to an accuracy: cut short, it
+                        // confirms nothing)
+                        Some(_) if studies[&id].record.refines.is_some() || studies[&id].record.confirms.is_some() => {
+                            None
+                        }
                         Some(budget) => Some(budget),
                     },
                 };

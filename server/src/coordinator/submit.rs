@@ -397,6 +397,7 @@ impl Admitted {
             held_out: None,
             to_accuracy: self.to_accuracy.take(),
             pilot_of: None,
+            confirms: None,
         };
         // The audit: points spread over the list, re-solved cold at a tighter tolerance.
         let audit = audit_id.map(|audit_id| {

@@ -9,8 +9,8 @@
 use std::sync::Arc;
 
 use glissade_core::accuracy::{
-    AccuracyLevel, AccuracyLimits, DEFAULT_PILOTS, LevelSolved, MAX_PILOTS, Step, next_step, scene_text_at,
-    spread_order, study_level,
+    AccuracyLevel, AccuracyLimits, DEFAULT_HELD_OUT, DEFAULT_PILOTS, LevelSolved, MAX_PILOTS, RATIO, Step, next_step,
+    scene_text_at, spread_order, study_level,
 };
 use glissade_core::point::DesignPoint;
 use glissade_core::refine::{Accuracy, Refinement};
@@ -71,8 +71,10 @@ pub(super) fn admit(
         Some(n) if (1..=MAX_PILOTS as u32).contains(&n) => n as usize,
         Some(n) => return Err(CoordError::Invalid(format!("accuracy_pilots {n}: from 1 to {MAX_PILOTS}"))),
     };
-    let pilots: Vec<u64> =
-        spread_order(points, &ParameterSpace::from_scene(scene), n).into_iter().map(|i| i as u64).collect();
+    // the pilots span the box; the held-out points lie between them
+    let order = spread_order(points, &ParameterSpace::from_scene(scene), n + DEFAULT_HELD_OUT);
+    let pilots: Vec<u64> = order.iter().take(n).map(|&i| i as u64).collect();
+    let held_out_points: Vec<u64> = order.iter().skip(n).map(|&i| i as u64).collect();
     let spec = ToAccuracy {
         accuracy: asked,
         limits: AccuracyLimits::default(),
@@ -80,6 +82,8 @@ pub(super) fn admit(
         reports: vec![None; pilots.len()],
         pilots,
         levels: Vec::new(),
+        held_out_points,
+        held_out: None,
         chosen: None,
         why_not: None,
     };
@@ -216,14 +220,8 @@ impl Coordinator {
                 None => {
                     let sid = StudyId(next_id);
                     next_id += 1;
-                    let level = new_level(&study, sid, given, k, m, at)?;
-                    if self.store.get(Tree::Scenes, level.record.scene_hash.as_bytes())?.is_none() {
-                        batch.put(Tree::Scenes, level.record.scene_hash.as_bytes(), level.record.scene.as_bytes());
-                    }
-                    batch.put(Tree::Studies, study_key(sid), encode(&level.record));
-                    for q in &level.points {
-                        batch.put(Tree::Points, point_key(sid, q.id), encode(q));
-                    }
+                    let level = new_level(&study, sid, given, (k, m), vec![at], Role::Pilots)?;
+                    self.put_level(&mut batch, &level)?;
                     spec.levels.push((k, m, sid));
                     tracing::info!(study = %id, level = %sid, time_factor = k, mesh_factor = m, "a level of the pilots opened");
                     opened.push(level);
@@ -249,6 +247,19 @@ impl Coordinator {
             self.enter_level(state, level)?;
         }
         self.work.notify_waiters();
+        Ok(())
+    }
+
+    /// A level's writes: its scene (if not stored yet), its record and its points.
+    fn put_level(&self, batch: &mut Batch, level: &NewLevel) -> Result<(), CoordError> {
+        let r = &level.record;
+        if self.store.get(Tree::Scenes, r.scene_hash.as_bytes())?.is_none() {
+            batch.put(Tree::Scenes, r.scene_hash.as_bytes(), r.scene.as_bytes());
+        }
+        batch.put(Tree::Studies, study_key(r.id), encode(r));
+        for q in &level.points {
+            batch.put(Tree::Points, point_key(r.id, q.id), encode(q));
+        }
         Ok(())
     }
 
@@ -278,17 +289,42 @@ impl Coordinator {
             .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;
         spec.chosen = Some((k, m));
         let entry = &state.studies[&id];
+        // the held-out check, one level finer, opened now (an audit: leased once the study ended)
+        let mut batch = Batch::new();
+        let check = if spec.held_out_points.is_empty() {
+            None
+        } else {
+            let cid = StudyId(state.next_study);
+            let at = spec.held_out_points.iter().map(|&i| entry.points[i as usize].parameters.clone()).collect();
+            let finer = (k * RATIO, m * RATIO);
+            match new_level(&entry.record, cid, given, finer, at, Role::HeldOut) {
+                Ok(level) => {
+                    spec.held_out = Some(cid);
+                    self.put_level(&mut batch, &level)?;
+                    batch.put(Tree::Meta, NEXT_STUDY_KEY, (cid.0 + 1).to_be_bytes());
+                    Some(level)
+                }
+                // (a level past the refinement's bounds): the study is solved, unconfirmed
+                Err(e) => {
+                    tracing::warn!(study = %id, error = %e, "no held-out check");
+                    None
+                }
+            }
+        };
         let mut record = entry.record.clone();
         record.scene_hash = scene.content_hash();
         record.scene = text;
         record.to_accuracy = Some(spec);
         let plan = StudyPlan::new(&scene, &record, &entry.points).map_err(|e| CoordError::Invalid(e.to_string()))?;
-        let mut batch = Batch::new();
         if self.store.get(Tree::Scenes, record.scene_hash.as_bytes())?.is_none() {
             batch.put(Tree::Scenes, record.scene_hash.as_bytes(), record.scene.as_bytes());
         }
         batch.put(Tree::Studies, study_key(id), encode(&record));
         self.store.commit(batch)?;
+        if let Some(check) = check {
+            state.next_study = check.record.id.0 + 1;
+            self.enter_level(state, check)?;
+        }
         tracing::info!(study = %id, time_factor = k, mesh_factor = m, "a study to an accuracy chose its level");
         self.index_scene(state, &record.scene_hash, plan.space());
         let entry = state.studies.get_mut(&id).expect("advanced");
@@ -357,21 +393,34 @@ fn level_solved(given: &Scene, refinement: Refinement, k: usize, m: usize, r: &P
     }
 }
 
-/// The study of level (dt / k, h / m) of `study`'s pilots, with its first point at `at`.
+/// What a level's study is for.
+#[derive(Clone, Copy)]
+enum Role {
+    /// a level of the pilots' ladders: leased as soon as a pilot needs it
+    Pilots,
+    /// the held-out check one level finer than the study's: an audit, leased once it has ended
+    HeldOut,
+}
+
+/// The study of level (dt / k, h / m) of `study`, for `role`, with its points at `at`.
 fn new_level(
     study: &StudyRecord,
     id: StudyId,
     given: &Scene,
-    k: usize,
-    m: usize,
-    at: DesignPoint,
+    (k, m): (usize, usize),
+    at: Vec<DesignPoint>,
+    role: Role,
 ) -> Result<NewLevel, CoordError> {
     let text = scene_text_at(given, k, m).map_err(|e| CoordError::Invalid(format!("accuracy: {e}")))?;
     let scene = Scene::parse(&text)
         .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;
+    let (label, pilot_of, confirms) = match role {
+        Role::Pilots => (format!("pilots of study {}: dt / {k}, h / {m}", study.id), Some(study.id), None),
+        Role::HeldOut => (format!("held-out check of study {}: dt / {k}, h / {m}", study.id), None, Some(study.id)),
+    };
     let record = StudyRecord {
         id,
-        label: format!("pilots of study {}: dt / {k}, h / {m}", study.id),
+        label,
         scene_hash: scene.content_hash(),
         scene: text,
         // more steps may take more iterations: the limit grows with them, within every solve's
@@ -380,7 +429,7 @@ fn new_level(
         order: glissade_core::study::order::OrderKind::Asc,
         created_unix_ms: now_unix_ms(),
         cancelled: false,
-        audit_of: None,
+        audit_of: confirms,
         audit: None,
         adaptive: None,
         listed: true,
@@ -389,9 +438,53 @@ fn new_level(
         surface_audit: None,
         held_out: None,
         to_accuracy: None,
-        pilot_of: Some(study.id),
+        pilot_of,
+        confirms,
         ..study.clone()
     };
-    let points = vec![PointRecord::pending(id, PointId(0), at)];
+    let points = at.into_iter().enumerate().map(|(i, p)| PointRecord::pending(id, PointId(i as u64), p)).collect();
     Ok(NewLevel { record, points, scene })
+}
+
+/// What the held-out check `check` of `study` says (types::HeldOutCheck).
+pub(super) fn held_out_check(study: &StudyEntry, check: &StudyEntry) -> super::HeldOutCheck {
+    let accuracy = study.record.to_accuracy.as_ref().map_or(0.0, |t| t.accuracy);
+    let (k, m) = study.record.to_accuracy.as_ref().and_then(|t| t.chosen).unwrap_or((1, 1));
+    let mut difference: std::collections::BTreeMap<String, f64> = Default::default();
+    let (mut done, mut failed) = (0, 0);
+    for p in &check.points {
+        match (&p.state, &p.result) {
+            (PointState::Done, Some(finer)) => {
+                let own = study.points.iter().find(|q| q.parameters == p.parameters && q.state == PointState::Done);
+                // (the check runs once the study ended: a point of its not done never will be)
+                let Some(own) = own.and_then(|q| q.result.as_ref()) else {
+                    failed += 1;
+                    continue;
+                };
+                done += 1;
+                let solved = level_solved(&study.scene, Refinement::Time, 1, 1, finer);
+                let scales = glissade_core::accuracy::scales(&study.scene, &solved);
+                for (name, &f) in &finer.qoi {
+                    let Some(&s) = own.qoi.get(name) else { continue };
+                    let d = if scales[name] > 0.0 { (s - f).abs() / scales[name] } else { 0.0 };
+                    let kept = difference.entry(name.clone()).or_insert(0.0);
+                    *kept = kept.max(d);
+                }
+            }
+            (PointState::Failed | PointState::Cancelled, _) => failed += 1,
+            _ => {}
+        }
+    }
+    let planned = check.points.len() as u32;
+    let ended = done + failed == planned;
+    super::HeldOutCheck {
+        study: check.record.id,
+        time_factor: k * RATIO,
+        mesh_factor: m * RATIO,
+        planned,
+        done,
+        failed,
+        confirmed: ended.then(|| failed == 0 && difference.values().all(|&d| d <= accuracy * (1.0 + 1e-12))),
+        difference,
+    }
 }

@@ -162,6 +162,8 @@ pub struct StudyView {
     pub discretisation: Option<Discretisation>,
     /// What its surface audit measured of its response surface (None: it has none).
     pub surface_accuracy: Option<SurfaceAccuracy>,
+    /// A study to an accuracy: what its held-out points said one level finer (None: no check).
+    pub held_out_check: Option<HeldOutCheck>,
     /// Iterations and eta its pool last reported, per leased point that reported (not stored).
     pub solving: BTreeMap<PointId, (u64, f64)>,
     /// `grid`, `list`, `adaptive` or `audit`.
@@ -173,6 +175,25 @@ pub struct StudyView {
     pub scene: Arc<glissade_core::scene::Scene>,
     /// When its last point ended, once it has ended (Unix ms).
     pub finished_unix_ms: Option<i64>,
+}
+
+/// The held-out check of a study to an accuracy: some of its points re-solved cold one level
+/// finer (dt / 2, h / 2 of its level), per QoI the largest |study - finer| over the points done
+/// in both, relative to the QoI's scale in the finer solve (core::accuracy::scales).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct HeldOutCheck {
+    pub study: StudyId,
+    /// the finer level: dt / time_factor, h / mesh_factor
+    pub time_factor: usize,
+    pub mesh_factor: usize,
+    pub planned: u32,
+    /// re-solved and converged, and their study point done
+    pub done: u32,
+    /// re-solves that did not converge or failed
+    pub failed: u32,
+    pub difference: BTreeMap<String, f64>,
+    /// every point done, none failed, every difference within the accuracy; None while it runs
+    pub confirmed: Option<bool>,
 }
 
 /// A submission, validated by the service layer's conversions.

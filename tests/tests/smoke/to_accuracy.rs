@@ -81,6 +81,10 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
     let ran = rt.block_on(async {
         let mut client = user(&url).await?;
         watch(&mut client, id, |_| true).await?;
+        // its held-out check, an audit, runs once the study has ended
+        let check = study(&mut client, id).await?.to_accuracy.map_or(0, |t| t.held_out_study_id);
+        anyhow::ensure!(check != 0, "no held-out check");
+        watch(&mut client, check, |_| true).await?;
         let s = study(&mut client, id).await?;
         let mut levels = Vec::new();
         for level in &s.to_accuracy.as_ref().expect("to an accuracy").level_study_ids {
@@ -171,12 +175,26 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
     );
     assert!(out.status.success(), "the reference: {}", text(&out.stderr));
     let reference: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    // that point is the held-out one: re-solved one level finer, the difference reported is the
+    // study's against it, and it confirms the accuracy
+    assert_eq!(t.held_out_planned, 1, "3 points, 2 pilots: {t:?}");
+    assert_eq!((t.held_out_done, t.held_out_failed, t.confirmed), (1, 0, Some(true)), "{t:?}");
+    assert_eq!((t.held_out_time_factor, t.held_out_mesh_factor), (2 * t.time_factor, 2 * t.mesh_factor));
+    let check = rt.block_on(async { study(&mut user(&url).await?, t.held_out_study_id).await })?;
+    assert_eq!(check.points[0].parameters, other.parameters);
     for (name, q) in reference["qoi"].as_object().expect("qoi") {
         let values: Vec<f64> = q["values"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
         let scale = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let error = (other.qoi[name] - q["final"].as_f64().unwrap()).abs() / scale;
         eprintln!("{name}: {error:.2e} off the reference two levels finer (asked {ACCURACY})");
         assert!(error <= ACCURACY, "{name}: {error:.2e} off the reference two levels finer");
+        // (its scale there is the finer solve's, within a few per mille of the reference's)
+        let difference = (other.qoi[name] - check.points[0].qoi[name]).abs() / scale;
+        let reported = t.held_out_difference[name];
+        assert!(
+            (reported - difference).abs() <= 1e-2 * difference.max(1e-12),
+            "{name}: {reported} against {difference}"
+        );
     }
 
     // `glissade show` says what was chosen and why
@@ -185,6 +203,7 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
     let shown = text(&out.stdout);
     let level = format!("  level     REACHED at dt / {}, h / {}", t.time_factor, t.mesh_factor);
     assert!(shown.contains("  accuracy  asked 5.00 % of each QoI's scale") && shown.contains(&level), "{shown}");
+    assert!(shown.contains("  held-out  1 of 1 points re-solved at dt / ") && shown.contains("CONFIRMED"), "{shown}");
     let out = glissade(Some(&url), &["show", &id.to_string(), "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     assert_eq!(json["to_accuracy"]["time_factor"], serde_json::json!(t.time_factor), "{json}");
