@@ -454,25 +454,23 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
     }
 }
 
-/// A study to an accuracy as the API gives it: per QoI the pilot of the largest estimate.
+/// A study to an accuracy as the API gives it.
 fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64, check: Option<&HeldOutCheck>) -> v1::StudyToAccuracy {
     let reports: Vec<&glissade_core::accuracy::AccuracyReport> = t.reports.iter().flatten().collect();
-    let mut qoi: BTreeMap<String, v1::QoiToAccuracy> = BTreeMap::new();
-    for q in reports.iter().flat_map(|r| &r.qois) {
-        let this = v1::QoiToAccuracy {
-            total: q.total,
-            time: q.time.error.estimate,
-            mesh: q.mesh.as_ref().map_or(-1.0, |m| m.error.estimate),
-            iteration: q.iteration,
-            within: q.within,
-        };
-        let kept = qoi.entry(q.name.clone()).or_insert(this);
-        let within = kept.within && this.within;
-        if this.total > kept.total {
-            *kept = this;
-        }
-        kept.within = within;
-    }
+    let qoi = t
+        .largest_estimates()
+        .into_iter()
+        .map(|(name, e)| {
+            let q = v1::QoiToAccuracy {
+                total: e.total,
+                time: e.time,
+                mesh: e.mesh.unwrap_or(-1.0),
+                iteration: e.iteration,
+                within: e.within,
+            };
+            (name, q)
+        })
+        .collect();
     v1::StudyToAccuracy {
         accuracy: t.accuracy,
         tolerance,

@@ -167,6 +167,39 @@ impl ToAccuracy {
     pub fn decided(&self) -> bool {
         self.chosen.is_some() || self.why_not.is_some()
     }
+
+    /// Per QoI over the pilots done: the estimate of the pilot whose total is largest (its parts
+    /// with it), within the accuracy only if every pilot's is.
+    pub fn largest_estimates(&self) -> BTreeMap<String, QoiEstimate> {
+        let mut qoi: BTreeMap<String, QoiEstimate> = BTreeMap::new();
+        for q in self.reports.iter().flatten().flat_map(|r| &r.qois) {
+            let this = QoiEstimate {
+                total: q.total,
+                time: q.time.error.estimate,
+                mesh: q.mesh.as_ref().map(|m| m.error.estimate),
+                iteration: q.iteration,
+                within: q.within,
+            };
+            let kept = qoi.entry(q.name.clone()).or_insert(this);
+            let within = kept.within && this.within;
+            if this.total > kept.total {
+                *kept = this;
+            }
+            kept.within = within;
+        }
+        qoi
+    }
+}
+
+/// One QoI's estimated error at a level, relative to its scale, and its parts.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct QoiEstimate {
+    pub total: f64,
+    pub time: f64,
+    /// None: the mesh was not refined (its error in no estimate)
+    pub mesh: Option<f64>,
+    pub iteration: f64,
+    pub within: bool,
 }
 
 /// How a surface audit's points were drawn, and what its study predicted at them (None until

@@ -790,6 +790,57 @@ fn audit_paragraphs(v: &StudyView) -> Markup {
         @if let Some(d) = &v.discretisation {
             (discretisation_paragraphs(d))
         }
+        @if let Some(t) = &v.record.to_accuracy {
+            (to_accuracy_paragraphs(t, v.record.tolerance, v.held_out_check.as_ref()))
+        }
+    }
+}
+
+/// A study to an accuracy: what was asked, what its pilots chose (per QoI the estimate and its
+/// parts) and what its held-out points said, in `glissade show`'s words.
+fn to_accuracy_paragraphs(
+    t: &crate::records::ToAccuracy,
+    tolerance: f64,
+    check: Option<&crate::coordinator::HeldOutCheck>,
+) -> Markup {
+    let pct = |x: f64| format!("{:.2} %", 100.0 * x);
+    let done = t.reports.iter().flatten().count();
+    html! {
+        p #to-accuracy {
+            (format!("accuracy asked: {} of each QoI's scale (the largest magnitude of its history), tolerance {tolerance:.1e}; ", pct(t.accuracy)))
+            (format!("{done} of {} pilots done", t.pilots.len()))
+            @if let Some((k, m)) = t.chosen {
+                "; " strong { (format!("REACHED at dt / {k}, h / {m}")) } ": the study's points are solved there"
+            } @else if let Some(why) = &t.why_not {
+                "; " strong { "NOT REACHED" } (format!(": {why}"))
+            }
+            @for (name, e) in t.largest_estimates() {
+                br;
+                (format!(
+                    "{name}: {} (time step {}, mesh {}, iterations {})",
+                    pct(e.total),
+                    pct(e.time),
+                    e.mesh.map_or("not estimated".to_string(), pct),
+                    pct(e.iteration)
+                ))
+                @if !e.within { strong { " ABOVE" } }
+            }
+        }
+        @if let Some(c) = check {
+            p #held-out-check {
+                (format!("held-out: {} of {} points re-solved at dt / {}, h / {}", c.done, c.planned, c.time_factor, c.mesh_factor))
+                @for (name, d) in &c.difference {
+                    (format!(", {name} {}", pct(*d)))
+                }
+                ": "
+                @match c.confirmed {
+                    Some(true) => strong { "CONFIRMED" },
+                    Some(false) if c.failed > 0 => strong { (format!("NOT CONFIRMED: {} re-solves failed", c.failed)) },
+                    Some(false) => strong { "ABOVE" },
+                    None => "running once the study has ended",
+                }
+            }
+        }
     }
 }
 

@@ -207,6 +207,12 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
     let out = glissade(Some(&url), &["show", &id.to_string(), "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     assert_eq!(json["to_accuracy"]["time_factor"], serde_json::json!(t.time_factor), "{json}");
+    // the web page says it in the same words
+    let (status, _, page) = http_get(&addr, &format!("/studies/{id}"));
+    assert_eq!(status, 200);
+    let reached = format!("REACHED at dt / {}, h / {}", t.time_factor, t.mesh_factor);
+    assert!(page.contains("id=\"to-accuracy\"") && page.contains(&reached), "{page}");
+    assert!(page.contains("id=\"held-out-check\"") && page.contains("CONFIRMED"), "{page}");
     // the web API gives each pilot's ladders and report
     let (status, _, api) = http_get(&addr, &format!("/api/studies/{id}"));
     assert_eq!(status, 200);
