@@ -1637,3 +1637,127 @@ fn a_submission_to_an_accuracy_is_checked_and_its_points_wait_for_its_pilots() {
     assert_eq!((view.progress.pending, view.progress.leased), (3, 0));
     assert_eq!(view.record.to_accuracy.unwrap().levels, vec![(1, 1, level.record.id)]);
 }
+
+/// Solves every point leased as a pool would, with one QoI of known orders in dt and h at the
+/// grant's level (0.2 / k^2 + 0.05 / m^2 over the tiny scene's 50 steps and 2 elements), `off`
+/// added on the held-out checks' points; returns how many were solved (at most `most`).
+fn solve_at_levels(c: &Coordinator, off: f64, most: usize) -> usize {
+    let mut solved = 0;
+    while solved < most
+        && let Some(g) = c.lease("p").unwrap()
+    {
+        let scene = Scene::parse(&g.scene_text).unwrap();
+        let k = scene.time.steps / 50;
+        let m = scene.bodies[0].elements.as_ref().unwrap()[0] / 2;
+        let check = c.study(g.study, false).unwrap().record.confirms.is_some();
+        let value = 1.0 + 0.2 / (k * k) as f64 + 0.05 / (m * m) as f64 + if check { off } else { 0.0 };
+        let (done, bytes) =
+            solution_file_with_qoi(&g, g.tolerance / 2.0, true, &[("slip_A".to_string(), value)].into());
+        assert_eq!(c.complete(done, bytes).unwrap().state, PointState::Done);
+        solved += 1;
+        assert!(solved < 100, "the ladders must end");
+    }
+    solved
+}
+
+#[test]
+fn a_study_to_an_accuracy_climbs_its_pilots_ladders_and_says_above_or_not_reached() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let submission = |accuracy: f64| Submission {
+        scene_text: TINY.into(),
+        grid: vec!["f1=0.1:0.2:3".into()],
+        points: vec![],
+        tolerance: None,
+        max_iterations: None,
+        strategy: InitStrategy::Nearest,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: None,
+        refine_points: None,
+        refine_levels: 0,
+        refine_mesh: false,
+        adaptive: None,
+        surface_audit_points: None,
+        accuracy: Some(accuracy),
+        accuracy_pilots: Some(1),
+        surface_accuracy: None,
+        work_budget: None,
+        meshes: vec![],
+    };
+    // 1 %: the ladders of core's own test (dt / 1, 2, 4, 8, then h / 2, 4, then dt / 4 on h / 4),
+    // the study at dt / 8, h / 4 (its pilot answered by its own solve), then its two held-out
+    // points one level finer, 0.2 off: ABOVE
+    let (id, ..) = c.submit(submission(0.01)).unwrap();
+    assert_eq!(solve_at_levels(&c, 0.2, 100), 7 + 2 + 2);
+    let view = c.study(id, true).unwrap();
+    let t = view.record.to_accuracy.clone().unwrap();
+    assert_eq!(t.chosen, Some((8, 4)));
+    assert_eq!(
+        t.levels.iter().map(|l| (l.0, l.1)).collect::<Vec<_>>(),
+        [(1, 1), (2, 1), (4, 1), (8, 1), (8, 2), (8, 4), (4, 4)]
+    );
+    assert_eq!(view.state, StudyState::Done);
+    assert_eq!(view.points.iter().filter(|p| p.result.as_ref().is_some_and(|r| r.answered)).count(), 1);
+    let check = view.held_out_check.clone().unwrap();
+    assert_eq!((check.time_factor, check.mesh_factor, check.planned, check.done, check.failed), (16, 8, 2, 2, 0));
+    let at: f64 = 1.0 + 0.2 / 64.0 + 0.05 / 16.0;
+    let finer: f64 = 1.0 + 0.2 / 256.0 + 0.05 / 64.0 + 0.2;
+    assert!((check.difference["slip_A"] - (finer - at).abs() / finer).abs() < 1e-12, "{check:?}");
+    assert_eq!(check.confirmed, Some(false), "ABOVE");
+
+    // 0.1 %: the ladders go to their limits (dt / 16, h / 4) and stay above: no level, the
+    // study cancelled, each point saying why
+    let (id, ..) = c.submit(submission(1e-3)).unwrap();
+    solve_at_levels(&c, 0.0, 100);
+    let view = c.study(id, true).unwrap();
+    let t = view.record.to_accuracy.clone().unwrap();
+    assert_eq!(t.chosen, None);
+    let why = t.why_not.unwrap();
+    assert!(why.contains("did not reach the accuracy") && why.contains("'slip_A' is estimated"), "{why}");
+    assert_eq!(view.state, StudyState::Cancelled);
+    assert!(view.points.iter().all(|p| p.state == PointState::Cancelled && p.error.as_ref().unwrap().contains(&why)));
+}
+
+/// A coordinator stopped in the middle of a study's pilots' ladders takes them up where they
+/// were: the same levels, the same choice.
+#[test]
+fn a_study_to_an_accuracy_survives_a_restart_between_its_levels() {
+    let dir = tempfile::tempdir().unwrap();
+    let id = {
+        let c = open(dir.path(), 60_000, 3);
+        pool(&c, "p", VERSION);
+        let submission = Submission {
+            scene_text: TINY.into(),
+            grid: vec!["f1=0.1:0.2:3".into()],
+            points: vec![],
+            tolerance: None,
+            max_iterations: None,
+            strategy: InitStrategy::Nearest,
+            order: OrderKind::Asc,
+            label: String::new(),
+            audit_points: None,
+            refine_points: None,
+            refine_levels: 0,
+            refine_mesh: false,
+            adaptive: None,
+            surface_audit_points: None,
+            accuracy: Some(0.01),
+            accuracy_pilots: Some(1),
+            surface_accuracy: None,
+            work_budget: None,
+            meshes: vec![],
+        };
+        let (id, ..) = c.submit(submission).unwrap();
+        assert_eq!(solve_at_levels(&c, 0.0, 3), 3);
+        id
+    };
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    assert_eq!(solve_at_levels(&c, 0.0, 100), 4 + 2 + 2);
+    let view = c.study(id, false).unwrap();
+    let t = view.record.to_accuracy.unwrap();
+    assert_eq!((t.chosen, t.levels.len()), (Some((8, 4)), 7));
+    assert_eq!((view.state, view.held_out_check.unwrap().confirmed), (StudyState::Done, Some(true)));
+}
