@@ -79,33 +79,43 @@ const REFINE_EXAMPLES: &str = "\
 Examples:
   glissade-worker refine scenes/three-blocks-tiny.toml --tol 1e-6
   glissade-worker refine scenes/sliding-block-2d.toml --set f=0.2 --dt 1,2,4,8 --h 1,2 --json
+  glissade-worker refine scenes/sliding-block-2d.toml --accuracy 0.02   # only the levels it needs
 
 Each level is solved cold, at the same design point and tolerance; per QoI it prints the final
 value at every level, the order observed over the last three levels, Richardson's extrapolation
 and the estimated error of the scene's own step (and of the finest). 'erratic' means the changes
 switch sign or fall at an order outside [0.5, 4]: something moves with the step (a contact
 event, a slip onset) and the estimate is the last change. Use a tolerance well below the
-discretisation error (1e-6). Exit status: 0, or 2 when a level did not converge.";
+discretisation error (1e-6). With --accuracy the ladders climb only as far as the accuracy needs,
+at the tolerance it sets (the levels of `solve --accuracy`; --json prints its report). Exit
+status: 0, 2 when a level did not converge, 3 (--accuracy) when the accuracy was not reached.";
 
 #[derive(Args)]
 struct RefineArgs {
     #[command(flatten)]
     point: PointArgs,
     /// Time-step ladder: the scene's steps times each factor
-    #[arg(long, value_name = "1,2,4", value_delimiter = ',', default_value = "1,2,4")]
+    #[arg(long, value_name = "1,2,4", value_delimiter = ',', default_value = "1,2,4", conflicts_with = "accuracy")]
     dt: Vec<usize>,
     /// Mesh ladder (box bodies): the scene's elements times each factor along every axis
-    #[arg(long, value_name = "1,2", value_delimiter = ',')]
+    #[arg(long, value_name = "1,2", value_delimiter = ',', conflicts_with = "accuracy")]
     h: Vec<usize>,
     /// Print one JSON object instead of the tables
     #[arg(long)]
     json: bool,
+    // --accuracy: the ladders climbed only as far as the accuracy needs, at the tolerance it
+    // sets (the levels and the choice of `solve --accuracy`), printed as ladders
+    #[command(flatten)]
+    accuracy: AccuracyArgs,
 }
 
 /// The refinement ladders of one design point, on this process.
-fn refine(args: RefineArgs) -> Result<bool> {
+fn refine(args: RefineArgs) -> Result<Exit> {
     use glissade_solver::refine::{Refinement, check_factors, refined_scene, run_ladder};
     let (scene, request) = args.point.read()?;
+    if let Some(a) = args.accuracy.accuracy {
+        return refine_to_accuracy(&args, scene, &request, a);
+    }
     let mut ladders = vec![(Refinement::Time, args.dt.clone())];
     if !args.h.is_empty() {
         ladders.push((Refinement::Mesh, args.h.clone()));
@@ -173,7 +183,75 @@ fn refine(args: RefineArgs) -> Result<bool> {
     if !converged {
         eprintln!("error: not converged: a level ran out of iterations; its estimates are not to be trusted");
     }
-    Ok(converged)
+    Ok(Exit::from(converged))
+}
+
+/// `refine --accuracy`: the levels `solve --accuracy` takes, printed as ladders, then the choice.
+fn refine_to_accuracy(args: &RefineArgs, scene: Scene, request: &SolveRequest, accuracy: f64) -> Result<Exit> {
+    let path = &args.point.scene;
+    let (_, _, report) =
+        solve_accurately(&glissade_solver::comm::Serial, scene, request, accuracy, &args.accuracy, path)?;
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        print_accuracy_ladders(path, &report);
+        print_accuracy(&report);
+    }
+    let converged = report.levels.iter().all(|l| l.converged);
+    if let Some(why) = &report.why_not {
+        eprintln!("error: accuracy not reached: {why}");
+    }
+    Ok(match (converged, report.reached) {
+        (false, _) => Exit::NotConverged,
+        (true, false) => Exit::AccuracyNotReached,
+        (true, true) => Exit::Done,
+    })
+}
+
+/// The ladders of an accuracy's report as `refine` prints its own: per QoI the final value at
+/// each level, the order observed and the finest level's error relative to the QoI's scale.
+fn print_accuracy_ladders(path: &Path, a: &AccuracyReport) {
+    use glissade_solver::accuracy::LadderError;
+    let factors = |n: usize| (0..n).map(|i| (1usize << i).to_string()).collect::<Vec<_>>().join(", ");
+    let row = |name: &str, l: &LadderError, finest: String| {
+        let finals: Vec<String> = l.finals.iter().map(|v| format!("{v:.6e}")).collect();
+        let order = l.error.order.map_or("-".to_string(), |p| format!("{p:.2}"));
+        let error = if l.error.estimate.is_finite() { format!("{:.2e}", l.error.estimate) } else { "unknown".into() };
+        let tag = if l.error.erratic {
+            "  ERRATIC (an event moves with the step)"
+        } else if l.error.below_noise {
+            "  (changes within the iteration tolerance)"
+        } else {
+            ""
+        };
+        println!("  {name:<20} {}  order {order}  error at {finest}: {error}{tag}", finals.join("  "));
+    };
+    let Some(first) = a.qois.first() else { return };
+    println!(
+        "{} dt ladder (dt / {}) on the scene's mesh, errors relative to each QoI's scale:",
+        path.display(),
+        factors(first.time.finals.len())
+    );
+    let time_finest = format!("dt / {}", 1usize << (first.time.finals.len() - 1));
+    for q in &a.qois {
+        row(&q.name, &q.time, time_finest.clone());
+    }
+    if let Some(m) = &first.mesh {
+        println!("{} h ladder (h / {}) at dt / {}:", path.display(), factors(m.finals.len()), a.time_factor);
+        let finest = format!("h / {}", 1usize << (m.finals.len() - 1));
+        for q in &a.qois {
+            if let Some(m) = &q.mesh {
+                row(&q.name, m, finest.clone());
+            }
+        }
+    }
+    if first.time.at_answer.is_some() {
+        println!(
+            "  the step checked again on the answer's mesh (h / {}) from dt / {}: each QoI's time error is the larger",
+            a.mesh_factor,
+            a.time_factor / 2
+        );
+    }
 }
 
 #[derive(Args)]
@@ -319,7 +397,7 @@ struct SolveArgs {
     #[arg(long, value_enum)]
     scale: Option<Scale>,
     /// Start the iterations from a stored interface solution of the same scene (any design point)
-    #[arg(long, value_name = "SOLUTION")]
+    #[arg(long, value_name = "SOLUTION", conflicts_with = "accuracy")]
     init: Option<PathBuf>,
     /// Store the final interface solution (docs/solution-format.md), also when not converged
     #[arg(long, value_name = "SOLUTION")]
@@ -332,12 +410,20 @@ struct SolveArgs {
     json: bool,
     /// Time every rank's compute, waits at collectives, transfers and exchanges, and print the
     /// split (`profile` in the JSON; docs/performance.md, "Where a rank's time goes")
-    #[arg(long)]
+    #[arg(long, conflicts_with = "accuracy")]
     profile: bool,
+    #[command(flatten)]
+    accuracy: AccuracyArgs,
+}
+
+/// `--accuracy` on `solve` and `refine`: the rule of docs/accuracy.md chooses dt, h and the
+/// tolerance.
+#[derive(Args)]
+struct AccuracyArgs {
     /// Solve to this accuracy: every QoI's final value within A of its scale (the largest
     /// magnitude of its history), dt, h (box bodies) and the tolerance chosen for it
     /// (docs/accuracy.md, "Ask for an accuracy")
-    #[arg(long, value_name = "A", conflicts_with_all = ["tol", "init", "profile"])]
+    #[arg(long, value_name = "A", conflicts_with = "tol")]
     accuracy: Option<f64>,
     /// With --accuracy: the finest time step it may take, dt / N (a power of 2)
     #[arg(long, value_name = "N", default_value_t = 16, requires = "accuracy")]
@@ -481,8 +567,11 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
 
     tracing::info!(scene = %scene_path.display(), hash = %scene.content_hash(), "solving");
     let profiled = args.profile.then(|| Profiled::new(comm));
-    let (scene, outcome, accuracy) = match args.accuracy {
-        Some(a) => solve_accurately(comm, scene, &request, a, &args)?,
+    let (scene, outcome, accuracy) = match args.accuracy.accuracy {
+        Some(a) => {
+            let (scene, outcome, report) = solve_accurately(comm, scene, &request, a, &args.accuracy, scene_path)?;
+            (scene, outcome, Some(report))
+        }
         None => {
             let outcome = solve_scene_on(
                 profiled.as_ref().map_or(comm, |p| p as &dyn Communicator),
@@ -626,14 +715,16 @@ fn print_solve(scene_path: &Path, s: &SolveSummary) {
     }
 }
 
-/// `solve --accuracy`: the ladders (progress on stderr), and the scene of the level answered.
+/// `solve --accuracy` and `refine --accuracy`: the ladders (progress on stderr), and the scene of
+/// the level answered.
 fn solve_accurately(
     comm: &dyn Communicator,
     scene: Scene,
     request: &SolveRequest,
     accuracy: f64,
-    args: &SolveArgs,
-) -> Result<(Scene, glissade_solver::run::SolveOutcome, Option<AccuracyReport>)> {
+    args: &AccuracyArgs,
+    scene_path: &Path,
+) -> Result<(Scene, glissade_solver::run::SolveOutcome, AccuracyReport)> {
     let accuracy = glissade_core::refine::Accuracy::new("--accuracy", accuracy)?;
     let limits = AccuracyLimits::new(args.max_dt_factor, args.max_h_factor)?;
     let root = comm.rank() == 0;
@@ -661,9 +752,9 @@ fn solve_accurately(
             );
         }
     })
-    .with_context(|| format!("scene {}", args.point.scene.display()))?;
+    .with_context(|| format!("scene {}", scene_path.display()))?;
     let answered = glissade_solver::accuracy::scene_at(&scene, report.time_factor, report.mesh_factor)?;
-    Ok((answered, outcome, Some(report)))
+    Ok((answered, outcome, report))
 }
 
 /// `solve --accuracy`: the level chosen and each QoI's error with its parts.
@@ -828,7 +919,7 @@ fn main() -> ExitCode {
             result
         }
         Command::Pool(args) => pool(args).map(Exit::from),
-        Command::Refine(args) => refine(args).map(Exit::from),
+        Command::Refine(args) => refine(args),
         Command::Study(args) => study_cli::study(args),
     };
     match result {

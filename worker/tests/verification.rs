@@ -368,6 +368,96 @@ point = [0.01, 0]
     assert!(converged && !text.contains("lifted off and landed") && !text.contains(hint), "{text}");
 }
 
+/// `refine --accuracy` climbs the levels `solve --accuracy` climbs, on a bar of our own
+/// (aluminium, 0.3 m, 6 elements in 2 substructures, 20 steps, its tip's velocity read too): the
+/// same levels, the same choice and values, printed as ladders; every QoI within the accuracy of a
+/// solve two levels finer in dt and h at 1e-8; `--dt`, `--h` and `--tol` are refused beside it.
+#[test]
+fn refine_to_an_accuracy_prints_the_ladders_solve_climbs() {
+    let dir = tempfile::tempdir().unwrap();
+    let bar = |steps: u64, elements: u64| {
+        let scene = PRESSED_STEEL_BAR
+            .replace("E = \"E\"\nrho = 7800", "E = 70e9\nrho = 2700")
+            .replace("size = [0.2]", "size = [0.3]")
+            .replace("elements = [10]", &format!("elements = [{elements}]"))
+            .replace("steps = 15", &format!("steps = {steps}"))
+            .replace("duration = 1.5e-4", "duration = 2e-4")
+            .replace("point = [0.2]", "point = [0.3]")
+            .replace("point = [0.04]", "point = [0.1]")
+            + "[[qoi]]\nname = \"tip_vx\"\nkind = \"velocity\"\nbody = \"bar\"\npoint = [0.3]\ncomponent = \"x\"\n";
+        assert!(scene.contains("70e9") && scene.contains("[0.3]") && scene.contains("[0.1]"), "{scene}");
+        let path = dir.path().join(format!("al-bar-{steps}-{elements}.toml"));
+        std::fs::write(&path, scene).unwrap();
+        path.to_str().unwrap().to_owned()
+    };
+    let scene = bar(20, 6);
+    let accuracy = 2e-2;
+    let (code, refined, stderr) = worker(&["refine", &scene, "--set", "p=3e7", "--accuracy", "2e-2", "--json"]);
+    assert_eq!(code, 0, "{stderr}");
+    let refined: serde_json::Value = serde_json::from_str(&refined).unwrap();
+    let (code, solved, stderr) = worker(&["solve", &scene, "--set", "p=3e7", "--accuracy", "2e-2", "--json"]);
+    assert_eq!(code, 0, "{stderr}");
+    let solved: serde_json::Value = serde_json::from_str(&solved).unwrap();
+    let solved = &solved["accuracy"];
+    let levels = |r: &serde_json::Value| -> Vec<(u64, u64, bool)> {
+        r["levels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| (l["time_factor"].as_u64().unwrap(), l["mesh_factor"].as_u64().unwrap(), l["converged"] == true))
+            .collect()
+    };
+    assert_eq!(levels(&refined), levels(solved));
+    assert!(levels(&refined).len() >= 5, "three steps and two meshes at least: {:?}", levels(&refined));
+    for key in ["reached", "time_factor", "mesh_factor", "tolerance", "qois"] {
+        assert_eq!(refined[key], solved[key], "{key}");
+    }
+
+    // the answer against a solve two levels finer in both, far tighter
+    let (tf, mf) = (refined["time_factor"].as_u64().unwrap(), refined["mesh_factor"].as_u64().unwrap());
+    let (code, reference, stderr) =
+        worker(&["solve", &bar(20 * tf * 4, 6 * mf * 4), "--set", "p=3e7", "--tol", "1e-8", "--json"]);
+    assert_eq!(code, 0, "{stderr}");
+    let reference: serde_json::Value = serde_json::from_str(&reference).unwrap();
+    let qois = refined["qois"].as_array().unwrap();
+    assert_eq!(qois.len(), 3);
+    for q in qois {
+        let name = q["name"].as_str().unwrap();
+        let truth = reference["qoi"][name]["final"].as_f64().unwrap();
+        let off = (q["value"].as_f64().unwrap() - truth).abs() / q["scale"].as_f64().unwrap();
+        assert!(off <= accuracy && off <= q["total"].as_f64().unwrap(), "{name}: {off} off, estimated {}", q["total"]);
+    }
+
+    let (code, table, stderr) = worker(&["refine", &scene, "--set", "p=3e7", "--accuracy", "2e-2"]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(table.contains("dt ladder (dt / 1, 2, 4") && table.contains("h ladder (h / 1, 2"), "{table}");
+    assert!(table.contains(&format!("REACHED at dt / {tf}, h / {mf}")), "{table}");
+    for q in qois {
+        let name = q["name"].as_str().unwrap();
+        for ladder in ["time", "mesh"] {
+            let l = &q[ladder];
+            let finals: Vec<String> =
+                l["finals"].as_array().unwrap().iter().map(|v| format!("{:.6e}", v.as_f64().unwrap())).collect();
+            let line = table
+                .lines()
+                .find(|line| line.trim_start().starts_with(&format!("{name} ")) && line.contains(&finals.join("  ")))
+                .unwrap_or_else(|| panic!("{name}'s {ladder} ladder {finals:?}: {table}"));
+            assert!(line.contains(&format!("{:.2e}", l["estimate"].as_f64().unwrap())), "{line}");
+        }
+    }
+    for (args, says) in [
+        (vec!["--accuracy", "0.01", "--dt", "1,2"], "cannot be used with"),
+        (vec!["--accuracy", "0.01", "--h", "1,2"], "cannot be used with"),
+        (vec!["--accuracy", "0.01", "--tol", "1e-6"], "cannot be used with"),
+        (vec!["--max-dt-factor", "4"], "--accuracy"),
+        (vec!["--accuracy", "2"], "give an accuracy between"),
+    ] {
+        let (code, _, stderr) = worker(&[&["refine", &scene][..], &args].concat());
+        assert!(code == 1 || code == 2, "{args:?}: {code} {stderr}");
+        assert!(stderr.contains(says) && !stderr.contains("converged after"), "{args:?}: {stderr}");
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // The study command.
 
