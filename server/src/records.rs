@@ -134,7 +134,8 @@ pub struct StudyRecord {
 /// A study to an accuracy (core::accuracy, docs/accuracy.md): its pilot points climb the
 /// ladders of levels one lease at a time, each level a study of its own (`pilot_of`), refined
 /// from the study's scene as submitted (its `scene` until the level is chosen); once every pilot
-/// is done the study takes the finest level any needed, and its points are solved there.
+/// is done the study takes the finest of the pilots' cheapest levels within it, and its points
+/// are solved there.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ToAccuracy {
     pub accuracy: f64,

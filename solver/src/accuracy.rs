@@ -14,8 +14,8 @@ use glissade_core::scene::{Scene, Tolerance};
 use serde::Serialize;
 
 pub use glissade_core::accuracy::{
-    AccuracyLevel, AccuracyLimits, AccuracyReport, CONTACT_GAMMA, LadderError, LevelSolved, LimitError, MIN_LEVELS,
-    QoiAccuracy, RATIO, Step, ZERO_SHARE, accuracy_scene, next_step, scene_at, spread_order, study_level,
+    AccuracyLevel, AccuracyLimits, AccuracyReport, CONTACT_GAMMA, CheapestLevel, LadderError, LevelSolved, LimitError,
+    MIN_LEVELS, QoiAccuracy, RATIO, Step, ZERO_SHARE, accuracy_scene, next_step, scene_at, spread_order, study_level,
 };
 
 use crate::comm::Communicator;

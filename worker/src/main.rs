@@ -772,6 +772,13 @@ fn print_accuracy(a: &AccuracyReport) {
         a.work,
         a.wall_seconds
     );
+    if let Some(c) = a.cheapest.filter(|c| (c.time_factor, c.mesh_factor) != (a.time_factor, a.mesh_factor)) {
+        println!(
+            "    a study would solve its points at dt / {}, h / {}: the cheapest level solved within the accuracy \
+             (bound {:.1e}: its distance to the answer plus the answer's total)",
+            c.time_factor, c.mesh_factor, c.bound
+        );
+    }
     println!("    errors relative to each QoI's scale (the largest magnitude of its history):");
     println!(
         "    {:<20} {:>14} {:>10} {:>9} {:>9} {:>9} {:>9}",

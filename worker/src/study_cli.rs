@@ -293,7 +293,7 @@ fn pilots(
         );
         pilots.push(Pilot { point, report });
     }
-    let (time_factor, mesh_factor) = study_level(pilots.iter().map(|p| (p.report.time_factor, p.report.mesh_factor)));
+    let (time_factor, mesh_factor) = study_level(pilots.iter().map(|p| p.report.study_candidate()));
     let why_not = pilots.iter().find(|p| !p.report.reached).map(|p| {
         format!(
             "the pilot {} did not reach the accuracy, so no level is chosen: {}",

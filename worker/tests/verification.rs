@@ -686,24 +686,30 @@ fn a_study_to_an_accuracy_takes_its_level_from_pilots_and_confirms_it_on_held_ou
     assert_eq!(a["confirmed"], true, "{a}");
     assert!((out["tolerance"].as_f64().unwrap() - 2e-4).abs() < 1e-15, "the accuracy's tolerance");
     let (tf, mf) = (a["time_factor"].as_u64().unwrap(), a["mesh_factor"].as_u64().unwrap());
-    assert!(tf >= 4 && mf >= 2, "dt / {tf}, h / {mf}");
     let pilots = a["pilots"].as_array().unwrap();
     assert_eq!(pilots.len(), 3);
+    // the level: the finest of the pilots' cheapest levels within the accuracy, cheaper than the
+    // levels the pilots answered at (their ladders had to climb past it to see it)
+    let factor = |r: &serde_json::Value, key: &str| r[key].as_u64().unwrap();
+    let cheapest: Vec<(u64, u64)> = pilots
+        .iter()
+        .map(|p| (factor(&p["report"]["cheapest"], "time_factor"), factor(&p["report"]["cheapest"], "mesh_factor")))
+        .collect();
+    assert_eq!((tf, mf), cheapest.iter().fold((1, 1), |(t, m), &(pt, pm)| (t.max(pt), m.max(pm))));
+    assert!(
+        pilots.iter().all(|p| tf * mf < factor(&p["report"], "time_factor") * factor(&p["report"], "mesh_factor")),
+        "dt / {tf}, h / {mf}: {pilots:?}"
+    );
+    // each pilot's point as the study solved it, within the accuracy of the pilot's finer answer
     let records = out["records"].as_array().unwrap();
     for p in pilots {
         let r = &p["report"];
         assert_eq!(r["reached"], true);
-        if (r["time_factor"].as_u64(), r["mesh_factor"].as_u64()) != (Some(tf), Some(mf)) {
-            continue;
-        }
         let record = records.iter().find(|rec| rec["point"] == p["point"]).expect("a pilot is a point of the grid");
         for q in r["qois"].as_array().unwrap() {
             let (pilot, study) =
                 (q["value"].as_f64().unwrap(), record["qoi"][q["name"].as_str().unwrap()].as_f64().unwrap());
-            assert!(
-                (pilot - study).abs() <= 1e-3 * 1e-2 * q["scale"].as_f64().unwrap(),
-                "{q}: {pilot} against {study}"
-            );
+            assert!((pilot - study).abs() <= 1e-2 * q["scale"].as_f64().unwrap(), "{q}: {pilot} against {study}");
         }
     }
     let held = a["held_out"].as_array().unwrap();

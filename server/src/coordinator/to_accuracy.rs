@@ -2,8 +2,8 @@
 //! climb core::accuracy's ladders as `glissade-worker solve --accuracy` does, one level at a
 //! time, each level a study of its own (`pilot_of`) whose points pools lease as any other; the
 //! rule ([`next_step`]) reads the levels done and says which to open next. Once every pilot is
-//! done the study takes the finest level any pilot needed (its scene becomes that level's) and
-//! its points are solved there, the pilots' own answered by their stored solutions; when a
+//! done the study takes the finest of its pilots' cheapest levels within it (its scene becomes
+//! that level's) and its points are solved there, the pilots' own answered by their stored solutions; when a
 //! pilot did not reach the accuracy no level is chosen and the study is cancelled with why.
 
 use std::sync::Arc;
@@ -273,8 +273,8 @@ impl Coordinator {
         self.answer_stored(state, id)
     }
 
-    /// Every pilot is done and reached the accuracy: the study's scene becomes the finest level
-    /// any needed, and its points are solved there (the pilots' own answered by their stored
+    /// Every pilot is done and reached the accuracy: the study's scene becomes the finest of the
+    /// pilots' cheapest levels within it, and its points are solved there (the pilots' own answered by their stored
     /// solutions where the level is theirs).
     fn choose_level(
         &self,
@@ -283,7 +283,7 @@ impl Coordinator {
         mut spec: ToAccuracy,
         given: &Scene,
     ) -> Result<(), CoordError> {
-        let (k, m) = study_level(spec.reports.iter().flatten().map(|r| (r.time_factor, r.mesh_factor)));
+        let (k, m) = study_level(spec.reports.iter().flatten().map(|r| r.study_candidate()));
         let text = scene_text_at(given, k, m).map_err(|e| CoordError::Invalid(format!("accuracy: {e}")))?;
         let scene = Scene::parse(&text)
             .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;

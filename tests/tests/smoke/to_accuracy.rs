@@ -126,8 +126,12 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
         assert!(out.status.success(), "solve --accuracy: {}", text(&out.stderr));
         let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
         let report = &json["accuracy"];
-        time_factor = time_factor.max(report["time_factor"].as_u64().unwrap());
-        mesh_factor = mesh_factor.max(report["mesh_factor"].as_u64().unwrap());
+        // the level a study takes from this pilot: the cheapest solved within the accuracy
+        let cheapest = &report["cheapest"];
+        let (k, m) = (cheapest["time_factor"].as_u64().unwrap(), cheapest["mesh_factor"].as_u64().unwrap());
+        assert!(cheapest["bound"].as_f64().unwrap() <= ACCURACY, "{report}");
+        time_factor = time_factor.max(k);
+        mesh_factor = mesh_factor.max(m);
         for q in report["qois"].as_array().expect("qois") {
             let name = q["name"].as_str().unwrap();
             let (worker, service) = (q["total"].as_f64().unwrap(), t.qoi[name].total);
@@ -136,13 +140,21 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
         }
         // the study's point at the pilot, at the chosen level: answered from the pilot's own
         // stored solve where its level is the study's
-        if (report["time_factor"].as_u64(), report["mesh_factor"].as_u64())
-            == (Some(t.time_factor as u64), Some(t.mesh_factor as u64))
-        {
+        if (k, m) == (t.time_factor as u64, t.mesh_factor as u64) {
             assert!(point.answered, "{point:?}");
             for q in report["qois"].as_array().unwrap() {
                 let name = q["name"].as_str().unwrap();
-                let (worker, service) = (q["value"].as_f64().unwrap(), point.qoi[name]);
+                // the worker's final at (k, m): on its dt ladder (the scene's mesh), its h ladder
+                // (at the answer's step), else the step's check on the answer's mesh
+                let worker = if m == 1 {
+                    q["time"]["finals"][k.trailing_zeros() as usize].as_f64()
+                } else if Some(k) == report["time_factor"].as_u64() {
+                    q["mesh"]["finals"][m.trailing_zeros() as usize].as_f64()
+                } else {
+                    None
+                };
+                let Some(worker) = worker else { continue };
+                let service = point.qoi[name];
                 assert!(
                     (worker - service).abs() <= 1e-9 * worker.abs().max(1e-30),
                     "{name}: worker {worker}, service {service}"
@@ -182,17 +194,42 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
     assert_eq!((t.held_out_time_factor, t.held_out_mesh_factor), (2 * t.time_factor, 2 * t.mesh_factor));
     let check = rt.block_on(async { study(&mut user(&url).await?, t.held_out_study_id).await })?;
     assert_eq!(check.points[0].parameters, other.parameters);
+    // the check's level solved here, cold at the accuracy's tolerance: the same answer, and the
+    // scale the reported difference is relative to
+    let finer = PUSHED_TI_BAR
+        .replace("steps = 16", &format!("steps = {}", 16 * t.held_out_time_factor))
+        .replace("elements = [8]", &format!("elements = [{}]", 8 * t.held_out_mesh_factor));
+    let finer_path = dir.path().join("ti-bar-finer.toml");
+    std::fs::write(&finer_path, finer)?;
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade-worker")).arg("solve").arg(&finer_path).args([
+            "--set",
+            &format!("p={}", other.parameters["p"]),
+            "--tol",
+            &(ACCURACY / 50.0).to_string(),
+            "--json",
+        ]),
+        LIMIT,
+    );
+    assert!(out.status.success(), "the check's level: {}", text(&out.stderr));
+    let finer: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     for (name, q) in reference["qoi"].as_object().expect("qoi") {
         let values: Vec<f64> = q["values"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
         let scale = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let error = (other.qoi[name] - q["final"].as_f64().unwrap()).abs() / scale;
         eprintln!("{name}: {error:.2e} off the reference two levels finer (asked {ACCURACY})");
         assert!(error <= ACCURACY, "{name}: {error:.2e} off the reference two levels finer");
-        // (its scale there is the finer solve's, within a few per mille of the reference's)
-        let difference = (other.qoi[name] - check.points[0].qoi[name]).abs() / scale;
+        let f = &finer["qoi"][name];
+        let checked = check.points[0].qoi[name];
+        assert!(
+            (f["final"].as_f64().unwrap() - checked).abs() <= 1e-9 * checked.abs(),
+            "{name}: {f} against {checked}"
+        );
+        let finer_scale = f["values"].as_array().unwrap().iter().fold(0.0f64, |m, v| m.max(v.as_f64().unwrap().abs()));
+        let difference = (other.qoi[name] - checked).abs() / finer_scale;
         let reported = t.held_out_difference[name];
         assert!(
-            (reported - difference).abs() <= 1e-2 * difference.max(1e-12),
+            (reported - difference).abs() <= 1e-9 * difference.max(1e-12),
             "{name}: {reported} against {difference}"
         );
     }
