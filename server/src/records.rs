@@ -311,6 +311,10 @@ pub enum PointState {
         deadline_unix_ms: i64,
         /// The stored solution its warm start came from.
         init: Option<SolutionOrigin>,
+        /// An audit's lease: the iterations left of its cost cap, where fewer than the study's
+        /// limit (a solve stopped there was cut short by the cap, not by the solver)
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        cap: Option<u32>,
     },
     Done,
     Failed,
@@ -530,7 +534,7 @@ mod tests {
             study: StudyId(3),
             id: PointId(4),
             parameters: pv(&[("f1", 0.15)]),
-            state: PointState::Leased { pool: "p1".into(), lease_id: 9, deadline_unix_ms: 1234, init: None },
+            state: PointState::Leased { pool: "p1".into(), lease_id: 9, deadline_unix_ms: 1234, init: None, cap: None },
             attempts: 1,
             result: None,
             error: None,

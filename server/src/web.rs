@@ -1057,7 +1057,7 @@ mod tests {
         assert_eq!(cache.stats().0, 1);
         // the last point leased (its state only): nothing changes on the picture
         let mut leased = study_surface(&points, 4);
-        leased.rows[4].state = PointState::Leased { pool: "p".into(), lease_id: 1, deadline_unix_ms: 0, init: None };
+        leased.rows[4].state = PointState::Leased { pool: "p".into(), lease_id: 1, deadline_unix_ms: 0, init: None, cap: None };
         load(leased, vec![]).await;
         assert_eq!(cache.stats().0, 1);
         // it lands: drawn again, its value on the picture

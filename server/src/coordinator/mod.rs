@@ -631,11 +631,16 @@ impl Coordinator {
                 let lease_id = new_lease_id(&state.leases);
                 let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
                 let entry = state.studies.get_mut(&id).expect("id listed above");
+                let max_iterations = match audit_budget {
+                    Some(budget) => entry.record.max_iterations.min(budget.remaining() as u32),
+                    None => entry.record.max_iterations,
+                };
                 let lease = Transition::Lease {
                     pool: pool.to_owned(),
                     lease_id,
                     deadline_unix_ms: deadline,
                     init: init.as_ref().map(|w| w.origin.clone()),
+                    cap: (max_iterations < entry.record.max_iterations).then_some(max_iterations),
                 };
                 let point = apply(&entry.points[i], lease)?;
                 let grant = LeaseGrant {
@@ -646,10 +651,7 @@ impl Coordinator {
                     scene_text: entry.record.scene.clone(),
                     scene_hash: entry.record.scene_hash.clone(),
                     tolerance: entry.record.tolerance,
-                    max_iterations: match audit_budget {
-                        Some(budget) => entry.record.max_iterations.min(budget.remaining() as u32),
-                        None => entry.record.max_iterations,
-                    },
+                    max_iterations,
                     deadline_unix_ms: deadline,
                     init,
                     meshes: entry.record.meshes.clone(),
@@ -986,8 +988,13 @@ impl Coordinator {
             batch.put(Tree::Solutions, key.as_bytes(), encode(&record));
             batch.put(Tree::SolutionFields, key.as_bytes(), compressed);
         }
-        let kind = if converged { EventKind::Finished } else { EventKind::Failed };
-        self.commit(entry, vec![(point.clone(), Some(kind))], judged, batch)?;
+        // (a point cut short by its audit's cap is cancelled, as the cap's other points are)
+        let kind = match point.state {
+            PointState::Done => Some(EventKind::Finished),
+            PointState::Cancelled => None,
+            _ => Some(EventKind::Failed),
+        };
+        self.commit(entry, vec![(point.clone(), kind)], judged, batch)?;
         tracing::debug!(
             check_ms = checked.as_secs_f64() * 1e3,
             compress_ms = (compressed_at - checked).as_secs_f64() * 1e3,

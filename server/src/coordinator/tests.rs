@@ -167,6 +167,17 @@ fn solution_file_with_qoi(
     converged: bool,
     qoi: &BTreeMap<String, f64>,
 ) -> (Completion, Vec<u8>) {
+    solution_file_after(grant, eta, converged, qoi, 10)
+}
+
+/// A solve's completion after `iterations`.
+fn solution_file_after(
+    grant: &LeaseGrant,
+    eta: f64,
+    converged: bool,
+    qoi: &BTreeMap<String, f64>,
+    iterations: u64,
+) -> (Completion, Vec<u8>) {
     let scene = Scene::parse(&grant.scene_text).unwrap();
     let full = scene.parameter_values(&grant.parameters).unwrap();
     let len = scene.time.steps * 3 * 4;
@@ -181,7 +192,7 @@ fn solution_file_with_qoi(
         parameters: full,
         converged,
         error_indicator: eta,
-        iterations: 10,
+        iterations: iterations as usize,
         tolerance: grant.tolerance,
         qoi: qoi.clone(),
     };
@@ -193,7 +204,7 @@ fn solution_file_with_qoi(
         study: grant.study,
         point: grant.point,
         converged,
-        iterations: 10,
+        iterations,
         error_indicator: eta,
         qoi: qoi.clone(),
         wall_seconds: 0.5,
@@ -347,6 +358,42 @@ fn an_audit_stops_at_its_cost_cap() {
     assert!(reason.contains("cost cap (20 work, 50 % of its study's)"), "{reason}");
     let accuracy = c.study(id, false).unwrap().accuracy.unwrap();
     assert_eq!((accuracy.audited, accuracy.planned, accuracy.work, accuracy.work_cap), (2, 3, 20.0, 20.0));
+}
+
+/// An audit's point that its cap cuts short (not converged, the iterations left all spent) is
+/// cancelled with that reason, as the cap's unleased points are: not FAILED, which a retry would
+/// repeat; a study's own point out of iterations stays FAILED.
+#[test]
+fn an_audit_point_cut_short_by_its_cap_is_cancelled_not_failed() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let id = submit_audited(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Cold, Some(2));
+    let audit = c.study(id, false).unwrap().record.audit.unwrap();
+    // the study's first point runs out of its own iterations: FAILED, retryable
+    let slip = [("slip_A".to_string(), 1e-6)].into();
+    let g = c.lease("p").unwrap().unwrap();
+    let (out, file) = solution_file_after(&g, 5e-3, false, &slip, u64::from(g.max_iterations));
+    assert_eq!(c.complete(out, file).unwrap().state, PointState::Failed);
+    c.retry_failed(id).unwrap();
+    for _ in 0..3 {
+        let g = c.lease("p").unwrap().unwrap();
+        let (done, file) = solution_file(&g, 5e-4, true);
+        c.complete(done, file).unwrap();
+    }
+    // 3 points of work 8: a cap of 12, leased whole to the audit's first point, which spends it
+    let g = c.lease("p").unwrap().unwrap();
+    assert_eq!((g.study, g.max_iterations), (audit, 12));
+    let (mut out, file) = solution_file_after(&g, g.tolerance * 3.0, false, &slip, 12);
+    out.work = 12.0;
+    let point = c.complete(out, file).unwrap();
+    assert_eq!(point.state, PointState::Cancelled, "{point:?}");
+    let why = point.error.as_deref().unwrap();
+    assert!(why.contains("cut short after 12 iterations") && why.contains("cost cap"), "{why}");
+    assert!(c.lease("p").unwrap().is_none(), "the cap is spent");
+    let a = c.study(audit, true).unwrap();
+    assert_eq!((a.state, a.progress.done, a.progress.failed, a.progress.cancelled), (StudyState::Done, 0, 0, 2));
+    assert!(a.points[1].error.as_deref().unwrap().contains("not re-solved: the audit spent its cost cap"));
 }
 
 /// What the studies page and `glissade studies` show of a study at a glance (issue 25).

@@ -7,6 +7,7 @@
 //! ```text
 //!   PENDING --lease--> LEASED --complete (converged)--> DONE
 //!      |                 |  \--complete (not converged), fail--> FAILED --retry--> PENDING
+//!      |                 |--complete (not converged, an audit's cap spent)--> CANCELLED
 //!      |                 |--release, expire--> PENDING (CANCELLED if the study is)
 //!      |                 \--expire (max attempts), past the per-point budget--> FAILED
 //!      |--answer (a stored solution)--> DONE
@@ -20,12 +21,12 @@ use super::point_state_word;
 /// What happens to a point.
 #[derive(Debug, Clone)]
 pub enum Transition {
-    /// PENDING -> LEASED to `pool`; counts an attempt.
-    Lease { pool: String, lease_id: u64, deadline_unix_ms: i64, init: Option<SolutionOrigin> },
+    /// PENDING -> LEASED to `pool`; counts an attempt. `cap`: an audit's iterations left.
+    Lease { pool: String, lease_id: u64, deadline_unix_ms: i64, init: Option<SolutionOrigin>, cap: Option<u32> },
     /// PENDING -> DONE: a stored solution answers it.
     Answer { result: PointResult, finished_seq: u64 },
     /// LEASED -> DONE when `result.converged`, else FAILED (retryable, the result kept), with
-    /// the study's `tolerance` in the error.
+    /// the study's `tolerance` in the error; CANCELLED when an audit's lease spent its cap.
     Complete { result: PointResult, finished_seq: u64, tolerance: f64 },
     /// LEASED -> FAILED: the solver reported `error`.
     Fail { result: PointResult, error: String },
@@ -79,8 +80,8 @@ pub fn apply(point: &PointRecord, transition: Transition) -> Result<PointRecord,
     };
     let mut p = point.clone();
     match (&point.state, transition) {
-        (PointState::Pending, Transition::Lease { pool, lease_id, deadline_unix_ms, init }) => {
-            p.state = PointState::Leased { pool, lease_id, deadline_unix_ms, init };
+        (PointState::Pending, Transition::Lease { pool, lease_id, deadline_unix_ms, init, cap }) => {
+            p.state = PointState::Leased { pool, lease_id, deadline_unix_ms, init, cap };
             p.attempts += 1;
         }
         (PointState::Pending, Transition::Answer { result, finished_seq }) => {
@@ -89,11 +90,18 @@ pub fn apply(point: &PointRecord, transition: Transition) -> Result<PointRecord,
             p.finished_seq = Some(finished_seq);
             p.result = Some(result);
         }
-        (PointState::Leased { .. }, Transition::Complete { result, finished_seq, tolerance }) => {
+        (PointState::Leased { cap, .. }, Transition::Complete { result, finished_seq, tolerance }) => {
             if result.converged {
                 p.state = PointState::Done;
                 p.error = None;
                 p.finished_seq = Some(finished_seq);
+            } else if cap.is_some_and(|c| result.iterations >= u64::from(c)) {
+                p.state = PointState::Cancelled;
+                p.error = Some(format!(
+                    "not re-solved: cut short after {} iterations, what was left of the audit's cost cap \
+                     (eta = {:.3e}, tolerance {tolerance:.1e}); an audit measures, it answers no one",
+                    result.iterations, result.error_indicator
+                ));
             } else {
                 p.state = PointState::Failed;
                 p.error = Some(format!(
@@ -167,7 +175,7 @@ mod tests {
     }
 
     fn leased() -> PointState {
-        PointState::Leased { pool: "a".into(), lease_id: 9, deadline_unix_ms: 100, init: None }
+        PointState::Leased { pool: "a".into(), lease_id: 9, deadline_unix_ms: 100, init: None, cap: None }
     }
 
     fn result(converged: bool) -> PointResult {
@@ -200,7 +208,7 @@ mod tests {
         ];
         let transitions = || {
             [
-                Transition::Lease { pool: "b".into(), lease_id: 5, deadline_unix_ms: 200, init: None },
+                Transition::Lease { pool: "b".into(), lease_id: 5, deadline_unix_ms: 200, init: None, cap: None },
                 Transition::Answer { result: result(true), finished_seq: 4 },
                 Transition::Complete { result: result(true), finished_seq: 4, tolerance: 2e-4 },
                 Transition::Complete { result: result(false), finished_seq: 4, tolerance: 2e-4 },
@@ -251,7 +259,7 @@ mod tests {
 
     #[test]
     fn attempts_count_leases_and_not_releases_and_restart_at_a_retry() {
-        let lease = || Transition::Lease { pool: "a".into(), lease_id: 1, deadline_unix_ms: 0, init: None };
+        let lease = || Transition::Lease { pool: "a".into(), lease_id: 1, deadline_unix_ms: 0, init: None, cap: None };
         let p = apply(&point(PointState::Pending, 0), lease()).unwrap();
         assert_eq!(p.attempts, 1);
         let p = apply(&p, Transition::Release { study_cancelled: false }).unwrap();
