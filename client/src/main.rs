@@ -91,6 +91,10 @@ enum Command {
         /// Print one JSON object instead of a table.
         #[arg(long)]
         json: bool,
+        /// Also list the audits and the pilots' levels as rows of their own (else each is
+        /// counted on its study's row).
+        #[arg(long)]
+        all: bool,
     },
     /// Show a study: its state, progress and (with --points) every design point.
     Show {
@@ -226,7 +230,7 @@ async fn run(cli: Cli) -> Result<Outcome> {
             let mut client = user(server).await?;
             watch(&mut client, study).await
         }
-        Command::Studies { json } => done(studies(server, json).await),
+        Command::Studies { json, all } => done(studies(server, json, all).await),
         Command::Show { study, points, json } => done(show(server, study, points, json).await),
         Command::Cancel { study } => done(cancel(server, study).await),
         Command::Retry { study } => done(retry(server, study).await),
@@ -315,7 +319,7 @@ mod tests {
     #[test]
     fn list_is_the_studies_command() {
         let cli = Cli::try_parse_from(["glissade", "list", "--json"]).expect("list parses");
-        assert!(matches!(cli.command, Command::Studies { json: true }));
+        assert!(matches!(cli.command, Command::Studies { json: true, all: false }));
         let err = Cli::try_parse_from(["glissade", "studes"]).unwrap_err().to_string();
         assert!(err.contains("studies"), "{err}");
     }

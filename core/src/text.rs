@@ -147,6 +147,16 @@ pub fn wall_time(seconds: f64) -> String {
     }
 }
 
+/// A study's audits and pilots' levels in a cell of a list (the CLI's and the web page's):
+/// `-`, `4 ended`, `2 of 4 running`.
+pub fn audits_cell(total: usize, active: usize) -> String {
+    match (total, active) {
+        (0, _) => "-".to_owned(),
+        (n, 0) => format!("{n} ended"),
+        (n, a) => format!("{a} of {n} running"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -502,6 +502,17 @@ pub fn study(v: &StudyView) -> v1::Study {
     v1::Study {
         to_accuracy: r.to_accuracy.as_ref().map(|t| to_accuracy(t, r.tolerance, v.held_out_check.as_ref())),
         pilot_of: r.pilot_of.map_or(0, |s| s.0),
+        audits: v
+            .audits
+            .iter()
+            .map(|a| v1::StudyAudit {
+                study_id: a.study.0,
+                what: a.what.to_owned(),
+                state: study_state(a.state).into(),
+                progress: Some(progress(a.progress)),
+                why_cancelled: a.why_cancelled.clone().unwrap_or_default(),
+            })
+            .collect(),
         study_id: r.id.0,
         label: r.label.clone(),
         scene_hash: r.scene_hash.clone(),

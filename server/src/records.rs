@@ -131,6 +131,27 @@ pub struct StudyRecord {
     pub confirms: Option<StudyId>,
 }
 
+impl StudyRecord {
+    /// The studies that hang under this one, each with what it is in a user's words: its
+    /// audits (iteration, time step, mesh, surface, held-out check) and its pilots' levels.
+    /// `child` reads a named study's record (a level's refinement is its own).
+    pub fn dependents<'a>(&self, child: impl Fn(StudyId) -> Option<&'a StudyRecord>) -> Vec<(StudyId, &'static str)> {
+        let mut out: Vec<(StudyId, &'static str)> = self.audit.iter().map(|&a| (a, "iteration")).collect();
+        for &level in &self.refined_by {
+            let mesh = child(level)
+                .and_then(|r| r.refines.as_ref())
+                .is_some_and(|r| r.refinement == glissade_core::refine::Refinement::Mesh);
+            out.push((level, if mesh { "mesh" } else { "time step" }));
+        }
+        out.extend(self.surface_audit.map(|a| (a, "surface")));
+        if let Some(t) = &self.to_accuracy {
+            out.extend(t.levels.iter().map(|&(_, _, id)| (id, "pilot level")));
+            out.extend(t.held_out.map(|c| (c, "held-out check")));
+        }
+        out
+    }
+}
+
 /// A study to an accuracy (core::accuracy, docs/accuracy.md): its pilot points climb the
 /// ladders of levels one lease at a time, each level a study of its own (`pilot_of`), refined
 /// from the study's scene as submitted (its `scene` until the level is chosen); once every pilot

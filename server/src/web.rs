@@ -248,6 +248,11 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "parameters": r.parameters,
         "strategy": r.strategy.name(),
         "audit_of": r.audit_of.map(|s| s.0),
+        "audits": v.audits.iter().map(|a| json!({
+            "study_id": a.study.0, "what": a.what, "state": state_word(a.state),
+            "done": a.progress.done, "total": a.progress.total, "failed": a.progress.failed,
+            "cancelled": a.progress.cancelled, "why_cancelled": a.why_cancelled,
+        })).collect::<Vec<_>>(),
         "kind": v.kind,
         "scene_title": v.scene_title,
         "created_unix_ms": r.created_unix_ms,
@@ -445,7 +450,13 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     if let Err(r) = check(&web, &headers, &q) {
         return page_refusal(r);
     }
-    let studies = web.coordinator.studies();
+    // the audits and pilots' levels are listed on their study's page and counted on its row
+    let studies: Vec<StudyView> = web
+        .coordinator
+        .studies()
+        .into_iter()
+        .filter(|v| v.record.audit_of.is_none() && v.record.pilot_of.is_none())
+        .collect();
     // mean work of the points solved cold and warm (answered ones aside)
     let mean = |id: StudyId, warm: bool| {
         let full = web.coordinator.study(id, true).map(|f| f.points).unwrap_or_default();
@@ -459,7 +470,7 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     };
     let body = html! {
         table #studies {
-            tr { th { "study" } th { "kind" } th { "scene" } th { "label" } th { "state" } th { "done" } th { "running" } th { "pending" }
+            tr { th { "study" } th { "kind" } th { "scene" } th { "label" } th { "state" } th { "audits" } th { "done" } th { "running" } th { "pending" }
                  th { "tolerance" } th { "submitted" } th { "finished" } th { "wall time" } th { "work cold" } th { "work warm" } }
             @for v in &studies {
                 tr {
@@ -468,6 +479,7 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
                     td { (v.scene_title) }
                     td { (v.record.label) }
                     td { (state_word(v.state)) }
+                    td { (audits_cell(v)) }
                     td { (v.progress.done) " / " (v.progress.total) }
                     td { (v.progress.leased) }
                     td { (v.progress.pending) }
@@ -480,7 +492,7 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
                 }
             }
         }
-        p { "work: dynamic iterations + static iterations / time steps, mean per point solved" }
+        p { "work: dynamic iterations + static iterations / time steps, mean per point solved; audits and pilots' levels are listed on their study's page" }
         p { "JSON: " a href="/api/studies" { "/api/studies" } }
     };
     page("glissade studies", body).into_response()
@@ -697,6 +709,7 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
         p #progress data-state=(state) data-api=(format!("/api/studies/{}", r.id.0)) {
             (format!("{state}: {} of {} done, {} running, {} pending, {} failed", p.done, p.total, p.leased, p.pending, p.failed))
         }
+        (audits_paragraph(&v))
         p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
         (target_paragraph(&v))
         (ill_posed_paragraph(&v))
@@ -724,6 +737,31 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     };
     let title = if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
     page(&title, body).into_response()
+}
+
+/// The studies under this one (its audits, its pilots' levels), each linked with its state:
+/// a study whose points have ended is not finished with while one of them runs.
+fn audits_paragraph(v: &StudyView) -> Markup {
+    if v.audits.is_empty() {
+        return html! {};
+    }
+    let active = v.audits.iter().filter(|a| a.state == StudyState::Active).count();
+    html! {
+        p #audits data-running=(active) {
+            @if active > 0 { strong { (format!("{active} of {} audits and levels still running", v.audits.len())) } ": " }
+            @for (k, a) in v.audits.iter().enumerate() {
+                @if k > 0 { "; " }
+                (a.what) " " a href=(format!("/studies/{}", a.study.0)) { (format!("study {}", a.study.0)) }
+                (format!(" {}, {} of {} done", state_word(a.state), a.progress.done, a.progress.total))
+                @if let Some(why) = &a.why_cancelled { (format!(", {} cancelled: {why}", a.progress.cancelled)) }
+            }
+        }
+    }
+}
+
+/// A study's audits in a cell of the list (as `glissade studies`).
+fn audits_cell(v: &StudyView) -> String {
+    glissade_core::text::audits_cell(v.audits.len(), v.audits.iter().filter(|a| a.state == StudyState::Active).count())
 }
 
 /// An adaptive study's surface accuracy target and what came of it.
@@ -1057,7 +1095,8 @@ mod tests {
         assert_eq!(cache.stats().0, 1);
         // the last point leased (its state only): nothing changes on the picture
         let mut leased = study_surface(&points, 4);
-        leased.rows[4].state = PointState::Leased { pool: "p".into(), lease_id: 1, deadline_unix_ms: 0, init: None, cap: None };
+        leased.rows[4].state =
+            PointState::Leased { pool: "p".into(), lease_id: 1, deadline_unix_ms: 0, init: None, cap: None };
         load(leased, vec![]).await;
         assert_eq!(cache.stats().0, 1);
         // it lands: drawn again, its value on the picture

@@ -44,14 +44,60 @@ pub(crate) async fn show(server: &Server, study: u64, points: bool, json: bool) 
     Ok(())
 }
 
+/// `, its audits running (1 of 4 ended)` after a study's own state while an audit or a pilots'
+/// level is active: a study whose points have ended is not finished with until they are.
+pub(crate) fn audits_running(s: &v1::Study) -> String {
+    let active = s.audits.iter().filter(|a| a.state == v1::StudyState::Active as i32).count();
+    if active == 0 {
+        return String::new();
+    }
+    let what = if s.audits.iter().all(|a| a.what == "pilot level") { "pilots' levels" } else { "audits" };
+    format!(", its {what} running ({} of {} ended)", s.audits.len() - active, s.audits.len())
+}
+
+/// One line per audit of a study (its pilots' levels in one line): what, its id, its state and
+/// progress, and why points were cancelled unsolved.
+pub(crate) fn audit_lines(s: &v1::Study) -> Vec<String> {
+    let mut lines = Vec::new();
+    for a in s.audits.iter().filter(|a| a.what != "pilot level") {
+        let p = a.progress.unwrap_or_default();
+        let mut line = format!(
+            "  audit     {} (study {}): {}, {} of {} re-solved",
+            a.what,
+            a.study_id,
+            study_state_name(a.state),
+            p.done,
+            p.total
+        );
+        if p.failed > 0 {
+            line.push_str(&format!(", {} failed", p.failed));
+        }
+        if p.cancelled > 0 {
+            line.push_str(&format!(", {} cancelled: {}", p.cancelled, a.why_cancelled));
+        }
+        lines.push(line);
+    }
+    let levels: Vec<&v1::StudyAudit> = s.audits.iter().filter(|a| a.what == "pilot level").collect();
+    if !levels.is_empty() {
+        let ended = levels.iter().filter(|a| a.state != v1::StudyState::Active as i32).count();
+        lines.push(format!(
+            "  levels    {} pilots' levels (studies {}), {ended} ended",
+            levels.len(),
+            levels.iter().map(|a| a.study_id.to_string()).collect::<Vec<_>>().join(", ")
+        ));
+    }
+    lines
+}
+
 /// What the study is, how it was asked, and what its audits measured.
 fn describe(s: &v1::Study) {
     let p = s.progress.unwrap_or_default();
     outln!(
-        "study {}{}: {}",
+        "study {}{}: {}{}",
         s.study_id,
         if s.label.is_empty() { String::new() } else { format!(" ({})", s.label) },
-        study_state_name(s.state)
+        study_state_name(s.state),
+        audits_running(s)
     );
     outln!(
         "  scene     {}{}",
@@ -93,6 +139,9 @@ fn describe(s: &v1::Study) {
     }
     if s.pilot_of != 0 {
         outln!("  pilots    of study {} (one level of its pilots' ladders)", s.pilot_of);
+    }
+    for line in audit_lines(s) {
+        outln!("{line}");
     }
     if let Some(t) = &s.to_accuracy {
         for line in to_accuracy_lines(t) {
@@ -297,6 +346,18 @@ pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
     // (apart: one json! of every field passes the macro's recursion limit)
     v["pilot_of"] = serde_json::json!((s.pilot_of != 0).then_some(s.pilot_of));
     v["to_accuracy"] = serde_json::json!(s.to_accuracy.as_ref().map(to_accuracy_json));
+    v["audits"] = s
+        .audits
+        .iter()
+        .map(|a| {
+            let p = a.progress.unwrap_or_default();
+            serde_json::json!({
+                "study_id": a.study_id, "what": a.what, "state": study_state_name(a.state),
+                "done": p.done, "total": p.total, "failed": p.failed, "cancelled": p.cancelled,
+                "why_cancelled": (!a.why_cancelled.is_empty()).then_some(&a.why_cancelled),
+            })
+        })
+        .collect();
     v
 }
 
@@ -634,5 +695,43 @@ mod tests {
         assert!(line.contains("NOT REACHED: the budget of 60 points was spent; at 60 points"), "{line}");
         let line = target_line(&v1::StudyTarget { outcome: String::new(), ..target(0, 100.0) }, None);
         assert!(line.contains("not decided yet (budget 60 points or work 100)"), "{line}");
+    }
+
+    /// A study whose points have ended says that its audits still run, and each audit's line
+    /// says what it is, how far it got and why points were cancelled; pilots' levels in one line.
+    #[test]
+    fn a_study_says_its_audits_are_running() {
+        let audit = |id: u64, what: &str, state: v1::StudyState, done: u32, cancelled: u32, why: &str| v1::StudyAudit {
+            study_id: id,
+            what: what.into(),
+            state: state.into(),
+            progress: Some(v1::StudyProgress { total: 2, done, cancelled, ..Default::default() }),
+            why_cancelled: why.into(),
+        };
+        let mut s = v1::Study {
+            state: v1::StudyState::Done.into(),
+            audits: vec![
+                audit(2, "iteration", v1::StudyState::Done, 1, 1, "not re-solved: the audit spent its cost cap"),
+                audit(3, "time step", v1::StudyState::Active, 0, 0, ""),
+            ],
+            ..Default::default()
+        };
+        assert_eq!(audits_running(&s), ", its audits running (1 of 2 ended)");
+        let lines = audit_lines(&s);
+        assert_eq!(
+            lines,
+            vec![
+                "  audit     iteration (study 2): done, 1 of 2 re-solved, 1 cancelled: not re-solved: the audit spent its cost cap",
+                "  audit     time step (study 3): active, 0 of 2 re-solved",
+            ]
+        );
+        s.audits = vec![
+            audit(4, "pilot level", v1::StudyState::Done, 2, 0, ""),
+            audit(5, "pilot level", v1::StudyState::Active, 0, 0, ""),
+        ];
+        assert_eq!(audits_running(&s), ", its pilots' levels running (1 of 2 ended)");
+        assert_eq!(audit_lines(&s), vec!["  levels    2 pilots' levels (studies 4, 5), 1 ended"]);
+        s.audits.clear();
+        assert_eq!((audits_running(&s), audit_lines(&s).len()), (String::new(), 0));
     }
 }

@@ -8,7 +8,7 @@ use glissade_proto::v1;
 use super::show::study_json;
 use crate::{Server, refused, user};
 
-pub(crate) async fn studies(server: &Server, json: bool) -> Result<()> {
+pub(crate) async fn studies(server: &Server, json: bool, all: bool) -> Result<()> {
     // page by page: the whole list at once could pass the message limit
     let mut client = user(server).await?;
     let (mut list, mut after) = (Vec::new(), 0);
@@ -24,6 +24,11 @@ pub(crate) async fn studies(server: &Server, json: bool) -> Result<()> {
         }
         after = page.next_after;
     }
+    // the audits and pilots' levels are counted on their study's row unless asked for
+    let under = |s: &v1::Study| s.audit_of != 0 || s.pilot_of != 0;
+    if !all {
+        list.retain(|s| !under(s));
+    }
     if json {
         outln!("{}", serde_json::Value::Array(list.iter().map(study_json).collect()));
         return Ok(());
@@ -33,11 +38,12 @@ pub(crate) async fn studies(server: &Server, json: bool) -> Result<()> {
         return Ok(());
     }
     outln!(
-        "{:>5}  {:<8}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8}  {:<20}  {:>8}  scene / label",
+        "{:>5}  {:<8}  {:<9}  {:>11}  {:<14}  {:<9}  {:<14}  {:>8}  {:<20}  {:>8}  scene / label",
         "id",
         "kind",
         "state",
         "done/total",
+        "audits",
         "strategy",
         "parameters",
         "tol",
@@ -54,11 +60,12 @@ pub(crate) async fn studies(server: &Server, json: bool) -> Result<()> {
         let title =
             [s.scene_title.as_str(), s.label.as_str()].iter().filter(|t| !t.is_empty()).cloned().collect::<Vec<_>>();
         outln!(
-            "{:>5}  {:<8}  {:<9}  {:>11}  {:<9}  {:<14}  {:>8.1e}  {:<20}  {:>8}  {}",
+            "{:>5}  {:<8}  {:<9}  {:>11}  {:<14}  {:<9}  {:<14}  {:>8.1e}  {:<20}  {:>8}  {}",
             s.study_id,
             s.kind,
             study_state_name(s.state),
             format!("{}/{}", p.done, p.total),
+            audits_cell(s),
             strategy_name(s.strategy),
             s.parameters.join(","),
             s.tolerance,
@@ -68,6 +75,12 @@ pub(crate) async fn studies(server: &Server, json: bool) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// A study's audits and pilots' levels in a cell of the list (as the web page's).
+fn audits_cell(s: &v1::Study) -> String {
+    let active = s.audits.iter().filter(|a| a.state == v1::StudyState::Active as i32).count();
+    glissade_core::text::audits_cell(s.audits.len(), active)
 }
 
 pub(crate) async fn cancel(server: &Server, id: u64) -> Result<()> {

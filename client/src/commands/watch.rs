@@ -86,6 +86,13 @@ pub(crate) async fn watch(client: &mut User, id: u64) -> Result<Outcome> {
         bar.finish_and_clear();
     }
     outln!("{}", state.summary(started.elapsed()));
+    // its points have ended; its audits may not have (a look, not a wait: they answer no one)
+    if let Ok(s) = client.get_study(v1::GetStudyRequest { study_id: id, ..Default::default() }).await {
+        let running = crate::commands::show::audits_running(&s.into_inner());
+        if !running.is_empty() {
+            outln!("study {id}{running}: `glissade show {id}` follows them");
+        }
+    }
     Ok(if state.state == v1::StudyState::Done as i32 { Outcome::Success } else { Outcome::StudyFailed })
 }
 

@@ -378,6 +378,25 @@ impl Coordinator {
                 .and_then(|t| t.held_out)
                 .and_then(|c| studies.get(&c))
                 .map(|c| to_accuracy::held_out_check(entry, c)),
+            audits: entry
+                .record
+                .dependents(|id| studies.get(&id).map(|e| &e.record))
+                .into_iter()
+                .filter_map(|(id, what)| {
+                    let a = studies.get(&id)?;
+                    Some(AuditView {
+                        study: id,
+                        what,
+                        state: a.state(),
+                        progress: a.progress(),
+                        why_cancelled: a
+                            .points
+                            .iter()
+                            .find(|p| p.state == PointState::Cancelled && p.error.is_some())
+                            .and_then(|p| p.error.clone()),
+                    })
+                })
+                .collect(),
         }
     }
 

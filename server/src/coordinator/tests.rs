@@ -340,6 +340,13 @@ fn an_audit_stops_at_its_cost_cap() {
     assert!(c.lease("q").unwrap().is_none(), "no audit point before its study has ended");
     let (done, file) = solution_file(&last, 5e-4, true);
     c.complete(done, file).unwrap();
+    // the study's points have ended, its audit has not: the study says so
+    let v = c.study(id, false).unwrap();
+    assert_eq!(v.state, StudyState::Done);
+    assert_eq!(
+        v.audits.iter().map(|a| (a.study, a.what, a.state, a.progress.done)).collect::<Vec<_>>(),
+        vec![(audit, "iteration", StudyState::Active, 0)]
+    );
     let g = c.lease("p").unwrap().unwrap();
     assert_eq!((g.study, g.max_iterations), (audit, 20));
     assert!(c.lease("q").unwrap().is_none(), "one audit point at a time");
@@ -356,6 +363,10 @@ fn an_audit_stops_at_its_cost_cap() {
     assert_eq!((a.state, a.progress.done, a.progress.cancelled), (StudyState::Done, 2, 1));
     let reason = a.points[2].error.as_deref().unwrap();
     assert!(reason.contains("cost cap (20 work, 50 % of its study's)"), "{reason}");
+    let v = c.study(id, false).unwrap();
+    let a = &v.audits[0];
+    assert_eq!((a.state, a.progress.done, a.progress.cancelled), (StudyState::Done, 2, 1));
+    assert_eq!(a.why_cancelled.as_deref(), Some(reason));
     let accuracy = c.study(id, false).unwrap().accuracy.unwrap();
     assert_eq!((accuracy.audited, accuracy.planned, accuracy.work, accuracy.work_cap), (2, 3, 20.0, 20.0));
 }

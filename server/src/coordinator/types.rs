@@ -175,6 +175,20 @@ pub struct StudyView {
     pub scene: Arc<glissade_core::scene::Scene>,
     /// When its last point ended, once it has ended (Unix ms).
     pub finished_unix_ms: Option<i64>,
+    /// The studies under it (its audits, its pilots' levels), in the order it opened them.
+    pub audits: Vec<AuditView>,
+}
+
+/// A study under another (an audit or a pilots' level), as its parent shows it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AuditView {
+    pub study: StudyId,
+    /// `iteration`, `time step`, `mesh`, `surface`, `held-out check` or `pilot level`
+    pub what: &'static str,
+    pub state: StudyState,
+    pub progress: Progress,
+    /// why its points were cancelled unsolved (its cost cap, no prediction, ...), if some were
+    pub why_cancelled: Option<String>,
 }
 
 /// The held-out check of a study to an accuracy: some of its points re-solved cold one level

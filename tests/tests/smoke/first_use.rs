@@ -94,11 +94,19 @@ fn show_watch_fields_and_slices_say_what_the_readme_says() -> anyhow::Result<()>
     let row = list.lines().find(|l| l.trim_start().starts_with("1 ")).expect("study 1 listed");
     assert!(row.contains(" grid ") && row.contains(" UTC") && row.contains("three blocks (tiny)"), "{list}");
     assert!(!row.split_whitespace().any(|w| w == "-"), "a wall time: {list}");
-    assert!(list.lines().any(|l| l.trim_start().starts_with("2 ") && l.contains(" audit ")), "{list}");
+    // its audits under it: counted on its row, listed with --all, named by `show`
+    assert!(!list.lines().any(|l| l.trim_start().starts_with("2 ")), "audits under their study: {list}");
+    assert!(row.contains(" ended ") || row.contains(" running "), "{list}");
+    let all = text(&glissade(Some(&url), &["studies", "--all"]).stdout);
+    assert!(all.lines().any(|l| l.trim_start().starts_with("2 ") && l.contains(" audit ")), "{all}");
     let shown = text(&glissade(Some(&url), &["show", "1"]).stdout);
     assert!(shown.contains("  kind      grid, submitted ") && shown.contains("(wall time "), "{shown}");
+    assert!(shown.contains("  audit     iteration (study 2): "), "{shown}");
     let (_, _, index) = http_get(&addr, "/");
     assert!(index.contains("<td>grid</td>") && index.contains("three blocks (tiny)"), "{index}");
+    assert!(!index.contains("<td>audit</td>") && index.contains("<th>audits</th>"), "{index}");
+    let (_, _, page) = http_get(&addr, "/studies/1");
+    assert!(page.contains("id=\"audits\"") && page.contains("href=\"/studies/2\""), "{page}");
     // a failed point says why, in `show` and on the study page
     let out = glissade(
         Some(&url),
