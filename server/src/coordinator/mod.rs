@@ -612,10 +612,6 @@ impl Coordinator {
                 if entry.record.to_accuracy.as_ref().is_some_and(|t| t.chosen.is_none()) {
                     break;
                 }
-                if let Some(budget) = audit_budget.filter(|b| b.remaining() < 1.0) {
-                    self.stop_audit(entry, &budget)?;
-                    break;
-                }
                 // held-out points are solved only once the surface has predicted them
                 if entry.record.held_out.as_ref().is_some_and(|h| h.predicted.is_none()) {
                     break;
@@ -639,11 +635,16 @@ impl Coordinator {
                     &version,
                 );
                 let init = match start {
-                    // a good enough stored solution is the answer
+                    // a good enough stored solution is the answer (within any audit's cap: it costs nothing)
                     PointStart::Answer(key) => {
                         let answer = solutions.get(&key).expect("indexed solutions have records").clone();
                         self.answer(&mut state, id, i, &answer)?;
                         continue;
+                    }
+                    PointStart::Solve(_) if audit_budget.is_some_and(|b| b.remaining() < 1.0) => {
+                        let budget = audit_budget.expect("tested");
+                        self.stop_audit(entry, &budget)?;
+                        break;
                     }
                     PointStart::Solve(init) => init,
                 };
@@ -743,11 +744,18 @@ impl Coordinator {
 
     /// Cancels the pending points of an audit whose cost cap is spent, saying so on each.
     fn stop_audit(&self, entry: &mut StudyEntry, budget: &AuditBudget) -> Result<(), CoordError> {
-        let reason = format!(
-            "not re-solved: the audit spent its cost cap ({:.0} work, {:.0} % of its study's)",
-            budget.cap,
-            AUDIT_WORK_FRACTION * 100.0
-        );
+        let reason = if budget.cap > 0.0 {
+            format!(
+                "not re-solved: the audit spent its cost cap ({:.0} work, {:.0} % of its study's)",
+                budget.cap,
+                AUDIT_WORK_FRACTION * 100.0
+            )
+        } else {
+            // (a study answered from stored solutions: what measured them was their own audit)
+            "not re-solved: its study cost no work (its points were answered from stored solutions), \
+             so the audit's cost cap, a share of that work, is 0"
+                .to_owned()
+        };
         let changes = entry
             .points
             .iter()

@@ -371,6 +371,36 @@ fn an_audit_stops_at_its_cost_cap() {
     assert_eq!((accuracy.audited, accuracy.planned, accuracy.work, accuracy.work_cap), (2, 3, 20.0, 20.0));
 }
 
+/// A study answered from stored solutions cost no work, so its audit's cap is 0: the audit
+/// (cold re-solves) cancels its points saying why, not that a cap was "spent".
+#[test]
+fn the_audit_of_a_study_answered_from_stored_solutions_says_why_it_re_solves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let first = submit_audited(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Cold, Some(2));
+    // its 3 points, then its audit's 2 (a cap of 12: the second gets what is left)
+    while let Some(g) = c.lease("p").unwrap() {
+        let (done, file) = solution_file(&g, g.tolerance / 2.0, true);
+        c.complete(done, file).unwrap();
+    }
+    let audited = c.study(first, false).unwrap().accuracy.unwrap();
+    assert_eq!((audited.audited, audited.planned), (2, 2));
+    // the same grid again, answered from the stored solutions, all 3 points audited
+    let again = submit_audited(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Linear { k: 8 }, Some(3));
+    let leased = c.lease("p").unwrap();
+    assert!(leased.is_none(), "nothing to solve: {leased:?} {:?}", c.study(again, false).unwrap().audits);
+    let v = c.study(again, true).unwrap();
+    assert_eq!((v.state, v.progress.done), (StudyState::Done, 3));
+    let audit = c.study(v.record.audit.unwrap(), true).unwrap();
+    assert_eq!((audit.state, audit.progress.done, audit.progress.cancelled), (StudyState::Done, 0, 3));
+    for p in &audit.points {
+        let why = p.error.as_deref().unwrap();
+        assert!(why.contains("its study cost no work (its points were answered from stored solutions)"), "{why}");
+    }
+    assert_eq!(v.accuracy.unwrap().audited, 0);
+}
+
 /// An audit's point that its cap cuts short (not converged, the iterations left all spent) is
 /// cancelled with that reason, as the cap's unleased points are: not FAILED, which a retry would
 /// repeat; a study's own point out of iterations stays FAILED.
