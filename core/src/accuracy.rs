@@ -536,6 +536,14 @@ pub const DEFAULT_HELD_OUT: usize = 2;
 /// The most pilots a study to an accuracy may ask for (each climbs its own ladders).
 pub const MAX_PILOTS: usize = 16;
 
+/// The level a study to an accuracy moves to when its held-out check says ABOVE: the check's own,
+/// one level finer (dt / 2k, and h / 2m where the check refined the mesh), where the limits
+/// allow; None: it stays ABOVE.
+pub fn level_after_above((k, m): (usize, usize), refine_mesh: bool, limits: AccuracyLimits) -> Option<(usize, usize)> {
+    let (k, m) = (k * RATIO, if refine_mesh { m * RATIO } else { m });
+    (k <= limits.max_time_factor && m <= limits.max_mesh_factor).then_some((k, m))
+}
+
 /// The discretisation a study takes from its pilots' levels ([`AccuracyReport::study_candidate`]):
 /// the finest any of them needed.
 pub fn study_level(pilots: impl IntoIterator<Item = (usize, usize)>) -> (usize, usize) {
@@ -669,5 +677,12 @@ mod tests {
         // a report not reached offers no level
         let (_, out_of_reach) = climb(&scene, 1e-5, q);
         assert!(!out_of_reach.reached && out_of_reach.cheapest.is_none());
+        // ABOVE moves a study one level finer in both, within the limits
+        let limits = AccuracyLimits::default();
+        assert_eq!(level_after_above((1, 1), true, limits), Some((2, 2)));
+        assert_eq!(level_after_above((8, 2), true, limits), Some((16, 4)));
+        assert_eq!(level_after_above((16, 1), true, limits), None, "dt / 32 is past the limit");
+        assert_eq!(level_after_above((2, 4), true, limits), None, "h / 8 is past the limit");
+        assert_eq!(level_after_above((2, 4), false, limits), Some((4, 4)), "the mesh kept");
     }
 }

@@ -472,6 +472,9 @@ fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64, check: Option<&He
         })
         .collect();
     v1::StudyToAccuracy {
+        above_time_factors: t.above.iter().map(|a| a.time_factor as u32).collect(),
+        above_mesh_factors: t.above.iter().map(|a| a.mesh_factor as u32).collect(),
+        above_check_ids: t.above.iter().map(|a| a.check.0).collect(),
         accuracy: t.accuracy,
         tolerance,
         pilot_points: t.pilots.clone(),

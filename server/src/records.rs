@@ -146,6 +146,7 @@ impl StudyRecord {
         out.extend(self.surface_audit.map(|a| (a, "surface")));
         if let Some(t) = &self.to_accuracy {
             out.extend(t.levels.iter().map(|&(_, _, id)| (id, "pilot level")));
+            out.extend(t.above.iter().map(|a| (a.check, "held-out check")));
             out.extend(t.held_out.map(|c| (c, "held-out check")));
         }
         out
@@ -182,6 +183,19 @@ pub struct ToAccuracy {
     /// Why no level was chosen (a pilot did not reach the accuracy): the points are cancelled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub why_not: Option<String>,
+    /// The levels a held-out check found ABOVE, in order: after each the study moved one level
+    /// finer (its points solved again there) and opened a new check.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub above: Vec<Above>,
+}
+
+/// A level of a study to an accuracy that its held-out check found ABOVE.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Above {
+    pub time_factor: usize,
+    pub mesh_factor: usize,
+    /// the check that said so
+    pub check: StudyId,
 }
 
 impl ToAccuracy {

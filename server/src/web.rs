@@ -849,6 +849,9 @@ fn to_accuracy_paragraphs(
             (format!("{done} of {} pilots done", t.pilots.len()))
             @if let Some((k, m)) = t.chosen {
                 "; " strong { (format!("REACHED at dt / {k}, h / {m}")) } ": the study's points are solved there"
+                @for a in &t.above {
+                    (format!(" (ABOVE at dt / {}, h / {}, said its held-out check, study {}: solved again one level finer)", a.time_factor, a.mesh_factor, a.check.0))
+                }
             } @else if let Some(why) = &t.why_not {
                 "; " strong { "NOT REACHED" } (format!(": {why}"))
             }

@@ -15,7 +15,8 @@ use serde::Serialize;
 
 pub use glissade_core::accuracy::{
     AccuracyLevel, AccuracyLimits, AccuracyReport, CONTACT_GAMMA, CheapestLevel, LadderError, LevelSolved, LimitError,
-    MIN_LEVELS, QoiAccuracy, RATIO, Step, ZERO_SHARE, accuracy_scene, next_step, scene_at, spread_order, study_level,
+    MIN_LEVELS, QoiAccuracy, RATIO, Step, ZERO_SHARE, accuracy_scene, level_after_above, next_step, scene_at,
+    spread_order, study_level,
 };
 
 use crate::comm::Communicator;

@@ -16,7 +16,8 @@ use glissade_core::study::store::MemoryStore;
 use glissade_core::study::strategy::StrategyKind;
 use glissade_core::study::{PointRecord, StudyOptions, StudyResult, run_study};
 use glissade_solver::accuracy::{
-    AccuracyLimits, AccuracyReport, HeldOutCheck, check_held_out, solve_to_accuracy, spread_order, study_level,
+    AccuracyLimits, AccuracyReport, HeldOutCheck, check_held_out, level_after_above, solve_to_accuracy, spread_order,
+    study_level,
 };
 use glissade_solver::comm::Serial;
 use glissade_solver::run::{PointSolver, SolveRequest};
@@ -107,7 +108,10 @@ struct StudyAccuracy {
     confirmed: bool,
     /// why not, in one sentence
     why_not: Option<String>,
-    /// pilots', study's and held-out points' work (sweeps) and wall time
+    /// the levels (dt / k, h / m) a held-out check found ABOVE, in order: after each the grid was
+    /// solved again one level finer
+    above: Vec<(usize, usize)>,
+    /// pilots', study's (every level's) and held-out points' work (sweeps) and wall time
     work: AccuracyWork,
 }
 
@@ -149,7 +153,7 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
         // a pilot could not reach the accuracy: no level is picked, the grid is not solved
         return finish_without_study(&args, a);
     }
-    let scene = match &accuracy {
+    let mut scene = match &accuracy {
         Some(a) => {
             tolerance = Some(Tolerance::new("the accuracy's tolerance", a.tolerance)?);
             glissade_solver::accuracy::scene_at(&given, a.time_factor, a.mesh_factor)?
@@ -168,8 +172,6 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
     let strategy = kind.with_neighbours(k);
     let order = args.order;
     let options = StudyOptions { strategy, tolerance, max_iterations: args.max_iter, scale: args.scale };
-    let mut store = MemoryStore::new(space.clone())?;
-    let mut policy = order.policy(&space);
     let swept: Vec<String> = axes.iter().map(|a| a.name.clone()).collect();
     let mut progress = |r: &PointRecord, done: usize, total: usize| {
         let values: Vec<String> =
@@ -192,11 +194,41 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
             let _ = writeln!(std::io::stderr(), "warning: {}: {w}", values.join(" "));
         }
     };
-    let result =
-        run_study(&scene, &points, &options, policy.as_mut(), &mut store, &mut PointSolver::default(), &mut progress)?;
+    // (a store of its own per level: a warm start never mixes levels)
+    let mut run = |scene: &glissade_core::scene::Scene| -> Result<StudyResult> {
+        let mut store = MemoryStore::new(space.clone())?;
+        let mut policy = order.policy(&space);
+        Ok(run_study(
+            scene,
+            &points,
+            &options,
+            policy.as_mut(),
+            &mut store,
+            &mut PointSolver::default(),
+            &mut progress,
+        )?)
+    };
+    let mut result = run(&scene)?;
 
     if let Some(a) = accuracy.as_mut() {
         held_out(&args, &given, &points, &space, &result, a)?;
+        // ABOVE: the grid solved again at the check's level, and checked one level finer
+        let limits = AccuracyLimits::new(args.max_dt_factor, args.max_h_factor)?;
+        let refine_mesh = a.pilots.iter().any(|p| p.report.mesh_refined);
+        while let Some((k, m)) =
+            above(a).then(|| level_after_above((a.time_factor, a.mesh_factor), refine_mesh, limits)).flatten()
+        {
+            eprintln!(
+                "[above] the held-out check passes the accuracy at dt / {}, h / {}: the grid is solved again at dt / {k}, h / {m}",
+                a.time_factor, a.mesh_factor
+            );
+            a.above.push((a.time_factor, a.mesh_factor));
+            (a.time_factor, a.mesh_factor) = (k, m);
+            (a.held_out, a.confirmed, a.why_not) = (Vec::new(), true, None);
+            scene = glissade_solver::accuracy::scene_at(&given, k, m)?;
+            result = run(&scene)?;
+            held_out(&args, &given, &points, &space, &result, a)?;
+        }
     }
     if let Some(dir) = &args.out {
         write_atomically(&dir.join("results.csv"), result.to_csv().as_bytes())?;
@@ -315,8 +347,14 @@ fn pilots(
         why_not,
         pilots,
         held_out: Vec::new(),
+        above: Vec::new(),
         work,
     })
+}
+
+/// Every held-out point converged one level finer and one passes the accuracy there.
+fn above(a: &StudyAccuracy) -> bool {
+    !a.held_out.is_empty() && a.held_out.iter().all(|c| c.converged) && a.held_out.iter().any(|c| !c.within)
 }
 
 /// The held-out points of `study --accuracy`: the next points of the spread order after the
@@ -331,7 +369,7 @@ fn held_out(
 ) -> Result<()> {
     let accuracy = Accuracy::new("--accuracy", a.accuracy)?;
     let refine_mesh = a.pilots.iter().any(|p| p.report.mesh_refined);
-    a.work.study = result.summary.work;
+    a.work.study += result.summary.work;
     a.work.wall_seconds += result.summary.wall_seconds;
     for &i in spread_order(points, space, a.pilots.len() + args.held_out).iter().skip(a.pilots.len()) {
         // (a record's point carries every parameter, the grid's only those swept)
@@ -402,6 +440,11 @@ fn print_study_accuracy(a: &StudyAccuracy) {
         a.pilots.len(),
         a.held_out.len()
     );
+    for (k, m) in &a.above {
+        println!(
+            "  refined: ABOVE at dt / {k}, h / {m} (a held-out check passed the accuracy): the grid solved again one level finer"
+        );
+    }
     println!(
         "  work (sweeps): pilots {:.1}, study {:.1}, held-out {:.1}; {:.2} s in all",
         a.work.pilots, a.work.study, a.work.held_out, a.work.wall_seconds

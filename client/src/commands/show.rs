@@ -419,6 +419,9 @@ pub(crate) fn accuracy_line(a: &v1::StudyAccuracy) -> String {
 /// A study to an accuracy in `show --json`.
 fn to_accuracy_json(t: &v1::StudyToAccuracy) -> serde_json::Value {
     serde_json::json!({
+        "above": t.above_time_factors.iter().zip(&t.above_mesh_factors).zip(&t.above_check_ids)
+            .map(|((k, m), c)| serde_json::json!({"time_factor": k, "mesh_factor": m, "check_study_id": c}))
+            .collect::<Vec<_>>(),
         "accuracy": t.accuracy,
         "tolerance": t.tolerance,
         "pilot_points": t.pilot_points,
@@ -477,6 +480,11 @@ pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
         ));
     } else if !t.why_not.is_empty() {
         lines.push(format!("  level     NOT REACHED: {}", t.why_not));
+    }
+    for ((k, m), check) in t.above_time_factors.iter().zip(&t.above_mesh_factors).zip(&t.above_check_ids) {
+        lines.push(format!(
+            "  refined   ABOVE at dt / {k}, h / {m} (held-out check, study {check}): the points were solved again one level finer"
+        ));
     }
     if t.held_out_study_id != 0 {
         let verdict = match t.confirmed {
@@ -699,6 +707,26 @@ mod tests {
 
     /// A study whose points have ended says that its audits still run, and each audit's line
     /// says what it is, how far it got and why points were cancelled; pilots' levels in one line.
+    /// A level found ABOVE is named with its check, in `show`'s lines.
+    #[test]
+    fn a_level_found_above_is_named() {
+        let t = v1::StudyToAccuracy {
+            chosen: true,
+            time_factor: 8,
+            mesh_factor: 4,
+            above_time_factors: vec![4],
+            above_mesh_factors: vec![2],
+            above_check_ids: vec![9],
+            ..Default::default()
+        };
+        let lines = to_accuracy_lines(&t);
+        assert!(lines.contains(&"  refined   ABOVE at dt / 4, h / 2 (held-out check, study 9): the points were solved again one level finer".to_string()), "{lines:?}");
+        assert_eq!(
+            to_accuracy_json(&t)["above"],
+            serde_json::json!([{"time_factor": 4, "mesh_factor": 2, "check_study_id": 9}])
+        );
+    }
+
     #[test]
     fn a_study_says_its_audits_are_running() {
         let audit = |id: u64, what: &str, state: v1::StudyState, done: u32, cancelled: u32, why: &str| v1::StudyAudit {

@@ -1730,6 +1730,11 @@ fn a_submission_to_an_accuracy_is_checked_and_its_points_wait_for_its_pilots() {
 /// grant's level (0.2 / k^2 + 0.05 / m^2 over the tiny scene's 50 steps and 2 elements), `off`
 /// added on the held-out checks' points; returns how many were solved (at most `most`).
 fn solve_at_levels(c: &Coordinator, off: f64, most: usize) -> usize {
+    solve_at_levels_with(c, |_, _, _, check| if check { off } else { 0.0 }, most)
+}
+
+/// As [`solve_at_levels`], the QoI moved by `off(grant, k, m, a held-out check)`.
+fn solve_at_levels_with(c: &Coordinator, off: impl Fn(&LeaseGrant, usize, usize, bool) -> f64, most: usize) -> usize {
     let mut solved = 0;
     while solved < most
         && let Some(g) = c.lease("p").unwrap()
@@ -1738,7 +1743,7 @@ fn solve_at_levels(c: &Coordinator, off: f64, most: usize) -> usize {
         let k = scene.time.steps / 50;
         let m = scene.bodies[0].elements.as_ref().unwrap()[0] / 2;
         let check = c.study(g.study, false).unwrap().record.confirms.is_some();
-        let value = 1.0 + 0.2 / (k * k) as f64 + 0.05 / (m * m) as f64 + if check { off } else { 0.0 };
+        let value = 1.0 + 0.2 / (k * k) as f64 + 0.05 / (m * m) as f64 + off(&g, k, m, check);
         let (done, bytes) =
             solution_file_with_qoi(&g, g.tolerance / 2.0, true, &[("slip_A".to_string(), value)].into());
         assert_eq!(c.complete(done, bytes).unwrap().state, PointState::Done);
@@ -1806,6 +1811,79 @@ fn a_study_to_an_accuracy_climbs_its_pilots_ladders_and_says_above_or_not_reache
     assert!(why.contains("did not reach the accuracy") && why.contains("'slip_A' is estimated"), "{why}");
     assert_eq!(view.state, StudyState::Cancelled);
     assert!(view.points.iter().all(|p| p.state == PointState::Cancelled && p.error.as_ref().unwrap().contains(&why)));
+}
+
+/// A held-out check that says ABOVE moves the study one level finer: its points solved again at
+/// the check's level (the held-out ones answered by the check's own solves), a new check one
+/// level finer still, which confirms; `show`'s fields name the level found ABOVE and its check.
+#[test]
+fn a_study_to_an_accuracy_found_above_moves_one_level_finer() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let submission = Submission {
+        scene_text: TINY.into(),
+        grid: vec!["f1=0.1:0.2:3".into()],
+        points: vec![],
+        tolerance: None,
+        max_iterations: None,
+        strategy: InitStrategy::Nearest,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: None,
+        refine_points: None,
+        refine_levels: 0,
+        refine_mesh: false,
+        adaptive: None,
+        surface_audit_points: None,
+        accuracy: Some(0.05),
+        accuracy_pilots: Some(1),
+        surface_accuracy: None,
+        work_budget: None,
+        meshes: vec![],
+    };
+    let (id, ..) = c.submit(submission).unwrap();
+    // at 5 % the pilot (the centre, f1 = 0.15) climbs dt / 1, 2, 4, then h / 2, 4 and dt / 2 on
+    // h / 4; its cheapest level within 5 % is dt / 4, h / 2. Away from the pilot that level is
+    // 0.2 off: the pilot could not see it, the check one level finer does.
+    let off = |g: &LeaseGrant, k: usize, m: usize, _: bool| {
+        if (k, m) == (4, 2) && g.parameters.get("f1") != Some(0.15) { 0.2 } else { 0.0 }
+    };
+    solve_at_levels_with(&c, off, 100);
+    let view = c.study(id, true).unwrap();
+    let t = view.record.to_accuracy.clone().unwrap();
+    let first = t.above.first().copied().expect("found ABOVE once");
+    assert_eq!((first.time_factor, first.mesh_factor, t.above.len()), (4, 2, 1), "{t:?}");
+    assert_eq!(t.chosen, Some((8, 4)), "one level finer");
+    let old = c.study(first.check, false).unwrap();
+    assert_eq!(old.held_out_check, None);
+    // the first check's level is the study's now: its two points answered by the check's solves
+    assert_eq!(view.state, StudyState::Done);
+    let answered = view.points.iter().filter(|p| p.result.as_ref().is_some_and(|r| r.answered)).count();
+    assert_eq!(answered, 2, "{:?}", view.points);
+    let scene = Scene::parse(&view.record.scene).unwrap();
+    assert_eq!((scene.time.steps, scene.bodies[0].elements.as_ref().unwrap()[0]), (400, 8), "dt / 8, h / 4");
+    for p in &view.points {
+        let v = p.result.as_ref().unwrap().qoi["slip_A"];
+        assert!((v - (1.0 + 0.2 / 64.0 + 0.05 / 16.0)).abs() < 1e-12, "{p:?}");
+    }
+    // the new check, at dt / 16, h / 8: confirms
+    let check = view.held_out_check.clone().unwrap();
+    assert_ne!(check.study, first.check);
+    assert_eq!((check.time_factor, check.mesh_factor, check.done, check.confirmed), (16, 8, 2, Some(true)));
+    let whats: Vec<&str> = view.audits.iter().map(|a| a.what).filter(|w| *w == "held-out check").collect();
+    assert_eq!(whats.len(), 2, "both checks hang under the study");
+    let api = crate::convert::study(&view).to_accuracy.unwrap();
+    assert_eq!(
+        (api.above_time_factors, api.above_mesh_factors, api.above_check_ids),
+        (vec![4], vec![2], vec![first.check.0])
+    );
+    // across a restart: nothing moves again
+    drop(c);
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    assert!(c.lease("p").unwrap().is_none());
+    assert_eq!(c.study(id, false).unwrap().record.to_accuracy.unwrap().above.len(), 1);
 }
 
 /// A coordinator stopped in the middle of a study's pilots' ladders takes them up where they

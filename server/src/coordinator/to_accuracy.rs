@@ -9,8 +9,8 @@
 use std::sync::Arc;
 
 use glissade_core::accuracy::{
-    AccuracyLevel, AccuracyLimits, DEFAULT_HELD_OUT, DEFAULT_PILOTS, LevelSolved, MAX_PILOTS, RATIO, Step, next_step,
-    scene_text_at, spread_order, study_level,
+    AccuracyLevel, AccuracyLimits, DEFAULT_HELD_OUT, DEFAULT_PILOTS, LevelSolved, MAX_PILOTS, RATIO, Step,
+    level_after_above, next_step, scene_text_at, spread_order, study_level,
 };
 use glissade_core::point::DesignPoint;
 use glissade_core::refine::{Accuracy, Refinement};
@@ -86,6 +86,7 @@ pub(super) fn admit(
         held_out: None,
         chosen: None,
         why_not: None,
+        above: Vec::new(),
     };
     Ok(Some((spec, accuracy)))
 }
@@ -111,7 +112,50 @@ impl Coordinator {
         for id in ids {
             self.advance(state, id)?;
         }
+        // a study whose held-out check ended ABOVE moves one level finer, where the limits allow
+        let above: Vec<StudyId> = state
+            .studies
+            .values()
+            .filter(|e| !e.record.cancelled && e.state() != super::StudyState::Active)
+            .filter(|e| {
+                let Some(t) = e.record.to_accuracy.as_ref() else { return false };
+                let Some(check) = t.held_out.and_then(|c| state.studies.get(&c)) else { return false };
+                let c = held_out_check(e, check);
+                c.confirmed == Some(false)
+                    && c.failed == 0
+                    && t.chosen.and_then(|level| level_after_above(level, true, t.limits)).is_some()
+            })
+            .map(|e| e.record.id)
+            .collect();
+        for id in above {
+            self.refine_after_above(state, id)?;
+        }
         Ok(())
+    }
+
+    /// The study's held-out check said ABOVE: its points are solved again one level finer (the
+    /// check's own level: its points are answered by the check's solves) and a new check opens
+    /// one level finer still.
+    fn refine_after_above(&self, state: &mut State, id: StudyId) -> Result<(), CoordError> {
+        let mut spec = state.studies[&id].record.to_accuracy.clone().expect("listed by the caller");
+        let (Some(chosen), Some(check)) = (spec.chosen, spec.held_out) else { return Ok(()) };
+        // (the check refines both: take_level opens it at dt / 2k, h / 2m)
+        let Some(next) = level_after_above(chosen, true, spec.limits) else { return Ok(()) };
+        // the scene as submitted, as the pilots' first level (dt, h) holds it: levels are
+        // written from it
+        let base = spec.levels.iter().find(|l| (l.0, l.1) == (1, 1)).and_then(|l| state.studies.get(&l.2));
+        let Some(base) = base.map(|l| l.scene.clone()) else { return Ok(()) };
+        tracing::warn!(study = %id, time_factor = chosen.0, mesh_factor = chosen.1, "held-out check ABOVE: the study moves one level finer");
+        spec.above.push(crate::records::Above { time_factor: chosen.0, mesh_factor: chosen.1, check });
+        let entry = state.studies.get_mut(&id).expect("listed by the caller");
+        let reopened = entry
+            .points
+            .iter()
+            .filter(|p| matches!(p.state, PointState::Done | PointState::Failed))
+            .map(|p| Ok((apply(p, Transition::Reopen)?, None)))
+            .collect::<Result<Vec<_>, CoordError>>()?;
+        self.commit(entry, reopened, None, Batch::new())?;
+        self.take_level(state, id, spec, &base, next)
     }
 
     fn advance(&self, state: &mut State, id: StudyId) -> Result<(), CoordError> {
@@ -276,14 +320,22 @@ impl Coordinator {
     /// Every pilot is done and reached the accuracy: the study's scene becomes the finest of the
     /// pilots' cheapest levels within it, and its points are solved there (the pilots' own answered by their stored
     /// solutions where the level is theirs).
-    fn choose_level(
+    fn choose_level(&self, state: &mut State, id: StudyId, spec: ToAccuracy, given: &Scene) -> Result<(), CoordError> {
+        let level = study_level(spec.reports.iter().flatten().map(|r| r.study_candidate()));
+        self.take_level(state, id, spec, given, level)
+    }
+
+    /// The study's scene becomes level (dt / k, h / m) of `given`, its pending points are solved
+    /// there (answered where a stored solve of that level is), and its held-out check opens one
+    /// level finer.
+    fn take_level(
         &self,
         state: &mut State,
         id: StudyId,
         mut spec: ToAccuracy,
         given: &Scene,
+        (k, m): (usize, usize),
     ) -> Result<(), CoordError> {
-        let (k, m) = study_level(spec.reports.iter().flatten().map(|r| r.study_candidate()));
         let text = scene_text_at(given, k, m).map_err(|e| CoordError::Invalid(format!("accuracy: {e}")))?;
         let scene = Scene::parse(&text)
             .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;

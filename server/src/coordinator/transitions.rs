@@ -10,7 +10,7 @@
 //!      |                 |--complete (not converged, an audit's cap spent)--> CANCELLED
 //!      |                 |--release, expire--> PENDING (CANCELLED if the study is)
 //!      |                 \--expire (max attempts), past the per-point budget--> FAILED
-//!      |--answer (a stored solution)--> DONE
+//!      |--answer (a stored solution)--> DONE --reopen (its study moved to a finer level)--> PENDING
 //!      \--cancel--> CANCELLED
 //! ```
 
@@ -42,6 +42,9 @@ pub enum Transition {
     Cancel,
     /// FAILED -> PENDING, attempts counted afresh.
     Retry,
+    /// DONE or FAILED -> PENDING, its result dropped: its study moved to a finer level (a study
+    /// to an accuracy whose held-out check said ABOVE).
+    Reopen,
 }
 
 impl Transition {
@@ -56,6 +59,7 @@ impl Transition {
             Transition::OverBudget { .. } => "run past its budget",
             Transition::Cancel => "be cancelled",
             Transition::Retry => "be retried",
+            Transition::Reopen => "be reopened",
         }
     }
 }
@@ -144,6 +148,14 @@ pub fn apply(point: &PointRecord, transition: Transition) -> Result<PointRecord,
         (PointState::Failed, Transition::Retry) => {
             p.state = PointState::Pending;
             p.attempts = 0;
+        }
+        (PointState::Done | PointState::Failed, Transition::Reopen) => {
+            p.state = PointState::Pending;
+            p.attempts = 0;
+            p.result = None;
+            p.error = None;
+            p.finished_seq = None;
+            p.finished_unix_ms = None;
         }
         (_, t) => return Err(illegal(&t)),
     }
