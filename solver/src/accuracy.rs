@@ -155,7 +155,7 @@ pub fn check_held_out(
                 finer: q.final_value,
                 scale,
                 difference,
-                within: difference <= accuracy.get(),
+                within: glissade_core::accuracy::held_out_confirms(difference, accuracy.get()),
             })
         })
         .collect();

@@ -458,6 +458,113 @@ fn refine_to_an_accuracy_prints_the_ladders_solve_climbs() {
     }
 }
 
+/// An aluminium bar of our own flying at 1 m/s onto a rigid wall across a gap `g`: the pilot at
+/// the centre of the box never reaches the wall (free flight, the same at every level), the
+/// corner g = 0 strikes it at once.
+const FLYING_AL_BAR: &str = r#"
+dimension = 1
+[time]
+duration = 4e-5
+steps = 40
+[parameters]
+g = { default = 1e-5, min = 0.0, max = 1e-4, unit = "m" }
+[materials.al]
+E = 70e9
+rho = 2700
+[[bodies]]
+name = "bar"
+material = "al"
+size = [0.05]
+elements = [10]
+substructures = [2]
+initial_velocity = [1.0]
+[[interfaces]]
+name = "impact"
+a = "bar.x+"
+b = "wall"
+law = "contact"
+gap = "g"
+[[qoi]]
+name = "tip_ux"
+kind = "displacement"
+body = "bar"
+point = [0.05]
+component = "x"
+"#;
+
+/// `study --accuracy` whose held-out check says ABOVE solves its grid again one level finer: the
+/// free-flying pilot bounds the scene's own level, the struck corner moves 5.2 % one level finer,
+/// then 3.1 % (above half the accuracy: this corner converges at order 0.7), then 2.0 %: the
+/// check confirms at dt / 4, h / 4, and the struck point is within the accuracy of a solve two
+/// levels finer at 1e-8. At 2 % it climbs to the limits and says NOT CONFIRMED.
+#[test]
+fn a_study_whose_held_out_check_says_above_is_solved_again_one_level_finer() {
+    let dir = tempfile::tempdir().unwrap();
+    let bar = dir.path().join("flying.toml");
+    std::fs::write(&bar, FLYING_AL_BAR).unwrap();
+    let bar = bar.to_str().unwrap();
+    let study = |accuracy: &str| {
+        let (code, stdout, stderr) = worker(&[
+            "study",
+            bar,
+            "--grid",
+            "g=0:1e-4:5",
+            "--accuracy",
+            accuracy,
+            "--pilots",
+            "1",
+            "--held-out",
+            "2",
+            "--json",
+        ]);
+        (code, serde_json::from_str::<serde_json::Value>(&stdout).unwrap(), stderr)
+    };
+    let (code, out, stderr) = study("0.05");
+    assert_eq!(code, 0, "{stderr}");
+    let a = &out["accuracy"];
+    assert_eq!(a["above"], serde_json::json!([[1, 1], [2, 2]]), "{a}");
+    assert_eq!(
+        (a["time_factor"].as_u64(), a["mesh_factor"].as_u64(), &a["confirmed"]),
+        (Some(4), Some(4), &serde_json::json!(true))
+    );
+    assert!(stderr.contains("[above]") && stderr.contains("ABOVE") && stderr.contains("confirms"), "{stderr}");
+    // the struck corner: the study's value is the grid's at dt / 4, h / 4, its difference the check's
+    let struck = a["held_out"].as_array().unwrap().iter().find(|c| c["point"]["g"] == 0.0).expect("g = 0 held out");
+    assert_eq!((struck["time_factor"].as_u64(), struck["mesh_factor"].as_u64()), (Some(8), Some(8)));
+    let q = &struck["qois"][0];
+    let (mine, finer, scale) =
+        (q["study"].as_f64().unwrap(), q["finer"].as_f64().unwrap(), q["scale"].as_f64().unwrap());
+    assert!(((mine - finer).abs() / scale - q["difference"].as_f64().unwrap()).abs() < 1e-12, "{q}");
+    let record = out["records"].as_array().unwrap().iter().find(|r| r["point"]["g"] == 0.0).unwrap();
+    assert_eq!(record["qoi"]["tip_ux"].as_f64(), Some(mine));
+    // against a solve two levels finer (dt / 16, h / 16) at 1e-8
+    let reference = dir.path().join("reference.toml");
+    std::fs::write(
+        &reference,
+        FLYING_AL_BAR
+            .replace("steps = 40", "steps = 640\nnewmark_gamma = 0.55")
+            .replace("elements = [10]", "elements = [160]"),
+    )
+    .unwrap();
+    let (code, r, stderr) = worker(&["solve", reference.to_str().unwrap(), "--set", "g=0", "--tol", "1e-8", "--json"]);
+    assert_eq!(code, 0, "{stderr}");
+    let r: serde_json::Value = serde_json::from_str(&r).unwrap();
+    let truth = r["qoi"]["tip_ux"]["final"].as_f64().unwrap();
+    let truth_scale =
+        r["qoi"]["tip_ux"]["values"].as_array().unwrap().iter().fold(0.0f64, |m, v| m.max(v.as_f64().unwrap().abs()));
+    assert!((mine - truth).abs() / truth_scale <= 0.05, "{mine} against {truth} (scale {truth_scale})");
+
+    let (code, out, stderr) = study("0.02");
+    assert_eq!(code, 3, "{stderr}");
+    let a = &out["accuracy"];
+    assert_eq!(
+        (&a["above"], &a["confirmed"]),
+        (&serde_json::json!([[1, 1], [2, 2]]), &serde_json::json!(false)),
+        "{a}"
+    );
+    assert!(stderr.contains("accuracy not confirmed: at the held-out point g=0"), "{stderr}");
+}
+
 // ---------------------------------------------------------------------------------------------
 // The study command.
 

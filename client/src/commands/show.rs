@@ -488,7 +488,7 @@ pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
     }
     if t.held_out_study_id != 0 {
         let verdict = match t.confirmed {
-            Some(true) => "CONFIRMED: every difference within the accuracy".to_string(),
+            Some(true) => "CONFIRMED: every difference within half the accuracy".to_string(),
             Some(false) if t.held_out_failed > 0 => format!("NOT CONFIRMED: {} re-solves failed", t.held_out_failed),
             Some(false) => "ABOVE: a difference passes the accuracy".to_string(),
             None => "running once the study has ended".to_string(),

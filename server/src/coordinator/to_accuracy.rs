@@ -536,7 +536,9 @@ pub(super) fn held_out_check(study: &StudyEntry, check: &StudyEntry) -> super::H
         planned,
         done,
         failed,
-        confirmed: ended.then(|| failed == 0 && difference.values().all(|&d| d <= accuracy * (1.0 + 1e-12))),
+        confirmed: ended.then(|| {
+            failed == 0 && difference.values().all(|&d| glissade_core::accuracy::held_out_confirms(d, accuracy))
+        }),
         difference,
     }
 }

@@ -206,7 +206,8 @@ pub struct HeldOutCheck {
     /// re-solves that did not converge or failed
     pub failed: u32,
     pub difference: BTreeMap<String, f64>,
-    /// every point done, none failed, every difference within the accuracy; None while it runs
+    /// every point done, none failed, every difference within half the accuracy
+    /// (core::accuracy::held_out_confirms); None while it runs
     pub confirmed: Option<bool>,
 }
 
