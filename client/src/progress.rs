@@ -142,9 +142,7 @@ impl WatchState {
                 let why = if p.error.is_empty() { "lease lost".to_owned() } else { p.error.clone() };
                 Some(format!("point {id} back to pending ({what}): {why}"))
             }
-            (v1::EventKind::StudyEnded, _) => {
-                Some(format!("study {} {}: {}", self.study_id, study_state_name(self.state), self.counts()))
-            }
+            // (the summary that follows says how it ended: once, not twice)
             _ => None,
         };
         if event.replay { None } else { line }
@@ -302,7 +300,8 @@ mod tests {
         assert_eq!(w.eta(Duration::from_secs(10)), None);
         let mut end = event(v1::EventKind::StudyEnded, None, progress(3, 0, 0));
         end.state = v1::StudyState::Done.into();
-        assert_eq!(w.apply(&end).as_deref(), Some("study 7 done: 3/3 done, 0 running, 0 pending"));
+        assert_eq!(w.apply(&end), None, "the summary says it");
         assert!(w.ended());
+        assert!(w.summary(Duration::from_secs(1)).starts_with("study 7 done: 3/3 done, 0 running, 0 pending; "));
     }
 }

@@ -23,6 +23,7 @@ fn cli_demo_runs_a_study_and_draws_its_pictures() -> anyhow::Result<()> {
     assert!(stdout.contains("measured accuracy: 2 of 2 points re-solved cold at 2e-6"), "{stdout}");
     assert!(stdout.contains("time step's error: 2 of 2 points re-solved at dt / 2 (study 3; "), "{stdout}");
     assert!(stdout.contains(" dominates the "), "{stdout}");
+    assert_eq!(stdout.matches("study 1 done").count(), 1, "said once: {stdout}");
     assert!(stdout.contains("study 1 done: 9/9 done"), "{stdout}");
     assert!(stdout.contains("x less work than cold ones"), "{stdout}");
     assert!(stdout.lines().any(|l| l.split_whitespace().take(2).eq(["f1", "f2"])), "{stdout}");
