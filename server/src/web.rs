@@ -78,6 +78,7 @@ pub fn router(
         .route("/studies/{id}", get(study_page))
         .route("/api/studies", get(api_studies))
         .route("/api/studies/{id}", get(api_study))
+        .route("/api/studies/{id}/progress", get(api_study_progress))
         .route("/api/studies/{id}/surface", get(api_surface))
         .route("/api/studies/{id}/surface.csv", get(api_surface_csv))
         .route("/metrics", get(metrics_text))
@@ -298,7 +299,21 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             })),
         })),
         "points": v.points.iter().map(point_json).collect::<Vec<_>>(),
-        "running": v.points.iter().filter_map(|p| match &p.state {
+        "running": running_json(v),
+    });
+    // a study to an accuracy: what was asked, each pilot's ladders and report, the level chosen
+    // (records::ToAccuracy); a level of its pilots names it
+    out["to_accuracy"] = json!(r.to_accuracy);
+    out["pilot_of"] = json!(r.pilot_of.map(|s| s.0));
+    out["held_out_check"] = json!(v.held_out_check);
+    out
+}
+
+/// The leased points of a study's view, with what their pools last reported.
+fn running_json(v: &StudyView) -> Vec<serde_json::Value> {
+    v.points
+        .iter()
+        .filter_map(|p| match &p.state {
             PointState::Leased { pool, .. } => {
                 let solving = v.solving.get(&p.id);
                 Some(json!({
@@ -307,14 +322,42 @@ fn study_json(v: &StudyView) -> serde_json::Value {
                 }))
             }
             _ => None,
-        }).collect::<Vec<_>>(),
-    });
-    // a study to an accuracy: what was asked, each pilot's ladders and report, the level chosen
-    // (records::ToAccuracy); a level of its pilots names it
-    out["to_accuracy"] = json!(r.to_accuracy);
-    out["pilot_of"] = json!(r.pilot_of.map(|s| s.0));
-    out["held_out_check"] = json!(v.held_out_check);
-    out
+        })
+        .collect()
+}
+
+/// What an open study page polls: its state, its progress and its running points, without the
+/// points done (a whole study's JSON is megabytes on a large one).
+async fn api_study_progress(
+    State(web): State<Web>,
+    Path(id): Path<String>,
+    headers: HeaderMap,
+    Query(q): Params,
+) -> Response {
+    if let Err(r) = check(&web, &headers, &q) {
+        return r.into_response();
+    }
+    let Ok(n) = id.parse::<u64>() else {
+        return refuse(StatusCode::NOT_FOUND, &format!("no study `{}`", glissade_core::text::excerpt(&id, 40)))
+            .into_response();
+    };
+    let coordinator = web.coordinator.clone();
+    match tokio::task::spawn_blocking(move || coordinator.study_running(StudyId(n))).await {
+        Ok(Ok(v)) => {
+            let p = v.progress;
+            axum::Json(json!({
+                "study_id": v.record.id.0,
+                "state": state_word(v.state),
+                "parameters": v.record.parameters,
+                "progress": {"total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
+                             "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations},
+                "running": running_json(&v),
+            }))
+            .into_response()
+        }
+        Ok(Err(e)) => failed(e).into_response(),
+        Err(_) => refuse(StatusCode::INTERNAL_SERVER_ERROR, "the progress could not be read").into_response(),
+    }
 }
 
 fn point_json(p: &PointRecord) -> serde_json::Value {
@@ -335,17 +378,23 @@ async fn api_studies(State(web): State<Web>, headers: HeaderMap, Query(q): Param
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    let list: Vec<serde_json::Value> = web.coordinator.studies().iter().map(study_json).collect();
-    axum::Json(list).into_response()
+    // (off the async threads: the views and their JSON of a large database take a while)
+    let coordinator = web.coordinator.clone();
+    match tokio::task::spawn_blocking(move || coordinator.studies().iter().map(study_json).collect::<Vec<_>>()).await {
+        Ok(list) => axum::Json(list).into_response(),
+        Err(_) => refuse(StatusCode::INTERNAL_SERVER_ERROR, "the studies could not be read").into_response(),
+    }
 }
 
 async fn api_study(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    match study(&web, &id, true) {
-        Ok(v) => axum::Json(study_json(&v)).into_response(),
-        Err(r) => r.into_response(),
+    // (off the async threads: a large study's points and their JSON take a while)
+    match tokio::task::spawn_blocking(move || study(&web, &id, true).map(|v| study_json(&v))).await {
+        Ok(Ok(json)) => axum::Json(json).into_response(),
+        Ok(Err(r)) => r.into_response(),
+        Err(_) => refuse(StatusCode::INTERNAL_SERVER_ERROR, "the study could not be read").into_response(),
     }
 }
 
@@ -407,7 +456,7 @@ async function poll() {
   const p = document.getElementById('progress');
   if (!p || p.dataset.state !== 'active') return;
   try {
-    const s = await (await fetch(p.dataset.api)).json(); const g = s.progress;
+    const s = await (await fetch(p.dataset.api + '/progress')).json(); const g = s.progress;
     p.textContent = s.state + ': ' + g.done + ' of ' + g.total + ' done, ' + g.leased + ' running, ' + g.pending + ' pending, ' + g.failed + ' failed';
     const t = document.getElementById('running');
     if (t) {
@@ -418,7 +467,8 @@ async function poll() {
     }
     if (s.state !== 'active') location.reload(); else p.dataset.polled = (Number(p.dataset.polled || 0) + 1).toString();
   } catch (e) {}
-  setTimeout(poll, 1000);
+  // every second at first, then less often: a long study's open tab costs little
+  setTimeout(poll, Math.min(5000, 1000 + 250 * Number(p.dataset.polled || 0)));
 }
 poll();
 document.querySelectorAll('#points th').forEach((th, k) => th.onclick = () => {
@@ -450,29 +500,29 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     if let Err(r) = check(&web, &headers, &q) {
         return page_refusal(r);
     }
-    // the audits and pilots' levels are listed on their study's page and counted on its row
-    let studies: Vec<StudyView> = web
-        .coordinator
-        .studies()
-        .into_iter()
-        .filter(|v| v.record.audit_of.is_none() && v.record.pilot_of.is_none())
-        .collect();
-    // mean work of the points solved cold and warm (answered ones aside)
-    let mean = |id: StudyId, warm: bool| {
-        let full = web.coordinator.study(id, true).map(|f| f.points).unwrap_or_default();
-        let w: Vec<f64> = full
-            .iter()
-            .filter_map(|p| p.result.as_ref())
-            .filter(|r| !r.answered && r.converged && r.started_from.is_some() == warm)
-            .map(|r| r.work)
+    // the audits and pilots' levels are listed on their study's page and counted on its row;
+    // read off the async threads (a large database takes a while under the coordinator's lock)
+    let coordinator = web.coordinator.clone();
+    let Ok((studies, means)) = tokio::task::spawn_blocking(move || {
+        let studies: Vec<StudyView> = coordinator
+            .studies()
+            .into_iter()
+            .filter(|v| v.record.audit_of.is_none() && v.record.pilot_of.is_none())
             .collect();
-        if w.is_empty() { "-".to_owned() } else { format!("{:.1}", w.iter().sum::<f64>() / w.len() as f64) }
+        let means: Vec<[Option<f64>; 2]> = studies.iter().map(|v| coordinator.mean_work(v.record.id)).collect();
+        (studies, means)
+    })
+    .await
+    else {
+        return page_refusal(refuse(StatusCode::INTERNAL_SERVER_ERROR, "the studies could not be read"));
     };
+    // mean work of the points solved cold and warm (answered ones aside)
+    let mean = |k: usize, warm: bool| means[k][usize::from(warm)].map_or("-".to_owned(), |w| format!("{w:.1}"));
     let body = html! {
         table #studies {
             tr { th { "study" } th { "kind" } th { "scene" } th { "label" } th { "state" } th { "audits" } th { "done" } th { "running" } th { "pending" }
                  th { "tolerance" } th { "submitted" } th { "finished" } th { "wall time" } th { "work cold" } th { "work warm" } }
-            @for v in &studies {
+            @for (k, v) in studies.iter().enumerate() {
                 tr {
                     td { a href=(format!("/studies/{}", v.record.id.0)) { (v.record.id.0) } }
                     td { (v.kind) }
@@ -487,8 +537,8 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
                     td { (utc_minute(v.record.created_unix_ms)) }
                     td { (v.finished_unix_ms.map_or(String::new(), utc_minute)) }
                     td { (v.finished_unix_ms.map_or(String::new(), |f| wall_time((f - v.record.created_unix_ms) as f64 / 1e3))) }
-                    td { (mean(v.record.id, false)) }
-                    td { (mean(v.record.id, true)) }
+                    td { (mean(k, false)) }
+                    td { (mean(k, true)) }
                 }
             }
         }

@@ -406,6 +406,30 @@ impl Coordinator {
         Ok(Self::view(&state, entry, with_points))
     }
 
+    /// The study's view with its leased points only (what an open page polls): the points done
+    /// are not copied.
+    pub fn study_running(&self, id: StudyId) -> Result<StudyView, CoordError> {
+        let state = self.lock();
+        let entry = state.studies.get(&id).ok_or(CoordError::UnknownStudy(id))?;
+        let mut view = Self::view(&state, entry, false);
+        view.points = entry.points.iter().filter(|p| matches!(p.state, PointState::Leased { .. })).cloned().collect();
+        Ok(view)
+    }
+
+    /// The mean work of the study's points solved cold and warm (converged, answered ones aside;
+    /// None where there are none), read in place.
+    pub fn mean_work(&self, id: StudyId) -> [Option<f64>; 2] {
+        let state = self.lock();
+        let mut sums = [(0.0, 0usize); 2];
+        for r in state.studies.get(&id).into_iter().flat_map(|e| &e.points).filter_map(|p| p.result.as_ref()) {
+            if !r.answered && r.converged {
+                let s = &mut sums[usize::from(r.started_from.is_some())];
+                *s = (s.0 + r.work, s.1 + 1);
+            }
+        }
+        sums.map(|(w, n)| (n > 0).then(|| w / n as f64))
+    }
+
     pub fn studies(&self) -> Vec<StudyView> {
         let state = self.lock();
         state.studies.values().map(|e| Self::view(&state, e, false)).collect()

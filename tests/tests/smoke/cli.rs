@@ -121,6 +121,25 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     assert!(list.contains("\"study_id\":1"), "{list}");
     assert_eq!(http_get(&addr, "/studies/999").0, 404);
     assert_eq!(http_get(&addr, "/").0, 200);
+    // what an open page polls: the progress and the running points, not every point
+    let (status, _, progress) = http_get(&addr, "/api/studies/1/progress");
+    assert_eq!(status, 200);
+    let progress: serde_json::Value = serde_json::from_str(&progress)?;
+    assert_eq!(
+        (&progress["state"], &progress["progress"]["done"]),
+        (&serde_json::json!("done"), &serde_json::json!(9))
+    );
+    assert!(
+        progress["running"].as_array().is_some_and(Vec::is_empty) && progress.get("points").is_none(),
+        "{progress}"
+    );
+    assert_eq!(http_get(&addr, "/api/studies/999/progress").0, 404);
+    assert_eq!(http_get(&addr, "/api/studies/x/progress").0, 404);
+    // the list's mean work, read in place: cold and warm of study 1
+    let index = http_get(&addr, "/").2;
+    let row = index.split("<tr>").find(|r| r.contains("href=\"/studies/1\"")).expect("study 1's row");
+    let cells: Vec<&str> = row.split("<td>").map(|c| c.split("</td>").next().unwrap_or("")).collect();
+    assert!(cells.iter().rev().take(2).all(|c| c.parse::<f64>().is_ok_and(|w| w > 0.0)), "{row}");
 
     // predictions with error bars: a stored point gives its value back, less surely between
     let out = glissade(
