@@ -5,7 +5,7 @@
 //! of exactly these: a point that lands changes the hash and the next load draws again, a load
 //! with nothing new draws nothing. Bounded in bytes, the least recently used dropped first.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::hash::{DefaultHasher, Hash, Hasher};
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -33,6 +33,8 @@ struct Inner {
     bytes: usize,
     clock: u64,
     draws: u64,
+    /// pictures being drawn (slot and content hash): a second load waits for them
+    drawing: HashSet<(Slot, u64)>,
 }
 
 /// The pictures last drawn per study and slice.
@@ -120,6 +122,23 @@ impl FigureCache {
         }
         inner.bytes += bytes;
         inner.entries.insert(slot(study, fixed), Entry { hash, figures, bytes, used });
+    }
+
+    /// Marks the pictures of `hash` as being drawn by the caller: false when another caller
+    /// already draws them (wait for [`FigureCache::get`] to have them).
+    pub fn begin(&self, study: StudyId, fixed: &[(String, f64)], hash: u64) -> bool {
+        self.lock().drawing.insert((slot(study, fixed), hash))
+    }
+
+    /// The drawing [`FigureCache::begin`] marked has ended (kept by `put`, or failed).
+    pub fn end(&self, study: StudyId, fixed: &[(String, f64)], hash: u64) {
+        self.lock().drawing.remove(&(slot(study, fixed), hash));
+    }
+
+    /// Whether pictures of `hash` are being drawn.
+    #[cfg(test)]
+    pub fn drawing(&self, study: StudyId, fixed: &[(String, f64)], hash: u64) -> bool {
+        self.lock().drawing.contains(&(slot(study, fixed), hash))
     }
 
     /// How many times pictures were drawn (kept or not) and the bytes kept.

@@ -649,7 +649,7 @@ fn surface_figures(
 /// The pictures of a study's surfaces: those of the last load when none of the points'
 /// parameters and values changed since (figures.rs), else drawn again off the async threads.
 async fn cached_figures(
-    cache: &FigureCache,
+    cache: &Arc<FigureCache>,
     study: StudyId,
     s: &Arc<Surface>,
     scene: &Option<Arc<glissade_core::scene::Scene>>,
@@ -657,16 +657,34 @@ async fn cached_figures(
     resolution: &BTreeMap<String, f64>,
 ) -> Result<Arc<Vec<String>>, Refusal> {
     let hash = figures::content_hash(s, fixed, resolution);
-    if let Some(kept) = cache.get(study, fixed, hash) {
-        return Ok(kept);
+    loop {
+        if let Some(kept) = cache.get(study, fixed, hash) {
+            return Ok(kept);
+        }
+        if cache.begin(study, fixed, hash) {
+            break;
+        }
+        // another load draws these very pictures: they will be kept
+        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
     }
-    let (s, scene, fixed_owned, resolution) = (s.clone(), scene.clone(), fixed.to_vec(), resolution.clone());
-    let drawn = tokio::task::spawn_blocking(move || surface_figures(&s, scene.as_deref(), &fixed_owned, &resolution))
-        .await
-        .map_err(|e| refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}")))?;
-    let drawn = Arc::new(drawn);
-    cache.put(study, fixed, hash, drawn.clone());
-    Ok(drawn)
+    // The drawing keeps its pictures itself: a page that gives up (a browser's timeout, a
+    // reload) does not throw minutes of drawing away, and the next load finds them.
+    let (cache, s, scene, fixed) = (cache.clone(), s.clone(), scene.clone(), fixed.to_vec());
+    let resolution = resolution.clone();
+    tokio::task::spawn_blocking(move || {
+        struct Ends<'a>(&'a FigureCache, StudyId, &'a [(String, f64)], u64);
+        impl Drop for Ends<'_> {
+            fn drop(&mut self) {
+                self.0.end(self.1, self.2, self.3);
+            }
+        }
+        let _ends = Ends(&cache, study, &fixed, hash);
+        let drawn = Arc::new(surface_figures(&s, scene.as_deref(), &fixed, &resolution));
+        cache.put(study, &fixed, hash, drawn.clone());
+        drawn
+    })
+    .await
+    .map_err(|e| refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}")))
 }
 
 /// The slice a page shows (`?fix=NAME=VALUE`), the values there are when it holds no point, and
@@ -1046,6 +1064,7 @@ fn points_table(
 mod tests {
     use super::*;
     use glissade_plot::study::{Picture, Row};
+    use std::time::Duration;
 
     /// A scene of glissade-plot's tests: parameters a in [0, 1] and b in [0, 2] m/s, QoIs ux (m)
     /// and slip (a norm).
@@ -1130,10 +1149,44 @@ mod tests {
         }
     }
 
+    /// A page that gives up while its pictures are drawn (issue 48: a 2000-point study's page
+    /// timed out twice, and each reload drew its surfaces again) leaves them drawn and kept; two
+    /// loads at once draw once.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_drawing_a_page_gave_up_on_is_kept_and_two_loads_at_once_draw_once() {
+        let scene = Some(Arc::new(glissade_core::scene::Scene::parse(SCENE).unwrap()));
+        let cache = Arc::new(FigureCache::default());
+        let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5)];
+        let resolution = BTreeMap::from([("ux".to_owned(), 0.0), ("slip".to_owned(), 0.0)]);
+        let s = Arc::new(study_surface(&points, 4));
+        let gave_up =
+            tokio::time::timeout(Duration::ZERO, cached_figures(&cache, StudyId(3), &s, &scene, &[], &resolution))
+                .await;
+        assert!(gave_up.is_err(), "the page gave up before the pictures were drawn");
+        let hash = figures::content_hash(&s, &[], &resolution);
+        let waited = std::time::Instant::now();
+        while cache.get(StudyId(3), &[], hash).is_none() {
+            assert!(waited.elapsed() < Duration::from_secs(30), "the drawing was thrown away");
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+        assert!(!cache.drawing(StudyId(3), &[], hash));
+        let next = cached_figures(&cache, StudyId(3), &s, &scene, &[], &resolution).await.ok().unwrap();
+        assert_eq!(cache.stats().0, 1, "the next load found them");
+        assert_eq!(*next, surface_figures(&s, scene.as_deref(), &[], &resolution));
+        // a point lands and two pages load at once: one drawing
+        let landed = Arc::new(study_surface(&points, 5));
+        let (a, b) = tokio::join!(
+            cached_figures(&cache, StudyId(3), &landed, &scene, &[], &resolution),
+            cached_figures(&cache, StudyId(3), &landed, &scene, &[], &resolution)
+        );
+        assert!(Arc::ptr_eq(&a.ok().unwrap(), &b.ok().unwrap()));
+        assert_eq!(cache.stats().0, 2);
+    }
+
     #[tokio::test]
     async fn a_second_load_draws_nothing_and_a_new_point_draws_again() {
         let scene = Some(Arc::new(glissade_core::scene::Scene::parse(SCENE).unwrap()));
-        let cache = FigureCache::default();
+        let cache = Arc::new(FigureCache::default());
         let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5)];
         let resolution = BTreeMap::from([("ux".to_owned(), 0.0), ("slip".to_owned(), 0.0)]);
         let load = |s: Surface, fixed: Vec<(String, f64)>| {
