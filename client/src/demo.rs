@@ -14,8 +14,8 @@ use glissade_server::ServerOptions;
 use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
 
 use crate::{
-    ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, discretisation_line, dominant,
-    get_study, refused, surface, surface_accuracy_line, user, watch,
+    ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, discretisation_line, get_study, refused,
+    surface, surface_accuracy_line, user, verdicts, watch,
 };
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
@@ -154,7 +154,7 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
     let s = get_study(&mut client, "demo", id, false, false).await?;
     if let Some(d) = &s.discretisation {
         outln!("time step's error: {}", discretisation_line(d));
-        if let Some(verdict) = s.accuracy.as_ref().and_then(|a| dominant(a, d)) {
+        for verdict in s.accuracy.as_ref().map(|a| verdicts(a, d)).unwrap_or_default() {
             outln!("{verdict}");
         }
     }

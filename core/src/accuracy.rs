@@ -536,6 +536,66 @@ pub const DEFAULT_HELD_OUT: usize = 2;
 /// The most pilots a study to an accuracy may ask for (each climbs its own ladders).
 pub const MAX_PILOTS: usize = 16;
 
+/// One part of a QoI's error as an audit measured it (relative to the QoI's scale).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ErrorPart {
+    /// `the iterations'`, `the time step's`, `the mesh's`
+    pub who: &'static str,
+    pub estimate: f64,
+    /// how it was estimated: `order 1.4 observed`, or why it may be larger (`order 2 assumed`,
+    /// `erratic`); empty for a direct measure
+    pub how: &'static str,
+    pub order: Option<f64>,
+}
+
+impl ErrorPart {
+    /// The iterations' error an audit measured (its largest over the points re-solved).
+    pub fn iterations(largest: f64) -> Self {
+        ErrorPart { who: "the iterations'", estimate: largest, how: "", order: None }
+    }
+
+    /// The time step's error a discretisation audit estimated: at the order it observed, or
+    /// with the order assumed (two levels) or from erratic changes, when it may be larger.
+    pub fn time_step(error: f64, order: Option<f64>, order_assumed: bool, erratic: bool) -> Self {
+        let how = if erratic {
+            "erratic"
+        } else if order_assumed {
+            "order 2 assumed"
+        } else {
+            ""
+        };
+        ErrorPart { who: "the time step's", estimate: error, how, order: order.filter(|_| !erratic) }
+    }
+
+    /// The mesh's error from one refinement (order 2 assumed).
+    pub fn mesh(error: f64) -> Self {
+        ErrorPart { who: "the mesh's", estimate: error, how: "order 2 assumed", order: None }
+    }
+}
+
+/// Which error dominates one QoI, in one sentence shared by `glissade show`, the demo and the
+/// web page: `middle_ux: the mesh's error (~2.5e-1, order 2 assumed: may be larger) dominates
+/// the time step's (~5.9e-2, order 1.52 observed) and the iterations' (6.5e-5)`. Parts compare
+/// QoI by QoI, never the largest of one QoI with the largest of another. None without two parts.
+pub fn verdict(qoi: &str, parts: &[ErrorPart]) -> Option<String> {
+    let mut parts: Vec<&ErrorPart> = parts.iter().filter(|p| p.estimate.is_finite()).collect();
+    if parts.len() < 2 {
+        return None;
+    }
+    parts.sort_by(|a, b| b.estimate.total_cmp(&a.estimate));
+    let said = |p: &ErrorPart| {
+        let how = match (p.order, p.how) {
+            (Some(order), _) => format!(", order {order:.2} observed"),
+            (None, "") => String::new(),
+            (None, how) => format!(", {how}: may be larger"),
+        };
+        let approx = if p.how.is_empty() && p.order.is_none() { "" } else { "~" };
+        format!("{approx}{:.1e}{how}", p.estimate)
+    };
+    let others: Vec<String> = parts[1..].iter().map(|p| format!("{} ({})", p.who, said(p))).collect();
+    Some(format!("{qoi}: {} error ({}) dominates {}", parts[0].who, said(parts[0]), others.join(" and ")))
+}
+
 /// The share of the accuracy a held-out point's difference one level finer may reach. The study's
 /// error there is the sum of its differences to each level finer, falling by r = 2^-p a level at
 /// order p: the first difference / (1 - r), twice it at order 1 (the order a two-level estimate
@@ -691,6 +751,28 @@ mod tests {
         // a report not reached offers no level
         let (_, out_of_reach) = climb(&scene, 1e-5, q);
         assert!(!out_of_reach.reached && out_of_reach.cheapest.is_none());
+        // the verdict compares one QoI's parts, largest first, saying how each was estimated
+        let v = verdict(
+            "middle_ux",
+            &[
+                ErrorPart::iterations(6.5e-5),
+                ErrorPart::time_step(5.9e-2, Some(1.52), false, false),
+                ErrorPart::mesh(2.5e-1),
+            ],
+        );
+        assert_eq!(
+            v.as_deref(),
+            Some(
+                "middle_ux: the mesh's error (~2.5e-1, order 2 assumed: may be larger) dominates the time step's (~5.9e-2, order 1.52 observed) and the iterations' (6.5e-5)"
+            )
+        );
+        assert_eq!(verdict("q", &[ErrorPart::iterations(1e-4)]), None, "one part compares with nothing");
+        let erratic =
+            verdict("slip", &[ErrorPart::iterations(1e-6), ErrorPart::time_step(0.3, Some(1.1), false, true)]);
+        assert_eq!(
+            erratic.as_deref(),
+            Some("slip: the time step's error (~3.0e-1, erratic: may be larger) dominates the iterations' (1.0e-6)")
+        );
         // ABOVE moves a study one level finer in both, within the limits
         let limits = AccuracyLimits::default();
         assert_eq!(level_after_above((1, 1), true, limits), Some((2, 2)));

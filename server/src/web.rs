@@ -895,6 +895,13 @@ fn audit_paragraphs(v: &StudyView) -> Markup {
         }
         @if let Some(d) = &v.discretisation {
             (discretisation_paragraphs(d))
+            @let verdicts = verdicts(v.accuracy.as_ref(), d);
+            @if !verdicts.is_empty() {
+                p #verdict {
+                    "which error dominates, QoI by QoI:"
+                    @for line in &verdicts { br; (line) }
+                }
+            }
         }
         @if let Some(t) = &v.record.to_accuracy {
             (to_accuracy_paragraphs(t, v.record.tolerance, v.held_out_check.as_ref()))
@@ -951,6 +958,24 @@ fn to_accuracy_paragraphs(
             }
         }
     }
+}
+
+/// Which error dominates each QoI (core::accuracy::verdict, in `glissade show`'s words).
+fn verdicts(a: Option<&crate::coordinator::Accuracy>, d: &crate::coordinator::Discretisation) -> Vec<String> {
+    use glissade_core::accuracy::{ErrorPart, verdict};
+    d.qoi
+        .iter()
+        .filter_map(|(name, e)| {
+            let mut parts: Vec<ErrorPart> = a
+                .and_then(|a| a.qoi.get(name))
+                .map(|&(largest, _)| ErrorPart::iterations(largest))
+                .into_iter()
+                .collect();
+            parts.push(ErrorPart::time_step(e.error, e.order, e.order_assumed, e.erratic > 0));
+            parts.extend(e.mesh.map(|m| ErrorPart::mesh(m.error)));
+            verdict(name, &parts)
+        })
+        .collect()
 }
 
 fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {

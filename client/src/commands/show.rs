@@ -162,8 +162,8 @@ fn describe(s: &v1::Study) {
         if let Some(mesh) = mesh_line(d) {
             outln!("  h error   {mesh}");
         }
-        if let Some(verdict) = s.accuracy.as_ref().and_then(|a| dominant(a, d)) {
-            outln!("            {verdict}");
+        for verdict in s.accuracy.as_ref().map(|a| verdicts(a, d)).unwrap_or_default() {
+            outln!("  verdict   {verdict}");
         }
     }
 }
@@ -664,20 +664,22 @@ pub(crate) fn mesh_line(d: &v1::StudyDiscretisation) -> Option<String> {
     ))
 }
 
-/// Which of the errors dominates, by the largest over the QoIs of each (None until the
-/// iterations' and the time step's measured something; the mesh's where it did).
-pub(crate) fn dominant(a: &v1::StudyAccuracy, d: &v1::StudyDiscretisation) -> Option<String> {
-    let largest = |v: &mut dyn Iterator<Item = f64>| v.fold(None, |m: Option<f64>, x| Some(m.map_or(x, |m| m.max(x))));
-    let mut errors = vec![
-        ("the iterations'", largest(&mut a.qoi.values().map(|e| e.largest))?),
-        ("the time step's", largest(&mut d.qoi.values().map(|e| e.error))?),
-    ];
-    if let Some(mesh) = largest(&mut d.qoi.values().filter_map(|e| e.mesh_error)) {
-        errors.push(("the mesh's", mesh));
-    }
-    errors.sort_by(|x, y| y.1.total_cmp(&x.1));
-    let others: Vec<String> = errors[1..].iter().map(|(who, e)| format!("{who} ({e:.1e})")).collect();
-    Some(format!("{} error (~{:.1e}) dominates {}", errors[0].0, errors[0].1, others.join(" and ")))
+/// Which error dominates each QoI (core::accuracy::verdict): the iterations' error the audit
+/// measured, the time step's and the mesh's the discretisation audit estimated, each said with
+/// how it was estimated.
+pub(crate) fn verdicts(a: &v1::StudyAccuracy, d: &v1::StudyDiscretisation) -> Vec<String> {
+    use glissade_core::accuracy::{ErrorPart, verdict};
+    d.qoi
+        .iter()
+        .filter_map(|(name, e)| {
+            let mut parts: Vec<ErrorPart> =
+                a.qoi.get(name).map(|i| ErrorPart::iterations(i.largest)).into_iter().collect();
+            let order = (e.order > 0.0).then_some(e.order);
+            parts.push(ErrorPart::time_step(e.error, order, e.order_assumed, e.erratic > 0));
+            parts.extend(e.mesh_error.map(ErrorPart::mesh));
+            verdict(name, &parts)
+        })
+        .collect()
 }
 
 #[cfg(test)]

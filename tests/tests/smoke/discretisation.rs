@@ -114,10 +114,21 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
             && shown.contains("  h error   1 of 1 points re-solved cold at h / 2"),
         "{shown}"
     );
-    // (which error dominates is said once the iteration audit measured something: the demo's test;
-    // here its work cap stops it on a 1-point study)
+    // which error dominates, QoI by QoI: here the time step's and the mesh's (the iteration
+    // audit's work cap stops it on a 1-point study; the demo's test has all three)
+    let verdicts: Vec<&str> = shown.lines().filter(|l| l.starts_with("  verdict   ")).collect();
+    assert!(!verdicts.is_empty() && verdicts.iter().all(|l| l.contains(" dominates the ")), "{shown}");
+    assert!(
+        verdicts.iter().all(|l| l.contains("the mesh's") && l.contains("order 2 assumed: may be larger")),
+        "{shown}"
+    );
     let (status, _, page) = http_get(&addr, &format!("/studies/{}", measured.study_id));
     assert_eq!(status, 200);
+    assert!(page.contains("id=\"verdict\""), "{page}");
+    for line in &verdicts {
+        let said = line.trim_start_matches("  verdict   ");
+        assert!(page.contains(said), "the page says it in show's words: {said}");
+    }
     assert!(page.contains("id=\"discretisation\"") && page.contains("re-solved at dt / 2 and dt / 4"), "{page}");
     assert!(page.contains("id=\"mesh-discretisation\"") && page.contains("re-solved cold at h / 2"), "{page}");
     let (_, _, json) = http_get(&addr, &format!("/api/studies/{}", measured.study_id));
