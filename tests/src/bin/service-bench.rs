@@ -4,7 +4,9 @@
 //! K fake pools (tasks of this process, each with its own connection) lease the points of one
 //! study and complete each at once with a small synthetic solution file of the right scene and
 //! point (one interface node: about 5 kB), so every rule of the coordinator runs as for real
-//! solutions. Prints one JSON object: points per second and latency percentiles.
+//! solutions. Prints one JSON object: points per second and latency percentiles, then what the
+//! web page's requests cost on the study solved (its JSON whole, the progress an open page polls,
+//! the list of studies): bytes and the median of 5 fetches.
 //!
 //!   service-bench URL SCENE.toml POOLS STRATEGY ORDER GRID...
 //!   service-bench http://127.0.0.1:50051 scenes/three-blocks-tiny.toml 4 nearest asc \
@@ -142,6 +144,28 @@ async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Resul
     }
 }
 
+/// Bytes and the median wall time (ms) of 5 GETs of `path` from the coordinator's web page.
+fn web_cost(url: &str, path: &str) -> Result<serde_json::Value, Error> {
+    use std::io::{Read, Write};
+    let addr = url.trim_start_matches("http://");
+    let mut ms = Vec::new();
+    let mut bytes = 0;
+    for _ in 0..5 {
+        let started = Instant::now();
+        let mut stream = std::net::TcpStream::connect(addr)?;
+        write!(stream, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n")?;
+        let mut answer = Vec::new();
+        stream.read_to_end(&mut answer)?;
+        ms.push(started.elapsed().as_secs_f64() * 1e3);
+        let head = answer.windows(4).position(|w| w == b"\r\n\r\n").map_or(0, |i| i + 4);
+        if !answer.starts_with(b"HTTP/1.1 200") {
+            return Err(format!("GET {path}: {}", String::from_utf8_lossy(&answer[..head.min(answer.len())])).into());
+        }
+        bytes = answer.len() - head;
+    }
+    Ok(serde_json::json!({"bytes": bytes, "ms_p50": percentile(&mut ms, 0.5)}))
+}
+
 fn percentile(v: &mut [f64], p: f64) -> f64 {
     if v.is_empty() {
         return f64::NAN;
@@ -162,6 +186,10 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
             tolerance: Some(1e-3),
             strategy: args.strategy.into(),
             order: args.order.into(),
+            // the study's own dispatch alone: its audits would lease other scenes' points
+            audit_points: Some(0),
+            refine_points: Some(0),
+            surface_audit_points: Some(0),
             ..Default::default()
         })
         .await?
@@ -184,6 +212,12 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
         .into_inner();
     let done = study.progress.map_or(0, |p| p.done);
     let elapsed = last - start;
+    let id = reply.study_id;
+    let web = serde_json::json!({
+        "study_json": web_cost(&args.url, &format!("/api/studies/{id}"))?,
+        "progress_json": web_cost(&args.url, &format!("/api/studies/{id}/progress"))?,
+        "studies_page": web_cost(&args.url, "/")?,
+    });
     Ok(serde_json::json!({
         "points": reply.points,
         "done": done,
@@ -195,6 +229,7 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
         "points_per_second": done as f64 / elapsed.as_secs_f64(),
         "lease_ms": {"p50": percentile(&mut lease_ms, 0.5), "p99": percentile(&mut lease_ms, 0.99)},
         "complete_ms": {"p50": percentile(&mut complete_ms, 0.5), "p99": percentile(&mut complete_ms, 0.99)},
+        "web": web,
     }))
 }
 
