@@ -230,12 +230,21 @@ fn failed(e: CoordError) -> Refusal {
     }
 }
 
+/// The study's id from the path.
+fn study_id(id: &str) -> Result<StudyId, Refusal> {
+    id.parse()
+        .map(StudyId)
+        .map_err(|_| refuse(StatusCode::NOT_FOUND, &format!("no study `{}`", glissade_core::text::excerpt(id, 40))))
+}
+
 /// The study's id from the path, then the study.
 fn study(web: &Web, id: &str, points: bool) -> Result<StudyView, Refusal> {
-    let id: u64 = id
-        .parse()
-        .map_err(|_| refuse(StatusCode::NOT_FOUND, &format!("no study `{}`", glissade_core::text::excerpt(id, 40))))?;
-    web.coordinator.study(StudyId(id), points).map_err(failed)
+    web.coordinator.study(study_id(id)?, points).map_err(failed)
+}
+
+fn progress_json(p: crate::coordinator::Progress) -> serde_json::Value {
+    json!({"total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
+           "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations})
 }
 
 fn study_json(v: &StudyView) -> serde_json::Value {
@@ -258,8 +267,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "scene_title": v.scene_title,
         "created_unix_ms": r.created_unix_ms,
         "finished_unix_ms": v.finished_unix_ms,
-        "progress": {"total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
-                     "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations},
+        "progress": progress_json(p),
         "accuracy": v.accuracy.as_ref().map(|a| json!({
             "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "audited": a.audited, "planned": a.planned,
             "work": a.work, "work_cap": a.work_cap,
@@ -337,24 +345,20 @@ async fn api_study_progress(
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    let Ok(n) = id.parse::<u64>() else {
-        return refuse(StatusCode::NOT_FOUND, &format!("no study `{}`", glissade_core::text::excerpt(&id, 40)))
-            .into_response();
+    let id = match study_id(&id) {
+        Ok(id) => id,
+        Err(r) => return r.into_response(),
     };
     let coordinator = web.coordinator.clone();
-    match tokio::task::spawn_blocking(move || coordinator.study_running(StudyId(n))).await {
-        Ok(Ok(v)) => {
-            let p = v.progress;
-            axum::Json(json!({
-                "study_id": v.record.id.0,
-                "state": state_word(v.state),
-                "parameters": v.record.parameters,
-                "progress": {"total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
-                             "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations},
-                "running": running_json(&v),
-            }))
-            .into_response()
-        }
+    match tokio::task::spawn_blocking(move || coordinator.study_running(id)).await {
+        Ok(Ok(v)) => axum::Json(json!({
+            "study_id": v.record.id.0,
+            "state": state_word(v.state),
+            "parameters": v.record.parameters,
+            "progress": progress_json(v.progress),
+            "running": running_json(&v),
+        }))
+        .into_response(),
         Ok(Err(e)) => failed(e).into_response(),
         Err(_) => refuse(StatusCode::INTERNAL_SERVER_ERROR, "the progress could not be read").into_response(),
     }

@@ -117,43 +117,10 @@ impl Coordinator {
         let new_meshes = self.new_meshes(&scene)?;
         // A study to an accuracy solves at the level its pilots choose, which the audits, written
         // now from the scene as given, would not be at: it has none.
-        if to_accuracy.is_some() {
-            return Ok(Admitted {
-                scene,
-                scene_hash,
-                tolerance,
-                max_iterations,
-                names,
-                points,
-                adaptive,
-                new_meshes,
-                audit_points: 0,
-                refine_points: 0,
-                refined: Vec::new(),
-                held_out_points: 0,
-                to_accuracy: to_accuracy.map(|(spec, _)| spec),
-            });
-        }
-        // (an adaptive study's points are not known yet: it has no audit)
-        let audit_points = match submission.audit_points {
-            None => default_audit_points(points.len()),
-            Some(n) => (n as usize).min(points.len()),
-        };
-        // the discretisation audit: its refined scenes written and checked now
-        let (refine_points, refined) =
-            discretisation::plan(submission, &scene, points.len(), self.config.max_scene_bytes)?;
-        // the surface audit: points held out of the study's response surface
-        let study_points = adaptive.as_ref().map_or(points.len(), |a| a.budget as usize);
-        let held_out_points = match submission.surface_audit_points {
-            None => default_surface_audit_points(study_points),
-            Some(0) => 0,
-            Some(_) if study_points > glissade_core::study::surrogate::MAX_POINTS => {
-                return Err(CoordError::Invalid(format!(
-                    "surface_audit_points: a response surface is fitted to at most {} points, this study has {study_points}",
-                    glissade_core::study::surrogate::MAX_POINTS
-                )));
-            }
-            Some(n) => (n as usize).min(study_points),
+        let (audit_points, refine_points, refined, held_out_points) = if to_accuracy.is_some() {
+            (0, 0, Vec::new(), 0)
+        } else {
+            self.audits(submission, &scene, points.len(), adaptive.as_ref())?
         };
         Ok(Admitted {
             scene,
@@ -168,8 +135,40 @@ impl Coordinator {
             refine_points,
             refined,
             held_out_points,
-            to_accuracy: None,
+            to_accuracy: to_accuracy.map(|(spec, _)| spec),
         })
+    }
+
+    /// The points of a study's audits: iteration (its points re-solved tighter), discretisation
+    /// (its refined scenes written and checked now) and surface (points held out of it).
+    fn audits(
+        &self,
+        submission: &Submission,
+        scene: &Scene,
+        n: usize,
+        adaptive: Option<&AdaptiveSpec>,
+    ) -> Result<(usize, usize, Vec<Level>, usize), CoordError> {
+        // (an adaptive study's points are not known yet: it has no audit)
+        let audit_points = match submission.audit_points {
+            None => default_audit_points(n),
+            Some(asked) => (asked as usize).min(n),
+        };
+        // the discretisation audit: its refined scenes written and checked now
+        let (refine_points, refined) = discretisation::plan(submission, scene, n, self.config.max_scene_bytes)?;
+        // the surface audit: points held out of the study's response surface
+        let study_points = adaptive.map_or(n, |a| a.budget as usize);
+        let held_out_points = match submission.surface_audit_points {
+            None => default_surface_audit_points(study_points),
+            Some(0) => 0,
+            Some(_) if study_points > glissade_core::study::surrogate::MAX_POINTS => {
+                return Err(CoordError::Invalid(format!(
+                    "surface_audit_points: a response surface is fitted to at most {} points, this study has {study_points}",
+                    glissade_core::study::surrogate::MAX_POINTS
+                )));
+            }
+            Some(n) => (n as usize).min(study_points),
+        };
+        Ok((audit_points, refine_points, refined, held_out_points))
     }
 
     /// The submission's scene parsed, with its mesh files (each as announced, exactly those

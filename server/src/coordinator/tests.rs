@@ -1658,27 +1658,7 @@ fn studies_come_in_pages_in_id_order() {
 fn a_submission_to_an_accuracy_is_checked_and_its_points_wait_for_its_pilots() {
     let dir = tempfile::tempdir().unwrap();
     let c = open(dir.path(), 60_000, 3);
-    let base = Submission {
-        scene_text: TINY.into(),
-        grid: vec!["f1=0.1:0.2:3".into()],
-        points: vec![],
-        tolerance: None,
-        max_iterations: None,
-        strategy: InitStrategy::Nearest,
-        order: OrderKind::Asc,
-        label: String::new(),
-        audit_points: None,
-        refine_points: None,
-        refine_levels: 0,
-        refine_mesh: false,
-        adaptive: None,
-        surface_audit_points: None,
-        accuracy: Some(0.05),
-        accuracy_pilots: None,
-        surface_accuracy: None,
-        work_budget: None,
-        meshes: vec![],
-    };
+    let base = to_accuracy(0.05, None);
     let cases = [
         (Submission { accuracy: Some(f64::NAN), ..base.clone() }, "give an accuracy between"),
         (Submission { accuracy: Some(1e300), ..base.clone() }, "give an accuracy between"),
@@ -1726,6 +1706,31 @@ fn a_submission_to_an_accuracy_is_checked_and_its_points_wait_for_its_pilots() {
     assert_eq!(view.record.to_accuracy.unwrap().levels, vec![(1, 1, level.record.id)]);
 }
 
+/// A study of TINY's f1 over 3 points to `accuracy`, with `pilots`.
+fn to_accuracy(accuracy: f64, pilots: Option<u32>) -> Submission {
+    Submission {
+        scene_text: TINY.into(),
+        grid: vec!["f1=0.1:0.2:3".into()],
+        points: vec![],
+        tolerance: None,
+        max_iterations: None,
+        strategy: InitStrategy::Nearest,
+        order: OrderKind::Asc,
+        label: String::new(),
+        audit_points: None,
+        refine_points: None,
+        refine_levels: 0,
+        refine_mesh: false,
+        adaptive: None,
+        surface_audit_points: None,
+        accuracy: Some(accuracy),
+        accuracy_pilots: pilots,
+        surface_accuracy: None,
+        work_budget: None,
+        meshes: vec![],
+    }
+}
+
 /// Solves every point leased as a pool would, with one QoI of known orders in dt and h at the
 /// grant's level (0.2 / k^2 + 0.05 / m^2 over the tiny scene's 50 steps and 2 elements), `off`
 /// added on the held-out checks' points; returns how many were solved (at most `most`).
@@ -1758,27 +1763,7 @@ fn a_study_to_an_accuracy_climbs_its_pilots_ladders_and_says_above_or_not_reache
     let dir = tempfile::tempdir().unwrap();
     let c = open(dir.path(), 60_000, 3);
     pool(&c, "p", VERSION);
-    let submission = |accuracy: f64| Submission {
-        scene_text: TINY.into(),
-        grid: vec!["f1=0.1:0.2:3".into()],
-        points: vec![],
-        tolerance: None,
-        max_iterations: None,
-        strategy: InitStrategy::Nearest,
-        order: OrderKind::Asc,
-        label: String::new(),
-        audit_points: None,
-        refine_points: None,
-        refine_levels: 0,
-        refine_mesh: false,
-        adaptive: None,
-        surface_audit_points: None,
-        accuracy: Some(accuracy),
-        accuracy_pilots: Some(1),
-        surface_accuracy: None,
-        work_budget: None,
-        meshes: vec![],
-    };
+    let submission = |accuracy: f64| to_accuracy(accuracy, Some(1));
     // 1 %: the ladders of core's own test (dt / 1, 2, 4, 8, then h / 2, 4, then dt / 4 on h / 4),
     // the study at dt / 8, h / 4 (its pilot answered by its own solve), then its two held-out
     // points one level finer, 0.2 off: ABOVE
@@ -1821,27 +1806,7 @@ fn a_study_to_an_accuracy_found_above_moves_one_level_finer() {
     let dir = tempfile::tempdir().unwrap();
     let c = open(dir.path(), 60_000, 3);
     pool(&c, "p", VERSION);
-    let submission = Submission {
-        scene_text: TINY.into(),
-        grid: vec!["f1=0.1:0.2:3".into()],
-        points: vec![],
-        tolerance: None,
-        max_iterations: None,
-        strategy: InitStrategy::Nearest,
-        order: OrderKind::Asc,
-        label: String::new(),
-        audit_points: None,
-        refine_points: None,
-        refine_levels: 0,
-        refine_mesh: false,
-        adaptive: None,
-        surface_audit_points: None,
-        accuracy: Some(0.05),
-        accuracy_pilots: Some(1),
-        surface_accuracy: None,
-        work_budget: None,
-        meshes: vec![],
-    };
+    let submission = to_accuracy(0.05, Some(1));
     let (id, ..) = c.submit(submission).unwrap();
     // at 5 % the pilot (the centre, f1 = 0.15) climbs dt / 1, 2, 4, then h / 2, 4 and dt / 2 on
     // h / 4; its cheapest level within 5 % is dt / 4, h / 2. Away from the pilot that level is
@@ -1894,27 +1859,7 @@ fn a_study_to_an_accuracy_survives_a_restart_between_its_levels() {
     let id = {
         let c = open(dir.path(), 60_000, 3);
         pool(&c, "p", VERSION);
-        let submission = Submission {
-            scene_text: TINY.into(),
-            grid: vec!["f1=0.1:0.2:3".into()],
-            points: vec![],
-            tolerance: None,
-            max_iterations: None,
-            strategy: InitStrategy::Nearest,
-            order: OrderKind::Asc,
-            label: String::new(),
-            audit_points: None,
-            refine_points: None,
-            refine_levels: 0,
-            refine_mesh: false,
-            adaptive: None,
-            surface_audit_points: None,
-            accuracy: Some(0.01),
-            accuracy_pilots: Some(1),
-            surface_accuracy: None,
-            work_budget: None,
-            meshes: vec![],
-        };
+        let submission = to_accuracy(0.01, Some(1));
         let (id, ..) = c.submit(submission).unwrap();
         assert_eq!(solve_at_levels(&c, 0.0, 3), 3);
         id

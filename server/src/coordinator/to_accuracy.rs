@@ -116,14 +116,18 @@ impl Coordinator {
         let above: Vec<StudyId> = state
             .studies
             .values()
-            .filter(|e| !e.record.cancelled && e.state() != super::StudyState::Active)
             .filter(|e| {
-                let Some(t) = e.record.to_accuracy.as_ref() else { return false };
+                // the cheap tests first: this runs at every lease
+                let Some(t) = e.record.to_accuracy.as_ref().filter(|_| !e.record.cancelled) else { return false };
+                if t.chosen.and_then(|level| level_after_above(level, true, t.limits)).is_none() {
+                    return false;
+                }
                 let Some(check) = t.held_out.and_then(|c| state.studies.get(&c)) else { return false };
+                if check.state() == super::StudyState::Active || e.state() == super::StudyState::Active {
+                    return false;
+                }
                 let c = held_out_check(e, check);
-                c.confirmed == Some(false)
-                    && c.failed == 0
-                    && t.chosen.and_then(|level| level_after_above(level, true, t.limits)).is_some()
+                c.confirmed == Some(false) && c.failed == 0
             })
             .map(|e| e.record.id)
             .collect();
