@@ -6,14 +6,23 @@
 #   mkdir -p /tmp/g && tar xzf glissade-worker-bundle.tgz -C /tmp/g
 #   export LD_LIBRARY_PATH=/tmp/g/lib PATH=/tmp/g/bin:$PATH
 #   mpiexec -launcher fork -n 16 glissade-worker solve SCENE.toml      # on the node
+#
+# With --service the coordinator (glissade-server) and the CLI (glissade) come too, for a study
+# through the service on one node (tools/perf/study-device.sh).
 set -euo pipefail
 out=${1:-glissade-worker-bundle.tgz}
+service=${2:-}
 cd "$(dirname "$0")/.."
-cargo build --release -p glissade-worker
+if [[ $service == --service ]]; then
+  cargo build --release -p glissade-worker -p glissade-server -p glissade
+else
+  cargo build --release -p glissade-worker
+fi
 stage=$(mktemp -d)
 trap 'rm -rf "$stage"' EXIT
 mkdir -p "$stage/bin" "$stage/lib" "$stage/scenes"
 cp target/release/glissade-worker "$stage/bin/"
+[[ $service == --service ]] && cp target/release/glissade-server target/release/glissade "$stage/bin/"
 cp -L "$(command -v mpiexec.hydra)" "$stage/bin/mpiexec"
 cp -L "$(command -v hydra_pmi_proxy)" "$stage/bin/"
 cp scenes/*.toml "$stage/scenes/"
@@ -26,6 +35,6 @@ for b in "$stage"/bin/*; do
     esac
   done
 done
-strip "$stage/bin/glissade-worker"
+strip "$stage"/bin/glissade*
 tar czf "$out" -C "$stage" .
 echo "bundle: $out ($(du -h "$out" | cut -f1)); run: mpiexec -launcher fork -n P bin/glissade-worker solve ..."
