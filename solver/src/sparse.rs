@@ -159,6 +159,12 @@ impl FactorisedOperator {
         self.full.n
     }
 
+    /// Values stored in the Cholesky factor: what a solve reads twice (forward and back), the
+    /// measure of its cost where memory, not arithmetic, is the limit.
+    pub fn factor_len(&self) -> usize {
+        self.values.len()
+    }
+
     /// Solves `A x = rhs` for the free unknowns, with `x` holding the fixed values on entry.
     /// `fixed_nonzero` says whether any fixed value is non-zero (saves a product otherwise).
     pub fn solve(&mut self, rhs: &[f64], x: &mut [f64], fixed_nonzero: bool) {

@@ -150,6 +150,11 @@ impl SubstructureOperators {
         Ok(Self { dynamic, statics, state: NewmarkState::new(n), x: vec![0.0; n], rhs: vec![0.0; n] })
     }
 
+    /// Values in the dynamic operator's factor ([`FactorisedOperator::factor_len`]).
+    pub fn dynamic_factor_len(&self) -> usize {
+        self.dynamic.factor_len()
+    }
+
     fn operator(&mut self, stage: Stage) -> &mut FactorisedOperator {
         match stage {
             Stage::Static => self.statics.as_mut().expect("static operator factorised when the stage is needed"),
