@@ -117,7 +117,7 @@ impl SurfaceTable {
                     "parameters": parameters,
                     "qoi": qoi,
                     "iterations": r.iterations,
-                    "error_indicator": r.error_indicator,
+                    "error_indicator": (r.error_indicator < f64::MAX).then_some(r.error_indicator),
                     "converged": r.converged,
                     "state": r.state,
                 })
@@ -170,7 +170,12 @@ impl SurfaceTable {
             .chain(row.qoi.iter().zip(&self.resolution).map(|(v, &r)| {
                 v.map(|x| number(if exact { x } else { glissade_core::study::shown(x, r) }, 6)).unwrap_or_default()
             }))
-            .chain([row.iterations.to_string(), number(row.error_indicator, 3), row.state.to_owned()])
+            .chain([
+                row.iterations.to_string(),
+                // none for a point that failed before its first iteration (stored as f64::MAX)
+                if row.error_indicator < f64::MAX { number(row.error_indicator, 3) } else { String::new() },
+                row.state.to_owned(),
+            ])
             .collect()
     }
 

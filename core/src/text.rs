@@ -157,9 +157,23 @@ pub fn audits_cell(total: usize, active: usize) -> String {
     }
 }
 
+/// A point's error indicator as shown (`show`, the web page): `-` where the point has none (a
+/// point that failed before its first iteration is stored with f64::MAX: records are JSON,
+/// which has no NaN).
+pub fn eta(value: f64) -> String {
+    if value.is_finite() && value < f64::MAX { format!("{value:.2e}") } else { "-".to_owned() }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_eta_never_measured_is_a_dash() {
+        assert_eq!(eta(1.234e-4), "1.23e-4");
+        assert_eq!(eta(f64::MAX), "-");
+        assert_eq!(eta(f64::NAN), "-");
+    }
 
     #[test]
     fn a_csv_table_quotes_only_what_rfc_4180_asks_to() {

@@ -371,7 +371,7 @@ fn point_json(p: &PointRecord) -> serde_json::Value {
         "parameters": BTreeMap::from(p.parameters.clone()),
         "state": point_state_word(&p.state),
         "iterations": r.map(|r| r.iterations),
-        "error_indicator": r.map(|r| r.error_indicator),
+        "error_indicator": r.map(|r| r.error_indicator).filter(|&e| e < f64::MAX),
         "work": r.map(|r| r.work),
         "started_from": r.and_then(|r| r.started_from.as_ref()).map(|o| BTreeMap::from(o.parameters.clone())),
         "qoi": r.map(|r| r.qoi.clone()).unwrap_or_default(),
@@ -1072,7 +1072,7 @@ fn points_table(
                     @for n in parameters { td { @if let Some(x) = point.parameters.get(n) { (parameter(x)) } } }
                     td { (point_state_word(&point.state)) }
                     td { @if let Some(r) = res { (r.iterations) } }
-                    td { @if let Some(r) = res { (format!("{:.2e}", r.error_indicator)) } }
+                    td { @if let Some(r) = res { (glissade_core::text::eta(r.error_indicator)) } }
                     @for q in qoi {
                         td { @if let Some(x) = res.and_then(|r| r.qoi.get(q)) { (format!("{:.4e}", shown(*x, resolution[q]))) } }
                     }

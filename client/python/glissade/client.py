@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from dataclasses import dataclass, field
 from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Union
 
@@ -130,8 +131,22 @@ class SurfaceArrays:
     y: np.ndarray
 
 
+def _enum_name(enum, value: int, prefix: str) -> str:
+    """An enum value's short name ("done"); a value this package does not know (a newer
+    coordinator's) is "unknown_<n>", not an exception."""
+    try:
+        return enum.Name(value).removeprefix(prefix).lower()
+    except ValueError:
+        return f"unknown_{value}"
+
+
 def _state_name(value: int) -> str:
-    return pb.StudyState.Name(value).removeprefix("STUDY_STATE_").lower()
+    return _enum_name(pb.StudyState, value, "STUDY_STATE_")
+
+
+# The coordinator stores solution files of at most 4 GiB (glissade-server --max-solution-bytes):
+# a stream that says more, or sends more than it said, is refused before it fills the memory.
+MAX_SOLUTION_BYTES = 4 << 30
 
 
 class Client:
@@ -301,7 +316,7 @@ class Client:
         for e in self._stream(self._user.WatchStudy, request, timeout):
             point = e.point if e.HasField("point") else None
             yield Event(
-                kind=pb.EventKind.Name(e.kind).removeprefix("EVENT_KIND_").lower(),
+                kind=_enum_name(pb.EventKind, e.kind, "EVENT_KIND_"),
                 study_id=e.study_id,
                 state=_state_name(e.state),
                 done=e.progress.done,
@@ -351,7 +366,9 @@ class Client:
         rows = [
             [p.parameters.get(n, math.nan) for n in reply.parameters]
             + [p.qoi.get(q, math.nan) for q in reply.qoi]
-            + [p.iterations, p.error_indicator, p.converged, pb.PointState.Name(p.state).removeprefix("POINT_STATE_").lower()]
+            # a point that failed before its first iteration has no indicator (sent as the largest double)
+            + [p.iterations, p.error_indicator if p.error_indicator < sys.float_info.max else math.nan, p.converged,
+               _enum_name(pb.PointState, p.state, "POINT_STATE_")]
             for p in reply.points
         ]
         frame = pd.DataFrame(rows, columns=columns + ["iterations", "error_indicator", "converged", "state"])
@@ -394,6 +411,9 @@ class Client:
             points = [at] if one else list(at)
         points = [{k: float(v) for k, v in p.items()} for p in points]
         reply = self._surface(study, None, qoi, fixed, points)
+        if len(reply.predictions) != len(points):
+            raise errors.GlissadeError(
+                f"the coordinator answered {len(reply.predictions)} predictions for {len(points)} points")
         if one:
             found = {q: Prediction(v.mean, v.std, v.fitted_points) for q, v in reply.predictions[0].qoi.items()}
             if isinstance(qoi, str):
@@ -439,7 +459,13 @@ class Client:
         for chunk in self._stream(self._user.FetchSolution, request, max(self.timeout, 300.0)):
             if chunk.offset != len(data):
                 raise errors.GlissadeError(f"solution stream: chunk at {chunk.offset}, expected {len(data)}")
+            if total is not None and chunk.total_bytes != total:
+                raise errors.GlissadeError(f"solution stream: its size changed from {total} to {chunk.total_bytes} bytes")
             total = chunk.total_bytes
+            if total > MAX_SOLUTION_BYTES or len(data) + len(chunk.data) > total:
+                raise errors.GlissadeError(
+                    f"solution stream: {len(data) + len(chunk.data)} bytes of a file said to hold {total} "
+                    f"(at most {MAX_SOLUTION_BYTES})")
             data += chunk.data
         if total is not None and len(data) != total:
             raise errors.GlissadeError(f"solution stream ended at {len(data)} of {total} bytes")

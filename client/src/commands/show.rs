@@ -246,13 +246,13 @@ fn point_lines(s: &v1::Study) {
             None => String::new(),
         };
         outln!(
-            "  #{:<4} {:<28} {:<9} {:>5} it  work {:>6.1}  eta {:.2e}  {}  {}{}",
+            "  #{:<4} {:<28} {:<9} {:>5} it  work {:>6.1}  eta {}  {}  {}{}",
             point.point_id,
             describe_parameters(&point.parameters),
             point_state_name(point.state),
             point.iterations,
             point.work,
-            point.error_indicator,
+            glissade_core::text::eta(point.error_indicator),
             qoi.join(" "),
             from,
             if point.error.is_empty() { String::new() } else { format!("  [{}]", point.error) }
@@ -370,7 +370,7 @@ pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
         "pool_id": p.pool_id,
         "iterations": p.iterations,
         "work": p.work,
-        "error_indicator": p.error_indicator,
+        "error_indicator": (p.error_indicator < f64::MAX).then_some(p.error_indicator),
         "qoi": p.qoi,
         "answered": p.answered,
         "wall_seconds": p.wall_seconds,

@@ -70,3 +70,27 @@ fn python_package_submits_watches_reads_predicts_and_fetches() -> anyhow::Result
     assert!(std::fs::read(&solution)? == bytes, "the file python wrote is not the stored solution");
     Ok(())
 }
+
+/// A server that is not ours: an enum value the package does not know is named, not raised; an
+/// error indicator never measured (f64::MAX) is NaN in the DataFrame; a
+/// reply without the predictions asked for and a solution stream that sends more than it said
+/// are GlissadeErrors; the endless stream is left after its 4th chunk, not buffered.
+#[test]
+fn python_package_meets_a_hostile_server_with_clear_errors() -> anyhow::Result<()> {
+    let Some(python) = python_with_glissade() else {
+        eprintln!("SKIPPED python_package_meets_a_hostile_server_with_clear_errors: PyPI is unreachable");
+        return Ok(());
+    };
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/smoke/python_api.py");
+    let out = run_with_timeout(command(&python).arg(&script).arg("hostile"), Duration::from_secs(60));
+    assert!(out.status.success(), "python_api.py hostile:\n{}{}", text(&out.stdout), text(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(v["state"], serde_json::json!(["unknown_77"]), "{v}");
+    assert_eq!(v["eta_is_nan"], true, "{v}");
+    assert_eq!(v["predict"], "the coordinator answered 0 predictions for 1 points", "{v}");
+    let fetch = v["fetch"].as_str().unwrap_or_default();
+    assert!(fetch.starts_with("solution stream: 4194304 bytes of a file said to hold 3145728"), "{v}");
+    // the server may have queued a few chunks ahead of the client, not thousands
+    assert!(v["chunks_sent"].as_u64().is_some_and(|n| n < 100), "{v}");
+    Ok(())
+}

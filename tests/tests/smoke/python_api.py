@@ -3,6 +3,8 @@
     python python_api.py mesh URL TOKEN SCENE      submits a meshed scene, cancels it
     python python_api.py main URL TOKEN SCENE OUT  a 2 x 2 grid: submit, watch, surface, predict,
                                                    fetch_solution (written to OUT), the errors
+    python python_api.py hostile                   the package against a server that is not ours
+                                                   (a real gRPC server on loopback, in this script)
 Checks what it can itself (assert) and prints one JSON object for the test to check the rest.
 """
 
@@ -13,6 +15,63 @@ import numpy as np
 import pandas as pd
 
 import glissade
+
+
+def hostile():
+    """A coordinator that answers with a state this package does not know, no prediction, and a
+    solution stream that never ends: each must give a clear answer or a GlissadeError, and the
+    endless stream must stop before it fills the memory."""
+    from concurrent import futures
+
+    import grpc
+
+    pb, pb_grpc = glissade.pb, glissade.pb_grpc
+    sent = {"chunks": 0}
+
+    class Hostile(pb_grpc.UserServicer):
+        def QuerySurface(self, request, context):
+            reply = pb.QuerySurfaceReply(parameters=["f"], qoi=["q"])
+            # a point that failed before its first iteration: no indicator, sent as the largest double
+            reply.points.add(parameters={"f": 0.1}, qoi={"q": 1.0}, state=77, error_indicator=sys.float_info.max)
+            return reply  # no prediction, whatever was asked
+
+        def FetchSolution(self, request, context):
+            chunk = b"x" * (1 << 20)
+            offset = 0
+            while context.is_active() and sent["chunks"] < 10_000:
+                sent["chunks"] += 1
+                yield pb.SolutionChunk(offset=offset, total_bytes=3 << 20, data=chunk)
+                offset += len(chunk)
+
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=4))
+    pb_grpc.add_UserServicer_to_server(Hostile(), server)
+    port = server.add_insecure_port("127.0.0.1:0")
+    server.start()
+    result = {}
+    try:
+        with glissade.Client(f"http://127.0.0.1:{port}", token="t") as c:
+            frame = c.surface(1)
+            result["state"] = frame["state"].tolist()
+            result["eta_is_nan"] = bool(np.isnan(frame["error_indicator"].iloc[0]))
+            try:
+                c.predict(1, at={"f": 0.1}, qoi="q")
+                result["predict"] = "no error"
+            except glissade.GlissadeError as e:
+                result["predict"] = str(e)
+            try:
+                c.fetch_solution(1, 0)
+                result["fetch"] = "no error"
+            except glissade.GlissadeError as e:
+                result["fetch"] = str(e)
+    finally:
+        server.stop(0)
+    result["chunks_sent"] = sent["chunks"]
+    print(json.dumps(result))
+
+
+if sys.argv[1] == "hostile":
+    hostile()
+    sys.exit(0)
 
 mode, url, token, scene = sys.argv[1:5]
 out = {}
