@@ -13,7 +13,7 @@
 //! sweep is a noisy yardstick: compare builds in one run, alternating (docs/performance.md, "Why an
 //! iteration got slower").
 //! Each solve also prints the bytes it allocated: run with N and 2N iterations, the difference
-//! over N is what an iteration allocates (docs/design.md, "Issue 26: before and after").
+//! over N is what an iteration allocates (the notebook, docs/notebook/2026-11-26.md, "Issue 26: before and after").
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::Mutex;
