@@ -39,6 +39,8 @@ pub struct SurfaceTable {
     /// Per QoI column, the smallest value the solves resolve (0: all): smaller values read 0 in
     /// the table and the pictures, and keep their stored value in CSV and JSON.
     pub resolution: Vec<f64>,
+    /// The unit of each parameter that declares one and of each QoI (the coordinator's).
+    pub units: BTreeMap<String, String>,
 }
 
 impl SurfaceTable {
@@ -70,6 +72,7 @@ impl SurfaceTable {
             qoi: columns,
             rows,
             resolution,
+            units: reply.units.clone(),
         })
     }
 
@@ -100,10 +103,10 @@ impl SurfaceTable {
     /// Parameters, QoIs, iterations, eta, state; a header line first.
     pub fn to_csv(&self) -> String {
         let rows = self.rows.iter().map(|row| self.cells(row, true));
-        glissade_core::text::csv_table(std::iter::once(self.header()).chain(rows))
+        glissade_core::text::csv_table(std::iter::once(self.header(false)).chain(rows))
     }
 
-    /// `{"scene_hash", "parameters", "qoi", "points": [{"parameters": {..}, "qoi": {..}, ...}]}`.
+    /// `{"scene_hash", "parameters", "qoi", "units", "points": [{"parameters": {..}, "qoi": {..}, ...}]}`.
     pub fn to_json(&self) -> serde_json::Value {
         let points: Vec<serde_json::Value> = self
             .rows
@@ -127,13 +130,14 @@ impl SurfaceTable {
             "scene_hash": self.scene_hash,
             "parameters": self.parameters,
             "qoi": self.qoi,
+            "units": self.units,
             "points": points,
         })
     }
 
     /// Aligned columns for people; QoIs with 6 significant digits.
     pub fn to_text(&self) -> String {
-        let header = self.header();
+        let header = self.header(true);
         let body: Vec<Vec<String>> = self.rows.iter().map(|r| self.cells(r, false)).collect();
         let widths: Vec<usize> = (0..header.len())
             .map(|c| body.iter().map(|row| row[c].len()).chain([header[c].len()]).max().unwrap_or(0))
@@ -156,9 +160,15 @@ impl SurfaceTable {
         out
     }
 
-    fn header(&self) -> Vec<String> {
+    /// The columns' names; `units`: with the unit after each that has one (`slip_A (m)`: for
+    /// people; a CSV's header keeps the bare names a program looks up).
+    fn header(&self, units: bool) -> Vec<String> {
         let fixed = ["iterations", "eta", "state"].map(String::from);
-        self.parameters.iter().chain(&self.qoi).cloned().chain(fixed).collect()
+        let name = |n: &String| match self.units.get(n) {
+            Some(u) if units => format!("{n} ({u})"),
+            _ => n.clone(),
+        };
+        self.parameters.iter().chain(&self.qoi).map(name).chain(fixed).collect()
     }
 
     /// `exact`: shortest round-trip numbers (files); else rounded ones (people).
@@ -194,19 +204,25 @@ pub struct Predictions {
     pub parameters: Vec<String>,
     pub qoi: Vec<String>,
     pub points: Vec<v1::SurfacePrediction>,
+    pub units: BTreeMap<String, String>,
 }
 
 impl Predictions {
     /// The predictions of `reply` for the QoIs of `table`.
     pub fn new(reply: &v1::QuerySurfaceReply, table: &SurfaceTable) -> Self {
-        Self { parameters: table.parameters.clone(), qoi: table.qoi.clone(), points: reply.predictions.clone() }
+        Self {
+            parameters: table.parameters.clone(),
+            qoi: table.qoi.clone(),
+            points: reply.predictions.clone(),
+            units: table.units.clone(),
+        }
     }
 
     fn get(&self, point: &v1::SurfacePrediction, qoi: &str) -> (f64, f64, u32) {
         point.qoi.get(qoi).map_or((f64::NAN, f64::NAN, 0), |p| (p.mean, p.std, p.fitted_points))
     }
 
-    /// One line per point and QoI: `f1=0.137 f2=0.151  slip_A = 1.23400e-5 +- 2.10e-7`.
+    /// One line per point and QoI: `f1=0.137 f2=0.151  slip_A = 1.23400e-5 +- 2.10e-7 m`.
     pub fn to_text(&self) -> String {
         let mut out = String::new();
         let mut fitted = BTreeMap::new();
@@ -219,7 +235,8 @@ impl Predictions {
             for q in &self.qoi {
                 let (mean, std, n) = self.get(point, q);
                 fitted.insert(q.clone(), n);
-                out += &format!("{}  {q} = {mean:.5e} +- {std:.2e}\n", at.join(" "));
+                let unit = self.units.get(q).map(|u| format!(" {u}")).unwrap_or_default();
+                out += &format!("{}  {q} = {mean:.5e} +- {std:.2e}{unit}\n", at.join(" "));
             }
         }
         let fitted: Vec<String> = fitted.iter().map(|(q, n)| format!("{q} {n}")).collect();
@@ -230,8 +247,8 @@ impl Predictions {
         out
     }
 
-    /// `{"parameters": [...], "points": [{"at": {...}, "qoi": {"slip_A": {"mean": m, "std": s,
-    /// "fitted_points": n}}}]}`.
+    /// `{"parameters": [...], "units": {...}, "points": [{"at": {...}, "qoi": {"slip_A": {"mean": m,
+    /// "std": s, "fitted_points": n}}}]}`.
     pub fn to_json(&self) -> serde_json::Value {
         let points: Vec<serde_json::Value> = self
             .points
@@ -248,7 +265,7 @@ impl Predictions {
                 serde_json::json!({ "at": point.parameters, "qoi": qoi })
             })
             .collect();
-        serde_json::json!({ "parameters": self.parameters, "points": points })
+        serde_json::json!({ "parameters": self.parameters, "units": self.units, "points": points })
     }
 }
 
@@ -281,6 +298,7 @@ mod tests {
             state: state.into(),
         };
         v1::QuerySurfaceReply {
+            units: [("slip_A".to_owned(), "m".to_owned())].into(),
             scene_hash: "ab".into(),
             parameters: vec!["f1".into()],
             qoi: vec!["slip_A".into(), "x".into()],
@@ -296,7 +314,7 @@ mod tests {
     fn predictions_print_the_mean_and_the_standard_deviation() {
         let t = SurfaceTable::new(&reply(), Some("slip_A")).unwrap();
         let p = Predictions::new(&reply(), &t);
-        assert_eq!(p.to_text().lines().next(), Some("f1=0.15  slip_A = 2.50000e-1 +- 1.25e-1"), "{}", p.to_text());
+        assert_eq!(p.to_text().lines().next(), Some("f1=0.15  slip_A = 2.50000e-1 +- 1.25e-1 m"), "{}", p.to_text());
         let json = p.to_json();
         assert_eq!(json["points"][0]["at"]["f1"], 0.15);
         assert_eq!(json["points"][0]["qoi"]["slip_A"]["std"], 0.125);
@@ -316,6 +334,9 @@ mod tests {
         assert!(json["points"][1]["qoi"].as_object().unwrap().is_empty());
         assert_eq!(t.values(0), vec![(vec![0.1], 0.1 + 0.2)]);
         assert!(t.to_text().lines().count() == 3);
+        // units: in the table's header and the JSON, not in the CSV's header a program reads
+        assert_eq!(json["units"]["slip_A"], "m");
+        assert!(t.to_text().lines().next().is_some_and(|h| h.contains("slip_A (m)")), "{}", t.to_text());
     }
 
     #[test]

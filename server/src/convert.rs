@@ -662,6 +662,7 @@ pub fn event(e: &Event) -> v1::StudyEvent {
 
 pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
     v1::QuerySurfaceReply {
+        units: s.units,
         scene_hash: s.scene_hash,
         parameters: s.parameters,
         qoi: s.qoi.clone(),

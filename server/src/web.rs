@@ -1175,6 +1175,7 @@ mod tests {
             qoi: vec!["slip".into(), "ux".into()],
             rows,
             predictions: Vec::new(),
+            units: Default::default(),
         }
     }
 

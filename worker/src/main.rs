@@ -1,6 +1,7 @@
 //! `glissade-worker`: runs LATIN solves of scenes (and, later, MPI worker pools).
 
 use glissade_core::text::one_line;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -466,6 +467,8 @@ struct Output<'a> {
     /// the `--save` solution file, or null
     saved_to: Option<String>,
     fields: Option<FieldFiles>,
+    /// each QoI's unit (SI, by the scene's dimension: docs/scenes.md)
+    units: BTreeMap<String, &'a str>,
     /// `--profile`: each rank's time split, or absent
     #[serde(skip_serializing_if = "Option::is_none")]
     profile: Option<Profile>,
@@ -623,6 +626,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
             initialised_from: args.init.as_ref().map(|p| p.display().to_string()),
             saved_to: args.save.as_ref().map(|p| p.display().to_string()),
             fields: field_files,
+            units: s.qoi.keys().filter_map(|q| Some((q.clone(), scene.unit(q)?))).collect(),
             profile,
             accuracy,
         };
@@ -634,7 +638,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
             println!("  initialised from {}", p.display());
         }
         for (name, q) in &s.qoi {
-            println!("  {name:<24} final = {:.6e}", q.final_value);
+            println!("  {name:<24} final = {:.6e} {}", q.final_value, scene.unit(name).unwrap_or(""));
         }
         if let Some(p) = &args.save {
             println!("  interface solution saved to {}", p.display());

@@ -360,7 +360,8 @@ class Client:
         """The response surface: one row per point, columns the parameters, the QoIs (all, or
         those named; NaN where a point has none), then iterations, error_indicator, converged,
         state. `fixed` {name: value} keeps a slice; `scene_hash` instead of a study: every
-        stored solution of that scene."""
+        stored solution of that scene. `frame.attrs["units"]`: each QoI's unit and each
+        parameter's that declares one ("m", "m/s", "N")."""
         reply = self._surface(study, scene_hash, qoi, fixed)
         columns = list(reply.parameters) + list(reply.qoi)
         rows = [
@@ -372,7 +373,8 @@ class Client:
             for p in reply.points
         ]
         frame = pd.DataFrame(rows, columns=columns + ["iterations", "error_indicator", "converged", "state"])
-        frame.attrs.update(scene_hash=reply.scene_hash, parameters=list(reply.parameters), qoi=list(reply.qoi))
+        frame.attrs.update(scene_hash=reply.scene_hash, parameters=list(reply.parameters), qoi=list(reply.qoi),
+                           units=dict(reply.units))
         return frame
 
     def surface_arrays(
@@ -430,7 +432,9 @@ class Client:
                 row[q] = v.mean if v is not None else math.nan
                 row[f"{q}_std"] = v.std if v is not None else math.nan
             rows.append(row)
-        return pd.DataFrame(rows)
+        frame = pd.DataFrame(rows)
+        frame.attrs["units"] = dict(reply.units)
+        return frame
 
     def fetch_solution(
         self,

@@ -237,7 +237,10 @@ fn point_lines(s: &v1::Study) {
         let qoi: Vec<String> = point
             .qoi
             .iter()
-            .map(|(k, &v)| format!("{k}={:.6e}", glissade_core::study::shown(v, resolution[k])))
+            .map(|(k, &v)| {
+                let unit = scene.as_ref().and_then(|s| s.unit(k)).map(|u| format!(" {u}")).unwrap_or_default();
+                format!("{k}={:.6e}{unit}", glissade_core::study::shown(v, resolution[k]))
+            })
             .collect();
         let from = match &point.started_from {
             _ if point.answered => "answered from a stored solution".to_owned(),
@@ -345,6 +348,16 @@ pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
     });
     // (apart: one json! of every field passes the macro's recursion limit)
     v["pilot_of"] = serde_json::json!((s.pilot_of != 0).then_some(s.pilot_of));
+    // each parameter's declared unit and each QoI's (from the kept scene; empty without it)
+    let scene = Scene::parse(&s.scene).ok();
+    let units: std::collections::BTreeMap<&str, &str> = scene
+        .as_ref()
+        .map(|scene| {
+            let names = scene.parameters.keys().map(String::as_str).chain(scene.qoi.iter().map(|q| q.name.as_str()));
+            names.filter_map(|n| Some((n, scene.unit(n)?))).collect()
+        })
+        .unwrap_or_default();
+    v["units"] = serde_json::json!(units);
     v["to_accuracy"] = serde_json::json!(s.to_accuracy.as_ref().map(to_accuracy_json));
     v["audits"] = s
         .audits

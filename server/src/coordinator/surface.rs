@@ -53,10 +53,10 @@ impl Coordinator {
         predict_at: &[DesignPoint],
     ) -> Result<Surface, CoordError> {
         let state = self.lock();
-        // the scene's ranges scale the parameters of a prediction
+        // the scene: its ranges scale the parameters of a prediction, it names the units
         let study_scene = match &source {
-            SurfaceSource::Study(id) if !predict_at.is_empty() => state.studies.get(id).map(|e| Arc::clone(&e.scene)),
-            _ => None,
+            SurfaceSource::Study(id) => state.studies.get(id).map(|e| Arc::clone(&e.scene)),
+            SurfaceSource::Scene(_) => None,
         };
         let (scene_hash, mut rows) = match &source {
             SurfaceSource::Study(id) => {
@@ -143,22 +143,31 @@ impl Coordinator {
             let key = |r: &SurfaceRow| r.parameters.iter().map(|(_, v)| v).collect::<Vec<_>>();
             key(a).partial_cmp(&key(b)).unwrap_or(std::cmp::Ordering::Equal)
         });
-        let predictions = if let Some(predicted_from) = predicted_from {
-            let scene = match study_scene {
-                Some(scene) => scene,
-                None => {
-                    let bytes = self.store.get(Tree::Scenes, scene_hash.as_bytes())?.ok_or_else(|| {
-                        CoordError::Corrupt(format!("scene {scene_hash} is missing from the database"))
-                    })?;
-                    let text = String::from_utf8_lossy(&bytes);
-                    Arc::new(Scene::parse(&text).map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?)
-                }
-            };
-            predict(&scene, &names, &qoi_names, &predicted_from, predict_at)?
-        } else {
-            Vec::new()
+        let scene = match study_scene {
+            Some(scene) => Some(scene),
+            None => match self.store.get(Tree::Scenes, scene_hash.as_bytes())? {
+                Some(bytes) => Some(Arc::new(
+                    Scene::parse(&String::from_utf8_lossy(&bytes))
+                        .map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?,
+                )),
+                None => None,
+            },
         };
-        Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows, predictions })
+        let predictions = match predicted_from {
+            Some(predicted_from) => {
+                let scene = scene
+                    .as_ref()
+                    .ok_or_else(|| CoordError::Corrupt(format!("scene {scene_hash} is missing from the database")))?;
+                predict(scene, &names, &qoi_names, &predicted_from, predict_at)?
+            }
+            None => Vec::new(),
+        };
+        let units = scene
+            .map(|scene| {
+                names.iter().chain(&qoi_names).filter_map(|n| Some((n.clone(), scene.unit(n)?.to_owned()))).collect()
+            })
+            .unwrap_or_default();
+        Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows, predictions, units })
     }
 
     /// The bytes of a stored solution file.

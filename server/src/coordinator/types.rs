@@ -490,6 +490,8 @@ pub struct Surface {
     pub rows: Vec<SurfaceRow>,
     /// One per point asked for.
     pub predictions: Vec<PointPrediction>,
+    /// The unit of each parameter that declares one and of each QoI, where the scene is known.
+    pub units: BTreeMap<String, String>,
 }
 
 /// The response surface's prediction at a point asked for.

@@ -268,6 +268,12 @@ with h5py.File(sys.argv[1], "r") as f:
     let out = glissade(Some(&url), &["show", &id, "--points", "--json"]);
     let shown: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     assert_eq!((&shown["state"], &shown["progress"]["done"]), (&"done".into(), &6.into()), "{shown}");
+    // each QoI's unit, in the JSON and on each point's line
+    assert_eq!(shown["units"]["slip_A"], "m", "{shown}");
+    assert!(
+        listed.contains(" slip_A=") && listed.lines().filter(|l| l.contains(" slip_A=")).all(|l| l.contains(" m ")),
+        "{listed}"
+    );
     let points = shown["points"].as_array().expect("points");
     let at: Vec<(f64, f64)> = points
         .iter()

@@ -104,6 +104,8 @@ with glissade.Client(url, token=token) as c:
                                    "error_indicator", "converged", "state"], list(frame.columns)
     assert len(frame) == 4 and frame["converged"].all() and (frame["state"] == "done").all(), frame
     assert (frame["error_indicator"] <= 1e-3).all(), frame
+    units = frame.attrs["units"]
+    assert all(units[q] == "m" for q in ("middle_ux", "slip_A", "slip_B")), units
     one = c.surface(s, qoi="slip_A", fixed={"f2": 0.2})
     assert list(one.columns[:3]) == ["f1", "f2", "slip_A"] and len(one) == 2, one
     arrays = c.surface_arrays(s, qoi="slip_A")

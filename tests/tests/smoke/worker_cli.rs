@@ -10,6 +10,9 @@ fn worker_warm_start_from_a_saved_solution_converges_within_two_windows() -> any
     assert_eq!(cold["initialised_from"], serde_json::Value::Null, "{cold}");
     assert_eq!(cold["saved_to"], "s.bin", "{cold}");
     assert!(cold["iterations"].as_u64().unwrap() > 10, "a cold start should need iterations: {cold}");
+    // every QoI with its unit (a 1D bar: velocities, and the wall's force per cross-section)
+    let units = serde_json::json!({"free_end_velocity": "m/s", "tip_velocity": "m/s", "wall_force": "Pa"});
+    assert_eq!(cold["units"], units);
     let bytes = std::fs::read(dir.path().join("s.bin"))?;
     assert_eq!(&bytes[..8], b"GLISSOL\0");
 
