@@ -157,6 +157,13 @@ pub fn audits_cell(total: usize, active: usize) -> String {
     }
 }
 
+/// `x` rounded to 12 significant digits: a value made by arithmetic (2e-4 x 0.01 =
+/// 2.0000000000000003e-6, 20 x 1e-6 = 1.9999999999999998e-5) becomes the decimal a user wrote or
+/// would write, so JSON and text print it so; 12 digits stay far below any tolerance.
+pub fn decimal(x: f64) -> f64 {
+    if x.is_finite() { format!("{x:.11e}").parse().unwrap_or(x) } else { x }
+}
+
 /// A point's error indicator as shown (`show`, the web page): `-` where the point has none (a
 /// point that failed before its first iteration is stored with f64::MAX: records are JSON,
 /// which has no NaN).
@@ -167,6 +174,16 @@ pub fn eta(value: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_value_made_by_arithmetic_reads_as_its_decimal() {
+        assert_eq!(format!("{:?}", 2e-4 * 0.01), "2.0000000000000003e-6");
+        assert_eq!(format!("{:?}", decimal(2e-4 * 0.01)), "2e-6");
+        assert_eq!(format!("{:?}", decimal(98.0 * 2e-7)), "1.96e-5");
+        assert_eq!(decimal(1e-3 * 0.01).to_bits(), 1e-5f64.to_bits());
+        assert_eq!(decimal(0.1234567890123456), 0.123456789012);
+        assert!(decimal(f64::NAN).is_nan() && decimal(f64::INFINITY) == f64::INFINITY);
+    }
 
     #[test]
     fn an_eta_never_measured_is_a_dash() {

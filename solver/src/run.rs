@@ -370,7 +370,7 @@ fn solve_dim<const D: usize>(
                 connectivity: s.connectivity.clone(),
             })
             .collect(),
-        times: (0..=model.steps).map(|n| n as f64 * model.dt).collect(),
+        times: (0..=model.steps).map(|n| glissade_core::text::decimal(n as f64 * model.dt)).collect(),
         history,
     });
     let summary = SolveSummary {

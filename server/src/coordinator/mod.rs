@@ -1267,7 +1267,9 @@ fn cold_audit_record(study: &StudyRecord, id: StudyId, label: String) -> StudyRe
         id,
         label,
         // within the bounds every solve obeys
-        tolerance: (study.tolerance * AUDIT_TOLERANCE_RATIO).max(glissade_core::scene::MIN_TOLERANCE),
+        // (2e-4 x 0.01 reads 2e-6, not 2.0000000000000003e-6)
+        tolerance: glissade_core::text::decimal(study.tolerance * AUDIT_TOLERANCE_RATIO)
+            .max(glissade_core::scene::MIN_TOLERANCE),
         max_iterations: study
             .max_iterations
             .saturating_mul(AUDIT_ITERATION_FACTOR)

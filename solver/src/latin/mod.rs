@@ -1305,7 +1305,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let m = self.model;
         let mut out = QoiValues::default();
         self.qoi_values(fields, statics, body, &mut out);
-        let times: Vec<f64> = (0..=m.steps).map(|n| n as f64 * m.dt).collect();
+        // (as decimals: 2e-5, not 1.9999999999999998e-5)
+        let times: Vec<f64> = (0..=m.steps).map(|n| glissade_core::text::decimal(n as f64 * m.dt)).collect();
         m.qois
             .iter()
             .zip(out.values)

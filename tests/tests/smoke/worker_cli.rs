@@ -13,6 +13,8 @@ fn worker_warm_start_from_a_saved_solution_converges_within_two_windows() -> any
     // every QoI with its unit (a 1D bar: velocities, and the wall's force per cross-section)
     let units = serde_json::json!({"free_end_velocity": "m/s", "tip_velocity": "m/s", "wall_force": "Pa"});
     assert_eq!(cold["units"], units);
+    // times as decimals: 3 x 2e-7 is 6e-7, not 6.000000000000001e-7
+    assert_eq!(cold["qoi"]["tip_velocity"]["times"][3].as_f64(), Some(6e-7), "{cold}");
     let bytes = std::fs::read(dir.path().join("s.bin"))?;
     assert_eq!(&bytes[..8], b"GLISSOL\0");
 
