@@ -205,6 +205,9 @@ pub struct Predictions {
     pub qoi: Vec<String>,
     pub points: Vec<v1::SurfacePrediction>,
     pub units: BTreeMap<String, String>,
+    /// QoIs that are norms (a slip without a component, never negative): where their band of 2
+    /// sd reaches zero, the text says that sticking is not ruled out
+    pub norms: std::collections::BTreeSet<String>,
 }
 
 impl Predictions {
@@ -215,6 +218,7 @@ impl Predictions {
             qoi: table.qoi.clone(),
             points: reply.predictions.clone(),
             units: table.units.clone(),
+            norms: Default::default(),
         }
     }
 
@@ -236,7 +240,12 @@ impl Predictions {
                 let (mean, std, n) = self.get(point, q);
                 fitted.insert(q.clone(), n);
                 let unit = self.units.get(q).map(|u| format!(" {u}")).unwrap_or_default();
-                out += &format!("{}  {q} = {mean:.5e} +- {std:.2e}{unit}\n", at.join(" "));
+                let zero = if self.norms.contains(q) && mean - 2.0 * std <= 0.0 {
+                    "  (2 sd reach zero: sticking not ruled out here)"
+                } else {
+                    ""
+                };
+                out += &format!("{}  {q} = {mean:.5e} +- {std:.2e}{unit}{zero}\n", at.join(" "));
             }
         }
         let fitted: Vec<String> = fitted.iter().map(|(q, n)| format!("{q} {n}")).collect();
@@ -315,6 +324,15 @@ mod tests {
         let t = SurfaceTable::new(&reply(), Some("slip_A")).unwrap();
         let p = Predictions::new(&reply(), &t);
         assert_eq!(p.to_text().lines().next(), Some("f1=0.15  slip_A = 2.50000e-1 +- 1.25e-1 m"), "{}", p.to_text());
+        // a norm whose band reaches zero says so; 0.25 - 2 x 0.125 = 0
+        let mut norm = Predictions::new(&reply(), &t);
+        norm.norms.insert("slip_A".into());
+        assert!(
+            norm.to_text()
+                .lines()
+                .next()
+                .is_some_and(|l| l.ends_with("m  (2 sd reach zero: sticking not ruled out here)"))
+        );
         let json = p.to_json();
         assert_eq!(json["points"][0]["at"]["f1"], 0.15);
         assert_eq!(json["points"][0]["qoi"]["slip_A"]["std"], 0.125);

@@ -128,7 +128,9 @@ pub(crate) async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
         eprintln!("wrote {} ({}x{})", path.display(), args.size.0, args.size.1);
     }
     if !args.at.is_empty() {
-        let predictions = Predictions::new(&reply, &table);
+        let mut predictions = Predictions::new(&reply, &table);
+        predictions.norms =
+            table.qoi.iter().filter(|q| scene.as_ref().is_some_and(|s| s.qoi_is_norm(q))).cloned().collect();
         if args.json {
             outln!("{}", predictions.to_json());
         } else {
