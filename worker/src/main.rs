@@ -691,7 +691,12 @@ fn print_solve(scene_path: &Path, s: &SolveSummary) {
             );
         }
     }
-    if let Some(c) = &s.window_check {
+    if let Some(c) = s.window_check.as_ref().filter(|c| c.outcome == glissade_solver::latin::CheckOutcome::BelowFloor) {
+        println!(
+            "  not checked: a pass ten times tighter than {:.0e} would be below the smallest tolerance",
+            c.iteration_tolerance
+        );
+    } else if let Some(c) = &s.window_check {
         // the solve's own estimate cannot see an error that grows from window to window
         println!(
             "  checked {}: {} passes, {:.1} sweeps; the answers {} by {:.2e} on '{}' \

@@ -169,7 +169,9 @@ impl StageReport {
     /// How the iterations went, for a stage that did not converge: the mode and what to change.
     pub fn diagnosis(&self, tolerance: f64) -> String {
         match &self.window_check {
-            Some(check) if check.outcome == CheckOutcome::Parted => check.diagnosis(tolerance, ""),
+            Some(check) if matches!(check.outcome, CheckOutcome::Parted | CheckOutcome::BelowFloor) => {
+                check.diagnosis(tolerance, "")
+            }
             Some(check) if check.outcome == CheckOutcome::PassNotConverged => {
                 check.diagnosis(tolerance, &self.iterations_diagnosis(check.iteration_tolerance))
             }

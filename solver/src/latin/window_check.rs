@@ -127,12 +127,23 @@ pub enum CheckOutcome {
     Parted,
     /// a pass did not converge within the iteration limit (the stage's diagnosis is its)
     PassNotConverged,
+    /// the whole-interval check's tighter pass would be below [`MIN_TOLERANCE`]: not run, the
+    /// answer not checked
+    BelowFloor,
 }
 
 impl WindowCheck {
     /// Why the check failed, and what to change; `pass` is the diagnosis of a pass that did not
     /// converge.
     pub fn diagnosis(&self, tolerance: f64, pass: &str) -> String {
+        if self.outcome == CheckOutcome::BelowFloor {
+            return format!(
+                "not checked: the whole-interval check iterates on to a tenth of the tolerance, and {tolerance:.0e} \
+                 is the smallest a solve may ask ({MIN_TOLERANCE:.0e}); the answer met the stopping test, unchecked; \
+                 ask {:.0e} or above for a checked answer, or solver.whole_interval_check = false to take it unchecked",
+                MIN_TOLERANCE / TIGHTER
+            );
+        }
         if self.outcome == CheckOutcome::PassNotConverged {
             let measured = if self.passes > 0 && !self.qoi.is_empty() {
                 format!(
@@ -508,6 +519,13 @@ impl Tightening {
         }
         // (no tighter than a scene may ask: below it the iterations stall on round-off)
         let next = (tolerance * TIGHTER).max(MIN_TOLERANCE);
+        if self.looser.is_none() && next >= tolerance {
+            // asked at the floor: no tighter pass to compare with (it used to read as "still
+            // converging: about 0 more iterations")
+            self.check.outcome = CheckOutcome::BelowFloor;
+            self.over = true;
+            return None;
+        }
         if self.check.passes >= CHECK_ROUNDS || next >= tolerance {
             self.check.outcome = CheckOutcome::Parted;
             self.over = true;
@@ -523,7 +541,7 @@ impl Tightening {
     /// reached the asked tolerance): where the limit ran out on the way to a tighter one, that
     /// pass did not converge.
     pub(super) fn end(mut self, report: &mut StageReport) -> Option<WindowCheck> {
-        if self.check.passes == 0 {
+        if self.check.passes == 0 && self.check.outcome != CheckOutcome::BelowFloor {
             return None;
         }
         if !self.over {

@@ -145,3 +145,21 @@ fn worker_rejects_bad_input_with_one_line() -> anyhow::Result<()> {
     assert!(stderr.contains("mpiexec.mpich"), "{stderr}");
     Ok(())
 }
+
+/// A contact scene asked at the smallest tolerance: its whole-interval check would need a pass
+/// ten times tighter, which no solve may ask. The solve says that, not "still converging: about
+/// 0 more iterations" (issue 48), and exits 2 with the check's outcome in the JSON.
+#[test]
+fn a_solve_asked_at_the_floor_says_its_answer_is_not_checked() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let scene = shipped_scene("three-blocks-tiny.toml");
+    let out = worker_solve(dir.path(), &[scene.as_os_str(), os("--tol"), os("1e-10"), os("--json")]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+    assert_eq!(v["converged"], false, "{v}");
+    assert_eq!(v["window_check"]["outcome"], "below_floor", "{v}");
+    let stderr = text(&out.stderr);
+    assert!(stderr.contains("not checked") && stderr.contains("ask 1e-9 or above"), "{stderr}");
+    assert!(!stderr.contains("about 0 more iterations"), "{stderr}");
+    Ok(())
+}
