@@ -632,26 +632,7 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
         };
         println!("{}", serde_json::to_string(&out)?);
     } else {
-        print_solve(scene_path, s);
-        print_contact_evidence(&scene, &s.contact);
-        if let Some(p) = &args.init {
-            println!("  initialised from {}", p.display());
-        }
-        for (name, q) in &s.qoi {
-            println!("  {name:<24} final = {:.6e} {}", q.final_value, scene.unit(name).unwrap_or(""));
-        }
-        if let Some(p) = &args.save {
-            println!("  interface solution saved to {}", p.display());
-        }
-        if let Some(f) = &field_files {
-            println!("  fields written to {} (open {} in ParaView)", f.h5, f.xdmf);
-        }
-        if let Some(p) = &profile {
-            print_profile(p);
-        }
-        if let Some(a) = &accuracy {
-            print_accuracy(a);
-        }
+        print_human(&args, &scene, s, field_files.as_ref(), profile.as_ref(), accuracy.as_ref());
     }
     for w in s.contact.iter().filter_map(|c| c.warning()) {
         eprintln!("warning: {w}");
@@ -663,6 +644,38 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
         eprintln!("error: accuracy not reached: {why}");
     }
     Ok(exit)
+}
+
+/// `solve` without `--json`: the summary, each QoI with its unit, the files written, the profile
+/// and the accuracy's ladders where asked.
+fn print_human(
+    args: &SolveArgs,
+    scene: &Scene,
+    s: &SolveSummary,
+    field_files: Option<&FieldFiles>,
+    profile: Option<&Profile>,
+    accuracy: Option<&AccuracyReport>,
+) {
+    print_solve(&args.point.scene, s);
+    print_contact_evidence(scene, &s.contact);
+    if let Some(p) = &args.init {
+        println!("  initialised from {}", p.display());
+    }
+    for (name, q) in &s.qoi {
+        println!("  {name:<24} final = {:.6e} {}", q.final_value, scene.unit(name).unwrap_or(""));
+    }
+    if let Some(p) = &args.save {
+        println!("  interface solution saved to {}", p.display());
+    }
+    if let Some(f) = field_files {
+        println!("  fields written to {} (open {} in ParaView)", f.h5, f.xdmf);
+    }
+    if let Some(p) = profile {
+        print_profile(p);
+    }
+    if let Some(a) = accuracy {
+        print_accuracy(a);
+    }
 }
 
 /// The human summary of a solve: its outcome, its windows and its self-check.

@@ -145,13 +145,7 @@ impl Coordinator {
         });
         let scene = match study_scene {
             Some(scene) => Some(scene),
-            None => match self.store.get(Tree::Scenes, scene_hash.as_bytes())? {
-                Some(bytes) => Some(Arc::new(
-                    Scene::parse(&String::from_utf8_lossy(&bytes))
-                        .map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?,
-                )),
-                None => None,
-            },
+            None => self.stored_scene(&scene_hash)?,
         };
         let predictions = match predicted_from {
             Some(predicted_from) => {
@@ -168,6 +162,14 @@ impl Coordinator {
             })
             .unwrap_or_default();
         Ok(Surface { scene_hash, parameters: names, qoi: qoi_names, rows, predictions, units })
+    }
+
+    /// The scene stored under `hash`, parsed, or None where the database has none.
+    fn stored_scene(&self, hash: &str) -> Result<Option<Arc<Scene>>, CoordError> {
+        let Some(bytes) = self.store.get(Tree::Scenes, hash.as_bytes())? else { return Ok(None) };
+        let scene = Scene::parse(&String::from_utf8_lossy(&bytes))
+            .map_err(|e| CoordError::Corrupt(format!("stored scene: {e}")))?;
+        Ok(Some(Arc::new(scene)))
     }
 
     /// The bytes of a stored solution file.
