@@ -294,6 +294,29 @@ class Client:
         """The study (a glissade.pb.Study message), with every point's status if `points`."""
         return self._call(self._user.GetStudy, pb.GetStudyRequest(study_id=_study_id(study), points=points, scene=scene))
 
+    def state(self, study: StudyRef) -> str:
+        """The study's state as the CLI names it: "active", "done", "cancelled"..."""
+        return _state_name(self.study(study).state)
+
+    def audits(self, study: StudyRef) -> List[Dict[str, Any]]:
+        """The study's audits and pilot levels, one dict each (as `glissade show` lists them):
+        study_id, what ("iteration", "time step", "mesh", "surface", "held-out check", "pilot
+        level"), state ("active", "done", "cancelled"), done, total, failed, cancelled, and
+        why_cancelled (why some points were cancelled unsolved, or None)."""
+        return [
+            {
+                "study_id": a.study_id,
+                "what": a.what,
+                "state": _state_name(a.state),
+                "done": a.progress.done,
+                "total": a.progress.total,
+                "failed": a.progress.failed,
+                "cancelled": a.progress.cancelled,
+                "why_cancelled": a.why_cancelled or None,
+            }
+            for a in self.study(study).audits
+        ]
+
     def studies(self) -> list:
         """Every study (Study messages without their points), newest last, fetched page by page."""
         studies, after = [], 0

@@ -124,6 +124,19 @@ with glissade.Client(url, token=token) as c:
     assert list(many.columns) == ["f1", "f2", "slip_A", "slip_A_std", "slip_B", "slip_B_std"], many
     out["predicted"] = {"mean": p.mean, "std": p.std}
 
+    # the study's state and audits by name (none asked here); a study with one iteration audit
+    assert c.state(s) == "done" and c.audits(s) == [], c.audits(s)
+    audited = c.submit(scene, grid={"f1": [0.15], "f2": [0.15, 0.2]}, tol=1e-3, audit=1, refine=0, surface_audit=0)
+    c.wait(audited, timeout=120)
+    audits = c.audits(audited)
+    assert [a["what"] for a in audits] == ["iteration"] and audits[0]["total"] == 1, audits
+    c.wait(audits[0]["study_id"], timeout=120)
+    a = c.audits(audited)[0]
+    # solved, or cut by its cost cap (a cheap study at 1e-3 leaves its audit at 1e-5 little), with why
+    assert a["state"] == "done" and a["done"] + a["cancelled"] == 1, a
+    assert a["cancelled"] == 0 or "cost cap" in a["why_cancelled"], a
+    out["audits"] = c.audits(audited)
+
     # a solution file: by point id and by parameters, the same bytes
     study = c.study(s, points=True)
     first = study.points[0]
