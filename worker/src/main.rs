@@ -945,6 +945,14 @@ fn main() -> ExitCode {
                 std::thread::sleep(std::time::Duration::from_millis(300));
                 mpi::traits::Communicator::abort(&comm.world, 1);
             }
+            if comm.size() > 1 {
+                // Every rank meets here before MPI_Finalize: rank 0 writes and prints after the
+                // others have returned, and on a 16-core node multi-rank solves printed their
+                // answer and then never ended, rank 0 busy while the others waited in
+                // MPI_Finalize (docs/performance.md, "16 ranks on a 16-core node"). A first
+                // remedy, not yet seen on such a node.
+                mpi::traits::CommunicatorCollectives::barrier(&comm.world);
+            }
             result
         }
         Command::Pool(args) => pool(args).map(Exit::from),
