@@ -14,27 +14,9 @@ use std::time::Instant;
 
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
-use glissade_solver::latin::distribution::Distribution;
+use glissade_solver::latin::distribution::{Distribution, contiguous_blocks as blocks};
 use glissade_solver::latin::linear_stage::{Stage, SubstructureOperators};
 use glissade_solver::model::Model;
-
-/// Ranks of contiguous blocks, each substructure to the rank of its weight's midpoint (the rule of
-/// `Distribution::new`, on any weight).
-fn blocks(weights: &[f64], ranks: usize) -> Vec<usize> {
-    let total: f64 = weights.iter().sum();
-    let n = weights.len();
-    let mut rank = Vec::with_capacity(n);
-    let mut before = 0.0;
-    for (s, w) in weights.iter().enumerate() {
-        let ideal = (((before + 0.5 * w) / total) * ranks as f64) as usize;
-        let previous = rank.last().copied().unwrap_or(0);
-        let lo = previous.max((ranks + s).saturating_sub(n));
-        let hi = if s == 0 { 0 } else { (previous + 1).min(ranks - 1) };
-        rank.push(ideal.clamp(lo, hi.max(lo)));
-        before += w;
-    }
-    rank
-}
 
 /// Contiguous blocks with the least largest load (bisection on that load, greedy filling).
 fn best_blocks(weights: &[f64], ranks: usize) -> Vec<usize> {
@@ -144,7 +126,6 @@ fn run<const D: usize>(scene: &Scene, solves: usize) {
             break;
         }
         let by_dofs = Distribution::new(&model, 0, ranks).expect("distribution").substructure_rank;
-        debug_assert_eq!(by_dofs, blocks(&dofs, ranks));
         println!(
             "| {ranks} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
             imbalance(&cost, &by_dofs, ranks),

@@ -12,6 +12,25 @@ use crate::model::Model;
 
 use glissade_core::field::InterfaceField;
 
+/// The rank of each of `weights.len()` substructures (at least `size`) in contiguous blocks
+/// balanced by weight: each to the rank of its weight's midpoint, stepping by at most one rank
+/// and leaving at least one substructure to every remaining rank.
+pub fn contiguous_blocks(weights: &[f64], size: usize) -> Vec<usize> {
+    let n = weights.len();
+    let total: f64 = weights.iter().sum();
+    let mut rank: Vec<usize> = Vec::with_capacity(n);
+    let mut before = 0.0;
+    for (s, w) in weights.iter().enumerate() {
+        let ideal = (((before + 0.5 * w) / total) * size as f64) as usize;
+        let previous = rank.last().copied().unwrap_or(0);
+        let lo = previous.max((size + s).saturating_sub(n));
+        let hi = if s == 0 { 0 } else { (previous + 1).min(size - 1) };
+        rank.push(ideal.clamp(lo, hi.max(lo)));
+        before += w;
+    }
+    rank
+}
+
 #[derive(Debug, Clone)]
 pub struct Distribution {
     pub rank: usize,
@@ -32,19 +51,7 @@ impl Distribution {
             return Err(format!("{size} ranks for {n} substructures: use at most {n} ranks"));
         }
         let dofs: Vec<f64> = model.substructures.iter().map(|s| s.n_dofs() as f64).collect();
-        let total: f64 = dofs.iter().sum();
-        let mut substructure_rank: Vec<usize> = Vec::with_capacity(n);
-        let mut before = 0.0;
-        for (s, d) in dofs.iter().enumerate() {
-            // rank of the substructure's dof midpoint, stepping by at most one rank and leaving
-            // at least one substructure to every remaining rank
-            let ideal = (((before + 0.5 * d) / total) * size as f64) as usize;
-            let previous = substructure_rank.last().copied().unwrap_or(0);
-            let lo = previous.max((size + s).saturating_sub(n));
-            let hi = if s == 0 { 0 } else { (previous + 1).min(size - 1) };
-            substructure_rank.push(ideal.clamp(lo, hi.max(lo)));
-            before += d;
-        }
+        let substructure_rank = contiguous_blocks(&dofs, size);
         let mut interface_rank: Vec<usize> =
             model.interfaces.iter().map(|itf| substructure_rank[itf.sides[0].substructure]).collect();
         // the pieces of a wall interface that share a node are owned together (the local stage
