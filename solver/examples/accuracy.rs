@@ -381,11 +381,16 @@ fn write_markdown(args: &Args, samples: &[Sample], reference: &Sample, error: &d
             describe(best(true))
         );
     }
-    md += "\nThese errors are against the finest mesh at the tightest tolerance, not against the exact solution: \
-           the finest mesh's own discretisation error (mesh convergence, above) comes on top. A warm start \
-           from a neighbour stops at `warm_tolerance_ratio` (0.25 by default, docs/scenes.md) times the \
-           tolerance, so at one tolerance it is more accurate than a cold solve: read the warm rows for what \
-           a study gives (docs/performance.md, Warm starts at equal accuracy).\n\n";
+    // the ratio these runs used: the scene's (1 by default: a warm start stops at the tolerance)
+    let ratio = Scene::read(&args.scenes[0]).map_or(1.0, |s| s.solver.warm_tolerance_ratio);
+    let tighter = if ratio < 1.0 { ", so at one tolerance it is more accurate than a cold solve" } else { "" };
+    md += &format!(
+        "\nThese errors are against the finest mesh at the tightest tolerance, not against the exact solution: \
+         the finest mesh's own discretisation error (mesh convergence, above) comes on top. A warm start \
+         from a neighbour stops at `warm_tolerance_ratio` ({ratio} in these runs, docs/scenes.md) times the \
+         tolerance{tighter}: read the warm rows for what a study gives (docs/performance.md, Warm starts at \
+         equal accuracy).\n\n"
+    );
     md += "## Measurements\n\n";
     md += &format!(
         "| mesh | tolerance | start | converged | iterations (static + dynamic) | wall s | {} | relative error |\n",
