@@ -120,7 +120,7 @@ impl SurfaceTable {
                     "parameters": parameters,
                     "qoi": qoi,
                     "iterations": r.iterations,
-                    "error_indicator": (r.error_indicator < f64::MAX).then_some(r.error_indicator),
+                    "error_indicator": glissade_core::text::measured_eta(r.error_indicator),
                     "converged": r.converged,
                     "state": r.state,
                 })
@@ -182,8 +182,7 @@ impl SurfaceTable {
             }))
             .chain([
                 row.iterations.to_string(),
-                // none for a point that failed before its first iteration (stored as f64::MAX)
-                if row.error_indicator < f64::MAX { number(row.error_indicator, 3) } else { String::new() },
+                glissade_core::text::measured_eta(row.error_indicator).map(|e| number(e, 3)).unwrap_or_default(),
                 row.state.to_owned(),
             ])
             .collect()

@@ -168,7 +168,13 @@ pub fn decimal(x: f64) -> f64 {
 /// point that failed before its first iteration is stored with f64::MAX: records are JSON,
 /// which has no NaN).
 pub fn eta(value: f64) -> String {
-    if value.is_finite() && value < f64::MAX { format!("{value:.2e}") } else { "-".to_owned() }
+    measured_eta(value).map_or_else(|| "-".to_owned(), |e| format!("{e:.2e}"))
+}
+
+/// A point's error indicator where it has one (None: failed before its first iteration, stored
+/// as f64::MAX), as JSON and tables give it.
+pub fn measured_eta(value: f64) -> Option<f64> {
+    (value.is_finite() && value < f64::MAX).then_some(value)
 }
 
 #[cfg(test)]

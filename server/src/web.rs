@@ -371,7 +371,7 @@ fn point_json(p: &PointRecord) -> serde_json::Value {
         "parameters": BTreeMap::from(p.parameters.clone()),
         "state": point_state_word(&p.state),
         "iterations": r.map(|r| r.iterations),
-        "error_indicator": r.map(|r| r.error_indicator).filter(|&e| e < f64::MAX),
+        "error_indicator": r.and_then(|r| glissade_core::text::measured_eta(r.error_indicator)),
         "work": r.map(|r| r.work),
         "started_from": r.and_then(|r| r.started_from.as_ref()).map(|o| BTreeMap::from(o.parameters.clone())),
         "qoi": r.map(|r| r.qoi.clone()).unwrap_or_default(),

@@ -257,19 +257,23 @@ impl FactorisedOperator {
 mod tests {
     use super::*;
 
-    #[test]
-    fn solves_spd_system_with_fixed_unknown() {
-        // 1D Laplacian on 4 unknowns, the last fixed to 2.0: exact solution is linear.
-        let n = 4;
+    /// A chain of n unknowns: `diagonal` on the diagonal, -1 beside it.
+    fn chain(n: usize, diagonal: f64) -> CsrMatrix {
         let mut t = vec![];
         for i in 0..n {
-            t.push((i, i, 2.0));
+            t.push((i, i, diagonal));
             if i + 1 < n {
                 t.push((i, i + 1, -1.0));
                 t.push((i + 1, i, -1.0));
             }
         }
-        let a = CsrMatrix::from_triplets(n, t);
+        CsrMatrix::from_triplets(n, t)
+    }
+
+    #[test]
+    fn solves_spd_system_with_fixed_unknown() {
+        // 1D Laplacian on 4 unknowns, the last fixed to 2.0: exact solution is linear.
+        let a = chain(4, 2.0);
         let mut op = FactorisedOperator::new(a, &[false, false, false, true]).unwrap();
         let mut x = vec![0.0, 0.0, 0.0, 2.0];
         // rhs chosen so that x = [0.5, 1.0, 1.5, 2.0] solves rows 0..3 (row 0: 2*0.5-1 = 0)
@@ -333,17 +337,8 @@ mod tests {
         let err = x.iter().zip(&exact).map(|(x, e)| (x - e).abs()).fold(0.0, f64::max);
         assert!(err < 1e-12, "largest error {err:e}");
         // a chain: neither ordering fills it; the factor is no larger than minimum degree's
-        let n = 200;
-        let mut t = vec![];
-        for i in 0..n {
-            t.push((i, i, 2.5));
-            if i + 1 < n {
-                t.push((i, i + 1, -1.0));
-                t.push((i + 1, i, -1.0));
-            }
-        }
-        let chain = CsrMatrix::from_triplets(n, t);
-        let op = FactorisedOperator::new(chain.clone(), &vec![false; n]).unwrap();
-        assert!(op.factor_len() <= amd_factor_len(&chain));
+        let a = chain(200, 2.5);
+        let op = FactorisedOperator::new(a.clone(), &vec![false; a.n]).unwrap();
+        assert!(op.factor_len() <= amd_factor_len(&a));
     }
 }

@@ -383,7 +383,7 @@ pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
         "pool_id": p.pool_id,
         "iterations": p.iterations,
         "work": p.work,
-        "error_indicator": (p.error_indicator < f64::MAX).then_some(p.error_indicator),
+        "error_indicator": glissade_core::text::measured_eta(p.error_indicator),
         "qoi": p.qoi,
         "answered": p.answered,
         "wall_seconds": p.wall_seconds,

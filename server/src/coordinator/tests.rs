@@ -75,8 +75,11 @@ fn submit_audited(
     c.submit(submission).unwrap().0
 }
 
-fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
-    let submission = Submission {
+/// A grid of `scene` as the tests submit it by default: nearest-neighbour starts, ascending
+/// order, no tolerance or limit given, the coordinator's default audits; each test sets what
+/// it is about with `..base(..)`.
+fn base(scene: &str, grid: &[&str]) -> Submission {
+    Submission {
         scene_text: scene.into(),
         grid: grid.iter().map(|s| s.to_string()).collect(),
         points: vec![],
@@ -86,17 +89,21 @@ fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
         order: OrderKind::Asc,
         label: String::new(),
         audit_points: None,
-        refine_points: Some(0),
+        refine_points: None,
         refine_levels: 0,
         refine_mesh: false,
         adaptive: None,
-        surface_audit_points: Some(0),
+        surface_audit_points: None,
         accuracy: None,
         accuracy_pilots: None,
         surface_accuracy: None,
         work_budget: None,
         meshes: vec![],
-    };
+    }
+}
+
+fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
+    let submission = Submission { refine_points: Some(0), surface_audit_points: Some(0), ..base(scene, grid) };
     match c.submit(submission) {
         Err(CoordError::Invalid(message)) => message,
         other => panic!("{grid:?} must be refused as invalid, got {:?}", other.map(|r| r.1)),
@@ -1606,25 +1613,14 @@ fn a_bad_target_is_refused_and_the_tolerance_follows_the_target() {
 /// An adaptive study of 20 points of the tiny scene's f1 x f2 with a target and no audit.
 fn submission_of_target(target: f64) -> Submission {
     Submission {
-        scene_text: TINY.into(),
-        grid: vec![],
-        points: vec![],
-        tolerance: None,
-        max_iterations: None,
         strategy: InitStrategy::Cold,
         order: OrderKind::Greedy,
-        label: String::new(),
         audit_points: Some(0),
         refine_points: Some(0),
-        refine_levels: 0,
-        refine_mesh: false,
         adaptive: Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 20)),
         surface_accuracy: Some(target),
-        work_budget: None,
         surface_audit_points: Some(0),
-        accuracy: None,
-        accuracy_pilots: None,
-        meshes: vec![],
+        ..base(TINY, &[])
     }
 }
 
@@ -1708,27 +1704,7 @@ fn a_submission_to_an_accuracy_is_checked_and_its_points_wait_for_its_pilots() {
 
 /// A study of TINY's f1 over 3 points to `accuracy`, with `pilots`.
 fn to_accuracy(accuracy: f64, pilots: Option<u32>) -> Submission {
-    Submission {
-        scene_text: TINY.into(),
-        grid: vec!["f1=0.1:0.2:3".into()],
-        points: vec![],
-        tolerance: None,
-        max_iterations: None,
-        strategy: InitStrategy::Nearest,
-        order: OrderKind::Asc,
-        label: String::new(),
-        audit_points: None,
-        refine_points: None,
-        refine_levels: 0,
-        refine_mesh: false,
-        adaptive: None,
-        surface_audit_points: None,
-        accuracy: Some(accuracy),
-        accuracy_pilots: pilots,
-        surface_accuracy: None,
-        work_budget: None,
-        meshes: vec![],
-    }
+    Submission { accuracy: Some(accuracy), accuracy_pilots: pilots, ..base(TINY, &["f1=0.1:0.2:3"]) }
 }
 
 /// Solves every point leased as a pool would, with one QoI of known orders in dt and h at the
