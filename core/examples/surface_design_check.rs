@@ -20,7 +20,7 @@ use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_core::study::StudyResult;
 use glissade_core::study::holdout::{spread, surface_errors};
-use glissade_core::study::surrogate::{Prediction, QoiSurface};
+use glissade_core::study::surrogate::{Prediction, QoiSurface, Reading};
 
 fn read(path: &str) -> StudyResult {
     serde_json::from_str(&std::fs::read_to_string(path).expect("read a results.json")).expect("a study result")
@@ -91,9 +91,9 @@ fn main() {
         let own: Vec<f64> = rows.iter().map(|(_, v)| v[q.as_str()]).collect();
         let loo: Vec<(Prediction, f64)> = surface.leave_one_out().into_iter().zip(own.iter().copied()).collect();
         let cv = surface_errors(&loo, spread(own.iter().copied()));
-        let lengths = match &surface {
-            QoiSurface::Direct(s) => format!("{:.2?}", s.lengths()),
-            QoiSurface::Components(parts) => {
+        let lengths = match surface.reading() {
+            Reading::Direct(s) => format!("{:.2?}", s.lengths()),
+            Reading::Components(parts) => {
                 parts.iter().map(|s| format!("{:.2?}", s.lengths())).collect::<Vec<_>>().join(" ")
             }
         };

@@ -135,7 +135,7 @@ impl Surfaces {
 
     /// The QoIs scored and judged, and whether each is read from its components.
     pub fn qois(&self) -> impl Iterator<Item = (&str, bool)> {
-        self.fitted.iter().map(|(q, s, ..)| (q.as_str(), matches!(s, QoiSurface::Components(_))))
+        self.fitted.iter().map(|(q, s, ..)| (q.as_str(), s.from_components()))
     }
 }
 
