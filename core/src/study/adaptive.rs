@@ -24,6 +24,9 @@ use crate::scene::{MIN_TOLERANCE, Scene};
 const CANDIDATES: usize = 1024;
 /// Closest a new point may be to a chosen one, in units of the box's sides (scaled coordinates).
 pub const MIN_SEPARATION: f64 = 0.02;
+/// The largest error in the box per unit of the largest score (standard deviation x local
+/// calibration, relative to the spread) over the candidates ([`Surfaces::box_largest`]).
+pub const BOX_LARGEST_PER_SCORE: f64 = 3.0;
 /// The budget of a study with a target and no budget given.
 pub const TARGET_BUDGET: usize = 100;
 /// A point's tolerance per unit of the target ([`point_tolerance`]): measured, a point's QoIs
@@ -82,6 +85,8 @@ impl QoiReadings {
 /// The surfaces of an adaptive study's done points, one per QoI read on its own.
 #[derive(Debug, Clone, Default)]
 pub struct Surfaces {
+    /// the design's box: (name, low, high) per swept parameter
+    ranges: Vec<(String, f64, f64)>,
     /// (QoI, its surface, its spread over the done points, its values there in the fitted order)
     fitted: Vec<(String, QoiSurface, f64, Vec<f64>)>,
     /// per fitted QoI, at each fitted point (the swept parameters' values): |leave-one-out
@@ -114,19 +119,42 @@ pub struct TargetOutcome {
 
 impl Surfaces {
     /// Leave-one-out over the done points ([`QoiSurface::leave_one_out`]), measured as the
-    /// surface audit measures its held-out points ([`holdout::surface_errors`]). It overstates
-    /// the error of the whole surface a little: each point is predicted without itself, from a
-    /// sparser design than the study's.
+    /// surface audit measures its held-out points ([`holdout::surface_errors`]), and the largest
+    /// error in the box as the surface estimates it ([`Self::box_largest`]): what a target is
+    /// judged on.
     pub fn cross_validate(&self) -> CrossValidation {
+        let candidates = candidates(self.ranges.len());
         let qoi = self
             .fitted
             .iter()
-            .map(|(q, surface, spread, values)| {
+            .enumerate()
+            .map(|(k, (q, surface, spread, values))| {
                 let pairs: Vec<_> = surface.leave_one_out().into_iter().zip(values.iter().copied()).collect();
-                (q.clone(), holdout::surface_errors(&pairs, *spread))
+                let mut errors = holdout::surface_errors(&pairs, *spread);
+                errors.box_largest = Some(self.box_largest(k, &candidates).max(errors.largest));
+                (q.clone(), errors)
             })
             .collect();
         CrossValidation { points: self.points, qoi, refused: self.refused.clone() }
+    }
+
+    /// How wrong fitted QoI `k`'s surface may be at `c` (scaled coordinates), relative to its
+    /// spread: its standard deviation times how wrong it is near `c` for how unsure it says it
+    /// is ([`Self::calibration`]). The design goes where this is largest.
+    fn score(&self, k: usize, c: &[f64]) -> f64 {
+        let (_, s, spread, _) = &self.fitted[k];
+        let x: Vec<f64> = self.ranges.iter().zip(c).map(|((_, lo, hi), u)| lo + u * (hi - lo)).collect();
+        let p = DesignPoint::from_pairs(self.ranges.iter().zip(&x).map(|((n, ..), v)| (n.as_str(), *v)))
+            .expect("a point of ranges `parse` checked: the scene's parameters, finite bounds");
+        s.predict(&p).map_or(0.0, |v| v.std / spread * self.calibration(&self.misfit[k], &x))
+    }
+
+    /// The largest error of fitted QoI `k`'s surface anywhere in the box, as it estimates it:
+    /// [`BOX_LARGEST_PER_SCORE`] x the largest [`Self::score`] over the candidates (the leave-one-
+    /// out errors are at the points, where the surface was forced through; the largest error
+    /// of a surface is between them, where the design has not been).
+    fn box_largest(&self, k: usize, candidates: &[Vec<f64>]) -> f64 {
+        BOX_LARGEST_PER_SCORE * candidates.iter().map(|c| self.score(k, c)).fold(0.0, f64::max)
     }
 
     pub fn is_empty(&self) -> bool {
@@ -228,7 +256,7 @@ impl AdaptiveDesign {
             cv.points >= self.validated_after()
                 && cv.refused.is_empty()
                 && !cv.qoi.is_empty()
-                && cv.qoi.values().all(|e| e.mean <= t)
+                && cv.qoi.values().all(|e| e.box_largest.unwrap_or(e.largest) <= t)
         })
     }
 
@@ -254,7 +282,7 @@ impl AdaptiveDesign {
             .iter()
             .filter_map(|(p, q)| Some((names.iter().map(|n| p.get(n).unwrap_or(f64::NAN)).collect(), (*q)?)))
             .collect();
-        let mut surfaces = Surfaces { points: rows.len(), ..Surfaces::default() };
+        let mut surfaces = Surfaces { ranges: self.ranges.clone(), points: rows.len(), ..Surfaces::default() };
         if chosen.len() < self.initial() || rows.len() < 2 {
             return surfaces;
         }
@@ -296,7 +324,6 @@ impl AdaptiveDesign {
         chosen: &[(DesignPoint, Option<&BTreeMap<String, f64>>)],
         surfaces: &Surfaces,
     ) -> Option<DesignPoint> {
-        let dim = self.ranges.len();
         let scaled = |p: &DesignPoint| -> Vec<f64> {
             self.ranges
                 .iter()
@@ -306,35 +333,32 @@ impl AdaptiveDesign {
         let taken: Vec<Vec<f64>> = chosen.iter().map(|(p, _)| scaled(p)).collect();
         let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
         let nearest = |c: &[f64]| taken.iter().map(|t| distance(c, t)).fold(f64::INFINITY, f64::min);
-        let candidates: Vec<Vec<f64>> =
-            (1..=CANDIDATES).map(|i| (0..dim).map(|d| halton(i, PRIMES[d % PRIMES.len()])).collect()).collect();
+        let candidates = candidates(self.ranges.len());
         let free: Vec<&Vec<f64>> = candidates.iter().filter(|c| nearest(c) >= MIN_SEPARATION).collect();
-        let point = |c: &[f64]| {
-            DesignPoint::from_pairs(self.ranges.iter().zip(c).map(|((n, lo, hi), x)| (n.as_str(), lo + x * (hi - lo))))
-                .expect("a point of ranges `parse` checked: the scene's parameters, finite bounds")
-        };
         let score = |c: &[f64]| -> f64 {
             if surfaces.is_empty() {
                 // the initial, space-filling points: farthest from every chosen one
                 return nearest(c);
             }
-            let p = point(c);
-            let x: Vec<f64> = self.ranges.iter().map(|(n, ..)| p.get(n).unwrap_or(f64::NAN)).collect();
-            surfaces
-                .fitted
-                .iter()
-                .zip(&surfaces.misfit)
-                .filter_map(|((_, s, spread, _), misfit)| {
-                    s.predict(&p).ok().map(|v| v.std / spread * self.calibration(misfit, &x))
-                })
-                .fold(0.0, f64::max)
+            (0..surfaces.fitted.len()).map(|k| surfaces.score(k, c)).fold(0.0, f64::max)
         };
         let best = free.into_iter().map(|c| (score(c), c)).max_by(|a, b| a.0.total_cmp(&b.0))?;
-        Some(point(best.1))
+        Some(
+            DesignPoint::from_pairs(
+                self.ranges.iter().zip(best.1).map(|((n, lo, hi), x)| (n.as_str(), lo + x * (hi - lo))),
+            )
+            .expect("a point of ranges `parse` checked: the scene's parameters, finite bounds"),
+        )
     }
 }
 
-impl AdaptiveDesign {
+/// The candidates of a box of `dim` parameters, scaled to [0, 1]: the first [`CANDIDATES`]
+/// points of the Halton sequence.
+fn candidates(dim: usize) -> Vec<Vec<f64>> {
+    (1..=CANDIDATES).map(|i| (0..dim).map(|d| halton(i, PRIMES[d % PRIMES.len()])).collect()).collect()
+}
+
+impl Surfaces {
     /// How wrong the surface is near `x` for how unsure it says it is: over the 2 d nearest
     /// fitted points (d parameters), the sum of their leave-one-out |residuals| over the sum of
     /// their standard deviations (1 where both are 0). The standard deviation alone is the same
@@ -550,11 +574,66 @@ mod tests {
         assert_eq!(cv.qoi.keys().collect::<Vec<_>>(), ["bent", "smooth"]);
         // by hand: the leave-one-out errors are those of refits without each point; here the
         // plane, which any process fits, is far within it
-        assert!(cv.qoi["smooth"].mean < 0.01 && cv.qoi.values().all(|e| e.mean <= 0.05 && e.count == n), "{cv:?}");
+        assert!(
+            cv.qoi["smooth"].mean < 0.01 && cv.qoi.values().all(|e| e.box_largest <= Some(0.05) && e.count == n),
+            "{cv:?}"
+        );
+        // the estimate over the box is at least the largest error at the points
+        assert!(cv.qoi.values().all(|e| e.box_largest >= Some(e.largest)), "{cv:?}");
         // a target tighter than the errors reached is not met
-        let tight = AdaptiveDesign { target: Some(cv.qoi["bent"].mean / 2.0), ..d.clone() };
+        let tight = AdaptiveDesign { target: Some(cv.qoi["bent"].box_largest.unwrap() / 2.0), ..d.clone() };
         assert!(!tight.target_reached(&cv));
         assert!(!design(40).target_reached(&cv), "no target, never reached");
+    }
+
+    /// The target's meaning: every point of the box within it. A slip with a curved stick /
+    /// slip edge (a norm: zero beyond the edge, a kink on it) and a bent smooth QoI, to a target
+    /// of 2 %: once the study says it is reached, the largest error of each surface over a
+    /// 61 x 61 grid is within the target, and the study's own estimate of it within a factor
+    /// 1.5 either way (measured: slip 0.54 % estimated 0.74 %, smooth 1.78 % estimated 1.60 %,
+    /// at 39 points; the leave-one-out mean, which the target was judged on before, 0.09 % and
+    /// 0.48 %).
+    #[test]
+    fn a_target_bounds_the_largest_error_over_the_box() {
+        let space = space();
+        let slip = |a: f64, b: f64| (0.3 - a - b + 40.0 * (a - 0.15).powi(2)).max(0.0);
+        let bent = |a: f64, b: f64| ((a - 0.1) * 30.0).sin() * ((b - 0.1) * 20.0).cos();
+        let d = AdaptiveDesign { target: Some(0.02), ..design(150) };
+        let readings = QoiReadings { norms: [("slip".to_string(), vec![])].into() };
+        let mut chosen: Vec<(DesignPoint, BTreeMap<String, f64>)> = Vec::new();
+        let (surfaces, cv) = loop {
+            let with: Vec<_> = chosen.iter().map(|(p, q)| (p.clone(), Some(q))).collect();
+            let surfaces = d.surfaces(&space, &readings, &with);
+            let cv = surfaces.cross_validate();
+            if d.target_reached(&cv) {
+                break (surfaces, cv);
+            }
+            assert!(chosen.len() < 100, "2 % not reached in 100 points: {cv:?}");
+            let p = d.next(&with, &surfaces).unwrap();
+            let (a, b) = (p.get("f1").unwrap(), p.get("f2").unwrap());
+            chosen.push((p, [("slip".to_string(), slip(a, b)), ("bent".to_string(), bent(a, b))].into()));
+        };
+        let grid: Vec<(f64, f64)> =
+            (0..=60).flat_map(|i| (0..=60).map(move |j| (0.1 + i as f64 / 600.0, 0.1 + j as f64 / 600.0))).collect();
+        for (k, (name, law)) in [("bent", &bent as &dyn Fn(f64, f64) -> f64), ("slip", &slip)].into_iter().enumerate() {
+            assert_eq!(surfaces.fitted[k].0, name);
+            let truth: Vec<f64> = grid.iter().map(|(a, b)| law(*a, *b)).collect();
+            let spread = holdout::spread(truth.iter().copied());
+            let largest = grid
+                .iter()
+                .zip(&truth)
+                .map(|((a, b), t)| {
+                    let p = DesignPoint::from_pairs([("f1", *a), ("f2", *b)]).unwrap();
+                    let at = surfaces.fitted[k].1.predict(&p).unwrap();
+                    assert!(name != "slip" || at.mean >= 0.0, "({a}, {b}): {at:?}");
+                    (at.mean - t).abs() / spread
+                })
+                .fold(0.0, f64::max);
+            let estimate = cv.qoi[name].box_largest.unwrap();
+            eprintln!("{name}: at {} points, largest {largest:.4}, estimated {estimate:.4}", chosen.len());
+            assert!(largest <= 0.02, "{name}: largest error {largest} over the box, target 0.02");
+            assert!(estimate <= 1.5 * largest && largest <= 1.5 * estimate, "{name}: {estimate} against {largest}");
+        }
     }
 
     /// A norm whose components the scene reports is scored and judged through them; the

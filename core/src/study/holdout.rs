@@ -72,6 +72,11 @@ pub struct SurfaceErrors {
     pub within_2sd: f64,
     /// points compared
     pub count: usize,
+    /// the largest error anywhere in the box as the surface estimates it (an adaptive study's
+    /// cross-validation: core::study::adaptive::Surfaces::cross_validate), what its target is
+    /// judged on; None where only points are compared
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub box_largest: Option<f64>,
 }
 
 /// The errors of `pairs` (the surface's prediction, the solved value) relative to `spread`.
@@ -85,6 +90,7 @@ pub fn surface_errors(pairs: &[(Prediction, f64)], spread: f64) -> SurfaceErrors
         mean: errors.iter().sum::<f64>() / n / spread,
         within_2sd: within as f64 / n,
         count,
+        box_largest: None,
     }
 }
 

@@ -516,13 +516,25 @@ impl QoiSurface {
                 .iter()
                 .filter(|(_, v)| v.contains_key(qoi))
                 .all(|(_, v)| components.iter().all(|c| v.contains_key(*c)));
-        let reading = if norm && complete {
-            Reading::Components(components.iter().map(|c| fit(c)).collect::<Result<_, _>>()?)
+        // (a norm read through a latent margin is zero where the margin is below zero; read
+        // through its zeros, where its nearest points all stuck)
+        let (reading, latent) = if norm && complete {
+            (Reading::Components(components.iter().map(|c| fit(c)).collect::<Result<_, _>>()?), false)
+        } else if norm {
+            let (samples, tolerances) = samples(qoi);
+            match latent_slip(space, names, &samples)? {
+                Some(latent) => {
+                    let largest = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
+                    let errors = tolerances.iter().map(|t| POINT_ERROR_PER_TOLERANCE * t * largest).collect();
+                    let surface = ResponseSurface::fit(space, names, &latent)?.with_point_errors(errors)?;
+                    (Reading::Direct(Box::new(surface.non_negative())), true)
+                }
+                None => (Reading::Direct(Box::new(fit(qoi)?.non_negative())), false),
+            }
         } else {
-            let surface = fit(qoi)?;
-            Reading::Direct(Box::new(if norm { surface.non_negative() } else { surface }))
+            (Reading::Direct(Box::new(fit(qoi)?)), false)
         };
-        let sticks = if norm {
+        let sticks = if norm && !latent {
             let values: Vec<f64> = samples(qoi).0.into_iter().map(|(_, v)| v).collect();
             let first = match &reading {
                 Reading::Direct(s) => s.as_ref(),
@@ -639,6 +651,76 @@ impl QoiSurface {
             _ => Ok(p),
         }
     }
+}
+
+/// A sample: a point's parameters (in the surface's order) and its value.
+type Sample = (Vec<f64>, f64);
+
+/// A slip norm's samples with its stuck points' zeros replaced by a latent below zero: the slip
+/// is the positive part of a smooth margin, which goes on below zero where it sticks. Fitted
+/// through the zeros, a process bends the edge's kink into a bump above zero on the stuck side
+/// (a 7 x 7 grid over a curved edge: largest error 4.4 % of the spread through the zeros, 0.8 %
+/// through the latent; 45 adaptive points: 4.2 % against 0.23 %); through the latent it
+/// has no kink to bend, and its positive part puts the edge back. Each stuck point's latent is
+/// what the process of the sliding points predicts there, kept below zero: the mean of that
+/// prediction's normal law truncated at zero (Tobit). None without a stuck point or with fewer
+/// than 3 sliding ones.
+fn latent_slip(
+    space: &ParameterSpace,
+    names: &[String],
+    samples: &[(Vec<f64>, f64)],
+) -> Result<Option<Vec<Sample>>, SurrogateError> {
+    let largest = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
+    let stuck = |v: f64| v.abs() <= STICK_SHARE * largest;
+    let sliding: Vec<(Vec<f64>, f64)> = samples.iter().filter(|(_, v)| !stuck(*v)).cloned().collect();
+    if sliding.len() < 3 || sliding.len() == samples.len() {
+        return Ok(None);
+    }
+    let margin = ResponseSurface::fit(space, names, &sliding)?;
+    samples
+        .iter()
+        .map(|(x, v)| {
+            if !stuck(*v) {
+                return Ok((x.clone(), *v));
+            }
+            let point = DesignPoint::from_pairs(names.iter().map(String::as_str).zip(x.iter().copied()))
+                .map_err(|_| SurrogateError::NotFinite { index: 0 })?;
+            let p = margin.process.predict(&margin.scaled(&point)?);
+            Ok((x.clone(), truncated_below_zero(p)))
+        })
+        .collect::<Result<_, _>>()
+        .map(Some)
+}
+
+/// The mean of N(p.mean, p.std^2) truncated to (-inf, 0]: m - s phi(a) / Phi(a), a = -m / s.
+fn truncated_below_zero(p: Prediction) -> f64 {
+    if p.std <= 0.0 || !p.std.is_finite() {
+        return p.mean.min(0.0);
+    }
+    let a = -p.mean / p.std;
+    let density = (-0.5 * a * a).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    let below = 0.5 * erfc(-a / std::f64::consts::SQRT_2);
+    if below < 1e-300 {
+        // far above zero: the truncated law sits at zero
+        return 0.0;
+    }
+    (p.mean - p.std * density / below).min(0.0)
+}
+
+/// The complementary error function (Numerical Recipes' erfcc, relative error below 1.2e-7).
+fn erfc(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let r = t
+        * (-z * z - 1.26551223
+            + t * (1.00002368
+                + t * (0.37409196
+                    + t * (0.09678418
+                        + t * (-0.18628806
+                            + t * (0.27886807
+                                + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277)))))))))
+            .exp();
+    if x >= 0.0 { r } else { 2.0 - r }
 }
 
 /// Matérn 3/2 correlation of two scaled points: rougher than the squared exponential, whose
@@ -963,6 +1045,55 @@ mod tests {
             let loo = surface.leave_one_out();
             let deep = rows.iter().position(|(x, _)| x[0] > 0.17 && x[1] > 0.17).unwrap();
             assert_eq!(loo[deep].mean, 0.0, "{:?}", rows[deep].0);
+        }
+    }
+
+    /// A slip through a curved stick / slip edge, read through a latent margin that goes on
+    /// below zero where it sticks, against the process through its zeros: the kink no longer
+    /// bends into a bump on the stuck side. The truncated normal's mean is the textbook one.
+    #[test]
+    fn a_slip_is_read_through_a_latent_margin_below_its_stuck_points() {
+        let scene = crate::scene::Scene::parse(include_str!("../../../scenes/three-blocks-tiny.toml")).unwrap();
+        let space = ParameterSpace::from_scene(&scene);
+        let names = vec!["f1".to_owned(), "f2".to_owned()];
+        let slip = |a: f64, b: f64| (0.3 - a - b + 40.0 * (a - 0.15).powi(2)).max(0.0) * 1e-3;
+        let rows: Vec<(Vec<f64>, BTreeMap<String, f64>)> = (0..49)
+            .map(|k| (0.1 + (k / 7) as f64 / 60.0, 0.1 + (k % 7) as f64 / 60.0))
+            .map(|(a, b)| (vec![a, b], [("slip_A".to_string(), slip(a, b))].into()))
+            .collect();
+        let rows: Vec<(Vec<f64>, &BTreeMap<String, f64>)> = rows.iter().map(|(p, q)| (p.clone(), q)).collect();
+        let latent = QoiSurface::fit(&space, &names, &rows, &[], "slip_A", true, &[]).unwrap();
+        let samples: Vec<(Vec<f64>, f64)> = rows.iter().map(|(x, q)| (x.clone(), q["slip_A"])).collect();
+        let zeros = ResponseSurface::fit(&space, &names, &samples).unwrap().non_negative();
+        let (mut worst_latent, mut worst_zeros) = (0.0f64, 0.0f64);
+        for i in 0..=50 {
+            for j in 0..=50 {
+                let (a, b) = (0.1 + 0.002 * i as f64, 0.1 + 0.002 * j as f64);
+                let p = DesignPoint::from_pairs([("f1", a), ("f2", b)]).unwrap();
+                let (l, z) = (latent.predict(&p).unwrap(), zeros.predict(&p).unwrap());
+                assert!(l.mean >= 0.0, "({a}, {b}): {l:?}");
+                worst_latent = worst_latent.max((l.mean - slip(a, b)).abs());
+                worst_zeros = worst_zeros.max((z.mean - slip(a, b)).abs());
+            }
+        }
+        let spread = slip(0.1, 0.1);
+        eprintln!(
+            "largest error: latent {:.4}, zeros {:.4} of the spread",
+            worst_latent / spread,
+            worst_zeros / spread
+        );
+        assert!(worst_latent < 0.5 * worst_zeros, "latent {worst_latent:e}, zeros {worst_zeros:e}");
+        // E[g | g <= 0] for g ~ N(m, s^2): -s sqrt(2 / pi) at m = 0; m far below zero
+        let t = |mean: f64, std: f64| truncated_below_zero(Prediction { mean, std });
+        assert!((t(0.0, 1.0) + (2.0 / std::f64::consts::PI).sqrt()).abs() < 1e-6, "{}", t(0.0, 1.0));
+        assert!((t(-10.0, 1.0) + 10.0).abs() < 1e-9 && t(50.0, 1.0) == 0.0 && t(-2.0, 0.0) == -2.0);
+        // (far above zero, the law truncated below zero sits just below it: about -s^2 / m)
+        assert!((t(5.0, 1.0) + 0.19).abs() < 0.01, "{}", t(5.0, 1.0));
+        // erfc against tabulated values
+        for (x, e) in
+            [(0.0, 1.0), (0.5, 0.4795001222), (1.0, 0.1572992071), (-1.0, 1.8427007929), (3.0, 2.209049700e-5)]
+        {
+            assert!((erfc(x) - e).abs() < 1.2e-7 * e.max(1.0), "erfc({x}) = {} against {e}", erfc(x));
         }
     }
 
