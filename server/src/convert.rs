@@ -629,7 +629,17 @@ fn surface_errors(
     qoi.iter()
         .map(|(q, e)| {
             let points = e.count as u32;
-            (q.clone(), v1::QoiSurfaceAccuracy { largest: e.largest, mean: e.mean, within_2sd: e.within_2sd, points })
+            let box_largest = e.box_largest.unwrap_or(0.0);
+            (
+                q.clone(),
+                v1::QoiSurfaceAccuracy {
+                    largest: e.largest,
+                    mean: e.mean,
+                    within_2sd: e.within_2sd,
+                    points,
+                    box_largest,
+                },
+            )
         })
         .collect()
 }

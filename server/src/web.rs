@@ -282,6 +282,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
             "points": a.outcome.as_ref().map(|o| o.validation.points),
             "qoi": a.outcome.as_ref().map(|o| o.validation.qoi.iter().map(|(q, e)| (q.clone(), json!({
                 "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
+                "box_largest": e.box_largest,
             }))).collect::<serde_json::Map<_, _>>()),
         }))),
         "surface_accuracy": v.surface_accuracy.as_ref().map(|a| json!({
@@ -841,7 +842,7 @@ fn target_paragraph(v: &StudyView) -> Markup {
     let Some((target, a)) = v.record.adaptive.as_ref().and_then(|a| Some((a.target?, a))) else { return html! {} };
     html! {
         p #target {
-            (format!("surface accuracy target {target:.1e} (mean error / spread, cross-validated): "))
+            (format!("surface accuracy target {target:.1e} (largest error / spread anywhere in the box, as the surface estimates it): "))
             @match &a.outcome {
                 None => (format!("not decided yet (budget {} points)", a.budget)),
                 Some(o) => {
@@ -855,7 +856,8 @@ fn target_paragraph(v: &StudyView) -> Markup {
                     @else { (format!("NOT reached: the budget of {} points was spent; at {} points: ", a.budget, o.validation.points)) }
                     @for (k, (q, e)) in o.validation.qoi.iter().enumerate() {
                         @if k > 0 { ", " }
-                        (q) (format!(" mean {:.1e} largest {:.1e}", e.mean, e.largest))
+                        (q) (format!(" largest in the box {:.1e} (at the points {:.1e}, mean {:.1e})",
+                            e.box_largest.unwrap_or(e.largest), e.largest, e.mean))
                     }
                 }
             }

@@ -29,8 +29,8 @@ pub(crate) struct SubmitArgs {
     /// The box of an adaptive study, NAME=LOW:HIGH (repeatable, one per swept parameter)
     #[arg(long, value_name = "NAME=LOW:HIGH", requires = "adaptive_kind")]
     pub(crate) range: Vec<String>,
-    /// An adaptive study over the --range box that adds points until the cross-validated mean
-    /// error of every QoI's surface is within this share of the QoI's spread (0.02: 2 %), or its
+    /// An adaptive study over the --range box that adds points until the largest error anywhere
+    /// in the box, as every QoI's surface estimates it, is within this share of the QoI's spread (0.02: 2 %), or its
     /// budget (--adaptive N; default 100) is spent, and says which (`glissade show`); its points
     /// are solved to --tol, default this / 300 (docs/surrogate.md, "Adaptive to a target")
     #[arg(long, value_name = "SHARE", requires = "range")]

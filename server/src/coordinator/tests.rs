@@ -1429,8 +1429,8 @@ fn smooth_law(p: &DesignPoint) -> BTreeMap<String, f64> {
     .into()
 }
 
-/// With a target, an adaptive study stops as soon as the cross-validated mean error of every
-/// QoI's surface is within it, not before, and says so with the errors; its points are solved to
+/// With a target, an adaptive study stops as soon as the estimated largest error of every
+/// QoI's surface in the box is within it, not before, and says so with the errors; its points are solved to
 /// the tolerance the target sets.
 #[test]
 fn an_adaptive_study_with_a_target_stops_once_its_surfaces_are_within_it() {
@@ -1455,7 +1455,10 @@ fn an_adaptive_study_with_a_target_stops_once_its_surfaces_are_within_it() {
     assert_eq!(outcome.validation.points, solved);
     assert_eq!(outcome.validation, cross_validation(&c, id, solved));
     assert_eq!(outcome.validation.qoi.keys().collect::<Vec<_>>(), ["middle_ux", "slip_A"]);
-    assert!(outcome.validation.qoi.values().all(|e| e.mean <= 0.02 && e.count == solved), "{outcome:?}");
+    assert!(
+        outcome.validation.qoi.values().all(|e| e.box_largest.is_some_and(|b| b <= 0.02) && e.count == solved),
+        "{outcome:?}"
+    );
     // not before: one point fewer was not enough (or too few to judge)
     let before = cross_validation(&c, id, solved - 1);
     let design = v.record.adaptive.as_ref().unwrap().design();
@@ -1483,7 +1486,7 @@ fn an_adaptive_study_whose_budget_is_too_small_for_its_target_says_so() {
     let outcome = v.record.adaptive.as_ref().unwrap().outcome.clone().expect("decided at the budget");
     assert!(!outcome.reached, "{outcome:?}");
     assert_eq!(outcome.validation, cross_validation(&c, id, 12));
-    assert!(outcome.validation.qoi.values().any(|e| e.mean > 1e-3), "{outcome:?}");
+    assert!(outcome.validation.qoi.values().any(|e| e.box_largest.is_some_and(|b| b > 1e-3)), "{outcome:?}");
     assert_eq!((v.state, v.progress.done), (StudyState::Done, 12));
     assert_eq!(crate::convert::study(&v).target.unwrap().outcome, "budget");
 }

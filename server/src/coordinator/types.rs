@@ -233,7 +233,7 @@ pub struct Submission {
     pub refine_mesh: bool,
     /// An adaptive study instead of `grid` / `points`: `NAME=LOW:HIGH` ranges and the budget.
     pub adaptive: Option<(Vec<String>, u32)>,
-    /// An adaptive study's target: stop once every QoI's cross-validated surface error is
+    /// An adaptive study's target: stop once every QoI's estimated largest error in the box is
     /// within this share of its spread (its budget: `adaptive`'s, or
     /// [`glissade_core::study::adaptive::TARGET_BUDGET`] where that is 0).
     pub surface_accuracy: Option<f64>,
