@@ -239,10 +239,11 @@ impl Predictions {
                 let (mean, std, n) = self.get(point, q);
                 fitted.insert(q.clone(), n);
                 let unit = self.units.get(q).map(|u| format!(" {u}")).unwrap_or_default();
-                let zero = if self.norms.contains(q) && mean - 2.0 * std <= 0.0 {
-                    "  (2 sd reach zero: sticking not ruled out here)"
-                } else {
-                    ""
+                let zero = match point.qoi.get(q) {
+                    Some(p) if self.norms.contains(q) && mean - 2.0 * std <= 0.0 => {
+                        format!("  (2 sd: [{:.2e}, {:.2e}]{unit}; sticking not ruled out here)", p.low, p.high)
+                    }
+                    _ => String::new(),
                 };
                 out += &format!("{}  {q} = {mean:.5e} +- {std:.2e}{unit}{zero}\n", at.join(" "));
             }
@@ -267,7 +268,9 @@ impl Predictions {
                     .iter()
                     .map(|q| {
                         let (mean, std, n) = self.get(point, q);
-                        (q.clone(), serde_json::json!({ "mean": mean, "std": std, "fitted_points": n }))
+                        let (low, high) = point.qoi.get(q).map_or((f64::NAN, f64::NAN), |p| (p.low, p.high));
+                        let fields = serde_json::json!({ "mean": mean, "std": std, "fitted_points": n, "low": low, "high": high });
+                        (q.clone(), fields)
                     })
                     .collect();
                 serde_json::json!({ "at": point.parameters, "qoi": qoi })
@@ -313,7 +316,11 @@ mod tests {
             points: vec![point(0.1, Some(0.1 + 0.2), v1::PointState::Done), point(0.2, None, v1::PointState::Failed)],
             predictions: vec![v1::SurfacePrediction {
                 parameters: [("f1".to_owned(), 0.15)].into(),
-                qoi: [("slip_A".to_owned(), v1::QoiPrediction { mean: 0.25, std: 0.125, fitted_points: 1 })].into(),
+                qoi: [(
+                    "slip_A".to_owned(),
+                    v1::QoiPrediction { mean: 0.25, std: 0.125, fitted_points: 1, low: 0.0, high: 0.5 },
+                )]
+                .into(),
             }],
         }
     }
@@ -330,11 +337,17 @@ mod tests {
             norm.to_text()
                 .lines()
                 .next()
-                .is_some_and(|l| l.ends_with("m  (2 sd reach zero: sticking not ruled out here)"))
+                .is_some_and(|l| l.ends_with("m  (2 sd: [0.00e0, 5.00e-1] m; sticking not ruled out here)")),
+            "{}",
+            norm.to_text()
         );
         let json = p.to_json();
         assert_eq!(json["points"][0]["at"]["f1"], 0.15);
         assert_eq!(json["points"][0]["qoi"]["slip_A"]["std"], 0.125);
+        assert_eq!(
+            (&json["points"][0]["qoi"]["slip_A"]["low"], &json["points"][0]["qoi"]["slip_A"]["high"]),
+            (&0.0.into(), &0.5.into())
+        );
     }
 
     #[test]

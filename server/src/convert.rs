@@ -697,8 +697,10 @@ pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
                     .qoi
                     .iter()
                     .zip(p.qoi)
-                    .map(|(q, (p, fitted))| {
-                        let prediction = v1::QoiPrediction { mean: p.mean, std: p.std, fitted_points: fitted as u32 };
+                    .map(|(q, p)| {
+                        let (low, high) = p.band;
+                        let (mean, std) = (p.prediction.mean, p.prediction.std);
+                        let prediction = v1::QoiPrediction { mean, std, fitted_points: p.fitted as u32, low, high };
                         (q.clone(), prediction)
                     })
                     .collect(),

@@ -112,12 +112,15 @@ class Event:
 
 @dataclass(frozen=True)
 class Prediction:
-    """A QoI predicted by the response surface: its mean, one standard deviation, and the
-    number of points the surface was fitted to."""
+    """A QoI predicted by the response surface: its mean, one standard deviation, the number
+    of points the surface was fitted to, and its band of 2 standard deviations (low, high),
+    within the bound the physics sets (a slip's norm: never below zero)."""
 
     mean: float
     std: float
     fitted_points: int
+    low: float = math.nan
+    high: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -427,7 +430,8 @@ class Client:
         `at` one point {name: value} (every parameter of the surface): a Prediction(mean, std,
         fitted_points) when `qoi` is one name, else {qoi: Prediction}. `at` several points (a
         list of dicts or a DataFrame of parameter columns): a DataFrame with the parameters
-        and, per QoI, columns `q` (the mean) and `q_std`.
+        and, per QoI, columns `q` (the mean), `q_std`, and `q_low`, `q_high` (the band of 2 sd,
+        within the physics' bound: a norm's never below zero).
         """
         one = isinstance(at, Mapping)
         if isinstance(at, pd.DataFrame):
@@ -440,7 +444,9 @@ class Client:
             raise errors.GlissadeError(
                 f"the coordinator answered {len(reply.predictions)} predictions for {len(points)} points")
         if one:
-            found = {q: Prediction(v.mean, v.std, v.fitted_points) for q, v in reply.predictions[0].qoi.items()}
+            found = {
+                q: Prediction(v.mean, v.std, v.fitted_points, v.low, v.high) for q, v in reply.predictions[0].qoi.items()
+            }
             if isinstance(qoi, str):
                 if qoi not in found:
                     raise errors.GlissadeError(f"no prediction of {qoi} (the surface has {sorted(found)})")
@@ -454,6 +460,8 @@ class Client:
                 v = p.qoi.get(q)
                 row[q] = v.mean if v is not None else math.nan
                 row[f"{q}_std"] = v.std if v is not None else math.nan
+                row[f"{q}_low"] = v.low if v is not None else math.nan
+                row[f"{q}_high"] = v.high if v is not None else math.nan
             rows.append(row)
         frame = pd.DataFrame(rows)
         frame.attrs["units"] = dict(reply.units)

@@ -93,6 +93,15 @@ pub struct Prediction {
     pub std: f64,
 }
 
+impl Prediction {
+    /// The band of 2 standard deviations about the mean, within the bound the physics sets: a
+    /// norm (`non_negative`) is never below zero, so neither is its band.
+    pub fn band(&self, non_negative: bool) -> (f64, f64) {
+        let (low, high) = (self.mean - 2.0 * self.std, self.mean + 2.0 * self.std);
+        if non_negative { (low.max(0.0), high.max(0.0)) } else { (low, high) }
+    }
+}
+
 impl Surrogate {
     /// Fits `values` at `points` (each with the same number of coordinates, scaled to [0, 1]).
     pub fn fit(points: &[Vec<f64>], values: &[f64]) -> Result<Self, SurrogateError> {

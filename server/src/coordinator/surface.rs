@@ -2,7 +2,7 @@
 //! solutions' files and fields.
 
 use glissade_core::point::DesignPoint;
-use glissade_core::study::surrogate::QoiSurface;
+use glissade_core::study::surrogate::{Prediction, QoiSurface};
 
 use super::*;
 
@@ -36,7 +36,11 @@ fn predict(
             }
             let predicted = surfaces
                 .iter()
-                .map(|s| s.predict_within(point).map(|v| (v, s.len())))
+                .zip(qoi)
+                .map(|(s, q)| {
+                    let band = |p: Prediction| p.band(scene.qoi_is_norm(q));
+                    s.predict_within(point).map(|p| QoiPredicted { prediction: p, fitted: s.len(), band: band(p) })
+                })
                 .collect::<Result<Vec<_>, _>>()
                 .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
             Ok(PointPrediction { at: point.clone(), qoi: predicted })

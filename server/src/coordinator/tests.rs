@@ -1378,9 +1378,11 @@ fn a_norm_is_predicted_from_its_components_when_the_scene_reports_them() {
     let at = DesignPoint::from_pairs([("f1", 0.137)]).unwrap();
     let s = c.surface(SurfaceSource::Study(id), &DesignPoint::default(), &["slip_A".into()], &[at]).unwrap();
     assert_eq!(s.qoi, ["slip_A"], "only what was asked for is returned");
-    let (p, fitted) = s.predictions[0].qoi[0];
+    let QoiPredicted { prediction: p, fitted, band } = s.predictions[0].qoi[0];
     let truth = y(0.137);
     assert_eq!(fitted, 6);
+    // a norm's band of 2 sd is never below zero
+    assert_eq!(band, ((p.mean - 2.0 * p.std).max(0.0), p.mean + 2.0 * p.std));
     // the V's bottom within 10 % (the norm's own surface read 3.7e-6 here, 65 % high)
     assert!((p.mean - truth).abs() < 0.1 * truth, "{p:?} against {truth:e}");
 }

@@ -498,9 +498,18 @@ pub struct Surface {
 #[derive(Debug, Clone)]
 pub struct PointPrediction {
     pub at: DesignPoint,
-    /// Per QoI (in the surface's `qoi` order): the prediction and the number of points its
-    /// surface was fitted to.
-    pub qoi: Vec<(Prediction, usize)>,
+    /// Per QoI (in the surface's `qoi` order).
+    pub qoi: Vec<QoiPredicted>,
+}
+
+/// A QoI's prediction at a point.
+#[derive(Debug, Clone, Copy)]
+pub struct QoiPredicted {
+    pub prediction: Prediction,
+    /// points its surface was fitted to
+    pub fitted: usize,
+    /// its band of 2 standard deviations, within the physics' bound (a norm's at zero)
+    pub band: (f64, f64),
 }
 
 /// Which points or solutions a surface covers.

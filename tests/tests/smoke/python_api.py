@@ -118,10 +118,15 @@ with glissade.Client(url, token=token) as c:
     assert isinstance(p, glissade.Prediction) and np.isfinite(p.mean) and p.std >= 0 and p.fitted_points == 4, p
     lo, hi = frame["slip_A"].min(), frame["slip_A"].max()
     assert lo - (hi - lo) <= p.mean <= hi + (hi - lo), (p, lo, hi)
+    # its band of 2 sd: a slip's never below zero
+    assert p.low == max(0.0, p.mean - 2 * p.std) and p.high == p.mean + 2 * p.std, p
     corner = c.predict(s, at={"f1": 0.1, "f2": 0.1})
     assert set(corner) == {"middle_ux", "slip_A", "slip_B"}, corner
     many = c.predict(s, at=pd.DataFrame({"f1": [0.12, 0.18], "f2": [0.15, 0.15]}), qoi=["slip_A", "slip_B"])
-    assert list(many.columns) == ["f1", "f2", "slip_A", "slip_A_std", "slip_B", "slip_B_std"], many
+    assert list(many.columns) == [
+        "f1", "f2", "slip_A", "slip_A_std", "slip_A_low", "slip_A_high", "slip_B", "slip_B_std", "slip_B_low",
+        "slip_B_high"], many
+    assert (many["slip_B_low"] >= 0).all(), many
     out["predicted"] = {"mean": p.mean, "std": p.std}
 
     # the study's state and audits by name (none asked here); a study with one iteration audit
