@@ -474,20 +474,31 @@ mod tests {
             chosen.push((p, q));
         }
         let (_, surfaces) = surfaces_of(&chosen);
-        let surface = &surfaces.fitted[0].1;
-        let grid: Vec<(f64, f64)> =
-            (0..=40).flat_map(|i| (0..=40).map(move |j| (0.1 + 0.0025 * i as f64, 0.1 + 0.0025 * j as f64))).collect();
+        let largest = largest_over_grid(&surfaces.fitted[0].1, law, 40, |_, _| ());
+        (chosen.into_iter().map(|(p, _)| p).collect(), largest)
+    }
+
+    /// The largest |error| of `surface` against `law` over an (n + 1) x (n + 1) grid of the
+    /// box, relative to the law's spread there; `check` sees each prediction and its place.
+    fn largest_over_grid(
+        surface: &QoiSurface,
+        law: &dyn Fn(f64, f64) -> f64,
+        n: usize,
+        check: impl Fn(&super::super::surrogate::Prediction, (f64, f64)),
+    ) -> f64 {
+        let grid: Vec<(f64, f64)> = (0..=n)
+            .flat_map(|i| (0..=n).map(move |j| (0.1 + 0.1 * i as f64 / n as f64, 0.1 + 0.1 * j as f64 / n as f64)))
+            .collect();
         let truth: Vec<f64> = grid.iter().map(|(a, b)| law(*a, *b)).collect();
         let spread = holdout::spread(truth.iter().copied());
-        let largest = grid
-            .iter()
+        grid.iter()
             .zip(&truth)
             .map(|((a, b), t)| {
                 let p = surface.predict(&DesignPoint::from_pairs([("f1", *a), ("f2", *b)]).unwrap()).unwrap();
-                (p.mean - t).abs()
+                check(&p, (*a, *b));
+                (p.mean - t).abs() / spread
             })
-            .fold(0.0f64, f64::max);
-        (chosen.into_iter().map(|(p, _)| p).collect(), largest / spread)
+            .fold(0.0f64, f64::max)
     }
 
     /// A law that is steep along one edge of the box and gentle elsewhere (as tiny's QoIs at low
@@ -613,22 +624,11 @@ mod tests {
             let (a, b) = (p.get("f1").unwrap(), p.get("f2").unwrap());
             chosen.push((p, [("slip".to_string(), slip(a, b)), ("bent".to_string(), bent(a, b))].into()));
         };
-        let grid: Vec<(f64, f64)> =
-            (0..=60).flat_map(|i| (0..=60).map(move |j| (0.1 + i as f64 / 600.0, 0.1 + j as f64 / 600.0))).collect();
         for (k, (name, law)) in [("bent", &bent as &dyn Fn(f64, f64) -> f64), ("slip", &slip)].into_iter().enumerate() {
             assert_eq!(surfaces.fitted[k].0, name);
-            let truth: Vec<f64> = grid.iter().map(|(a, b)| law(*a, *b)).collect();
-            let spread = holdout::spread(truth.iter().copied());
-            let largest = grid
-                .iter()
-                .zip(&truth)
-                .map(|((a, b), t)| {
-                    let p = DesignPoint::from_pairs([("f1", *a), ("f2", *b)]).unwrap();
-                    let at = surfaces.fitted[k].1.predict(&p).unwrap();
-                    assert!(name != "slip" || at.mean >= 0.0, "({a}, {b}): {at:?}");
-                    (at.mean - t).abs() / spread
-                })
-                .fold(0.0, f64::max);
+            let largest = largest_over_grid(&surfaces.fitted[k].1, law, 60, |at, place| {
+                assert!(name != "slip" || at.mean >= 0.0, "{place:?}: {at:?}");
+            });
             let estimate = cv.qoi[name].box_largest.unwrap();
             eprintln!("{name}: at {} points, largest {largest:.4}, estimated {estimate:.4}", chosen.len());
             assert!(largest <= 0.02, "{name}: largest error {largest} over the box, target 0.02");
@@ -640,13 +640,7 @@ mod tests {
     /// components are not judged on their own.
     #[test]
     fn a_norm_is_read_from_its_components_and_they_are_not_judged_alone() {
-        let mut text = include_str!("../../../scenes/three-blocks-tiny.toml").to_owned();
-        for axis in ["x", "y"] {
-            text.push_str(&format!(
-                "\n[[qoi]]\nname = \"slip_A_{axis}\"\nkind = \"slip\"\ninterface = \"interface1\"\npoint = [0.0075, 0.0075, 0.06]\ncomponent = \"{axis}\"\n"
-            ));
-        }
-        let scene = Scene::parse(&text).unwrap();
+        let scene = crate::study::surrogate::tests::tiny_with_slip_a_components();
         let readings = QoiReadings::of(&scene);
         let space = ParameterSpace::from_scene(&scene);
         let d = design(20);

@@ -376,6 +376,11 @@ impl ResponseSurface {
         self.predict(point)
     }
 
+    /// Values of [`Self::names`] (in that order) as the process sees them.
+    fn scale(&self, x: &[f64]) -> Vec<f64> {
+        x.iter().zip(&self.origins).zip(&self.scales).map(|((v, o), s)| (v - o) / s).collect()
+    }
+
     /// `point`'s coordinates as the process sees them (each parameter scaled over its range).
     fn scaled(&self, point: &DesignPoint) -> Result<Vec<f64>, SurrogateError> {
         self.names
@@ -438,8 +443,7 @@ struct Sticks {
 impl Sticks {
     /// None when no point stuck, or every point did (the process of zeros is zero already).
     fn of(points: &[Vec<f64>], values: &[f64]) -> Option<Self> {
-        let largest = values.iter().map(|v| v.abs()).fold(0.0, f64::max);
-        let stuck: Vec<bool> = values.iter().map(|v| v.abs() <= STICK_SHARE * largest).collect();
+        let stuck = stuck(values);
         if !stuck.iter().any(|s| *s) {
             return None;
         }
@@ -465,9 +469,15 @@ impl Sticks {
     }
 }
 
+/// Whether each of a norm's `values` stuck ([`STICK_SHARE`] of the largest |value| or less).
+fn stuck(values: &[f64]) -> Vec<bool> {
+    let largest = values.iter().map(|v| v.abs()).fold(0.0, f64::max);
+    values.iter().map(|v| v.abs() <= STICK_SHARE * largest).collect()
+}
+
 /// A prediction where the norm stuck: exactly zero, with the process's standard deviation (a
 /// neighbour that stuck does not rule out a slip between points).
-fn stuck(p: Prediction) -> Prediction {
+fn stuck_at(p: Prediction) -> Prediction {
     Prediction { mean: 0.0, std: p.std }
 }
 
@@ -514,11 +524,15 @@ impl QoiSurface {
                 .filter_map(|(i, (x, v))| Some(((x.clone(), *v.get(q)?), tolerance(i))))
                 .unzip()
         };
+        // `fitted` (the QoI's samples, or a slip's latent) with the errors of `own`'s values
+        let fit_to = |fitted: &[Sample], own: &[Sample], tolerances: &[f64]| {
+            let largest = own.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
+            let errors = tolerances.iter().map(|t| POINT_ERROR_PER_TOLERANCE * t * largest).collect();
+            ResponseSurface::fit(space, names, fitted)?.with_point_errors(errors)
+        };
         let fit = |q: &str| -> Result<ResponseSurface, SurrogateError> {
             let (samples, tolerances) = samples(q);
-            let largest = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
-            let errors = tolerances.iter().map(|t| POINT_ERROR_PER_TOLERANCE * t * largest).collect();
-            ResponseSurface::fit(space, names, &samples)?.with_point_errors(errors)
+            fit_to(&samples, &samples, &tolerances)
         };
         let complete = !components.is_empty()
             && rows
@@ -527,33 +541,23 @@ impl QoiSurface {
                 .all(|(_, v)| components.iter().all(|c| v.contains_key(*c)));
         // (a norm read through a latent margin is zero where the margin is below zero; read
         // through its zeros, where its nearest points all stuck)
+        let (own, tolerances) = samples(qoi);
         let (reading, latent) = if norm && complete {
             (Reading::Components(components.iter().map(|c| fit(c)).collect::<Result<_, _>>()?), false)
         } else if norm {
-            let (samples, tolerances) = samples(qoi);
-            match latent_slip(space, names, &samples)? {
-                Some(latent) => {
-                    let largest = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
-                    let errors = tolerances.iter().map(|t| POINT_ERROR_PER_TOLERANCE * t * largest).collect();
-                    let surface = ResponseSurface::fit(space, names, &latent)?.with_point_errors(errors)?;
-                    (Reading::Direct(Box::new(surface.non_negative())), true)
-                }
-                None => (Reading::Direct(Box::new(fit(qoi)?.non_negative())), false),
-            }
+            let latent = latent_slip(space, names, &own)?;
+            let surface = fit_to(latent.as_deref().unwrap_or(&own), &own, &tolerances)?;
+            (Reading::Direct(Box::new(surface.non_negative())), latent.is_some())
         } else {
-            (Reading::Direct(Box::new(fit(qoi)?)), false)
+            (Reading::Direct(Box::new(fit_to(&own, &own, &tolerances)?)), false)
         };
-        let sticks = if norm && !latent {
-            let values: Vec<f64> = samples(qoi).0.into_iter().map(|(_, v)| v).collect();
-            let first = match &reading {
-                Reading::Direct(s) => s.as_ref(),
-                Reading::Components(parts) => &parts[0],
-            };
-            Sticks::of(first.process.points.as_slice(), &values)
-        } else {
-            None
-        };
-        Ok(Self { reading, sticks })
+        let mut surface = Self { reading, sticks: None };
+        if norm && !latent {
+            let values: Vec<f64> = own.iter().map(|(_, v)| *v).collect();
+            let first = surface.first().expect("a fitted surface");
+            surface.sticks = Sticks::of(first.process.points.as_slice(), &values);
+        }
+        Ok(surface)
     }
 
     /// How it reads its values.
@@ -602,7 +606,7 @@ impl QoiSurface {
         if let Some(sticks) = &self.sticks {
             for (i, p) in at.iter_mut().enumerate() {
                 if sticks.holds_at(&sticks.points[i].0, Some(i)) {
-                    *p = stuck(*p);
+                    *p = stuck_at(*p);
                 }
             }
         }
@@ -656,7 +660,7 @@ impl QoiSurface {
             }
         };
         match (&self.sticks, self.first()) {
-            (Some(sticks), Some(s)) if sticks.holds_at(&s.scaled(point)?, None) => Ok(stuck(p)),
+            (Some(sticks), Some(s)) if sticks.holds_at(&s.scaled(point)?, None) => Ok(stuck_at(p)),
             _ => Ok(p),
         }
     }
@@ -679,26 +683,22 @@ fn latent_slip(
     names: &[String],
     samples: &[(Vec<f64>, f64)],
 ) -> Result<Option<Vec<Sample>>, SurrogateError> {
-    let largest = samples.iter().map(|(_, v)| v.abs()).fold(0.0, f64::max);
-    let stuck = |v: f64| v.abs() <= STICK_SHARE * largest;
-    let sliding: Vec<(Vec<f64>, f64)> = samples.iter().filter(|(_, v)| !stuck(*v)).cloned().collect();
+    let values: Vec<f64> = samples.iter().map(|(_, v)| *v).collect();
+    let stuck = stuck(&values);
+    let sliding: Vec<Sample> =
+        samples.iter().zip(&stuck).filter(|(_, s)| !**s).map(|(sample, _)| sample.clone()).collect();
     if sliding.len() < 3 || sliding.len() == samples.len() {
         return Ok(None);
     }
     let margin = ResponseSurface::fit(space, names, &sliding)?;
-    samples
+    let latent = samples
         .iter()
-        .map(|(x, v)| {
-            if !stuck(*v) {
-                return Ok((x.clone(), *v));
-            }
-            let point = DesignPoint::from_pairs(names.iter().map(String::as_str).zip(x.iter().copied()))
-                .map_err(|_| SurrogateError::NotFinite { index: 0 })?;
-            let p = margin.process.predict(&margin.scaled(&point)?);
-            Ok((x.clone(), truncated_below_zero(p)))
+        .zip(&stuck)
+        .map(|((x, v), s)| {
+            (x.clone(), if *s { truncated_below_zero(margin.process.predict(&margin.scale(x))) } else { *v })
         })
-        .collect::<Result<_, _>>()
-        .map(Some)
+        .collect::<Vec<_>>();
+    Ok(Some(latent))
 }
 
 /// The mean of N(p.mean, p.std^2) truncated to (-inf, 0]: m - s phi(a) / Phi(a), a = -m / s.
@@ -817,9 +817,20 @@ fn solve(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::collections::BTreeMap;
+
+    /// The tiny scene whose slip at A also reports its signed components, slip_A_x and _y.
+    pub(crate) fn tiny_with_slip_a_components() -> crate::scene::Scene {
+        let mut text = include_str!("../../../scenes/three-blocks-tiny.toml").to_owned();
+        for axis in ["x", "y"] {
+            text.push_str(&format!(
+                "\n[[qoi]]\nname = \"slip_A_{axis}\"\nkind = \"slip\"\ninterface = \"interface1\"\npoint = [0.0075, 0.0075, 0.06]\ncomponent = \"{axis}\"\n"
+            ));
+        }
+        crate::scene::Scene::parse(&text).unwrap()
+    }
 
     fn grid(n: usize) -> Vec<Vec<f64>> {
         let mut points = Vec::new();
@@ -1000,13 +1011,7 @@ mod tests {
     /// bars. Read directly and from components alike.
     #[test]
     fn a_stick_region_reads_exactly_zero_where_every_neighbour_sticks() {
-        let mut text = include_str!("../../../scenes/three-blocks-tiny.toml").to_owned();
-        for axis in ["x", "y"] {
-            text.push_str(&format!(
-                "\n[[qoi]]\nname = \"slip_A_{axis}\"\nkind = \"slip\"\ninterface = \"interface1\"\npoint = [0.0075, 0.0075, 0.06]\ncomponent = \"{axis}\"\n"
-            ));
-        }
-        let scene = crate::scene::Scene::parse(&text).unwrap();
+        let scene = tiny_with_slip_a_components();
         let space = ParameterSpace::from_scene(&scene);
         let names = vec!["f1".to_owned(), "f2".to_owned()];
         // slips over the low-friction corner, stuck (0, or round-off) beyond a curved edge
@@ -1110,13 +1115,7 @@ mod tests {
     /// norm of the components' surfaces follows the V; the norm's own surface rounds it off.
     #[test]
     fn a_norm_through_zero_is_read_from_its_components() {
-        let mut text = include_str!("../../../scenes/three-blocks-tiny.toml").to_owned();
-        for axis in ["x", "y"] {
-            text.push_str(&format!(
-                "\n[[qoi]]\nname = \"slip_A_{axis}\"\nkind = \"slip\"\ninterface = \"interface1\"\npoint = [0.0075, 0.0075, 0.06]\ncomponent = \"{axis}\"\n"
-            ));
-        }
-        let scene = crate::scene::Scene::parse(&text).unwrap();
+        let scene = tiny_with_slip_a_components();
         assert_eq!(scene.components_of("slip_A"), ["slip_A_x", "slip_A_y"]);
         assert!(scene.components_of("slip_B").is_empty() && scene.components_of("slip_A_x").is_empty());
         let space = ParameterSpace::from_scene(&scene);
