@@ -311,6 +311,7 @@ pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
             "refused": t.refused,
             "qoi": t.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
                 "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.points,
+                "box_largest": (e.box_largest > 0.0).then_some(e.box_largest),
             }))).collect::<serde_json::Map<_, _>>(),
         })),
         "surface_accuracy": s.surface_accuracy.as_ref().map(|a| serde_json::json!({

@@ -182,6 +182,13 @@ fn a_target_stops_an_adaptive_study_once_its_surfaces_are_within_it() -> anyhow:
         let (_, _, json) = http_get(&addr, &format!("/api/studies/{id}"));
         let json: serde_json::Value = serde_json::from_str(&json)?;
         assert_eq!(json["target"]["outcome"], reported.outcome.as_str(), "{json}");
+        // the estimate the target was judged on, in /api and in `show --json`
+        let shown_json: serde_json::Value =
+            serde_json::from_slice(&glissade(Some(&url), &["show", &id.to_string(), "--json"]).stdout)?;
+        for (q, r) in &reported.qoi {
+            assert_eq!(json["target"]["qoi"][q]["box_largest"], r.box_largest, "{json}");
+            assert_eq!(shown_json["target"]["qoi"][q]["box_largest"], r.box_largest, "{shown_json}");
+        }
         outcomes.push(reported.outcome);
     }
     // each run ends its own way: a test of both
