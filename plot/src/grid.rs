@@ -86,12 +86,41 @@ fn locate(xs: &[f64], x: f64) -> (usize, usize, f64) {
     (i, i + 1, t)
 }
 
-/// `n` evenly spaced levels strictly between lo and hi (none when the values are constant).
-pub fn contour_levels(lo: f64, hi: f64, n: usize) -> Vec<f64> {
-    if hi <= lo {
-        return Vec::new();
+/// Segments joined end to end into polylines: a level line drawn as a few paths instead of a
+/// path per cell (issue 47: most of an SVG's bytes). Ends within `tol` of each other meet (two
+/// cells compute their shared edge's crossing from its two ends).
+pub fn chains(segments: &[Segment], tol: f64) -> Vec<Vec<(f64, f64)>> {
+    use std::collections::HashMap;
+    let key = |p: (f64, f64)| ((p.0 / tol).round() as i64, (p.1 / tol).round() as i64);
+    // each end's segments
+    let mut ends: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
+    for (k, [a, b]) in segments.iter().enumerate() {
+        ends.entry(key(*a)).or_default().push(k);
+        ends.entry(key(*b)).or_default().push(k);
     }
-    (1..=n).map(|k| lo + (hi - lo) * k as f64 / (n + 1) as f64).collect()
+    let mut used = vec![false; segments.len()];
+    let mut chains = Vec::new();
+    for start in 0..segments.len() {
+        if used[start] {
+            continue;
+        }
+        used[start] = true;
+        let mut chain = std::collections::VecDeque::from(segments[start].to_vec());
+        // grow at the back, then at the front
+        for back in [true, false] {
+            loop {
+                let end = if back { chain[chain.len() - 1] } else { chain[0] };
+                let next = ends.get(&key(end)).and_then(|ks| ks.iter().copied().find(|&k| !used[k]));
+                let Some(k) = next else { break };
+                used[k] = true;
+                let [a, b] = segments[k];
+                let far = if key(a) == key(end) { b } else { a };
+                if back { chain.push_back(far) } else { chain.push_front(far) }
+            }
+        }
+        chains.push(chain.into());
+    }
+    chains
 }
 
 #[cfg(test)]
@@ -149,10 +178,18 @@ mod tests {
     }
 
     #[test]
-    fn levels_lie_strictly_inside() {
-        assert!(contour_levels(1.0, 1.0, 9).is_empty());
-        let levels = contour_levels(0.0, 1.0, 9);
-        assert_eq!(levels.len(), 9);
-        assert!((levels[0] - 0.1).abs() < 1e-15 && (levels[8] - 0.9).abs() < 1e-15);
+    fn segments_join_into_lines() {
+        // a circle's level line on a fine grid (through no node): one closed chain, every segment once
+        let xs: Vec<f64> = (0..=40).map(|k| k as f64 / 20.0 - 1.0).collect();
+        let grid = sampled(&xs, &xs, |x, y| x * x + y * y);
+        let segments = grid.contour(0.4321);
+        let joined = chains(&segments, 1e-9);
+        assert_eq!(joined.len(), 1, "{} chains", joined.len());
+        assert_eq!(joined[0].len(), segments.len() + 1, "closed: its first point again at its end");
+        // a line crossing the box and a piece apart: two chains
+        let two = [[(0.0, 0.0), (1.0, 0.0)], [(5.0, 5.0), (6.0, 5.0)], [(1.0, 0.0), (2.0, 1.0)]];
+        let joined = chains(&two, 1e-9);
+        assert_eq!(joined.len(), 2);
+        assert_eq!(joined[0], [(0.0, 0.0), (1.0, 0.0), (2.0, 1.0)]);
     }
 }

@@ -3,12 +3,17 @@
 //! a band of 2 standard deviations. The design points on top, the axes over the whole box.
 
 use plotters::coord::Shift;
+use plotters::coord::ranged1d::ValueFormatter;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
+use std::cell::RefCell;
+
+use crate::bitmap::{Bitmap, Embedded, MARKER_RADIUS, PLACEHOLDER};
 use crate::colour::on_bar;
-use crate::grid::{Grid, Segment, contour_levels};
-use crate::{Axis, FONT, PlotError, draw_legend, min_max, pad_degenerate, tick_label};
+use crate::grid::{Grid, Segment, chains};
+use crate::ticks::Ticks;
+use crate::{Axis, CAPTION_TEXT, DESC, FONT, PlotError, TICK, TITLE, draw_legend, min_max, pad_degenerate};
 
 /// A surface sampled on a regular grid over its box.
 #[derive(Debug, Clone, PartialEq)]
@@ -18,6 +23,8 @@ pub struct Field {
     /// Mean and standard deviation at the nodes, the first axis running fastest.
     pub mean: Vec<f64>,
     pub std: Vec<f64>,
+    /// The QoI cannot be negative (a slip's norm): its band stops at zero, as `--at`'s does.
+    pub non_negative: bool,
 }
 
 impl Field {
@@ -50,7 +57,7 @@ impl Field {
             mean.push(m);
             std.push(s);
         }
-        Ok(Field { axes, mean, std })
+        Ok(Field { axes, mean, std, non_negative: false })
     }
 
     fn bounds(&self) -> Vec<(f64, f64)> {
@@ -113,22 +120,27 @@ pub struct Drawn {
     pub markers: Vec<(i32, i32)>,
 }
 
-/// How finely a colour map is painted.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum Raster {
+/// How a colour map is painted.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Raster<'a> {
     /// 200 x 200 rectangles, bilinear between the nodes: free in a bitmap.
     Fine,
-    /// A rectangle per cell of the sampled grid: what an SVG can carry.
-    Cells,
+    /// Each map a small PNG that the SVG embeds and the browser smooths (issue 47: a rectangle per
+    /// cell weighed a megabyte a page and looked pixelated), collected here in drawing order; a
+    /// placeholder rectangle marks its place.
+    Embedded(&'a RefCell<Embedded>),
 }
 
-/// Interior contour levels of the mean: enough to read the shape, few enough to label.
-const CONTOUR_LEVELS: usize = 7;
+/// Ticks of a colour bar, whose interior ones are the mean's contour levels: enough to read the
+/// shape, few enough to label.
+const BAR_TICKS: usize = 7;
 const FINE: usize = 200;
+/// Screen pixels per pixel of an embedded map: the browser's smoothing hides the difference.
+const EMBEDDED_PIXEL: i32 = 2;
 const MARGIN: u32 = 12;
 const X_LABEL_AREA: u32 = 48;
 const Y_LABEL_AREA: u32 = 78;
-const BAR_WIDTH: u32 = 118;
+const BAR_WIDTH: u32 = 96;
 const CAPTION: u32 = 28;
 /// Colour of a curve and its band.
 const CURVE: RGBColor = RGBColor(31, 119, 180);
@@ -182,22 +194,22 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE)?;
-    let area = if surface.title.is_empty() { root.clone() } else { root.titled(&surface.title, (FONT, 20))? };
+    let area = if surface.title.is_empty() { root.clone() } else { root.titled(&surface.title, (FONT, TITLE))? };
     let bounds = surface.bounds();
     let mut drawn = Drawn { axes: bounds.clone(), ..Drawn::default() };
     let (area, note) = match &surface.field {
         Ok(_) => (area, None),
         Err(why) => {
-            let (w, h) = area.dim_in_pixel();
+            let (_, h) = area.dim_in_pixel();
             let (top, bottom) = area.split_vertically(h.saturating_sub(24));
-            let _ = w;
             (top, Some((bottom, format!("no surface: {why}; the points alone"))))
         }
     };
     if surface.parameters.len() == 1 {
         drawn.markers = draw_curve(&area, surface, bounds[0])?;
     } else {
-        let boxes = (bounds[0], bounds[1]);
+        let panel = Panel { surface, boxes: (bounds[0], bounds[1]), raster };
+        let unit = surface.qoi.unit.as_deref();
         match &surface.field {
             Ok(field) => {
                 let (mean, std) = (field.grid(&field.mean), field.grid(&field.std));
@@ -205,14 +217,16 @@ where
                 let std_range = min_max(field.std.iter().copied()).ok_or(PlotError::NoPoints)?;
                 let (w, _) = area.dim_in_pixel();
                 let (left, right) = area.split_horizontally(w / 2);
-                let levels = contour_levels(colour_range.0, colour_range.1, CONTOUR_LEVELS);
-                let panel = Panel { surface, boxes, raster };
-                let caption = format!("{}: mean", surface.qoi.name);
+                let name = &surface.qoi.name;
                 let (contours, markers) =
-                    panel.map(&left, &caption, &surface.qoi.label(), Paint::Grid(&mean, colour_range), &levels)?;
-                let std_label = Axis::new(format!("sd of {}", surface.qoi.name), surface.qoi.unit.clone()).label();
-                let caption = format!("{}: standard deviation", surface.qoi.name);
-                panel.map(&right, &caption, &std_label, Paint::Grid(&std, std_range), &[])?;
+                    panel.map(&left, &format!("mean of {name}"), unit, Paint::Grid(&mean, colour_range), true)?;
+                panel.map(
+                    &right,
+                    &format!("standard deviation of {name}"),
+                    unit,
+                    Paint::Grid(&std, std_range),
+                    false,
+                )?;
                 drawn.colour_range = Some(colour_range);
                 drawn.std_range = Some(std_range);
                 drawn.contours = contours;
@@ -220,16 +234,14 @@ where
             }
             Err(_) => {
                 let range = min_max(surface.points.iter().map(|p| p.1)).ok_or(PlotError::NoPoints)?;
-                let panel = Panel { surface, boxes, raster };
-                let (_, markers) =
-                    panel.map(&area, &surface.qoi.name, &surface.qoi.label(), Paint::Points(range), &[])?;
+                let (_, markers) = panel.map(&area, &surface.qoi.name, unit, Paint::Points(range), false)?;
                 drawn.colour_range = Some(range);
                 drawn.markers = markers;
             }
         }
     }
     if let Some((bottom, note)) = note {
-        let style = (FONT, 14).into_font().color(&BLACK).pos(Pos::new(HPos::Left, VPos::Center));
+        let style = (FONT, DESC).into_font().color(&BLACK).pos(Pos::new(HPos::Left, VPos::Center));
         bottom.draw(&Text::new(note, (MARGIN as i32, 12), style))?;
     }
     Ok(drawn)
@@ -252,104 +264,169 @@ impl Paint<'_> {
 struct Panel<'a> {
     surface: &'a Surface,
     boxes: ((f64, f64), (f64, f64)),
-    raster: Raster,
+    raster: Raster<'a>,
+}
+
+/// A chart's axis labels, in the one style of every picture: 14 px, the axis's power of ten in
+/// its description.
+fn axes_labels<'a, DB: DrawingBackend + 'a, X, Y>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+    (x, x_desc): (&Ticks, String),
+    (y, y_desc): (&Ticks, String),
+) -> Result<(), PlotError>
+where
+    X: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+    DB::ErrorType: 'static,
+{
+    chart
+        .configure_mesh()
+        .disable_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .x_label_formatter(&|v| x.label(*v))
+        .y_label_formatter(&|v| y.label(*v))
+        .label_style((FONT, TICK))
+        .axis_desc_style((FONT, DESC))
+        .draw()?;
+    Ok(())
 }
 
 impl Panel<'_> {
-    /// A colour map over the box with its caption and colour bar, the contours at `levels` and
-    /// the points; returns the contours drawn and the points' pixels.
+    /// A colour map over the box with its caption and colour bar, the contours at the bar's
+    /// interior ticks (`contoured`) and the points; returns the contours drawn and the points' pixels.
     #[allow(clippy::type_complexity)]
     fn map<DB: DrawingBackend>(
         &self,
         area: &Area<DB>,
         caption: &str,
-        bar_label: &str,
+        unit: Option<&str>,
         paint: Paint,
-        levels: &[f64],
+        contoured: bool,
     ) -> Result<(Vec<(f64, Vec<Segment>)>, Vec<(i32, i32)>), PlotError>
     where
         DB::ErrorType: 'static,
     {
         let ((x0, x1), (y0, y1)) = (pad_degenerate(self.boxes.0), pad_degenerate(self.boxes.1));
+        let range = paint.range();
+        let bar_ticks = Ticks::new(range.0, range.1, BAR_TICKS);
         let (w, _) = area.dim_in_pixel();
         let (head, body) = area.split_vertically(CAPTION);
-        let style = (FONT, 16).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Center));
-        head.draw(&Text::new(
-            caption.to_owned(),
-            ((w.saturating_sub(BAR_WIDTH) / 2) as i32, CAPTION as i32 / 2),
-            style,
-        ))?;
+        let style = (FONT, CAPTION_TEXT).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Center));
+        let caption = bar_ticks.described(caption, unit);
+        head.draw(&Text::new(caption, ((w.saturating_sub(BAR_WIDTH) / 2) as i32, CAPTION as i32 / 2), style))?;
         let (main, bar) = body.split_horizontally(w.saturating_sub(BAR_WIDTH));
+        let (xt, yt) = (Ticks::new(x0, x1, 6), Ticks::new(y0, y1, 6));
+        let (x_span, y_span) = (x1 - x0, y1 - y0);
         let mut chart = ChartBuilder::on(&main)
             .margin(MARGIN)
             .x_label_area_size(X_LABEL_AREA)
             .y_label_area_size(Y_LABEL_AREA)
-            .build_cartesian_2d(x0..x1, y0..y1)?;
-        let (x_span, y_span) = (x1 - x0, y1 - y0);
-        chart
-            .configure_mesh()
-            .disable_mesh()
-            .x_labels(6)
-            .y_labels(6)
-            .x_desc(self.surface.parameters[0].label())
-            .y_desc(self.surface.parameters[1].label())
-            .x_label_formatter(&|v| tick_label(*v, x_span))
-            .y_label_formatter(&|v| tick_label(*v, y_span))
-            .label_style((FONT, 13))
-            .axis_desc_style((FONT, 15))
-            .draw()?;
-        let range = paint.range();
+            .build_cartesian_2d(xt.axis(x0, x1), yt.axis(y0, y1))?;
+        let [px, py] = &self.surface.parameters[..] else { return Err(PlotError::NoParameters) };
+        axes_labels(
+            &mut chart,
+            (&xt, xt.described(&px.name, px.unit.as_deref())),
+            (&yt, yt.described(&py.name, py.unit.as_deref())),
+        )?;
         let mut contours = Vec::new();
         if let Paint::Grid(grid, _) = &paint {
-            let (nx, ny) = match self.raster {
-                Raster::Fine => (FINE, FINE),
-                Raster::Cells => (grid.xs.len() - 1, grid.ys.len() - 1),
-            };
-            // rectangle edges from one formula, so that neighbours share them exactly and leave no gap
-            let x_at = |i: usize| x0 + x_span * i as f64 / nx as f64;
-            let y_at = |j: usize| y0 + y_span * j as f64 / ny as f64;
-            chart.draw_series((0..ny).flat_map(|j| (0..nx).map(move |i| (i, j))).map(|(i, j)| {
-                let (xa, xb, ya, yb) = (x_at(i), x_at(i + 1), y_at(j), y_at(j + 1));
-                let z = grid.value(0.5 * (xa + xb), 0.5 * (ya + yb));
-                Rectangle::new([(xa, ya), (xb, yb)], on_bar(z, range).filled())
-            }))?;
+            self.paint(&mut chart, grid, range)?;
+            let levels: Vec<f64> =
+                bar_ticks.values.iter().copied().filter(|&l| contoured && l > range.0 && l < range.1).collect();
             let line = BLACK.mix(0.7).stroke_width(1);
             for (k, &level) in levels.iter().enumerate() {
                 let segments = grid.contour(level);
-                chart.draw_series(segments.iter().map(|&[a, b]| PathElement::new([a, b], line)))?;
-                if !segments.is_empty() {
-                    // neighbouring levels labelled on different pieces, so that close labels do not overlap
-                    let [a, b] = segments[(segments.len() / 2 + 3 * k) % segments.len()];
-                    let at = (0.5 * (a.0 + b.0), 0.5 * (a.1 + b.1));
-                    let style = (FONT, 12).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Center));
-                    chart.draw_series(std::iter::once(Text::new(level_label(level), at, style)))?;
+                let tol = 1e-9 * x_span.max(y_span);
+                chart.draw_series(chains(&segments, tol).into_iter().map(|c| PathElement::new(c, line)))?;
+                // labelled away from the box's edges (where a label would run into the axes or
+                // the colour bar), neighbouring levels on different pieces, so that close labels
+                // do not overlap
+                let middle = |[a, b]: &Segment| (0.5 * (a.0 + b.0), 0.5 * (a.1 + b.1));
+                let inner =
+                    |(x, y): (f64, f64)| (x - x0).min(x1 - x) >= 0.1 * x_span && (y - y0).min(y1 - y) >= 0.08 * y_span;
+                let mut places: Vec<(f64, f64)> = segments.iter().map(middle).filter(|p| inner(*p)).collect();
+                if places.is_empty() {
+                    places = segments.iter().map(middle).collect();
+                }
+                if !places.is_empty() {
+                    let at = places[(places.len() / 2 + 3 * k) % places.len()];
+                    let style = (FONT, TICK).into_font().color(&BLACK).pos(Pos::new(HPos::Center, VPos::Center));
+                    chart.draw_series(std::iter::once(Text::new(bar_ticks.label(level), at, style)))?;
                 }
                 contours.push((level, segments));
             }
         }
         let markers: Vec<(i32, i32)> =
             self.surface.points.iter().map(|p| chart.backend_coord(&(p.0[0], p.0[1]))).collect();
-        let fill = |v: f64| match paint {
-            Paint::Points(r) => on_bar(v, r),
-            Paint::Grid(..) => WHITE,
-        };
-        let radius = if matches!(paint, Paint::Points(_)) { 6 } else { 3 };
-        chart.draw_series(
-            self.surface.points.iter().map(|p| Circle::new((p.0[0], p.0[1]), radius, fill(p.1).filled())),
-        )?;
-        chart.draw_series(
-            self.surface.points.iter().map(|p| Circle::new((p.0[0], p.0[1]), radius, BLACK.stroke_width(1))),
-        )?;
-        colour_bar(&bar, bar_label, range, levels, self.raster)?;
+        match (&paint, self.raster) {
+            // an SVG's markers over a map: one path of them all (bitmap.rs)
+            (Paint::Grid(..), Raster::Embedded(embedded)) => embedded.borrow_mut().markers.extend(&markers),
+            _ => {
+                let fill = |v: f64| match paint {
+                    Paint::Points(r) => on_bar(v, r),
+                    Paint::Grid(..) => WHITE,
+                };
+                let radius = if matches!(paint, Paint::Points(_)) { 6 } else { MARKER_RADIUS as u32 };
+                let at = |p: &(Vec<f64>, f64)| (p.0[0], p.0[1]);
+                chart
+                    .draw_series(self.surface.points.iter().map(|p| Circle::new(at(p), radius, fill(p.1).filled())))?;
+                chart.draw_series(
+                    self.surface.points.iter().map(|p| Circle::new(at(p), radius, BLACK.stroke_width(1))),
+                )?;
+            }
+        }
+        let levels: Vec<f64> = contours.iter().map(|c| c.0).collect();
+        colour_bar(&bar, &bar_ticks, range, &levels, self.raster)?;
         Ok((contours, markers))
+    }
+
+    /// The map's colours over the box: bilinear between the grid's nodes.
+    fn paint<DB: DrawingBackend, X, Y>(
+        &self,
+        chart: &mut ChartContext<DB, Cartesian2d<X, Y>>,
+        grid: &Grid,
+        range: (f64, f64),
+    ) -> Result<(), PlotError>
+    where
+        X: Ranged<ValueType = f64>,
+        Y: Ranged<ValueType = f64>,
+        DB::ErrorType: 'static,
+    {
+        let ((x0, x1), (y0, y1)) = (pad_degenerate(self.boxes.0), pad_degenerate(self.boxes.1));
+        let (x_span, y_span) = (x1 - x0, y1 - y0);
+        match self.raster {
+            Raster::Fine => {
+                // rectangle edges from one formula, so that neighbours share them exactly and leave no gap
+                let x_at = |i: usize| x0 + x_span * i as f64 / FINE as f64;
+                let y_at = |j: usize| y0 + y_span * j as f64 / FINE as f64;
+                chart.draw_series((0..FINE).flat_map(|j| (0..FINE).map(move |i| (i, j))).map(|(i, j)| {
+                    let (xa, xb, ya, yb) = (x_at(i), x_at(i + 1), y_at(j), y_at(j + 1));
+                    let z = grid.value(0.5 * (xa + xb), 0.5 * (ya + yb));
+                    Rectangle::new([(xa, ya), (xb, yb)], on_bar(z, range).filled())
+                }))?;
+            }
+            Raster::Embedded(bitmaps) => {
+                let ((left, top), (right, bottom)) = (chart.backend_coord(&(x0, y1)), chart.backend_coord(&(x1, y0)));
+                let (w, h) = ((right - left) / EMBEDDED_PIXEL, (bottom - top) / EMBEDDED_PIXEL);
+                // each pixel the colour at its centre; rows from the top, as an image's
+                let t = |z: f64| if range.1 > range.0 { (z - range.0) / (range.1 - range.0) } else { 0.5 };
+                bitmaps.borrow_mut().bitmaps.push(Bitmap::paint(w.max(1) as u32, h.max(1) as u32, |u, v| {
+                    t(grid.value(x0 + u * x_span, y1 - v * y_span))
+                }));
+                chart.draw_series(std::iter::once(Rectangle::new([(x0, y0), (x1, y1)], PLACEHOLDER.filled())))?;
+            }
+        }
+        Ok(())
     }
 }
 
-/// A colour bar from `range`'s low end to its high end, ticked, its levels marked; its plot
-/// aligned with the map's (the same margins).
+/// A colour bar from `range`'s low end to its high end, ticked as `ticks` says, its levels
+/// marked; its plot aligned with the map's (the same margins). Its scale and unit are in the
+/// panel's caption, so that nothing is written beside it, where the next panel's labels begin.
 fn colour_bar<DB: DrawingBackend>(
     bar: &Area<DB>,
-    label: &str,
+    ticks: &Ticks,
     range: (f64, f64),
     levels: &[f64],
     raster: Raster,
@@ -364,24 +441,31 @@ where
         .margin_left(4)
         .margin_right(4)
         .right_y_label_area_size(BAR_WIDTH - 36)
-        .build_cartesian_2d(0.0..1.0, b0..b1)?;
+        .build_cartesian_2d(0.0..1.0, ticks.axis(b0, b1))?;
     let span = b1 - b0;
-    let strips = if raster == Raster::Fine { 256 } else { 48 };
-    let z_at = |k: usize| b0 + span * k as f64 / strips as f64;
-    chart.draw_series((0..strips).map(|k| {
-        let (za, zb) = (z_at(k), z_at(k + 1));
-        Rectangle::new([(0.0, za), (1.0, zb)], on_bar(0.5 * (za + zb), range).filled())
-    }))?;
-    // the ticks after the strips, which would hide their marks
+    match raster {
+        Raster::Fine => {
+            const STRIPS: usize = 256;
+            let z_at = |k: usize| b0 + span * k as f64 / STRIPS as f64;
+            chart.draw_series((0..STRIPS).map(|k| {
+                let (za, zb) = (z_at(k), z_at(k + 1));
+                Rectangle::new([(0.0, za), (1.0, zb)], on_bar(0.5 * (za + zb), range).filled())
+            }))?;
+        }
+        Raster::Embedded(bitmaps) => {
+            let t = |z: f64| if range.1 > range.0 { (z - range.0) / (range.1 - range.0) } else { 0.5 };
+            bitmaps.borrow_mut().bitmaps.push(Bitmap::paint(1, 128, |_, v| t(b1 - v * span)));
+            chart.draw_series(std::iter::once(Rectangle::new([(0.0, b0), (1.0, b1)], PLACEHOLDER.filled())))?;
+        }
+    }
+    // the ticks after the colours, which would hide their marks; the labels clear of the marks
     chart
         .configure_mesh()
         .disable_mesh()
         .disable_x_axis()
-        .y_labels(6)
-        .y_desc(label)
-        .y_label_formatter(&|v| tick_label(*v, span))
-        .label_style((FONT, 13))
-        .axis_desc_style((FONT, 15))
+        .y_label_formatter(&|v| ticks.label(*v))
+        .label_style((FONT, TICK))
+        .set_tick_mark_size(LabelAreaPosition::Right, 6)
         .draw()?;
     let line = BLACK.mix(0.7).stroke_width(1);
     chart.draw_series(levels.iter().map(|&l| PathElement::new([(0.0, l), (1.0, l)], line)))?;
@@ -389,7 +473,7 @@ where
 }
 
 /// The mean with a band of 2 standard deviations over the box (or, without a surface, the
-/// points joined), the points on top; returns the points' pixels.
+/// points joined), the points on top; returns the points' pixels. A norm's band stops at zero.
 fn draw_curve<DB: DrawingBackend>(
     area: &Area<DB>,
     surface: &Surface,
@@ -399,43 +483,41 @@ where
     DB::ErrorType: 'static,
 {
     let (x0, x1) = pad_degenerate((x0, x1));
+    let band = |f: &Field| -> Vec<(f64, f64, f64)> {
+        let floor = if f.non_negative { 0.0 } else { f64::NEG_INFINITY };
+        let at = f.axes[0].iter().zip(f.mean.iter().zip(&f.std));
+        at.map(|(&x, (m, s))| (x, (m - 2.0 * s).max(floor), m + 2.0 * s)).collect()
+    };
     let values = surface.points.iter().map(|p| p.1);
     let (y0, y1) = match &surface.field {
-        Ok(f) => min_max(values.chain(f.mean.iter().zip(&f.std).flat_map(|(m, s)| [m - 2.0 * s, m + 2.0 * s]))),
+        Ok(f) => min_max(values.chain(band(f).into_iter().flat_map(|(_, lo, hi)| [lo, hi]))),
         Err(_) => min_max(values),
     }
     .ok_or(PlotError::NoPoints)?;
     let (y0, y1) = pad_degenerate((y0, y1));
     let (y0, y1) = (y0 - 0.05 * (y1 - y0), y1 + 0.05 * (y1 - y0));
+    let (xt, yt) = (Ticks::new(x0, x1, 8), Ticks::new(y0, y1, 7));
     let mut chart = ChartBuilder::on(area)
         .margin(MARGIN)
         .x_label_area_size(X_LABEL_AREA)
         .y_label_area_size(Y_LABEL_AREA)
-        .build_cartesian_2d(x0..x1, y0..y1)?;
-    let (x_span, y_span) = (x1 - x0, y1 - y0);
-    chart
-        .configure_mesh()
-        .x_labels(8)
-        .x_desc(surface.parameters[0].label())
-        .y_desc(surface.qoi.label())
-        .x_label_formatter(&|v| tick_label(*v, x_span))
-        .y_label_formatter(&|v| tick_label(*v, y_span))
-        .label_style((FONT, 14))
-        .axis_desc_style((FONT, 16))
-        .draw()?;
+        .build_cartesian_2d(xt.axis(x0, x1), yt.axis(y0, y1))?;
+    let (px, qoi) = (&surface.parameters[0], &surface.qoi);
+    axes_labels(
+        &mut chart,
+        (&xt, xt.described(&px.name, px.unit.as_deref())),
+        (&yt, yt.described(&qoi.name, qoi.unit.as_deref())),
+    )?;
     match &surface.field {
         Ok(f) => {
-            let xs = &f.axes[0];
-            let band: Vec<(f64, f64)> = xs
-                .iter()
-                .zip(f.mean.iter().zip(&f.std))
-                .map(|(&x, (m, s))| (x, m + 2.0 * s))
-                .chain(xs.iter().zip(f.mean.iter().zip(&f.std)).rev().map(|(&x, (m, s))| (x, m - 2.0 * s)))
-                .collect();
+            let band = band(f);
+            let outline: Vec<(f64, f64)> =
+                band.iter().map(|b| (b.0, b.2)).chain(band.iter().rev().map(|b| (b.0, b.1))).collect();
             chart
-                .draw_series(std::iter::once(Polygon::new(band, CURVE.mix(0.2).filled())))?
+                .draw_series(std::iter::once(Polygon::new(outline, CURVE.mix(0.2).filled())))?
                 .label("mean ± 2 sd")
                 .legend(|(x, y)| Rectangle::new([(x, y - 5), (x + 20, y + 5)], CURVE.mix(0.2).filled()));
+            let xs = &f.axes[0];
             chart
                 .draw_series(LineSeries::new(xs.iter().copied().zip(f.mean.iter().copied()), CURVE.stroke_width(2)))?
                 .label("mean")
@@ -453,19 +535,6 @@ where
         .legend(|(x, y)| Circle::new((x + 10, y), 4, BLACK.filled()));
     draw_legend(&mut chart)?;
     Ok(surface.points.iter().map(|p| chart.backend_coord(&(p.0[0], p.1))).collect())
-}
-
-/// A contour's label: three significant digits.
-fn level_label(v: f64) -> String {
-    let a = v.abs();
-    if a == 0.0 {
-        "0".into()
-    } else if (1e-2..1e4).contains(&a) {
-        let decimals = (2 - a.log10().floor() as i32).max(0) as usize;
-        format!("{v:.decimals$}")
-    } else {
-        format!("{v:.2e}")
-    }
 }
 
 #[cfg(test)]
@@ -511,7 +580,7 @@ mod tests {
             assert!(ticks.contains(&end), "tick {end} in {ticks:?}");
         }
         assert_eq!(svg.drawn.axes, vec![(0.0, 1.0), (0.0, 2.0)]);
-        for text in ["f1", "v0 [m/s]", "slip_A [m]", "sd of slip_A [m]", "slip_A: standard deviation"] {
+        for text in ["f1", "v0 [m/s]", "mean of slip_A [m]", "standard deviation of slip_A [m]"] {
             assert!(texts(&svg.text).iter().any(|t| t == text), "`{text}` in {:?}", texts(&svg.text));
         }
     }
@@ -525,15 +594,19 @@ mod tests {
         assert_eq!(svg.drawn.std_range, min_max(field.std.iter().copied()));
         let (lo, hi) = svg.drawn.colour_range.unwrap();
         assert!(lo < -1.9 && hi > 1.9, "the surface's range, not the two points' ({lo}, {hi})");
-        // a rectangle per cell of each map
-        assert!(svg.text.matches("<rect").count() >= 2 * 20 * 20, "two maps of 20 x 20 cells");
+        // each map and each bar an embedded image, in place of its placeholder
+        assert_eq!(svg.text.matches("<image").count(), 4);
+        assert!(!svg.text.contains("#010203"));
     }
 
     #[test]
     fn contours_lie_where_the_surface_takes_their_level_and_reach_the_box() {
         // v = a: every level line is straight across the box at a = level, from b = 0 to b = 2
         let svg = surface_svg(&surface(|a, _| a), (1000, 420)).unwrap();
-        assert_eq!(svg.drawn.contours.len(), CONTOUR_LEVELS);
+        // at the colour bar's round interior ticks, each labelled as the bar labels it
+        let bar = Ticks::new(0.0, 1.0, BAR_TICKS);
+        let levels: Vec<f64> = svg.drawn.contours.iter().map(|c| c.0).collect();
+        assert_eq!(levels, bar.values[1..bar.values.len() - 1], "{:?}", bar.values);
         for (level, segments) in &svg.drawn.contours {
             assert!(!segments.is_empty(), "level {level}");
             for p in segments.iter().flatten() {
@@ -542,7 +615,7 @@ mod tests {
             let (lo, hi) = min_max(segments.iter().flatten().map(|p| p.1)).unwrap();
             assert_eq!((lo, hi), (0.0, 2.0), "level {level} from edge to edge");
             // labelled
-            let label = level_label(*level);
+            let label = bar.label(*level);
             assert!(texts(&svg.text).contains(&label), "{label}");
         }
         // a constant surface has none
@@ -696,13 +769,5 @@ mod tests {
         assert_eq!((f.mean[1], f.std[1]), (f.axes[0][1], -1.0));
         assert_eq!(f.std[7], f.axes[1][1]);
         assert_eq!(Field::sample(&[(0.0, 1.0)], 5, |_| Err::<(f64, f64), _>("no")), Err("no"));
-    }
-
-    #[test]
-    fn level_labels_have_three_digits() {
-        assert_eq!(level_label(0.123456), "0.123");
-        assert_eq!(level_label(12.3456), "12.3");
-        assert_eq!(level_label(1.5e-5), "1.50e-5");
-        assert_eq!(level_label(0.0), "0");
     }
 }

@@ -56,9 +56,10 @@ struct Web {
 /// The cookie that carries the user token (hex-encoded: any printable token fits a cookie).
 const COOKIE: &str = "glissade_token";
 
-/// No script, style, image, frame or form target but this server's own: an injected inline
-/// script would not run even if a string escaped the templates.
-const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self'; connect-src 'self'; \
+/// No script, style, image, frame or form target but this server's own (and the colour maps'
+/// PNGs, embedded in their SVGs as data: images, which run nothing): an injected inline script
+/// would not run even if a string escaped the templates.
+const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; connect-src 'self'; \
                    form-action 'self'; frame-ancestors 'none'; base-uri 'none'";
 
 /// The routes of the page and the API; every answer carries [`CSP`], and any other path is 404.
@@ -452,7 +453,8 @@ fn surface(web: &Web, id: &str) -> Result<Surface, Refusal> {
 
 const STYLE: &str = "body{font-family:sans-serif;margin:2em;color:#222}table{border-collapse:collapse}\
 td,th{padding:2px 8px;border-bottom:1px solid #ddd;text-align:right}th{cursor:pointer}\
-.surface,.convergence{display:block;margin:0 0 2em 0}.point:hover{stroke:#000;stroke-width:2}";
+.surface,.convergence{display:block;margin:0 0 2em 0}circle.point{fill:#000;fill-opacity:0}\
+.point:hover{stroke:#000;stroke-width:2}";
 
 /// The study page's script: progress without reloading while the study runs (from the JSON at
 /// `data-api`, written with `textContent` only), and a sortable points table.
@@ -598,7 +600,8 @@ fn surface_figure(surface: &glissade_plot::Surface) -> Markup {
             // plotters escapes the text it writes (glissade-plot's tests pin it)
             (PreEscaped(svg.text))
             @for ((x, v), (px, py)) in surface.points.iter().zip(&svg.drawn.markers) {
-                circle class="point" cx=(px) cy=(py) r="6" fill="#000" fill-opacity="0" {
+                // transparent (style.css): the picture draws the point, this names its value
+                circle class="point" cx=(px) cy=(py) r="6" {
                     title { (label(x)) " " (qoi) " = " (format!("{v:.4e}")) }
                 }
             }
@@ -784,15 +787,18 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
         }
         (audits_paragraph(&v))
         p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
-        (target_paragraph(&v))
-        (ill_posed_paragraph(&v))
-        (audit_paragraphs(&v))
+        // the pictures first, then how far to trust them (issue 47: the page opened on five
+        // paragraphs of numbers)
         (slicing.links(&here))
         @if let Some(miss) = &slicing.miss {
             p #slice-miss { (miss) }
         } @else {
             @for svg in figures.iter() { (PreEscaped(svg)) }
         }
+        h2 { "Accuracy" }
+        (target_paragraph(&v))
+        (ill_posed_paragraph(&v))
+        (audit_paragraphs(&v))
         // the running points: the script fills this table from the JSON while the study runs
         @if v.state == StudyState::Active {
             table #running {
@@ -801,6 +807,7 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
             }
         }
         (convergence_figure(&series, r.tolerance))
+        (undrawn_iterations(&v))
         p {
             "download: " a href=(format!("/api/studies/{}/surface.csv", r.id.0)) { "surface.csv" } ", "
             a href=(format!("/api/studies/{}", r.id.0)) { "study JSON" }
@@ -810,6 +817,24 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     };
     let title = if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
     page(&title, body).into_response()
+}
+
+/// What the convergence plot leaves out: the static stage's iterations (a prestressed scene's),
+/// which the points' iteration counts include but which have no eta on the curves.
+fn undrawn_iterations(v: &StudyView) -> Markup {
+    let most = v
+        .points
+        .iter()
+        .filter_map(|p| p.result.as_ref())
+        .map(|r| r.iterations.saturating_sub(r.eta_history.len() as u64))
+        .max()
+        .unwrap_or(0);
+    if most == 0 {
+        return html! {};
+    }
+    html! {
+        p #undrawn { (format!("The curves draw the dynamic stage: the iteration counts below also count up to {most} static iterations a point, before it.")) }
+    }
 }
 
 /// The studies under this one (its audits, its pilots' levels), each linked with its state:
@@ -1135,7 +1160,7 @@ mod tests {
         assert!(svg.contains("data-surface=\"true\""), "a surface, not rings around the points");
         assert_eq!(svg.matches("<circle class=\"point\"").count(), 6);
         assert!(svg.contains("<title>a=0.1 b=0.3 ux = 4.0000e-1</title>"), "the value under the pointer: {svg}");
-        assert!(svg.contains("ux: standard deviation"), "the second panel");
+        assert!(svg.contains("standard deviation of ux [m]"), "the second panel");
         let contours: usize =
             svg.split("data-contours=\"").nth(1).and_then(|t| t.split('"').next()?.parse().ok()).unwrap();
         assert!(contours >= 5, "{contours}");

@@ -1,11 +1,11 @@
 //! Dispatch throughput of the coordinator, with a FAKE, INSTANT "solver": a benchmark of the
 //! service alone (lease, warm-start transfer, completion, database commits), not of any solve.
 //!
-//! K fake pools (tasks of this process, each with its own connection) lease the points of one
-//! study and complete each at once with a small synthetic solution file of the right scene and
-//! point (one interface node: about 5 kB), so every rule of the coordinator runs as for real
-//! solutions. Prints one JSON object: points per second and latency percentiles, then what the
-//! web page's requests cost on the study solved (its JSON whole, the progress an open page polls,
+//! K fake pools (tasks of this process, each with its own connection: src/synthetic.rs) lease
+//! the points of one study and complete each at once with a small synthetic solution file of the
+//! right scene and point (one interface node: about 5 kB), so every rule of the coordinator runs
+//! as for real solutions. Prints one JSON object: points per second and latency percentiles, then what the
+//! web page's requests cost on the study solved (its page, its JSON whole, the progress an open page polls,
 //! the list of studies): bytes and the median of 5 fetches.
 //!
 //!   service-bench URL SCENE.toml POOLS STRATEGY ORDER GRID...
@@ -17,15 +17,12 @@
 use std::process::ExitCode;
 use std::time::Instant;
 
-use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
-use glissade_core::io::solution_file::{self, SolutionMeta};
-use glissade_core::point::DesignPoint;
-use glissade_core::scene::Scene;
-use glissade_proto::v1::pool_client::PoolClient;
-use glissade_proto::v1::user_client::UserClient;
-use glissade_proto::v1::{self, complete_point_message, lease_message};
+use std::sync::Arc;
 
-type Error = Box<dyn std::error::Error + Send + Sync>;
+use glissade_core::scene::Scene;
+use glissade_e2e::synthetic::{self, Error};
+use glissade_proto::v1;
+use glissade_proto::v1::user_client::UserClient;
 
 struct Args {
     url: String,
@@ -64,86 +61,6 @@ fn parse_args() -> Result<Args, Error> {
     })
 }
 
-/// A converged solution file of `scene` at the lease's point with one interface node.
-fn fake_solution(scene: &Scene, hash: &str, lease: &v1::Lease) -> Result<Vec<u8>, Error> {
-    let point = DesignPoint::try_from(lease.parameters.clone())?;
-    let parameters = scene.parameter_values(&point)?;
-    let len = scene.time.steps * scene.dimension;
-    let solution = InterfaceSolution {
-        static_stage: None,
-        dynamic: StageSolution { interfaces: vec![InterfaceField::zeros(2, len)] },
-    };
-    let meta = SolutionMeta {
-        solver_version: env!("CARGO_PKG_VERSION").into(),
-        scene_hash: hash.into(),
-        dimension: scene.dimension,
-        time_steps: scene.time.steps,
-        parameters,
-        converged: true,
-        error_indicator: lease.tolerance / 2.0,
-        iterations: 1,
-        tolerance: lease.tolerance,
-        qoi: [("q".to_string(), 1.0)].into(),
-    };
-    let mut bytes = Vec::new();
-    solution_file::write_to(&mut bytes, &solution, &meta)?;
-    Ok(bytes)
-}
-
-/// Latencies of one fake pool (milliseconds) and when it completed its last point.
-type PoolRun = (Vec<f64>, Vec<f64>, Option<Instant>);
-
-/// One fake pool: lease, complete at once, until no work is left.
-async fn fake_pool(url: String, id: String, scene: Scene, hash: String) -> Result<PoolRun, Error> {
-    let mut pool = PoolClient::connect(url).await?;
-    pool.register_pool(v1::RegisterPoolRequest {
-        pool_id: id.clone(),
-        ranks: 1,
-        host: "bench".into(),
-        solver_version: env!("CARGO_PKG_VERSION").into(),
-    })
-    .await?;
-    let (mut lease_ms, mut complete_ms, mut last) = (Vec::new(), Vec::new(), None);
-    loop {
-        let t = Instant::now();
-        let mut stream =
-            pool.lease_point(v1::LeasePointRequest { pool_id: id.clone(), wait_ms: 300 }).await?.into_inner();
-        let lease = match stream.message().await? {
-            Some(v1::LeaseMessage { body: Some(lease_message::Body::Lease(l)) }) => l,
-            _ => return Ok((lease_ms, complete_ms, last)),
-        };
-        while stream.message().await?.is_some() {}
-        lease_ms.push(t.elapsed().as_secs_f64() * 1e3);
-        let bytes = fake_solution(&scene, &hash, &lease)?;
-        let t = Instant::now();
-        let header = v1::CompletePointHeader {
-            pool_id: id.clone(),
-            lease_id: lease.lease_id,
-            study_id: lease.study_id,
-            point_id: lease.point_id,
-            converged: true,
-            iterations: 1,
-            error_indicator: lease.tolerance / 2.0,
-            qoi: [("q".to_string(), 1.0)].into(),
-            wall_seconds: 0.0,
-            solution_bytes: bytes.len() as u64,
-            eta_history: Vec::new(),
-            work: 1.0,
-            started_cold: false,
-            contact: Vec::new(),
-            qoi_largest: Default::default(),
-        };
-        let mut messages = vec![v1::CompletePointMessage { body: Some(complete_point_message::Body::Header(header)) }];
-        messages.extend(
-            glissade_proto::chunks(&bytes)
-                .map(|c| v1::CompletePointMessage { body: Some(complete_point_message::Body::Chunk(c)) }),
-        );
-        pool.complete_point(tokio_stream::iter(messages)).await?;
-        complete_ms.push(t.elapsed().as_secs_f64() * 1e3);
-        last = Some(Instant::now());
-    }
-}
-
 /// Bytes and the median wall time (ms) of 5 GETs of `path` from the coordinator's web page.
 fn web_cost(url: &str, path: &str) -> Result<serde_json::Value, Error> {
     use std::io::{Read, Write};
@@ -176,7 +93,6 @@ fn percentile(v: &mut [f64], p: f64) -> f64 {
 
 async fn run(args: Args) -> Result<serde_json::Value, Error> {
     let scene = Scene::parse(&args.scene_text)?;
-    let hash = scene.content_hash();
     let mut user = UserClient::connect(args.url.clone()).await?;
     let start = Instant::now();
     let reply = user
@@ -195,8 +111,13 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
         .await?
         .into_inner();
     let submitted = start.elapsed();
+    // every point the same answer: the dispatch is measured, not the surfaces
+    let answering: synthetic::Answering =
+        Arc::new(|_| synthetic::Answer { qoi: [("q".to_string(), 1.0)].into(), history: Vec::new() });
     let tasks: Vec<_> = (0..args.pools)
-        .map(|i| tokio::spawn(fake_pool(args.url.clone(), format!("bench-{i}"), scene.clone(), hash.clone())))
+        .map(|i| {
+            tokio::spawn(synthetic::pool(args.url.clone(), format!("bench-{i}"), scene.clone(), answering.clone()))
+        })
         .collect();
     let (mut lease_ms, mut complete_ms, mut last) = (Vec::new(), Vec::new(), start);
     for t in tasks {
@@ -215,6 +136,7 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
     let id = reply.study_id;
     let web = serde_json::json!({
         "study_json": web_cost(&args.url, &format!("/api/studies/{id}"))?,
+        "study_page": web_cost(&args.url, &format!("/studies/{id}"))?,
         "progress_json": web_cost(&args.url, &format!("/api/studies/{id}/progress"))?,
         "studies_page": web_cost(&args.url, "/")?,
     });
