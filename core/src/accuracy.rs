@@ -574,8 +574,9 @@ impl ErrorPart {
 }
 
 /// Which error dominates one QoI, in one sentence shared by `glissade show`, the demo and the
-/// web page: `middle_ux: the mesh's error (~2.5e-1, order 2 assumed: may be larger) dominates
-/// the time step's (~5.9e-2, order 1.52 observed) and the iterations' (6.5e-5)`. Parts compare
+/// web page: `middle_ux: the mesh's error (~25.0 %, order 2 assumed: may be larger) dominates
+/// the time step's (~5.90 %, order 1.52 observed) and the iterations' (6.5e-3 %)`, each a share
+/// of the QoI's largest |value|. Parts compare
 /// QoI by QoI, never the largest of one QoI with the largest of another. None without two parts.
 pub fn verdict(qoi: &str, parts: &[ErrorPart]) -> Option<String> {
     let mut parts: Vec<&ErrorPart> = parts.iter().filter(|p| p.estimate.is_finite()).collect();
@@ -590,7 +591,7 @@ pub fn verdict(qoi: &str, parts: &[ErrorPart]) -> Option<String> {
             (None, how) => format!(", {how}: may be larger"),
         };
         let approx = if p.how.is_empty() && p.order.is_none() { "" } else { "~" };
-        format!("{approx}{:.1e}{how}", p.estimate)
+        format!("{approx}{}{how}", crate::text::percent(p.estimate))
     };
     let others: Vec<String> = parts[1..].iter().map(|p| format!("{} ({})", p.who, said(p))).collect();
     Some(format!("{qoi}: {} error ({}) dominates {}", parts[0].who, said(parts[0]), others.join(" and ")))
@@ -763,7 +764,7 @@ mod tests {
         assert_eq!(
             v.as_deref(),
             Some(
-                "middle_ux: the mesh's error (~2.5e-1, order 2 assumed: may be larger) dominates the time step's (~5.9e-2, order 1.52 observed) and the iterations' (6.5e-5)"
+                "middle_ux: the mesh's error (~25.0 %, order 2 assumed: may be larger) dominates the time step's (~5.90 %, order 1.52 observed) and the iterations' (6.5e-3 %)"
             )
         );
         assert_eq!(verdict("q", &[ErrorPart::iterations(1e-4)]), None, "one part compares with nothing");
@@ -771,7 +772,7 @@ mod tests {
             verdict("slip", &[ErrorPart::iterations(1e-6), ErrorPart::time_step(0.3, Some(1.1), false, true)]);
         assert_eq!(
             erratic.as_deref(),
-            Some("slip: the time step's error (~3.0e-1, erratic: may be larger) dominates the iterations' (1.0e-6)")
+            Some("slip: the time step's error (~30.0 %, erratic: may be larger) dominates the iterations' (1.0e-4 %)")
         );
         // ABOVE moves a study one level finer in both, within the limits
         let limits = AccuracyLimits::default();

@@ -164,6 +164,46 @@ pub fn decimal(x: f64) -> f64 {
     if x.is_finite() { format!("{x:.11e}").parse().unwrap_or(x) } else { x }
 }
 
+/// A share (a relative error, an accuracy, a target) as every voice prints it: a percentage of 3
+/// significant digits, to be said of what (issue 47: the same error read "3.3e-1" in `show` and
+/// "32.72 %" in `refine`, and "largest 6.8e-8" never said relative to what).
+pub fn percent(share: f64) -> String {
+    let p = 100.0 * share;
+    let a = p.abs();
+    if !p.is_finite() {
+        "unknown".into()
+    } else if a == 0.0 {
+        "0 %".into()
+    } else if (0.01..1e4).contains(&a) {
+        let decimals = (2 - a.log10().floor() as i32).max(0) as usize;
+        format!("{p:.decimals$} %")
+    } else {
+        format!("{p:.1e} %")
+    }
+}
+
+/// Significant digits of a QoI solved to `tolerance`: those the tolerance resolves and one more,
+/// 3 to 8 (issue 47: 7 in the CLI, 5 on the web, all 17 in Python).
+pub fn qoi_digits(tolerance: f64) -> usize {
+    if tolerance > 0.0 && tolerance.is_finite() {
+        ((-tolerance.log10()).ceil() as i64 + 1).clamp(3, 8) as usize
+    } else {
+        6
+    }
+}
+
+/// A QoI's value as the CLI, the web page and Python write it: `digits` significant digits, and
+/// exactly 0 below its resolution (a stuck slip's round-off: core::study::resolutions).
+pub fn qoi_value(value: f64, digits: usize, resolution: f64) -> String {
+    if !value.is_finite() {
+        return value.to_string();
+    }
+    if value.abs() < resolution || value == 0.0 {
+        return "0".into();
+    }
+    format!("{value:.*e}", digits.clamp(1, 17) - 1)
+}
+
 /// A point's error indicator as shown (`show`, the web page): `-` where the point has none (a
 /// point that failed before its first iteration is stored with f64::MAX: records are JSON,
 /// which has no NaN).
@@ -180,6 +220,27 @@ pub fn measured_eta(value: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn shares_print_as_percentages_of_three_digits() {
+        assert_eq!(percent(0.3272), "32.7 %");
+        assert_eq!(percent(0.02), "2.00 %");
+        assert_eq!(percent(1.5e-3), "0.150 %");
+        assert_eq!(percent(6.8e-8), "6.8e-6 %");
+        assert_eq!(percent(0.0), "0 %");
+        assert_eq!(percent(f64::NAN), "unknown");
+    }
+
+    #[test]
+    fn a_qoi_prints_the_digits_its_tolerance_resolves_and_exact_zeros() {
+        assert_eq!((qoi_digits(1e-3), qoi_digits(2e-4), qoi_digits(1e-5), qoi_digits(1e-12)), (4, 5, 6, 8));
+        assert_eq!(qoi_digits(0.5), 3);
+        assert_eq!(qoi_value(2.94573e-5, 4, 1e-10), "2.946e-5");
+        assert_eq!(qoi_value(-1234.5678, 5, 0.0), "-1.2346e3");
+        // a stuck slip's round-off, below the resolution
+        assert_eq!(qoi_value(4.67e-21, 4, 1.2e-10), "0");
+        assert_eq!(qoi_value(0.0, 4, 0.0), "0");
+    }
 
     #[test]
     fn a_value_made_by_arithmetic_reads_as_its_decimal() {

@@ -40,7 +40,7 @@ use crate::figures::{self, FigureCache};
 use crate::metrics::{self, Metrics};
 use crate::records::{PointRecord, PointState};
 use glissade_core::study::shown;
-use glissade_core::text::{parameter, same_parameter, utc_minute, wall_time};
+use glissade_core::text::{parameter, percent, same_parameter, utc_minute, wall_time};
 
 #[derive(Clone)]
 struct Web {
@@ -867,7 +867,7 @@ fn target_paragraph(v: &StudyView) -> Markup {
     let Some((target, a)) = v.record.adaptive.as_ref().and_then(|a| Some((a.target?, a))) else { return html! {} };
     html! {
         p #target {
-            (format!("surface accuracy target {target:.1e} (largest error / spread anywhere in the box, as the surface estimates it): "))
+            (format!("surface accuracy target {} (the largest error anywhere in the box, as the surface estimates it, of each QoI's spread): ", percent(target)))
             @match &a.outcome {
                 None => (format!("not decided yet (budget {} points)", a.budget)),
                 Some(o) => {
@@ -881,8 +881,8 @@ fn target_paragraph(v: &StudyView) -> Markup {
                     @else { (format!("NOT reached: the budget of {} points was spent; at {} points: ", a.budget, o.validation.points)) }
                     @for (k, (q, e)) in o.validation.qoi.iter().enumerate() {
                         @if k > 0 { ", " }
-                        (q) (format!(" largest in the box {:.1e} (at the points {:.1e}, mean {:.1e})",
-                            e.box_largest.unwrap_or(e.largest), e.largest, e.mean))
+                        (q) (format!(" largest in the box {} (at the points {}, mean {})",
+                            percent(e.box_largest.unwrap_or(e.largest)), percent(e.largest), percent(e.mean)))
                     }
                 }
             }
@@ -899,8 +899,9 @@ fn audit_paragraphs(v: &StudyView) -> Markup {
                 (format!("measured accuracy: {} of {} points re-solved cold at {:.0e}: ", a.audited, a.planned, a.tolerance))
                 @for (k, (q, (l, m))) in a.qoi.iter().enumerate() {
                     @if k > 0 { ", " }
-                    (q) (format!(" largest {l:.1e} mean {m:.1e}"))
+                    (q) (format!(" largest {} mean {}", percent(*l), percent(*m)))
                 }
+                " (of each QoI's largest |value|)"
                 @if a.work_cap > 0.0 {
                     (format!("; it cost {:.0} work of its cap {:.0} ({:.0} % of the study's)", a.work, a.work_cap, AUDIT_WORK_FRACTION * 100.0))
                 }
@@ -914,7 +915,7 @@ fn audit_paragraphs(v: &StudyView) -> Markup {
                 ))
                 @for (k, (q, e)) in a.qoi.iter().enumerate() {
                     @if k > 0 { ", " }
-                    (q) (format!(" largest {:.1e} mean {:.1e} of its spread, {:.0} % within 2 sd", e.largest, e.mean, e.within_2sd * 100.0))
+                    (q) (format!(" largest {} mean {} of its spread, within 2 sd at {:.0} % of the points", percent(e.largest), percent(e.mean), e.within_2sd * 100.0))
                 }
                 @for (q, why) in &a.refused {
                     (format!("; {} not predicted: {why}", if q.is_empty() { "the surface" } else { q }))
@@ -947,11 +948,10 @@ fn to_accuracy_paragraphs(
     tolerance: f64,
     check: Option<&crate::coordinator::HeldOutCheck>,
 ) -> Markup {
-    let pct = |x: f64| format!("{:.2} %", 100.0 * x);
     let done = t.reports.iter().flatten().count();
     html! {
         p #to-accuracy {
-            (format!("accuracy asked: {} of each QoI's scale (the largest magnitude of its history), tolerance {tolerance:.1e}; ", pct(t.accuracy)))
+            (format!("accuracy asked: {} of each QoI's scale (the largest magnitude of its history), tolerance {tolerance:.1e}; ", percent(t.accuracy)))
             (format!("{done} of {} pilots done", t.pilots.len()))
             @if let Some((k, m)) = t.chosen {
                 "; " strong { (format!("REACHED at dt / {k}, h / {m}")) } ": the study's points are solved there"
@@ -965,10 +965,10 @@ fn to_accuracy_paragraphs(
                 br;
                 (format!(
                     "{name}: {} (time step {}, mesh {}, iterations {})",
-                    pct(e.total),
-                    pct(e.time),
-                    e.mesh.map_or("not estimated".to_string(), pct),
-                    pct(e.iteration)
+                    percent(e.total),
+                    percent(e.time),
+                    e.mesh.map_or("not estimated".to_string(), percent),
+                    percent(e.iteration)
                 ))
                 @if !e.within { strong { " ABOVE" } }
             }
@@ -977,7 +977,7 @@ fn to_accuracy_paragraphs(
             p #held-out-check {
                 (format!("held-out: {} of {} points re-solved at dt / {}, h / {}", c.done, c.planned, c.time_factor, c.mesh_factor))
                 @for (name, d) in &c.difference {
-                    (format!(", {name} {}", pct(*d)))
+                    (format!(", {name} {}", percent(*d)))
                 }
                 ": "
                 @match c.confirmed {
@@ -1023,7 +1023,7 @@ fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {
             ))
             @for (k, (q, e)) in d.qoi.iter().enumerate() {
                 @if k > 0 { ", " }
-                (q) (format!(" change {:.1e} error ~{:.1e}", e.change, e.error))
+                (q) (format!(" change {} error ~{}", percent(e.change), percent(e.error)))
                 @if e.erratic > 0 {
                     strong { (format!(" (erratic at {} point(s): an event moves with the step; no extrapolation)", e.erratic)) }
                 } @else if e.below_tolerance {
@@ -1034,6 +1034,7 @@ fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {
                     " (order 2 assumed)"
                 }
             }
+            " (of each QoI's largest |value|)"
         }
         @if let Some(m) = &d.mesh {
             p #mesh-discretisation {
@@ -1047,9 +1048,10 @@ fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {
                 ))
                 @for (k, (q, e)) in d.qoi.iter().filter_map(|(q, e)| Some((q, e.mesh?))).enumerate() {
                     @if k > 0 { ", " }
-                    (q) (format!(" change {:.1e} error ~{:.1e}", e.change, e.error))
+                    (q) (format!(" change {} error ~{}", percent(e.change), percent(e.error)))
                     @if e.below_tolerance { " (below the iterations' noise)" } @else { " (order 2 assumed)" }
                 }
+                " (of each QoI's largest |value|)"
             }
         }
     }

@@ -5,6 +5,7 @@ use glissade_cli::names::{describe_parameters, order_name, point_state_name, str
 use glissade_cli::outln;
 use glissade_core::contact::ContactActivity;
 use glissade_core::scene::Scene;
+use glissade_core::text::percent;
 use glissade_proto::v1;
 
 use crate::{Server, get_study, user};
@@ -408,10 +409,12 @@ pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
     })
 }
 
-/// `2 of 2 points re-solved cold at 1e-5 (study 2): slip_A largest 3.1e-4 mean 1.2e-4, ...`
+/// `2 of 2 points re-solved cold at 1e-5 (study 2): slip_A largest 0.0310 % mean 0.0120 %, ...
+/// (of each QoI's largest |value|)`
 pub(crate) fn accuracy_line(a: &v1::StudyAccuracy) -> String {
     let errors: Vec<String> =
-        a.qoi.iter().map(|(q, e)| format!("{q} largest {:.1e} mean {:.1e}", e.largest, e.mean)).collect();
+        a.qoi.iter().map(|(q, e)| format!("{q} largest {} mean {}", percent(e.largest), percent(e.mean))).collect();
+    let errors = of_largest_value(errors);
     let cost = if a.work_cap > 0.0 {
         format!("; it cost {:.0} work of its cap {:.0}", a.work, a.work_cap)
     } else {
@@ -469,10 +472,9 @@ fn to_accuracy_json(t: &v1::StudyToAccuracy) -> serde_json::Value {
 /// A study to an accuracy: what was asked, what the pilots chose (or why nothing), and per QoI
 /// the largest estimate over the pilots with its parts, as fractions of the QoI's scale.
 pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
-    let pct = |x: f64| format!("{:.2} %", 100.0 * x);
     let mut lines = vec![format!(
         "  accuracy  asked {} of each QoI's scale (the largest magnitude of its history): tolerance {:.1e}, Newmark gamma {}",
-        pct(t.accuracy),
+        percent(t.accuracy),
         t.tolerance,
         if t.newmark_gamma > 0.0 { format!("{}", t.newmark_gamma) } else { "(pilots running)".into() }
     )];
@@ -508,7 +510,7 @@ pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
             None => "running once the study has ended".to_string(),
         };
         let differences: Vec<String> =
-            t.held_out_difference.iter().map(|(name, d)| format!("{name} {}", pct(*d))).collect();
+            t.held_out_difference.iter().map(|(name, d)| format!("{name} {}", percent(*d))).collect();
         lines.push(format!(
             "  held-out  {} of {} points re-solved at dt / {}, h / {} (study {}){}: {verdict}",
             t.held_out_done,
@@ -524,12 +526,12 @@ pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
         ));
     }
     for (name, q) in &t.qoi {
-        let mesh = if q.mesh >= 0.0 { pct(q.mesh) } else { "not estimated".into() };
+        let mesh = if q.mesh >= 0.0 { percent(q.mesh) } else { "not estimated".into() };
         lines.push(format!(
             "            {name}: {} (time step {}, mesh {mesh}, iterations {}){}",
-            pct(q.total),
-            pct(q.time),
-            pct(q.iteration),
+            percent(q.total),
+            percent(q.time),
+            percent(q.iteration),
             if q.within { "" } else { " ABOVE" }
         ));
     }
@@ -541,7 +543,12 @@ pub(crate) fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
         .qoi
         .iter()
         .map(|(q, e)| {
-            format!("{q} largest {:.1e} mean {:.1e} within 2 sd {:.0} %", e.largest, e.mean, e.within_2sd * 100.0)
+            format!(
+                "{q} largest {} mean {} of its spread, within 2 sd at {:.0} % of the points",
+                percent(e.largest),
+                percent(e.mean),
+                e.within_2sd * 100.0
+            )
         })
         .collect();
     parts.extend(
@@ -579,7 +586,12 @@ pub(crate) fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAcc
             // (0: a coordinator that did not estimate it: the largest at the points)
             let judged = if e.box_largest > 0.0 { e.box_largest } else { e.largest };
             let above = if judged > t.surface_accuracy { " (ABOVE)" } else { "" };
-            format!("{q} largest in the box {judged:.1e}{above} (at the points {:.1e}, mean {:.1e})", e.largest, e.mean)
+            format!(
+                "{q} largest in the box {}{above} (at the points {}, mean {})",
+                percent(judged),
+                percent(e.largest),
+                percent(e.mean)
+            )
         })
         .chain(t.refused.iter().map(|(q, why)| format!("{q} not fitted: {why}")))
         .collect();
@@ -599,8 +611,8 @@ pub(crate) fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAcc
         _ => format!("not decided yet (budget {budget})"),
     };
     let mut line = format!(
-        "surface accuracy {:.1e} (largest error / spread anywhere in the box, as the surface estimates it): {verdict}{}{}",
-        t.surface_accuracy,
+        "surface accuracy {} (the largest error anywhere in the box, as the surface estimates it, of each QoI's spread): {verdict}{}{}",
+        percent(t.surface_accuracy),
         if errors.is_empty() { "" } else { ": " },
         errors.join(", ")
     );
@@ -609,7 +621,7 @@ pub(crate) fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAcc
             .qoi
             .iter()
             .filter(|(_, e)| e.largest > t.surface_accuracy)
-            .map(|(q, e)| format!("{q} {:.1e}", e.largest))
+            .map(|(q, e)| format!("{q} {}", percent(e.largest)))
             .collect();
         line.push_str(&if above.is_empty() {
             format!("; the {} held-out points confirm it (every error within the target)", h.validated)
@@ -636,9 +648,10 @@ pub(crate) fn discretisation_line(d: &v1::StudyDiscretisation) -> String {
             } else {
                 format!(" (observed order {:.2})", e.order)
             };
-            format!("{q} change {:.1e} error ~{:.1e}{how}", e.change, e.error)
+            format!("{q} change {} error ~{}{how}", percent(e.change), percent(e.error))
         })
         .collect();
+    let errors = of_largest_value(errors);
     let levels: Vec<String> = d.factors.iter().map(|f| format!("dt / {f}")).collect();
     let studies: Vec<String> = d.level_study_ids.iter().map(|s| s.to_string()).collect();
     format!(
@@ -655,6 +668,14 @@ pub(crate) fn discretisation_line(d: &v1::StudyDiscretisation) -> String {
     )
 }
 
+/// Errors relative to each QoI's largest |value|, said once after the last.
+fn of_largest_value(mut errors: Vec<String>) -> Vec<String> {
+    if let Some(last) = errors.last_mut() {
+        last.push_str(" (of each QoI's largest |value|)");
+    }
+    errors
+}
+
 /// The mesh level's line: per QoI the change at h / 2 and the estimated error (None: no mesh
 /// level).
 pub(crate) fn mesh_line(d: &v1::StudyDiscretisation) -> Option<String> {
@@ -664,9 +685,10 @@ pub(crate) fn mesh_line(d: &v1::StudyDiscretisation) -> Option<String> {
         .iter()
         .filter_map(|(q, e)| {
             let how = if e.mesh_below_tolerance { " (below the iterations' noise)" } else { " (order 2 assumed)" };
-            Some(format!("{q} change {:.1e} error ~{:.1e}{how}", e.mesh_change?, e.mesh_error?))
+            Some(format!("{q} change {} error ~{}{how}", percent(e.mesh_change?), percent(e.mesh_error?)))
         })
         .collect();
+    let errors = of_largest_value(errors);
     Some(format!(
         "{} of {} points re-solved cold at h / {} (study {}; {:.1} s, {:.2} x the study's {:.1} s){}{}",
         d.mesh_audited,

@@ -190,9 +190,31 @@ pub(crate) async fn submit(server: &Server, args: SubmitArgs) -> Result<Outcome>
         });
         outln!("{value}");
     } else if args.watch {
-        outln!("study {} submitted: {} points", reply.study_id, reply.points);
+        let adaptive = args.adaptive.is_some() || args.surface_accuracy.is_some();
+        outln!("{}", submitted_line(reply.study_id, reply.points, adaptive));
     } else {
         outln!("{}", reply.study_id);
     }
     if args.watch { watch(&mut client, reply.study_id).await } else { Ok(Outcome::Success) }
+}
+
+/// What `submit --watch` says first: an adaptive study's count is its budget, which it may not
+/// spend (issue 47: "submitted: 20 points", then 17 of 17 shown).
+fn submitted_line(study: u64, points: u32, adaptive: bool) -> String {
+    if adaptive {
+        format!("study {study} submitted: up to {points} points, chosen as it goes")
+    } else {
+        format!("study {study} submitted: {points} points")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_adaptive_study_says_its_count_is_a_budget() {
+        assert_eq!(submitted_line(3, 9, false), "study 3 submitted: 9 points");
+        assert_eq!(submitted_line(4, 20, true), "study 4 submitted: up to 20 points, chosen as it goes");
+    }
 }

@@ -113,11 +113,8 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     assert!(page.contains("<svg class=\"convergence\" data-series=\"9\""), "a convergence line per point: {page}");
     // labelled contour lines on the maps; the QoIs' units from the scene
     assert!(page.contains("mean of slip_A [× 1e-5 m]") && page.contains("mean of middle_ux [× 1e-5 m]"), "{page}");
-    let contours: Vec<usize> = page
-        .split("data-contours=\"")
-        .skip(1)
-        .filter_map(|t| t.split('"').next()?.parse().ok())
-        .collect();
+    let contours: Vec<usize> =
+        page.split("data-contours=\"").skip(1).filter_map(|t| t.split('"').next()?.parse().ok()).collect();
     assert!(contours.len() == 3 && contours.iter().all(|&n| n >= 3), "round levels on each map: {contours:?}");
     // a slice: the curves over f1 at f2 = 0.15, 3 points per QoI
     let (status, _, slice) = http_get(&addr, "/studies/1?fix=f2=0.15");

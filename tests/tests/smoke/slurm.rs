@@ -157,9 +157,11 @@ fn slurm_batch_files_run_the_coordinator_and_pools_under_a_real_one_node_slurm()
     let cluster = Cluster::start(&path("slurm"));
 
     // The coordinator job, on the repository's batch file as users run it; binaries from this
-    // build, its database, URL and tokens in this test's directory.
+    // build, its database and URL in this test's directory, its tokens where the variables say
+    // (issue 47: they went beside the URL file whatever the variables said).
     let port = free_port().to_string();
-    let (url_file, user_token) = (path("home/coordinator.url"), path("home/user.token"));
+    let (url_file, user_token, pool_token) =
+        (path("home/coordinator.url"), path("secrets/user.token"), path("secrets/pool.token"));
     let server_bin = workspace_bin("glissade-server");
     let worker_bin = workspace_bin("glissade-worker");
     let env: Vec<(&str, &Path)> = vec![
@@ -167,6 +169,8 @@ fn slurm_batch_files_run_the_coordinator_and_pools_under_a_real_one_node_slurm()
         ("GLISSADE_WORKER_BIN", &worker_bin),
         ("GLISSADE_DATA", Path::new(dir.path())),
         ("GLISSADE_URL_FILE", &url_file),
+        ("GLISSADE_USER_TOKEN_FILE", &user_token),
+        ("GLISSADE_POOL_TOKEN_FILE", &pool_token),
     ];
     let mut coordinator_env = env.clone();
     let db = path("db");
@@ -195,6 +199,8 @@ fn slurm_batch_files_run_the_coordinator_and_pools_under_a_real_one_node_slurm()
         std::thread::sleep(Duration::from_millis(100));
     };
     assert!(url.starts_with("http://") && url.ends_with(&format!(":{port}")), "{url}");
+    assert!(user_token.exists() && pool_token.exists(), "the tokens where the variables say");
+    assert!(!path("home/user.token").exists() && !path("home/pool.token").exists(), "and nowhere else");
 
     let glissade = |args: &[&str]| {
         let out = run_with_timeout(
