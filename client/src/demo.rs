@@ -15,7 +15,7 @@ use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
 
 use crate::{
     ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, discretisation_line, get_study, refused,
-    surface, surface_accuracy_line, user, verdicts, watch,
+    surface, surface_accuracy_line, user, watch,
 };
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
@@ -154,7 +154,7 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
     let s = get_study(&mut client, "demo", id, false, false).await?;
     if let Some(d) = &s.discretisation {
         outln!("time step's error: {}", discretisation_line(d));
-        for verdict in s.accuracy.as_ref().map(|a| verdicts(a, d)).unwrap_or_default() {
+        for verdict in &s.verdicts {
             outln!("{verdict}");
         }
     }

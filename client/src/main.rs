@@ -23,7 +23,7 @@ use tracing_subscriber::EnvFilter;
 
 use commands::convergence::{ConvergenceArgs, convergence};
 use commands::health::health;
-use commands::show::{accuracy_line, discretisation_line, show, surface_accuracy_line, verdicts};
+use commands::show::{accuracy_line, discretisation_line, show, surface_accuracy_line};
 use commands::studies::{cancel, retry, studies};
 use commands::submit::{SubmitArgs, submit};
 use commands::surface::{SurfaceArgs, surface};

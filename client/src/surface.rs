@@ -39,6 +39,8 @@ pub struct SurfaceTable {
     /// Per QoI column, the smallest value the solves resolve (0: all): smaller values read 0 in
     /// the table and the pictures, and keep their stored value in CSV and JSON.
     pub resolution: Vec<f64>,
+    /// Significant digits of the QoIs for people (core::text::qoi_digits, the coordinator's).
+    pub digits: usize,
     /// The unit of each parameter that declares one and of each QoI (the coordinator's).
     pub units: BTreeMap<String, String>,
 }
@@ -65,28 +67,18 @@ impl SurfaceTable {
                 state: point_state_name(p.state),
             })
             .collect();
-        let resolution = vec![0.0; columns.len()];
+        // what the solves resolve and how many digits, as the coordinator says (the one rule of
+        // the CLI, the web page and Python: core::text::qoi_value)
+        let resolution = columns.iter().map(|q| reply.resolutions.get(q).copied().unwrap_or(0.0)).collect();
         Ok(Self {
             scene_hash: reply.scene_hash.clone(),
             parameters: reply.parameters.clone(),
             qoi: columns,
             rows,
             resolution,
+            digits: if reply.digits > 0 { reply.digits as usize } else { 6 },
             units: reply.units.clone(),
         })
-    }
-
-    /// The same table knowing what solves at `tolerance` resolve of each QoI
-    /// (core::study::resolutions, over every QoI of `reply`'s points; `unit`: a QoI's unit).
-    pub fn resolved(
-        mut self,
-        reply: &v1::QuerySurfaceReply,
-        tolerance: f64,
-        unit: impl Fn(&str) -> Option<String>,
-    ) -> Self {
-        let all = glissade_core::study::resolutions(tolerance, reply.points.iter().map(|p| &p.qoi), unit);
-        self.resolution = self.qoi.iter().map(|q| all.get(q).copied().unwrap_or(0.0)).collect();
-        self
     }
 
     /// The same table with only the parameter columns named in `names` (in that order): a
@@ -135,7 +127,7 @@ impl SurfaceTable {
         })
     }
 
-    /// Aligned columns for people; QoIs with 6 significant digits.
+    /// Aligned columns for people; QoIs with the digits their tolerance resolves.
     pub fn to_text(&self) -> String {
         let header = self.header(true);
         let body: Vec<Vec<String>> = self.rows.iter().map(|r| self.cells(r, false)).collect();
@@ -178,7 +170,8 @@ impl SurfaceTable {
             .iter()
             .map(|&p| if exact { format!("{p}") } else { glissade_core::text::parameter(p) })
             .chain(row.qoi.iter().zip(&self.resolution).map(|(v, &r)| {
-                v.map(|x| number(if exact { x } else { glissade_core::study::shown(x, r) }, 6)).unwrap_or_default()
+                v.map(|x| if exact { number(x, 0) } else { glissade_core::text::qoi_value(x, self.digits, r) })
+                    .unwrap_or_default()
             }))
             .chain([
                 row.iterations.to_string(),
@@ -207,6 +200,8 @@ pub struct Predictions {
     /// QoIs that are norms (a slip without a component, never negative): where their band of 2
     /// sd reaches zero, the text says that sticking is not ruled out
     pub norms: std::collections::BTreeSet<String>,
+    /// Significant digits of a mean (the table's).
+    pub digits: usize,
 }
 
 impl Predictions {
@@ -218,6 +213,7 @@ impl Predictions {
             points: reply.predictions.clone(),
             units: table.units.clone(),
             norms: Default::default(),
+            digits: table.digits,
         }
     }
 
@@ -225,7 +221,7 @@ impl Predictions {
         point.qoi.get(qoi).map_or((f64::NAN, f64::NAN, 0), |p| (p.mean, p.std, p.fitted_points))
     }
 
-    /// One line per point and QoI: `f1=0.137 f2=0.151  slip_A = 1.23400e-5 +- 2.10e-7 m`.
+    /// One line per point and QoI: `f1=0.137 f2=0.151  slip_A = 1.2340e-5 +- 2.10e-7 m`.
     pub fn to_text(&self) -> String {
         let mut out = String::new();
         let mut fitted = BTreeMap::new();
@@ -245,7 +241,8 @@ impl Predictions {
                     }
                     _ => String::new(),
                 };
-                out += &format!("{}  {q} = {mean:.5e} +- {std:.2e}{unit}{zero}\n", at.join(" "));
+                let mean = glissade_core::text::qoi_value(mean, self.digits, 0.0);
+                out += &format!("{}  {q} = {mean} +- {std:.2e}{unit}{zero}\n", at.join(" "));
             }
         }
         let fitted: Vec<String> = fitted.iter().map(|(q, n)| format!("{q} {n}")).collect();
@@ -322,6 +319,8 @@ mod tests {
                 )]
                 .into(),
             }],
+            resolutions: [("slip_A".to_owned(), 1e-9), ("x".to_owned(), 0.0)].into(),
+            digits: 4,
         }
     }
 
@@ -329,7 +328,7 @@ mod tests {
     fn predictions_print_the_mean_and_the_standard_deviation() {
         let t = SurfaceTable::new(&reply(), Some("slip_A")).unwrap();
         let p = Predictions::new(&reply(), &t);
-        assert_eq!(p.to_text().lines().next(), Some("f1=0.15  slip_A = 2.50000e-1 +- 1.25e-1 m"), "{}", p.to_text());
+        assert_eq!(p.to_text().lines().next(), Some("f1=0.15  slip_A = 2.500e-1 +- 1.25e-1 m"), "{}", p.to_text());
         // a norm whose band reaches zero says so; 0.25 - 2 x 0.125 = 0
         let mut norm = Predictions::new(&reply(), &t);
         norm.norms.insert("slip_A".into());
@@ -364,6 +363,18 @@ mod tests {
         assert!(json["points"][1]["qoi"].as_object().unwrap().is_empty());
         assert_eq!(t.values(0), vec![(vec![0.1], 0.1 + 0.2)]);
         assert!(t.to_text().lines().count() == 3);
+        // for people, the digits the coordinator says (4 at a tolerance of 1e-3) and exact zeros
+        // below the resolution it says
+        assert!(t.to_text().lines().nth(1).is_some_and(|l| l.contains(" 3.000e-1 ")), "{}", t.to_text());
+        let mut stuck = reply();
+        stuck.points[0].qoi.insert("slip_A".into(), 4.67e-21);
+        let stuck = SurfaceTable::new(&stuck, Some("slip_A")).unwrap();
+        assert!(
+            stuck.to_text().lines().nth(1).is_some_and(|l| l.split_whitespace().nth(1) == Some("0")),
+            "{}",
+            stuck.to_text()
+        );
+        assert!(stuck.to_csv().contains("4.67e-21"), "the file keeps the value: {}", stuck.to_csv());
         // units: in the table's header and the JSON, not in the CSV's header a program reads
         assert_eq!(json["units"]["slip_A"], "m");
         assert!(t.to_text().lines().next().is_some_and(|h| h.contains("slip_A (m)")), "{}", t.to_text());

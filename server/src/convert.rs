@@ -503,6 +503,7 @@ fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64, check: Option<&He
 pub fn study(v: &StudyView) -> v1::Study {
     let r = &v.record;
     v1::Study {
+        verdicts: v.verdicts(),
         to_accuracy: r.to_accuracy.as_ref().map(|t| to_accuracy(t, r.tolerance, v.held_out_check.as_ref())),
         pilot_of: r.pilot_of.map_or(0, |s| s.0),
         audits: v
@@ -671,7 +672,13 @@ pub fn event(e: &Event) -> v1::StudyEvent {
 }
 
 pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
+    // the coarsest tolerance of the points (a scene's stored solutions may have several)
+    let tolerance = s.rows.iter().map(|r| r.tolerance).fold(0.0, f64::max);
+    let resolutions =
+        glissade_core::study::resolutions(tolerance, s.rows.iter().map(|r| &r.qoi), |q| s.units.get(q).cloned());
     v1::QuerySurfaceReply {
+        resolutions: resolutions.into_iter().collect(),
+        digits: glissade_core::text::qoi_digits(tolerance) as u32,
         units: s.units,
         scene_hash: s.scene_hash,
         parameters: s.parameters,

@@ -39,8 +39,7 @@ use crate::coordinator::{
 use crate::figures::{self, FigureCache};
 use crate::metrics::{self, Metrics};
 use crate::records::{PointRecord, PointState};
-use glissade_core::study::shown;
-use glissade_core::text::{parameter, percent, same_parameter, utc_minute, wall_time};
+use glissade_core::text::{parameter, percent, qoi_digits, qoi_value, same_parameter, utc_minute, wall_time};
 
 #[derive(Clone)]
 struct Web {
@@ -259,6 +258,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "parameters": r.parameters,
         "strategy": r.strategy.name(),
         "audit_of": r.audit_of.map(|s| s.0),
+        "verdicts": v.verdicts(),
         "audits": v.audits.iter().map(|a| json!({
             "study_id": a.study.0, "what": a.what, "state": state_word(a.state),
             "done": a.progress.done, "total": a.progress.total, "failed": a.progress.failed,
@@ -570,7 +570,7 @@ const CONVERGENCE_SIZE: (u32, u32) = (720, 420);
 
 /// The picture of one QoI: the surface that answers `glissade surface --at`, over the box where
 /// it answers, or a line that says why there is none.
-fn surface_figure(surface: &glissade_plot::Surface) -> Markup {
+fn surface_figure(surface: &glissade_plot::Surface, digits: usize) -> Markup {
     let qoi = &surface.qoi.name;
     let (w, h) = SURFACE_SIZE;
     if surface.points.is_empty() {
@@ -602,7 +602,7 @@ fn surface_figure(surface: &glissade_plot::Surface) -> Markup {
             @for ((x, v), (px, py)) in surface.points.iter().zip(&svg.drawn.markers) {
                 // transparent (style.css): the picture draws the point, this names its value
                 circle class="point" cx=(px) cy=(py) r="6" {
-                    title { (label(x)) " " (qoi) " = " (format!("{v:.4e}")) }
+                    title { (label(x)) " " (qoi) " = " (qoi_value(*v, digits, 0.0)) }
                 }
             }
         }
@@ -649,7 +649,7 @@ fn surface_figures(
                 tolerance: s.rows.first().map_or(0.0, |r| r.tolerance),
                 title: String::new(),
             };
-            surface_figure(&picture.surface(&rows)).into_string()
+            surface_figure(&picture.surface(&rows), qoi_digits(picture.tolerance)).into_string()
         })
         .collect()
 }
@@ -927,7 +927,7 @@ fn audit_paragraphs(v: &StudyView) -> Markup {
         }
         @if let Some(d) = &v.discretisation {
             (discretisation_paragraphs(d))
-            @let verdicts = verdicts(v.accuracy.as_ref(), d);
+            @let verdicts = v.verdicts();
             @if !verdicts.is_empty() {
                 p #verdict {
                     "which error dominates, QoI by QoI:"
@@ -989,24 +989,6 @@ fn to_accuracy_paragraphs(
             }
         }
     }
-}
-
-/// Which error dominates each QoI (core::accuracy::verdict, in `glissade show`'s words).
-fn verdicts(a: Option<&crate::coordinator::Accuracy>, d: &crate::coordinator::Discretisation) -> Vec<String> {
-    use glissade_core::accuracy::{ErrorPart, verdict};
-    d.qoi
-        .iter()
-        .filter_map(|(name, e)| {
-            let mut parts: Vec<ErrorPart> = a
-                .and_then(|a| a.qoi.get(name))
-                .map(|&(largest, _)| ErrorPart::iterations(largest))
-                .into_iter()
-                .collect();
-            parts.push(ErrorPart::time_step(e.error, e.order, e.order_assumed, e.erratic > 0));
-            parts.extend(e.mesh.map(|m| ErrorPart::mesh(m.error)));
-            verdict(name, &parts)
-        })
-        .collect()
 }
 
 fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {
@@ -1085,6 +1067,7 @@ fn points_table(
     resolution: &BTreeMap<String, f64>,
 ) -> Markup {
     let parameters = &v.record.parameters;
+    let digits = qoi_digits(v.record.tolerance);
     html! {
         table #points {
             tr {
@@ -1103,7 +1086,7 @@ fn points_table(
                     td { @if let Some(r) = res { (r.iterations) } }
                     td { @if let Some(r) = res { (glissade_core::text::eta(r.error_indicator)) } }
                     @for q in qoi {
-                        td { @if let Some(x) = res.and_then(|r| r.qoi.get(q)) { (format!("{:.4e}", shown(*x, resolution[q]))) } }
+                        td { @if let Some(x) = res.and_then(|r| r.qoi.get(q)) { (qoi_value(*x, digits, resolution[q])) } }
                     }
                     // why it failed (or why its last attempt did)
                     td class="note" {
@@ -1150,7 +1133,7 @@ mod tests {
             tolerance: 0.0,
             title: String::new(),
         };
-        surface_figure(&picture.surface(&rows)).into_string()
+        surface_figure(&picture.surface(&rows), 5).into_string()
     }
 
     #[test]
@@ -1307,7 +1290,7 @@ mod tests {
             tolerance: 0.0,
             title: String::new(),
         };
-        let svg = surface_figure(&picture.surface(&rows)).into_string();
+        let svg = surface_figure(&picture.surface(&rows), 5).into_string();
         assert!(!svg.contains("<script"), "{svg}");
         assert!(svg.contains("&lt;script&gt;alert(1)&lt;/script&gt;"), "{svg}");
     }

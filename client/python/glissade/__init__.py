@@ -12,7 +12,7 @@ Messages are those of proto/proto/glissade.proto (glissade.pb); errors are Gliss
 the gRPC status code.
 """
 
-from .client import Client, Event, Prediction, Submitted, SurfaceArrays, read_token
+from .client import Client, Event, Prediction, Submitted, SurfaceArrays, qoi_text, read_token
 from .errors import (
     FailedPrecondition,
     GlissadeError,
@@ -42,5 +42,6 @@ __all__ = [
     "Unavailable",
     "pb",
     "pb_grpc",
+    "qoi_text",
     "read_token",
 ]

@@ -37,6 +37,26 @@ def _number(v: float) -> str:
     return repr(float(v))
 
 
+def _scientific(v: float, decimals: int) -> str:
+    """As Rust's `{:.N e}`: "2.946e-5", not Python's "2.946e-05"."""
+    mantissa, exponent = f"{v:.{decimals}e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def qoi_text(value: float, digits: int, resolution: float = 0.0) -> str:
+    """A QoI's value as the CLI and the web page write it (core::text::qoi_value, the one rule):
+    `digits` significant digits ("2.946e-5"), exactly "0" below its `resolution` (a stuck slip's
+    round-off). A surface frame's attrs carry both: frame.attrs["digits"], frame.attrs["resolutions"]."""
+    v = float(value)
+    if math.isnan(v):
+        return "NaN"
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    if v == 0.0 or abs(v) < resolution:
+        return "0"
+    return _scientific(v, max(1, min(17, digits)) - 1)
+
+
 def _grid_specs(grid: Mapping[str, GridSpec]) -> List[str]:
     specs = []
     for name, spec in grid.items():
@@ -121,6 +141,11 @@ class Prediction:
     fitted_points: int
     low: float = math.nan
     high: float = math.nan
+    digits: int = 6
+
+    def __str__(self) -> str:
+        # as `glissade surface --at` prints it
+        return f"{qoi_text(self.mean, self.digits)} +- {_scientific(self.std, 2)}"
 
 
 @dataclass(frozen=True)
@@ -320,6 +345,12 @@ class Client:
             for a in self.study(study).audits
         ]
 
+    def verdicts(self, study: StudyRef) -> List[str]:
+        """Which error dominates each QoI, one sentence a QoI, as `glissade show` and the web page
+        say it: the iterations' error the study's audit measured beside the time step's and the
+        mesh's its discretisation audit estimated (empty until it has two of them)."""
+        return list(self.study(study).verdicts)
+
     def studies(self) -> list:
         """Every study (Study messages without their points), newest last, fetched page by page."""
         studies, after = [], 0
@@ -382,17 +413,25 @@ class Client:
         qoi: Union[str, Sequence[str], None] = None,
         fixed: Optional[Mapping[str, float]] = None,
         scene_hash: Optional[str] = None,
+        exact: bool = False,
     ) -> pd.DataFrame:
         """The response surface: one row per point, columns the parameters, the QoIs (all, or
         those named; NaN where a point has none), then iterations, error_indicator, converged,
         state. `fixed` {name: value} keeps a slice; `scene_hash` instead of a study: every
         stored solution of that scene. `frame.attrs["units"]`: each QoI's unit and each
-        parameter's that declares one ("m", "m/s", "N")."""
+        parameter's that declares one ("m", "m/s", "N"). A QoI below what the solves resolve
+        (a stuck slip's round-off, `frame.attrs["resolutions"]`) is 0.0, as the CLI and the web
+        page show it, unless `exact`; `qoi_text(v, frame.attrs["digits"])` writes a value as they do."""
         reply = self._surface(study, scene_hash, qoi, fixed)
         columns = list(reply.parameters) + list(reply.qoi)
+        resolutions = dict(reply.resolutions)
+
+        def shown(q: str, v: float) -> float:
+            return 0.0 if not exact and abs(v) < resolutions.get(q, 0.0) else v
+
         rows = [
             [p.parameters.get(n, math.nan) for n in reply.parameters]
-            + [p.qoi.get(q, math.nan) for q in reply.qoi]
+            + [shown(q, p.qoi[q]) if q in p.qoi else math.nan for q in reply.qoi]
             # a point that failed before its first iteration has no indicator (sent as the largest double)
             + [p.iterations, p.error_indicator if p.error_indicator < sys.float_info.max else math.nan, p.converged,
                _enum_name(pb.PointState, p.state, "POINT_STATE_")]
@@ -400,7 +439,7 @@ class Client:
         ]
         frame = pd.DataFrame(rows, columns=columns + ["iterations", "error_indicator", "converged", "state"])
         frame.attrs.update(scene_hash=reply.scene_hash, parameters=list(reply.parameters), qoi=list(reply.qoi),
-                           units=dict(reply.units))
+                           units=dict(reply.units), resolutions=resolutions, digits=reply.digits or 6)
         return frame
 
     def surface_arrays(
@@ -445,7 +484,8 @@ class Client:
                 f"the coordinator answered {len(reply.predictions)} predictions for {len(points)} points")
         if one:
             found = {
-                q: Prediction(v.mean, v.std, v.fitted_points, v.low, v.high) for q, v in reply.predictions[0].qoi.items()
+                q: Prediction(v.mean, v.std, v.fitted_points, v.low, v.high, reply.digits or 6)
+                for q, v in reply.predictions[0].qoi.items()
             }
             if isinstance(qoi, str):
                 if qoi not in found:

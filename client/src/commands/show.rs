@@ -163,7 +163,7 @@ fn describe(s: &v1::Study) {
         if let Some(mesh) = mesh_line(d) {
             outln!("  h error   {mesh}");
         }
-        for verdict in s.accuracy.as_ref().map(|a| verdicts(a, d)).unwrap_or_default() {
+        for verdict in &s.verdicts {
             outln!("  verdict   {verdict}");
         }
     }
@@ -234,13 +234,14 @@ fn point_lines(s: &v1::Study) {
     let resolution = glissade_core::study::resolutions(s.tolerance, s.points.iter().map(|p| &p.qoi), |q| {
         Some(scene.as_ref()?.unit(q)?.to_owned())
     });
+    let digits = glissade_core::text::qoi_digits(s.tolerance);
     for point in &s.points {
         let qoi: Vec<String> = point
             .qoi
             .iter()
             .map(|(k, &v)| {
                 let unit = scene.as_ref().and_then(|s| s.unit(k)).map(|u| format!(" {u}")).unwrap_or_default();
-                format!("{k}={:.6e}{unit}", glissade_core::study::shown(v, resolution[k]))
+                format!("{k}={}{unit}", glissade_core::text::qoi_value(v, digits, resolution[k]))
             })
             .collect();
         let from = match &point.started_from {
@@ -361,6 +362,7 @@ pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
         .unwrap_or_default();
     v["units"] = serde_json::json!(units);
     v["to_accuracy"] = serde_json::json!(s.to_accuracy.as_ref().map(to_accuracy_json));
+    v["verdicts"] = serde_json::json!(s.verdicts);
     v["audits"] = s
         .audits
         .iter()
@@ -701,24 +703,6 @@ pub(crate) fn mesh_line(d: &v1::StudyDiscretisation) -> Option<String> {
         if errors.is_empty() { "" } else { ": " },
         errors.join(", ")
     ))
-}
-
-/// Which error dominates each QoI (core::accuracy::verdict): the iterations' error the audit
-/// measured, the time step's and the mesh's the discretisation audit estimated, each said with
-/// how it was estimated.
-pub(crate) fn verdicts(a: &v1::StudyAccuracy, d: &v1::StudyDiscretisation) -> Vec<String> {
-    use glissade_core::accuracy::{ErrorPart, verdict};
-    d.qoi
-        .iter()
-        .filter_map(|(name, e)| {
-            let mut parts: Vec<ErrorPart> =
-                a.qoi.get(name).map(|i| ErrorPart::iterations(i.largest)).into_iter().collect();
-            let order = (e.order > 0.0).then_some(e.order);
-            parts.push(ErrorPart::time_step(e.error, order, e.order_assumed, e.erratic > 0));
-            parts.extend(e.mesh_error.map(ErrorPart::mesh));
-            verdict(name, &parts)
-        })
-        .collect()
 }
 
 #[cfg(test)]

@@ -92,8 +92,7 @@ pub(crate) async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
         bail!("--fix: {}", glissade_core::study::space::slice_miss(&fixed, points));
     }
     let scene = Scene::parse(&study.scene).ok();
-    let unit = |q: &str| Some(scene.as_ref()?.unit(q)?.to_owned());
-    let mut table = SurfaceTable::new(&reply, args.qoi.as_deref())?.resolved(&reply, study.tolerance, unit);
+    let mut table = SurfaceTable::new(&reply, args.qoi.as_deref())?;
     if args.all_solutions {
         // Every parameter comes back; keep the study's swept ones as columns.
         table = table.restricted_to(&study.parameters);

@@ -179,6 +179,30 @@ pub struct StudyView {
     pub audits: Vec<AuditView>,
 }
 
+impl StudyView {
+    /// Which error dominates each QoI, one sentence a QoI (core::accuracy::verdict): the
+    /// iterations' error its audit measured beside the time step's and the mesh's its
+    /// discretisation audit estimated, each said with how it was estimated. The API, the web
+    /// page, `show` and the demo give these.
+    pub fn verdicts(&self) -> Vec<String> {
+        use glissade_core::accuracy::{ErrorPart, verdict};
+        let Some(d) = &self.discretisation else { return Vec::new() };
+        d.qoi
+            .iter()
+            .filter_map(|(name, e)| {
+                let mut parts: Vec<ErrorPart> = (self.accuracy.as_ref())
+                    .and_then(|a| a.qoi.get(name))
+                    .map(|&(largest, _)| ErrorPart::iterations(largest))
+                    .into_iter()
+                    .collect();
+                parts.push(ErrorPart::time_step(e.error, e.order, e.order_assumed, e.erratic > 0));
+                parts.extend(e.mesh.map(|m| ErrorPart::mesh(m.error)));
+                verdict(name, &parts)
+            })
+            .collect()
+    }
+}
+
 /// A study under another (an audit or a pilots' level), as its parent shows it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AuditView {

@@ -45,6 +45,31 @@ fn python_package_submits_watches_reads_predicts_and_fetches() -> anyhow::Result
     assert_eq!(v["failed_precondition"], "FAILED_PRECONDITION", "{v}");
     assert_eq!(v["unauthenticated"], "UNAUTHENTICATED", "{v}");
 
+    // One voice (issue 47): each QoI value as Python writes it (glissade.qoi_text with the
+    // digits and resolutions the coordinator sends) is what `glissade show` and the web page write
+    let id = v["study_id"].to_string();
+    let out = run_with_timeout(
+        command(&workspace_bin("glissade"))
+            .env("GLISSADE_TOKEN", user_token)
+            .args(["--server", &url, "show", &id, "--points"]),
+        LIMIT,
+    );
+    let shown = text(&out.stdout);
+    let head = format!("GET /studies/{id} HTTP/1.1\r\nAuthorization: Bearer {user_token}\r\n");
+    let (status, _, page) = http_request(&addr, &head, "");
+    assert_eq!(status, 200, "{page}");
+    let texts = v["texts"].as_object().expect("texts");
+    for (q, values) in texts {
+        for value in values.as_array().expect("values") {
+            let value = value.as_str().expect("a text");
+            assert!(shown.contains(&format!(" {q}={value} m")), "{q} = {value} in show: {shown}");
+            assert!(page.contains(&format!("<td>{value}</td>")), "{q} = {value} on the page");
+        }
+    }
+    let p = v["predicted"]["text"].as_str().expect("prediction text");
+    // as `glissade surface --at` writes it (`2.946e-5 +- 1.20e-7`)
+    assert!(p.contains(" +- ") && !p.contains("e-0") && !p.contains("e+"), "{p}");
+
     // The solution file it fetched is the one the coordinator stored (read here with tonic).
     let study_id = v["solution"]["study_id"].as_u64().expect("study id");
     let point_id = v["solution"]["point_id"].as_u64().expect("point id");

@@ -112,6 +112,13 @@ with glissade.Client(url, token=token) as c:
     assert arrays.x.shape == (4, 2) and arrays.y.shape == (4, 1) and np.isfinite(arrays.y).all(), arrays
     assert np.allclose(arrays.y[:, 0], frame["slip_A"].to_numpy())
     out["slip_A"] = frame["slip_A"].tolist()
+    # each value as the CLI and the web page write it: the digits the tolerance resolves (1e-3: 4)
+    digits, resolutions = frame.attrs["digits"], frame.attrs["resolutions"]
+    assert digits == 4 and set(resolutions) == {"middle_ux", "slip_A", "slip_B"}, frame.attrs
+    out["study_id"] = s.study_id
+    out["texts"] = {q: [glissade.qoi_text(v, digits, resolutions[q]) for v in frame[q]] for q in resolutions}
+    exact = c.surface(s, exact=True)
+    assert all(((exact[q] == frame[q]) | (exact[q].abs() < resolutions[q])).all() for q in resolutions), (exact, frame)
 
     # the surface between the points; at a point it was fitted to, close to the solved value
     p = c.predict(s, at={"f1": 0.15, "f2": 0.15}, qoi="slip_A")
@@ -127,10 +134,11 @@ with glissade.Client(url, token=token) as c:
         "f1", "f2", "slip_A", "slip_A_std", "slip_A_low", "slip_A_high", "slip_B", "slip_B_std", "slip_B_low",
         "slip_B_high"], many
     assert (many["slip_B_low"] >= 0).all(), many
-    out["predicted"] = {"mean": p.mean, "std": p.std}
+    out["predicted"] = {"mean": p.mean, "std": p.std, "text": str(p)}
 
     # the study's state and audits by name (none asked here); a study with one iteration audit
     assert c.state(s) == "done" and c.audits(s) == [], c.audits(s)
+    assert c.verdicts(s) == [], "no discretisation audit asked: nothing to compare"
     audited = c.submit(scene, grid={"f1": [0.15], "f2": [0.15, 0.2]}, tol=1e-3, audit=1, refine=0, surface_audit=0)
     c.wait(audited, timeout=120)
     audits = c.audits(audited)
