@@ -202,6 +202,8 @@ pub struct Predictions {
     pub norms: std::collections::BTreeSet<String>,
     /// Significant digits of a mean (the table's).
     pub digits: usize,
+    /// Below it a mean reads 0 (the coordinator's resolutions: a stuck slip's round-off).
+    pub resolutions: BTreeMap<String, f64>,
 }
 
 impl Predictions {
@@ -214,6 +216,7 @@ impl Predictions {
             units: table.units.clone(),
             norms: Default::default(),
             digits: table.digits,
+            resolutions: reply.resolutions.clone().into_iter().collect(),
         }
     }
 
@@ -235,13 +238,19 @@ impl Predictions {
                 let (mean, std, n) = self.get(point, q);
                 fitted.insert(q.clone(), n);
                 let unit = self.units.get(q).map(|u| format!(" {u}")).unwrap_or_default();
+                // a band of 2 sd that holds zero: a norm may stick there, another QoI's sign is
+                // not known there (issue 47: 4.76e-6 +- 8.94e-6 said nothing)
                 let zero = match point.qoi.get(q) {
                     Some(p) if self.norms.contains(q) && mean - 2.0 * std <= 0.0 => {
                         format!("  (2 sd: [{:.2e}, {:.2e}]{unit}; sticking not ruled out here)", p.low, p.high)
                     }
+                    Some(p) if !self.norms.contains(q) && mean.abs() < 2.0 * std => {
+                        format!("  (2 sd: [{:.2e}, {:.2e}]{unit}; its sign is not known here)", p.low, p.high)
+                    }
                     _ => String::new(),
                 };
-                let mean = glissade_core::text::qoi_value(mean, self.digits, 0.0);
+                let resolution = self.resolutions.get(q).copied().unwrap_or(0.0);
+                let mean = glissade_core::text::qoi_value(mean, self.digits, resolution);
                 out += &format!("{}  {q} = {mean} +- {std:.2e}{unit}{zero}\n", at.join(" "));
             }
         }
@@ -340,6 +349,18 @@ mod tests {
             "{}",
             norm.to_text()
         );
+        // another QoI whose band holds zero: its sign is not known there; a mean below the
+        // resolution reads 0
+        let mut unsure = reply();
+        unsure.predictions[0].qoi.insert(
+            "x".into(),
+            v1::QoiPrediction { mean: 4.76e-6, std: 8.94e-6, fitted_points: 1, low: -1.312e-5, high: 2.264e-5 },
+        );
+        unsure.predictions[0].qoi.get_mut("slip_A").unwrap().mean = 2.9e-15;
+        let all = SurfaceTable::new(&unsure, None).unwrap();
+        let text = Predictions::new(&unsure, &all).to_text();
+        assert!(text.contains("x = 4.760e-6 +- 8.94e-6  (2 sd: [-1.31e-5, 2.26e-5]; its sign is not known here)"), "{text}");
+        assert!(text.contains("slip_A = 0 +- 1.25e-1 m"), "{text}");
         let json = p.to_json();
         assert_eq!(json["points"][0]["at"]["f1"], 0.15);
         assert_eq!(json["points"][0]["qoi"]["slip_A"]["std"], 0.125);
