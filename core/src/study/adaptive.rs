@@ -243,6 +243,18 @@ impl AdaptiveDesign {
         (2 * self.ranges.len() + 1).min(self.budget)
     }
 
+    /// The initial points, as [`Self::next`] chooses them one after another before any surface
+    /// is fitted (the surfaces wait for them all): known at submit, so that a study's audits can
+    /// re-solve some of them.
+    pub fn initial_points(&self) -> Vec<DesignPoint> {
+        let mut chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = Vec::new();
+        while chosen.len() < self.initial() {
+            let Some(p) = self.next(&chosen, &Surfaces::default()) else { break };
+            chosen.push((p, None));
+        }
+        chosen.into_iter().map(|(p, _)| p).collect()
+    }
+
     /// Done points needed before the target is judged: twice the initial design (a surface of
     /// fewer points can be flat by chance, every point sticking: its error would read zero).
     pub fn validated_after(&self) -> usize {
@@ -505,6 +517,23 @@ mod tests {
     /// friction): the standard deviation alone spreads the points evenly; weighed by how wrong
     /// the surface is near each candidate, they gather along that edge and the largest error
     /// falls.
+    #[test]
+    fn the_initial_points_are_known_before_any_is_solved() {
+        // as a study chooses them, its first points done at once (the surfaces wait for all 5)
+        let d = design(20);
+        let initial = d.initial_points();
+        assert_eq!(initial.len(), 5);
+        let mut chosen: Vec<(DesignPoint, BTreeMap<String, f64>)> = Vec::new();
+        for expected in &initial {
+            let view: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
+                chosen.iter().map(|(p, q)| (p.clone(), Some(q))).collect();
+            let surfaces = d.surfaces(&space(), &QoiReadings::default(), &view);
+            let p = d.next(&view, &surfaces).unwrap();
+            assert_eq!(&p, expected);
+            chosen.push((p, [("q".to_owned(), 1.0)].into()));
+        }
+    }
+
     #[test]
     fn points_go_where_the_surface_is_wrong() {
         let law = |f1: f64, f2: f64| (-(f1 - 0.1) / 0.008).exp() + 0.2 * (f2 - 0.1) / 0.1;

@@ -36,6 +36,9 @@ struct Admitted {
     adaptive: Option<AdaptiveSpec>,
     /// (digest, compressed bytes) of the meshes not stored yet
     new_meshes: Vec<(String, Vec<u8>)>,
+    /// The points its audits re-solve some of: its own, or an adaptive study's initial points
+    /// (known at submit: core::study::adaptive::AdaptiveDesign::initial_points).
+    audited: Vec<DesignPoint>,
     audit_points: usize,
     /// points of each refined level
     refine_points: usize,
@@ -117,10 +120,16 @@ impl Coordinator {
         let new_meshes = self.new_meshes(&scene)?;
         // A study to an accuracy solves at the level its pilots choose, which the audits, written
         // now from the scene as given, would not be at: it has none.
+        // an adaptive study is audited on its initial points (issue 47: it had no iteration and no
+        // time-step audit)
+        let audited = match &adaptive {
+            Some(spec) => spec.design().initial_points(),
+            None => points.clone(),
+        };
         let (audit_points, refine_points, refined, held_out_points) = if to_accuracy.is_some() {
             (0, 0, Vec::new(), 0)
         } else {
-            self.audits(submission, &scene, points.len(), adaptive.as_ref())?
+            self.audits(submission, &scene, audited.len(), adaptive.as_ref())?
         };
         Ok(Admitted {
             scene,
@@ -131,6 +140,7 @@ impl Coordinator {
             points,
             adaptive,
             new_meshes,
+            audited,
             audit_points,
             refine_points,
             refined,
@@ -148,7 +158,6 @@ impl Coordinator {
         n: usize,
         adaptive: Option<&AdaptiveSpec>,
     ) -> Result<(usize, usize, Vec<Level>, usize), CoordError> {
-        // (an adaptive study's points are not known yet: it has no audit)
         let audit_points = match submission.audit_points {
             None => default_audit_points(n),
             Some(asked) => (asked as usize).min(n),
@@ -400,7 +409,7 @@ impl Admitted {
         };
         // The audit: points spread over the list, re-solved cold at a tighter tolerance.
         let audit = audit_id.map(|audit_id| {
-            let chosen = discretisation::spread(&self.points, self.audit_points);
+            let chosen = discretisation::spread(&self.audited, self.audit_points);
             (cold_audit_record(&record, audit_id, format!("audit of study {id}")), pending(audit_id, chosen))
         });
         let refined_studies: Vec<(StudyRecord, Vec<PointRecord>)> = self
@@ -411,7 +420,7 @@ impl Admitted {
             .map(|(level, &rid)| {
                 (
                     discretisation::record(&record, rid, level),
-                    pending(rid, discretisation::spread(&self.points, self.refine_points)),
+                    pending(rid, discretisation::spread(&self.audited, self.refine_points)),
                 )
             })
             .collect();

@@ -975,7 +975,8 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
         strategy: InitStrategy::Nearest,
         order: OrderKind::Greedy,
         label: String::new(),
-        audit_points: None,
+        // (its audits: an_adaptive_study_is_audited_on_its_initial_points)
+        audit_points: Some(0),
         refine_points: Some(0),
         refine_levels: 0,
         refine_mesh: false,
@@ -991,7 +992,7 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
     assert_eq!(points, 8, "its budget, not the 0 points chosen yet");
     let view = c.study(id, true).unwrap();
     assert_eq!((view.points.len(), view.progress.total, view.progress.pending), (0, 8, 8));
-    assert!(view.accuracy.is_none(), "no audit for an adaptive study");
+    assert!(view.accuracy.is_none(), "no audit asked");
     let mut seen: Vec<(f64, f64)> = Vec::new();
     let mut finished = 0;
     while finished < 8 {
@@ -1022,6 +1023,39 @@ fn an_adaptive_study_hands_different_points_to_two_pools_and_ends_at_its_budget(
     drop(c);
     let c = open(dir.path(), 60_000, 3);
     assert_eq!(c.study(id, false).unwrap().state, StudyState::Done);
+}
+
+/// An adaptive study (with a target, as one to a surface accuracy) gets its iteration audit and
+/// its time-step audit on its initial points, known at submit (issue 47: it had neither); once
+/// it has ended, they re-solve them and measure as a grid's do.
+#[test]
+fn an_adaptive_study_is_audited_on_its_initial_points() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 3);
+    pool(&c, "p", VERSION);
+    let mut submission = submission_of_target(0.05);
+    submission.adaptive = Some((vec!["f1=0.1:0.2".into(), "f2=0.1:0.2".into()], 7));
+    (submission.audit_points, submission.refine_points) = (None, None);
+    let (id, ..) = c.submit(submission).unwrap();
+    let v = c.study(id, true).unwrap();
+    let (audit, levels) = (v.record.audit.expect("an iteration audit"), v.record.refined_by.clone());
+    assert_eq!(levels.len(), 1, "a time-step audit at dt / 2");
+    let initial = v.record.adaptive.as_ref().unwrap().design().initial_points();
+    for audit in std::iter::once(audit).chain(levels) {
+        let points = c.study(audit, true).unwrap().points;
+        assert_eq!(points.len(), 2, "{audit}");
+        assert!(points.iter().all(|p| initial.contains(&p.parameters)), "{audit}: the study's initial points");
+    }
+    // solved: the study's points first (the audits wait for it), then the audits'
+    let law = |p: &DesignPoint| [("slip_A".to_owned(), p.get("f1").unwrap() * 1e-4)].into();
+    solve_all(&c, law);
+    let v = c.study(id, true).unwrap();
+    assert_eq!(v.state, StudyState::Done);
+    let accuracy = v.accuracy.expect("measured");
+    assert_eq!((accuracy.audited, accuracy.planned), (2, 2));
+    assert!(accuracy.qoi["slip_A"].0 < 1e-12, "the same law at both tolerances: {accuracy:?}");
+    let d = v.discretisation.expect("a time step's error");
+    assert_eq!((d.audited, d.planned), (2, 2));
 }
 
 const JOINT: &str = include_str!("../../../scenes/bolted-joint-tiny.toml");
