@@ -359,7 +359,10 @@ mod tests {
         unsure.predictions[0].qoi.get_mut("slip_A").unwrap().mean = 2.9e-15;
         let all = SurfaceTable::new(&unsure, None).unwrap();
         let text = Predictions::new(&unsure, &all).to_text();
-        assert!(text.contains("x = 4.760e-6 +- 8.94e-6  (2 sd: [-1.31e-5, 2.26e-5]; its sign is not known here)"), "{text}");
+        assert!(
+            text.contains("x = 4.760e-6 +- 8.94e-6  (2 sd: [-1.31e-5, 2.26e-5]; its sign is not known here)"),
+            "{text}"
+        );
         assert!(text.contains("slip_A = 0 +- 1.25e-1 m"), "{text}");
         let json = p.to_json();
         assert_eq!(json["points"][0]["at"]["f1"], 0.15);

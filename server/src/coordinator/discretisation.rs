@@ -156,8 +156,14 @@ pub(super) fn record(study: &StudyRecord, id: StudyId, level: &Level) -> StudyRe
 pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisation {
     let refinement = |e: &StudyEntry| e.record.refines.map(|r| (r.refinement, r.factor));
     // time levels finest last, as they were written
-    let time: Vec<&StudyEntry> =
-        levels.iter().copied().filter(|l| refinement(l).is_none_or(|(r, _)| r == Refinement::Time)).collect();
+    // (a level that solved nothing, cut by the levels' cost cap or not begun, does not empty the
+    // ladders of those before it)
+    let solved = |l: &StudyEntry| l.points.iter().any(|p| p.state == PointState::Done);
+    let time: Vec<&StudyEntry> = levels
+        .iter()
+        .copied()
+        .filter(|l| refinement(l).is_none_or(|(r, _)| r == Refinement::Time) && solved(l))
+        .collect();
     let mesh = levels.iter().copied().find(|l| refinement(l).is_some_and(|(r, _)| r == Refinement::Mesh));
     let noise = NOISE_PER_TOLERANCE * study.record.tolerance;
     let (time_ladders, planned) = ladders(study, &time);
@@ -200,6 +206,44 @@ pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisat
             work_seconds: seconds(m),
         }),
     }
+}
+
+/// What a study's discretisation levels may cost together: this many times its own points' wall
+/// time, or [`LEVELS_WALL_FLOOR`] seconds, whichever is more (issue 47: levels had no cap and
+/// cost 1.65 x and 2.56 x a 3 x 3 grid's solves; the floor keeps small studies measured).
+pub const LEVELS_WALL_FRACTION: f64 = 2.0;
+pub const LEVELS_WALL_FLOOR: f64 = 60.0;
+
+/// Why `level` (a refined level of `study`) leases no further point: with its next re-solve,
+/// whose wall time is its done points' mean (else the study's, times what the level multiplies),
+/// the levels of `study` would pass their cap. A level cut short measures nothing past the
+/// points every level solved, so it stops before, not in the middle of a solve.
+pub(super) fn level_over_cap<'a>(
+    study: &StudyEntry,
+    level: &StudyEntry,
+    levels: impl Iterator<Item = &'a StudyEntry>,
+) -> Option<String> {
+    let solved = |e: &StudyEntry| e.points.iter().filter(|p| p.result.is_some()).count();
+    let cap = (LEVELS_WALL_FRACTION * seconds(study)).max(LEVELS_WALL_FLOOR);
+    let spent: f64 = levels.map(seconds).sum();
+    let next = match solved(level) {
+        0 => {
+            let per_point = seconds(study) / solved(study).max(1) as f64;
+            let times = level.record.refines.as_ref().map_or(1.0, |r| match r.refinement {
+                Refinement::Time => r.factor as f64,
+                Refinement::Mesh => (r.factor as f64).powi(study.scene.dimension as i32),
+            });
+            per_point * times
+        }
+        n => seconds(level) / n as f64,
+    };
+    (spent + next > cap).then(|| {
+        format!(
+            "not re-solved: the discretisation levels' cost cap ({cap:.0} s: {LEVELS_WALL_FRACTION} x the study's {:.0} s of solves, \
+             at least {LEVELS_WALL_FLOOR:.0} s) would be passed ({spent:.0} s spent, about {next:.0} s more a point)",
+            seconds(study)
+        )
+    })
 }
 
 /// Wall seconds of a study's solved points.

@@ -621,13 +621,25 @@ impl Coordinator {
                     Some(of) => match audit_budget(studies.get(&of), &studies[&id]) {
                         None => break,
                         // a discretisation level waits as an audit does, but the iteration
-                        // audit's work cap is not its: a level cut short measures nothing (its
-                        // bounds: MAX_REFINE_POINTS, MAX_REFINE_LEVELS)
-                        // (nor the held-out check of a study to an accuracy: cut short, it
-                        // confirms nothing)
-                        Some(_) if studies[&id].record.refines.is_some() || studies[&id].record.confirms.is_some() => {
+                        // audit's work cap is not its: a level cut short measures nothing, so it
+                        // stops before a point that would pass the levels' cap
+                        // (discretisation::level_over_cap; its bounds: MAX_REFINE_POINTS,
+                        // MAX_REFINE_LEVELS)
+                        Some(_) if studies[&id].record.refines.is_some() => {
+                            let (study, level) = (&studies[&of], &studies[&id]);
+                            let levels = studies
+                                .values()
+                                .filter(|e| e.record.audit_of == Some(of) && e.record.refines.is_some());
+                            if let Some(why) = discretisation::level_over_cap(study, level, levels) {
+                                let entry = studies.get_mut(&id).expect("id listed above");
+                                self.stop_audit(entry, why)?;
+                                break;
+                            }
                             None
                         }
+                        // (nor the held-out check of a study to an accuracy: cut short, it
+                        // confirms nothing)
+                        Some(_) if studies[&id].record.confirms.is_some() => None,
                         Some(budget) => Some(budget),
                     },
                 };
@@ -667,7 +679,7 @@ impl Coordinator {
                     }
                     PointStart::Solve(_) if audit_budget.is_some_and(|b| b.remaining() < 1.0) => {
                         let budget = audit_budget.expect("tested");
-                        self.stop_audit(entry, &budget)?;
+                        self.stop_audit(entry, spent_reason(&budget))?;
                         break;
                     }
                     PointStart::Solve(init) => init,
@@ -767,19 +779,7 @@ impl Coordinator {
     }
 
     /// Cancels the pending points of an audit whose cost cap is spent, saying so on each.
-    fn stop_audit(&self, entry: &mut StudyEntry, budget: &AuditBudget) -> Result<(), CoordError> {
-        let reason = if budget.cap > 0.0 {
-            format!(
-                "not re-solved: the audit spent its cost cap ({:.0} work, {:.0} % of its study's)",
-                budget.cap,
-                AUDIT_WORK_FRACTION * 100.0
-            )
-        } else {
-            // (a study answered from stored solutions: what measured them was their own audit)
-            "not re-solved: its study cost no work (its points were answered from stored solutions), \
-             so the audit's cost cap, a share of that work, is 0"
-                .to_owned()
-        };
+    fn stop_audit(&self, entry: &mut StudyEntry, reason: String) -> Result<(), CoordError> {
         let changes = entry
             .points
             .iter()
@@ -791,7 +791,7 @@ impl Coordinator {
             })
             .collect::<Result<Vec<_>, CoordError>>()?;
         if !changes.is_empty() {
-            tracing::info!(study = %entry.record.id, points = changes.len(), cap = budget.cap, "audit stopped at its cost cap");
+            tracing::info!(study = %entry.record.id, points = changes.len(), %reason, "audit stopped at its cost cap");
             self.commit(entry, changes, None, Batch::new())?;
         }
         Ok(())
@@ -1284,6 +1284,22 @@ fn cold_audit_record(study: &StudyRecord, id: StudyId, label: String) -> StudyRe
         surface_audit: None,
         held_out: None,
         ..study.clone()
+    }
+}
+
+/// Why an audit that spent its cost cap re-solves no more of its points.
+fn spent_reason(budget: &AuditBudget) -> String {
+    if budget.cap > 0.0 {
+        format!(
+            "not re-solved: the audit spent its cost cap ({:.0} work, {:.0} % of its study's)",
+            budget.cap,
+            AUDIT_WORK_FRACTION * 100.0
+        )
+    } else {
+        // (a study answered from stored solutions: what measured them was their own audit)
+        "not re-solved: its study cost no work (its points were answered from stored solutions), \
+         so the audit's cost cap, a share of that work, is 0"
+            .to_owned()
     }
 }
 
