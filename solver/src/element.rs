@@ -239,6 +239,25 @@ pub fn simplex_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Resul
     let nn = D + 1;
     let nd = nn * D;
     let (lambda, mu) = mat.lame(D);
+    let (volume, g) = simplex_gradients(x)?;
+    let mut k = vec![0.0; nd * nd];
+    add_stiffness(&mut k, &g, volume, lambda, mu);
+    let mut m = vec![0.0; nd * nd];
+    let unit = mat.density * volume / ((D + 1) * (D + 2)) as f64;
+    for a in 0..nn {
+        for b in 0..nn {
+            for i in 0..D {
+                m[(a * D + i) * nd + b * D + i] = if a == b { 2.0 * unit } else { unit };
+            }
+        }
+    }
+    Ok((k, m))
+}
+
+/// A linear simplex's volume and its shape functions' (constant) physical gradients; the
+/// determinant is the error when not positive.
+fn simplex_gradients<const D: usize>(x: &[[f64; D]]) -> Result<(f64, Vec<[f64; D]>), f64> {
+    let nn = D + 1;
     // J[i][d] = dx_i / dxi_d = x_{d+1} - x_0; N_0 = 1 - sum xi, N_{d+1} = xi_d
     let mut jac = [[0.0; D]; D];
     for i in 0..D {
@@ -263,18 +282,47 @@ pub fn simplex_matrices<const D: usize>(x: &[[f64; D]], mat: &Material) -> Resul
             gi
         })
         .collect();
-    let mut k = vec![0.0; nd * nd];
-    add_stiffness(&mut k, &g, volume, lambda, mu);
-    let mut m = vec![0.0; nd * nd];
-    let unit = mat.density * volume / ((D + 1) * (D + 2)) as f64;
-    for a in 0..nn {
-        for b in 0..nn {
-            for i in 0..D {
-                m[(a * D + i) * nd + b * D + i] = if a == b { 2.0 * unit } else { unit };
+    Ok((volume, g))
+}
+
+/// The stress at an element's centre from its nodes' displacements `u` (Voigt order xx, yy,
+/// zz, xy, yz, zx; Pa): what ParaView shows of each element. Plane strain in 2D (zz = lambda
+/// (exx + eyy)), a bar's axial stress E exx in 1D; the determinant is the error where the
+/// element is not valid.
+pub fn centre_stress<const D: usize>(
+    kind: ElementKind,
+    x: &[[f64; D]],
+    u: &[[f64; D]],
+    mat: &Material,
+) -> Result<[f64; 6], f64> {
+    let g = match kind {
+        ElementKind::Tensor => shape_gradients(x, &[0.0; D])?.g,
+        ElementKind::Simplex => simplex_gradients(x)?.1,
+    };
+    let mut grad = [[0.0; D]; D];
+    for (ga, ua) in g.iter().zip(u) {
+        for i in 0..D {
+            for j in 0..D {
+                grad[i][j] += ua[i] * ga[j];
             }
         }
     }
-    Ok((k, m))
+    let strain = |i: usize, j: usize| if i < D && j < D { 0.5 * (grad[i][j] + grad[j][i]) } else { 0.0 };
+    let (lambda, mu) = mat.lame(D);
+    let trace: f64 = (0..D).map(|i| strain(i, i)).sum();
+    let normal = |i: usize| match (i < D, D) {
+        (true, _) => lambda * trace + 2.0 * mu * strain(i, i),
+        // plane strain: the out-of-plane stress that holds ezz = 0
+        (false, 2) => lambda * trace,
+        (false, _) => 0.0,
+    };
+    Ok([normal(0), normal(1), normal(2), 2.0 * mu * strain(0, 1), 2.0 * mu * strain(1, 2), 2.0 * mu * strain(2, 0)])
+}
+
+/// The von Mises equivalent stress of a stress in Voigt order.
+pub fn von_mises(s: &[f64; 6]) -> f64 {
+    let [xx, yy, zz, xy, yz, zx] = *s;
+    (0.5 * ((xx - yy).powi(2) + (yy - zz).powi(2) + (zz - xx).powi(2)) + 3.0 * (xy * xy + yz * yz + zx * zx)).sqrt()
 }
 
 /// Local nodes of the face of the reference element normal to axis `axis` on side `side`,
@@ -502,6 +550,51 @@ mod tests {
         }
         // an inverted tetrahedron is refused
         assert!(simplex_matrices(&[x[1], x[0], x[2], x[3]], &mat).is_err());
+    }
+
+    /// A uniform strain, as displacements u = E x at the nodes: every element's centre gives
+    /// Hooke's stress exactly (hexahedron, distorted quad, tetrahedron, bar), and von Mises of a
+    /// uniaxial stress is its magnitude.
+    #[test]
+    fn the_stress_at_an_elements_centre_is_hookes_of_a_uniform_strain() {
+        let steel = Material { young: 210e9, poisson: 0.3, density: 7800.0 };
+        let e = [[1e-3, 2e-4, -5e-4], [2e-4, -3e-4, 1e-4], [-5e-4, 1e-4, 4e-4]];
+        let hooke = |d: usize| -> [f64; 6] {
+            let (l, m) = steel.lame(d);
+            let tr: f64 = (0..d).map(|i| e[i][i]).sum();
+            let n = |i: usize| {
+                if i < d {
+                    l * tr + 2.0 * m * e[i][i]
+                } else if d == 2 {
+                    l * tr
+                } else {
+                    0.0
+                }
+            };
+            let t = |i: usize, j: usize| if i < d && j < d { 2.0 * m * e[i][j] } else { 0.0 };
+            [n(0), n(1), n(2), t(0, 1), t(1, 2), t(2, 0)]
+        };
+        fn displaced<const D: usize>(x: &[[f64; D]], e: &[[f64; 3]; 3]) -> Vec<[f64; D]> {
+            x.iter().map(|p| std::array::from_fn(|i| (0..D).map(|j| e[i][j] * p[j]).sum())).collect()
+        }
+        let close = |a: [f64; 6], b: [f64; 6]| a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-6 * 1e8);
+        let hex = unit_box([0.02, 0.01, 0.03]);
+        let s = centre_stress(ElementKind::Tensor, &hex, &displaced(&hex, &e), &steel).unwrap();
+        assert!(close(s, hooke(3)), "{s:?} {:?}", hooke(3));
+        let quad = [[0.0, 0.0], [0.012, 0.001], [-0.002, 0.01], [0.011, 0.013]];
+        let s = centre_stress(ElementKind::Tensor, &quad, &displaced(&quad, &e), &steel).unwrap();
+        assert!(close(s, hooke(2)), "{s:?} {:?}", hooke(2));
+        let tet = [[0.0, 0.0, 0.0], [0.01, 0.0, 0.001], [0.002, 0.012, 0.0], [0.001, 0.002, 0.009]];
+        let s = centre_stress(ElementKind::Simplex, &tet, &displaced(&tet, &e), &steel).unwrap();
+        assert!(close(s, hooke(3)), "{s:?}");
+        let bar = [[0.0], [0.5]];
+        let s = centre_stress(ElementKind::Tensor, &bar, &displaced(&bar, &e), &steel).unwrap();
+        assert!((s[0] - 210e9 * 1e-3).abs() < 1e-3 && s[1..].iter().all(|&x| x == 0.0), "{s:?}");
+        assert!((von_mises(&[-7.0, 0.0, 0.0, 0.0, 0.0, 0.0]) - 7.0).abs() < 1e-12);
+        assert!((von_mises(&[0.0, 0.0, 0.0, 2.0, 0.0, 0.0]) - 2.0 * 3f64.sqrt()).abs() < 1e-12, "pure shear");
+        // an inverted element is refused, not given a stress
+        let flipped = [hex[1], hex[0], hex[3], hex[2], hex[5], hex[4], hex[7], hex[6]];
+        assert!(centre_stress(ElementKind::Tensor, &flipped, &displaced(&flipped, &e), &steel).is_err());
     }
 
     #[test]

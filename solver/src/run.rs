@@ -142,6 +142,8 @@ pub struct SubstructureMesh {
     /// coordinates padded to 3 components
     pub coords: Vec<[f64; 3]>,
     pub connectivity: Vec<usize>,
+    /// its body's material, for the stress the field output derives
+    pub material: crate::element::Material,
 }
 
 /// Fields of a solve, for `--fields`.
@@ -368,6 +370,7 @@ fn solve_dim<const D: usize>(
                     })
                     .collect(),
                 connectivity: s.connectivity.clone(),
+                material: s.material,
             })
             .collect(),
         times: (0..=model.steps).map(|n| glissade_core::text::decimal(n as f64 * model.dt)).collect(),

@@ -10,7 +10,13 @@
 //! /time                       S+1 f64     t_0 .. t_S
 //! /fields/displacement/NNNNNN N x 3 f64   step NNNNNN (zero-padded components beyond D)
 //! /fields/velocity/NNNNNN     N x 3 f64
+//! /fields/stress/NNNNNN       E x 6 f64   each element's stress at its centre (Pa): XDMF's
+//!                                         Tensor6 order xx, xy, xz, yy, yz, zz
+//! /fields/von_mises/NNNNNN    E f64       its von Mises equivalent (Pa)
 //! ```
+//!
+//! The stress is derived here from the displacements (glissade_solver::element::centre_stress:
+//! Hooke's law at the element's centre; plane strain in 2D, a bar's axial stress in 1D).
 //! Root attributes: `dimension` (i64), `scene_hash`, `solver_version` (strings).
 
 use std::fmt::Write as _;
@@ -19,7 +25,7 @@ use std::path::{Path, PathBuf};
 
 use hdf5::types::VarLenUnicode;
 
-use glissade_solver::element::ElementKind;
+use glissade_solver::element::{self, ElementKind};
 use glissade_solver::run::FieldOutput;
 
 /// Errors of writing field output.
@@ -153,6 +159,45 @@ impl Merged {
     }
 }
 
+impl Merged {
+    /// Each element's stress at its centre at `step` (E x 6, Tensor6 order) and its von Mises
+    /// equivalent (E), from the displacements.
+    fn stress(&self, f: &FieldOutput, step: usize) -> Result<(Vec<f64>, Vec<f64>), FieldsError> {
+        let (mut tensor, mut equivalent) = (Vec::with_capacity(6 * self.elements), Vec::with_capacity(self.elements));
+        for (s, mesh) in f.meshes.iter().enumerate() {
+            let u = &f.history.displacement[s][step];
+            let npe = mesh.kind.nodes(self.dimension);
+            for (k, el) in mesh.connectivity.chunks_exact(npe).enumerate() {
+                let v = match self.dimension {
+                    1 => element_stress::<1>(mesh, el, u),
+                    2 => element_stress::<2>(mesh, el, u),
+                    _ => element_stress::<3>(mesh, el, u),
+                }
+                .map_err(|det| {
+                    FieldsError::Invalid(format!(
+                        "substructure {s}, element {k}: not a valid element (determinant {det:e})"
+                    ))
+                })?;
+                tensor.extend([v[0], v[3], v[5], v[1], v[4], v[2]]);
+                equivalent.push(element::von_mises(&v));
+            }
+        }
+        Ok((tensor, equivalent))
+    }
+}
+
+/// One element's stress (Voigt order), its nodes' coordinates and displacements taken from the
+/// padded coordinates and the step's dofs.
+fn element_stress<const D: usize>(
+    mesh: &glissade_solver::run::SubstructureMesh,
+    el: &[usize],
+    u: &[f64],
+) -> Result<[f64; 6], f64> {
+    let x: Vec<[f64; D]> = el.iter().map(|&a| std::array::from_fn(|i| mesh.coords[a][i])).collect();
+    let ua: Vec<[f64; D]> = el.iter().map(|&a| std::array::from_fn(|i| u[a * D + i])).collect();
+    element::centre_stress(mesh.kind, &x, &ua, &mesh.material)
+}
+
 fn step_name(step: usize) -> String {
     format!("{step:06}")
 }
@@ -210,6 +255,13 @@ fn write_h5(path: &Path, m: &Merged, f: &FieldOutput, scene_hash: &str) -> Resul
                     .write_raw(&m.step(field, step))?;
             }
         }
+        let (stress, von_mises) = (group.create_group("stress")?, group.create_group("von_mises")?);
+        for step in 0..f.times.len() {
+            let (tensor, equivalent) = m.stress(f, step)?;
+            let name = step_name(step);
+            stress.new_dataset::<f64>().shape((m.elements, 6)).create(name.as_str())?.write_raw(&tensor)?;
+            von_mises.new_dataset::<f64>().shape(m.elements).create(name.as_str())?.write_raw(&equivalent)?;
+        }
     }
     file.close()?;
     Ok(())
@@ -265,6 +317,12 @@ fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
         <Attribute Name="velocity" AttributeType="Vector" Center="Node">
           {velocity}
         </Attribute>
+        <Attribute Name="stress" AttributeType="Tensor6" Center="Cell">
+          {stress}
+        </Attribute>
+        <Attribute Name="von_mises" AttributeType="Scalar" Center="Cell">
+          {von_mises}
+        </Attribute>
       </Grid>
 "#,
             topo = xdmf_topology(m.dimension, m.kind),
@@ -273,6 +331,8 @@ fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
             substructure = item(&format!("{e}"), "Int", "/mesh/substructure"),
             displacement = item(&format!("{n} 3"), "Float", &format!("/fields/displacement/{name}")),
             velocity = item(&format!("{n} 3"), "Float", &format!("/fields/velocity/{name}")),
+            stress = item(&format!("{e} 6"), "Float", &format!("/fields/stress/{name}")),
+            von_mises = item(&format!("{e}"), "Float", &format!("/fields/von_mises/{name}")),
         );
     }
     x.push_str("    </Grid>\n  </Domain>\n</Xdmf>\n");
@@ -293,6 +353,7 @@ mod tests {
             // tensor order: (0,0), (1,0), (0,1), (1,1)
             coords: vec![[x0, 0.0, 0.0], [x0 + 1.0, 0.0, 0.0], [x0, 1.0, 0.0], [x0 + 1.0, 1.0, 0.0]],
             connectivity: vec![0, 1, 2, 3],
+            material: element::Material { young: 1e3, poisson: 0.25, density: 1.0 },
         };
         let times = vec![0.0, 0.5, 1.0];
         // value = 1000 s + 100 step + dof, so every entry says where it belongs
@@ -353,6 +414,10 @@ mod tests {
             r#"<DataItem Dimensions="8 3" NumberType="Float" Precision="8" Format="HDF">out.h5:/fields/velocity/000002</DataItem>"#
         ));
         assert!(text.contains(r#"<Time Value="5e-1"/>"#));
+        assert!(text.contains(
+            r#"<DataItem Dimensions="2 6" NumberType="Float" Precision="8" Format="HDF">out.h5:/fields/stress/000001</DataItem>"#
+        ));
+        assert!(text.contains(r#"Name="von_mises" AttributeType="Scalar" Center="Cell""#));
         assert_well_formed(&text);
         // only the two files are left
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
@@ -377,6 +442,28 @@ mod tests {
             }
         }
         assert!(open.is_empty(), "unclosed: {open:?}");
+    }
+
+    /// The stress of a uniform stretch, u_x = 0.01 x, written per element at each step: plane
+    /// strain under E = 1000, nu = 0.25 gives xx = (lambda + 2 mu) 0.01 = 12, yy = zz =
+    /// lambda 0.01 = 4, von Mises 8 (the sample's made-up displacements in the other steps).
+    #[test]
+    fn the_stress_of_each_element_is_written_beside_the_displacements() {
+        let dir = tempfile::tempdir().unwrap();
+        let h5 = dir.path().join("out.h5");
+        let mut f = sample();
+        for (s, mesh) in f.meshes.iter().enumerate() {
+            f.history.displacement[s][1] = mesh.coords.iter().flat_map(|p| [0.01 * p[0], 0.0]).collect();
+        }
+        write(&h5, &f, "abc").unwrap();
+        let file = hdf5::File::open(&h5).unwrap();
+        let stress: Vec<f64> = file.dataset("fields/stress/000001").unwrap().read_raw().unwrap();
+        let expected = [12.0, 0.0, 0.0, 4.0, 0.0, 4.0];
+        for el in stress.chunks_exact(6) {
+            assert!(el.iter().zip(expected).all(|(a, b)| (a - b).abs() < 1e-9), "{el:?}");
+        }
+        let vm: Vec<f64> = file.dataset("fields/von_mises/000001").unwrap().read_raw().unwrap();
+        assert!(vm.len() == 2 && vm.iter().all(|v| (v - 8.0).abs() < 1e-9), "{vm:?}");
     }
 
     #[test]
