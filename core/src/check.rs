@@ -16,6 +16,14 @@ use crate::scene::{BodySpec, InterfaceSpec, LawSpec, Resolver, Scalar, Scene, Sc
 /// (docs/performance.md).
 pub const TANGENTIAL_FACTOR_RANGE: (f64, f64) = (0.01, 100.0);
 
+/// The largest Young's modulus, density and box extent a scene may give (SI: Pa, kg/m^3, m;
+/// scenes in mm or MPa fit too): beyond, a stiffness or a mass overflows in the operators long
+/// before f64 does, and every pool would refuse the point (issue 48: E = 1e308 and a box of
+/// 1e308 m were accepted at submit). Diamond is 1.2e12 Pa, osmium 22,590 kg/m^3.
+pub const MAX_YOUNG: f64 = 1e13;
+pub const MAX_DENSITY: f64 = 1e6;
+pub const MAX_EXTENT: f64 = 1e4;
+
 /// An interface law with its numbers at a design point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LawValues {
@@ -113,11 +121,17 @@ impl Scene {
             let young = r.get(&format!("{key}.E"), &m.E)?;
             let poisson = r.get(&format!("{key}.nu"), &m.nu)?;
             let density = r.get(&format!("{key}.rho"), &m.rho)?;
-            if young <= 0.0 {
-                return Err(invalid(format!("{key}.E"), format!("must be > 0, got {young}")));
+            if !(young > 0.0 && young <= MAX_YOUNG) {
+                return Err(invalid(
+                    format!("{key}.E"),
+                    format!("must be in (0, {MAX_YOUNG:e}], got {}", number(young)),
+                ));
             }
-            if density <= 0.0 {
-                return Err(invalid(format!("{key}.rho"), format!("must be > 0, got {density}")));
+            if !(density > 0.0 && density <= MAX_DENSITY) {
+                return Err(invalid(
+                    format!("{key}.rho"),
+                    format!("must be in (0, {MAX_DENSITY:e}], got {}", number(density)),
+                ));
             }
             if !(-1.0 < poisson && poisson < 0.5) {
                 return Err(invalid(format!("{key}.nu"), format!("must be in (-1, 0.5), got {poisson}")));
@@ -141,6 +155,9 @@ impl Scene {
         }
         for (ii, spec) in self.interfaces.iter().enumerate() {
             let key = format!("interfaces[{ii}]");
+            if self.interfaces[..ii].iter().any(|o| o.name == spec.name) {
+                return Err(invalid(format!("{key}.name"), format!("duplicate interface name '{}'", spec.name)));
+            }
             law_values(&r, &key, spec)?;
             // (a gap is read for a wall only)
             if spec.b == "wall"
@@ -209,8 +226,13 @@ impl Scene {
             self.vector(r, &format!("{key}.origin"), o)?;
         }
         self.vector(r, &format!("{key}.size"), size)?;
-        if size.iter().any(|s| r.get("", s).is_ok_and(|s| s <= 0.0)) {
-            return Err(invalid(format!("{key}.size"), "every extent must be > 0"));
+        if size.iter().any(|s| r.get("", s).is_ok_and(|s| !(s > 0.0 && s <= MAX_EXTENT))) {
+            return Err(invalid(format!("{key}.size"), format!("every extent must be in (0, {MAX_EXTENT:e}]")));
+        }
+        if let Some(o) = &b.origin
+            && o.iter().any(|x| r.get("", x).is_ok_and(|x| x.abs() > MAX_EXTENT))
+        {
+            return Err(invalid(format!("{key}.origin"), format!("every coordinate must be within {MAX_EXTENT:e}")));
         }
         let counts = self.counts(&format!("{key}.elements"), elements)?;
         let parts = match &b.substructures {
@@ -308,6 +330,11 @@ fn hexahedron_centre_det(x: &[[f64; 3]]) -> f64 {
     det3(column(0), column(1), column(2))
 }
 
+/// A number in a message: 1e308, not its 309 digits.
+fn number(x: f64) -> String {
+    if x != 0.0 && (x.abs() >= 1e6 || x.abs() < 1e-3) { format!("{x:e}") } else { format!("{x}") }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -323,7 +350,21 @@ mod tests {
     #[test]
     fn the_probes_bad_scenes_are_refused_naming_the_key() {
         let cases = [
-            ("E = 200e9", "E = 0", "materials.outer.E: must be > 0, got 0"),
+            ("E = 200e9", "E = 0", "materials.outer.E: must be in (0, 1e13], got 0"),
+            // issue 48: sizes that overflow the operators, and a name given twice, every pool
+            // refused and submit took
+            ("E = 200e9", "E = 1e308", "materials.outer.E: must be in (0, 1e13], got 1e308"),
+            ("rho = 7800", "rho = 1e300", "materials.outer.rho: must be in (0, 1e6], got 1e300"),
+            (
+                "size = [0.015, 0.015, 0.03]",
+                "size = [1e308, 0.015, 0.03]",
+                "bodies[0].size: every extent must be in (0, 1e4]",
+            ),
+            (
+                "name = \"interface2\"",
+                "name = \"interface1\"",
+                "interfaces[1].name: duplicate interface name 'interface1'",
+            ),
             ("nu = 0.3", "nu = 0.5", "materials.outer.nu: must be in (-1, 0.5), got 0.5"),
             (
                 "rho = 7800\n\n[materials.middle]",

@@ -294,7 +294,9 @@ fn scenes_a_pool_would_refuse_are_refused_at_submit_with_its_message() -> anyhow
     let (_server, addr) = start_server(&dir.path().join("db"), &dir.path().join("server.log"));
     let url = format!("http://{addr}");
     let cases = [
-        ("E = 200e9", "E = 0", "materials.outer.E: must be > 0, got 0"),
+        ("E = 200e9", "E = 0", "materials.outer.E: must be in (0, 1e13], got 0"),
+        ("E = 200e9", "E = 1e308", "materials.outer.E: must be in (0, 1e13], got 1e308"),
+        ("name = \"interface2\"", "name = \"interface1\"", "duplicate interface name 'interface1'"),
         ("nu = 0.3", "nu = 0.5", "materials.outer.nu: must be in (-1, 0.5), got 0.5"),
         ("steps = 50", "steps = 0", "time.steps: must be >= 1"),
         ("substructures = [1, 1, 2]", "substructures = [3, 1, 2]", "3 substructures along axis 0 but only 2 elements"),
