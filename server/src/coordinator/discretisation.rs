@@ -156,14 +156,12 @@ pub(super) fn record(study: &StudyRecord, id: StudyId, level: &Level) -> StudyRe
 pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisation {
     let refinement = |e: &StudyEntry| e.record.refines.map(|r| (r.refinement, r.factor));
     // time levels finest last, as they were written
-    // (a level that solved nothing, cut by the levels' cost cap or not begun, does not empty the
-    // ladders of those before it)
-    let solved = |l: &StudyEntry| l.points.iter().any(|p| p.state == PointState::Done);
-    let time: Vec<&StudyEntry> = levels
-        .iter()
-        .copied()
-        .filter(|l| refinement(l).is_none_or(|(r, _)| r == Refinement::Time) && solved(l))
-        .collect();
+    let all_time: Vec<&StudyEntry> =
+        levels.iter().copied().filter(|l| refinement(l).is_none_or(|(r, _)| r == Refinement::Time)).collect();
+    // the ladders of the levels that solved something: a level cut by the levels' cost cap
+    // before its first point does not empty those of the levels before it
+    let solved = |l: &&StudyEntry| l.points.iter().any(|p| p.state == PointState::Done);
+    let time: Vec<&StudyEntry> = all_time.iter().copied().take_while(solved).collect();
     let mesh = levels.iter().copied().find(|l| refinement(l).is_some_and(|(r, _)| r == Refinement::Mesh));
     let noise = NOISE_PER_TOLERANCE * study.record.tolerance;
     let (time_ladders, planned) = ladders(study, &time);
@@ -193,7 +191,8 @@ pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisat
         );
     }
     Discretisation {
-        levels: time.iter().map(|l| (l.record.id, refinement(l).map_or(0, |(_, f)| f))).collect(),
+        // every level, solved or not (the API lists them to follow)
+        levels: all_time.iter().map(|l| (l.record.id, refinement(l).map_or(0, |(_, f)| f))).collect(),
         audited: time_ladders.len() as u32,
         planned: planned as u32,
         work_seconds: time.iter().map(|l| seconds(l)).sum(),
@@ -209,10 +208,10 @@ pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisat
 }
 
 /// What a study's discretisation levels may cost together: this many times its own points' wall
-/// time, or [`LEVELS_WALL_FLOOR`] seconds, whichever is more (issue 47: levels had no cap and
+/// time, or [`LEVELS_WALL_FLOOR`] seconds (5 minutes), whichever is more (issue 47: levels had no cap and
 /// cost 1.65 x and 2.56 x a 3 x 3 grid's solves; the floor keeps small studies measured).
 pub const LEVELS_WALL_FRACTION: f64 = 2.0;
-pub const LEVELS_WALL_FLOOR: f64 = 60.0;
+pub const LEVELS_WALL_FLOOR: f64 = 300.0;
 
 /// Why `level` (a refined level of `study`) leases no further point: with its next re-solve,
 /// whose wall time is its done points' mean (else the study's, times what the level multiplies),
