@@ -130,12 +130,14 @@ enum Command {
         glissade convergence 3 --png convergence.png\n  \
         glissade convergence 3 --json | jq '.points[0].eta_history | length'")]
     Convergence(ConvergenceArgs),
-    /// The displacement and velocity fields of one design point as HDF5 + XDMF (ParaView):
-    /// re-solved here from the nearest stored solution of the study (a few iterations).
+    /// The fields of one design point as HDF5 + XDMF (ParaView): displacement, velocity and
+    /// stress, and the interfaces' contact pressure, gap and slip; re-solved here from the nearest
+    /// stored solution of the study (a few iterations).
     #[command(after_help = "Examples:\n  \
         glissade fields 3 --point f1=0.15,f2=0.15 --out p.h5          # a point of the study: 1 iteration a stage\n  \
         glissade fields 3 --point f1=0.123,f2=0.187 --out q.h5        # any point: from its nearest neighbour\n\n\
-        Then open p.xdmf in ParaView (displacement and velocity at every time step).")]
+        Then open p.xdmf in ParaView (displacement, velocity and stress at every time step) and \
+        p-interfaces.xdmf (contact pressure, gap and slip at the interfaces' nodes).")]
     Fields(fields::FieldsArgs),
     /// Run a small study of the three-blocks scene on this machine, with no set-up: an embedded
     /// coordinator on a temporary database, one local pool, progress, the response surface and

@@ -152,6 +152,83 @@ pub struct FieldOutput {
     pub meshes: Vec<SubstructureMesh>,
     pub times: Vec<f64>,
     pub history: FieldHistory,
+    /// what happened on each interface (wall interfaces included)
+    pub interfaces: Vec<InterfaceOutput>,
+}
+
+/// An interface's nodes and, at every time (`[step][node]`, steps + 1 of them), what happened
+/// there: from its converged fields, as its QoIs are.
+#[derive(Debug, Clone)]
+pub struct InterfaceOutput {
+    pub name: String,
+    /// coordinates padded to 3 components
+    pub coords: Vec<[f64; 3]>,
+    /// the normal traction pressing the sides together (Pa; negative: pulling them apart, as a
+    /// glued interface may)
+    pub pressure: Vec<Vec<f64>>,
+    /// the normal gap (m): the initial one, plus the sides' normal separation since (the
+    /// prestress's, then the dynamics')
+    pub gap: Vec<Vec<f64>>,
+    /// the tangential relative displacement accumulated during the dynamics (m; side b's less
+    /// side a's), 3 components a node: the slip QoIs' at their nodes
+    pub slip: Vec<Vec<[f64; 3]>>,
+}
+
+/// [`InterfaceOutput`] of every interface of `model` from the solution's fields.
+fn interface_output<const D: usize>(model: &Model<D>, solution: &InterfaceSolution) -> Vec<InterfaceOutput> {
+    let pad = |p: &[f64; D]| -> [f64; 3] { std::array::from_fn(|c| if c < D { p[c] } else { 0.0 }) };
+    model
+        .interfaces
+        .iter()
+        .enumerate()
+        .map(|(i, itf)| {
+            let (n, f) = (itf.n_nodes(), &solution.dynamic.interfaces[i]);
+            let normal = |j: usize, v: &[f64], at: usize| -> f64 {
+                (0..D).map(|c| v[(at * n + j) * D + c] * itf.normal[j][c]).sum()
+            };
+            // the prestress's normal separation and traction, where there is one
+            let statics = solution.static_stage.as_ref().map(|st| &st.interfaces[i]);
+            let static_jump = |j: usize| {
+                statics.map_or(0.0, |s| {
+                    s.hat.get(1).map_or(0.0, |b| normal(j, &b.velocity, 0)) - normal(j, &s.hat[0].velocity, 0)
+                })
+            };
+            let relative: Vec<Vec<[f64; D]>> =
+                (0..n).map(|j| crate::latin::relative_displacement(model, f, i, j)).collect();
+            let steps = model.steps + 1;
+            let pressure = (0..steps)
+                .map(|k| {
+                    (0..n)
+                        .map(|j| match k {
+                            0 => statics.map_or(0.0, |s| -normal(j, &s.hat[0].force, 0)),
+                            _ => -normal(j, &f.hat[0].force, k - 1),
+                        })
+                        .collect()
+                })
+                .collect();
+            let along = |r: &[f64; D], j: usize| -> f64 { (0..D).map(|c| r[c] * itf.normal[j][c]).sum() };
+            let gap = (0..steps)
+                .map(|k| (0..n).map(|j| itf.gap0[j] + static_jump(j) + along(&relative[j][k], j)).collect())
+                .collect();
+            let slip = (0..steps)
+                .map(|k| {
+                    (0..n)
+                        .map(|j| {
+                            let (r, rn) = (&relative[j][k], along(&relative[j][k], j));
+                            std::array::from_fn(|c| if c < D { r[c] - rn * itf.normal[j][c] } else { 0.0 })
+                        })
+                        .collect()
+                })
+                .collect();
+            InterfaceOutput {
+                name: itf.name.clone(),
+                coords: itf.coords.iter().map(pad).collect(),
+                pressure,
+                gap,
+                slip,
+            }
+        })
+        .collect()
 }
 
 pub struct SolveOutcome {
@@ -375,6 +452,7 @@ fn solve_dim<const D: usize>(
             .collect(),
         times: (0..=model.steps).map(|n| glissade_core::text::decimal(n as f64 * model.dt)).collect(),
         history,
+        interfaces: interface_output(&model, &report.solution),
     });
     let summary = SolveSummary {
         converged: report.converged(),

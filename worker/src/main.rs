@@ -403,7 +403,9 @@ struct SolveArgs {
     /// Store the final interface solution (docs/solution-format.md), also when not converged
     #[arg(long, value_name = "SOLUTION")]
     save: Option<PathBuf>,
-    /// Write displacement and velocity fields to OUT.h5 and OUT.xdmf (ParaView)
+    /// Write the fields to OUT.h5 for ParaView: every node's displacement and velocity and every
+    /// element's stress (OUT.xdmf), the interfaces' contact pressure, gap and slip
+    /// (OUT-interfaces.xdmf), at every time step
     #[arg(long, value_name = "OUT.h5")]
     fields: Option<PathBuf>,
     /// Print one JSON object instead of the human summary

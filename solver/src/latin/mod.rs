@@ -1606,10 +1606,9 @@ impl BodyQois {
     }
 }
 
-/// Slip at an interface node: the tangential relative displacement (side b's less side a's)
-/// accumulated during the dynamics, integrated from the local-stage velocities with the
-/// trapezoidal rule; its norm, or its `component` along an axis, with its sign; appended to `out`
-/// (steps + 1 values).
+/// Slip at an interface node: the tangential part of its sides' relative displacement
+/// ([`relative_displacement`]); its norm, or its `component` along an axis, with its sign;
+/// appended to `out` (steps + 1 values).
 fn slip_history<const D: usize>(
     m: &Model<D>,
     f: &InterfaceField,
@@ -1618,46 +1617,54 @@ fn slip_history<const D: usize>(
     component: Option<usize>,
     out: &mut Vec<f64>,
 ) {
-    let itf = &m.interfaces[interface];
-    let n = itf.n_nodes();
-    let nrm = itf.normal[node];
-    let tangential = |step: Option<usize>| -> [f64; D] {
-        let mut rel = [0.0; D];
-        for c in 0..D {
-            rel[c] = match step {
-                Some(s) => {
-                    let idx = (s * n + node) * D + c;
-                    f.hat.get(1).map_or(0.0, |h| h.velocity[idx]) - f.hat[0].velocity[idx]
-                }
-                None => {
-                    let v = |k: usize| {
-                        itf.sides.get(k).map_or(0.0, |sd| m.substructures[sd.substructure].initial_velocity[c])
-                    };
-                    v(1) - v(0)
-                }
-            };
-        }
+    let nrm = m.interfaces[interface].normal[node];
+    for rel in relative_displacement(m, f, interface, node) {
         let rn: f64 = (0..D).map(|c| rel[c] * nrm[c]).sum();
-        for c in 0..D {
-            rel[c] -= rn * nrm[c];
-        }
-        rel
-    };
-    let mut slip = [0.0; D];
-    out.push(0.0);
-    let mut prev = tangential(None);
-    for step in 0..m.steps {
-        let cur = tangential(Some(step));
-        for c in 0..D {
-            // the slip integrates as the bodies' displacements do
-            slip[c] += m.newmark.displacement_increment(m.dt, prev[c], cur[c]);
-        }
+        let slip: [f64; D] = std::array::from_fn(|c| rel[c] - rn * nrm[c]);
         out.push(match component {
             Some(c) => slip[c],
             None => slip.iter().map(|x| x * x).sum::<f64>().sqrt(),
         });
+    }
+}
+
+/// The relative displacement of an interface node's sides (side b's less side a's; a wall does
+/// not move) accumulated during the dynamics, integrated from the local-stage velocities as the
+/// bodies' displacements are (Newmark's rule): steps + 1 values, the first 0.
+pub(crate) fn relative_displacement<const D: usize>(
+    m: &Model<D>,
+    f: &InterfaceField,
+    interface: usize,
+    node: usize,
+) -> Vec<[f64; D]> {
+    let itf = &m.interfaces[interface];
+    let n = itf.n_nodes();
+    let velocity = |step: Option<usize>| -> [f64; D] {
+        std::array::from_fn(|c| match step {
+            Some(s) => {
+                let idx = (s * n + node) * D + c;
+                f.hat.get(1).map_or(0.0, |h| h.velocity[idx]) - f.hat[0].velocity[idx]
+            }
+            None => {
+                let v =
+                    |k: usize| itf.sides.get(k).map_or(0.0, |sd| m.substructures[sd.substructure].initial_velocity[c]);
+                v(1) - v(0)
+            }
+        })
+    };
+    let mut rel = [0.0; D];
+    let mut out = Vec::with_capacity(m.steps + 1);
+    out.push(rel);
+    let mut prev = velocity(None);
+    for step in 0..m.steps {
+        let cur = velocity(Some(step));
+        for c in 0..D {
+            rel[c] += m.newmark.displacement_increment(m.dt, prev[c], cur[c]);
+        }
+        out.push(rel);
         prev = cur;
     }
+    out
 }
 
 /// The LATIN error indicator (docs/method.md 3), in parts: computed per interface by its owner

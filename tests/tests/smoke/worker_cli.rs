@@ -129,6 +129,32 @@ fn worker_writes_fields_as_hdf5_and_xdmf() -> anyhow::Result<()> {
         assert!((von_mises[e] - xx.abs()).abs() <= 1e-9 * rho_c_v0, "uniaxial: von Mises = |xx|");
     }
     assert!(xdmf.contains(r#"Name="stress" AttributeType="Tensor6" Center="Cell""#));
+    // the wall's contact (ParaView's OUT-interfaces.xdmf): pressed at rho c v0 while the bar rests
+    // on it (the contact lasts 2 L / c
+    // = 39.5 us), then open, the gap growing at v0 once the bar leaves at -v0 (step 300: 60 us)
+    // (the wall's node among every interface's: the 3 perfect ones between the 4 substructures
+    // carry the wave's traction, with no gap)
+    let names: Vec<hdf5::types::VarLenUnicode> = file.dataset("interfaces/names")?.read_raw()?;
+    let impact = names.iter().position(|n| n.as_str() == "impact").expect("the wall interface") as i64;
+    let which: Vec<i64> = file.dataset("interfaces/interface")?.read_raw()?;
+    let node = which.iter().position(|&i| i == impact).expect("its node");
+    let at = |what: &str, step: &str| -> anyhow::Result<f64> {
+        Ok(file.dataset(&format!("fields/{what}/{step}"))?.read_raw::<f64>()?[node])
+    };
+    let pressure = |step: &str| at("contact_pressure", step);
+    let gap = |step: &str| at("gap", step);
+    // (the trapezoidal rule's contact force alternates from step to step about its value, as the
+    // wall_force QoI's does: 1.7e7 and 6.2e7 Pa; docs/verification.md: the mean of two steps)
+    let pressed = 0.5 * (pressure("000050")? + pressure("000051")?);
+    assert!((pressed - rho_c_v0).abs() < 0.05 * rho_c_v0, "{pressed:e}");
+    // closed within the step's travel v0 dt (the first step's impact: the trapezoidal rule moves
+    // the bar's end dt / 2 at v0 into the wall)
+    assert!(gap("000050")?.abs() <= 8e-5 / 400.0 * 1.0, "closed: {:e}", gap("000050")?);
+    let c = (200e9f64 / 7800.0).sqrt();
+    let opened = 8e-5 * 300.0 / 400.0 - 2.0 * 0.1 / c;
+    assert!(pressure("000300")?.abs() < 0.01 * rho_c_v0, "open: {:e}", pressure("000300")?);
+    assert!((gap("000300")? - opened).abs() < 0.05 * opened, "gap {:e}, d'Alembert {opened:e}", gap("000300")?);
+    assert!(dir.path().join("out-interfaces.xdmf").is_file());
     Ok(())
 }
 

@@ -1,4 +1,5 @@
-//! Field output (`--fields OUT.h5`): displacement and velocity of every node at every time step,
+//! Field output (`--fields OUT.h5`): displacement and velocity of every node, the stress of every
+//! element and what happened on every interface, at every time step,
 //! in one HDF5 file plus an XDMF 3 file beside it (`OUT.xdmf`) that ParaView opens as a time
 //! series. Layout of the HDF5 file (see also `docs/solution-format.md`):
 //!
@@ -17,6 +18,19 @@
 //!
 //! The stress is derived here from the displacements (glissade_solver::element::centre_stress:
 //! Hooke's law at the element's centre; plane strain in 2D, a bar's axial stress in 1D).
+//!
+//! The interfaces' nodes, all interfaces one after the other, and what happened there
+//! (glissade_solver::run::InterfaceOutput), with their own XDMF file (`OUT-interfaces.xdmf`, a
+//! time series of vertices):
+//!
+//! ```text
+//! /interfaces/coordinates          M x 3 f64
+//! /interfaces/interface            M i64     the interface of each node (scene order)
+//! /interfaces/names                I str     the interfaces' names
+//! /fields/contact_pressure/NNNNNN  M f64     the normal traction pressing the sides together (Pa)
+//! /fields/gap/NNNNNN               M f64     the normal gap (m)
+//! /fields/slip/NNNNNN              M x 3 f64 the tangential relative displacement since the dynamics began (m)
+//! ```
 //! Root attributes: `dimension` (i64), `scene_hash`, `solver_version` (strings).
 
 use std::fmt::Write as _;
@@ -224,7 +238,64 @@ pub fn write(h5: &Path, fields: &FieldOutput, scene_hash: &str) -> Result<PathBu
         w.write_all(text.as_bytes())?;
         Ok::<_, FieldsError>(())
     })?;
+    let nodes: usize = fields.interfaces.iter().map(|i| i.coords.len()).sum();
+    if nodes > 0 {
+        let text = interfaces_xdmf_text(nodes, &fields.times, &h5_name);
+        glissade_core::io::write_atomically(&interfaces_xdmf_path(h5), |w| {
+            w.write_all(text.as_bytes())?;
+            Ok::<_, FieldsError>(())
+        })?;
+    }
     Ok(xdmf)
+}
+
+/// The interfaces' XDMF file beside `h5`: `OUT-interfaces.xdmf`.
+pub fn interfaces_xdmf_path(h5: &Path) -> PathBuf {
+    let stem = h5.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    h5.with_file_name(format!("{stem}-interfaces.xdmf"))
+}
+
+/// The interfaces' nodes and fields (the module documentation's layout), every step.
+fn write_interfaces(file: &hdf5::File, f: &FieldOutput) -> Result<(), FieldsError> {
+    let steps = f.times.len();
+    let bad = |i: &glissade_solver::run::InterfaceOutput| {
+        let n = i.coords.len();
+        [i.pressure.len(), i.gap.len(), i.slip.len()] != [steps; 3]
+            || i.pressure.iter().chain(&i.gap).any(|v| v.len() != n)
+            || i.slip.iter().any(|v| v.len() != n)
+    };
+    if let Some(i) = f.interfaces.iter().find(|i| bad(i)) {
+        return Err(FieldsError::Invalid(format!("interface {}: its fields do not fit its nodes or steps", i.name)));
+    }
+    let m: usize = f.interfaces.iter().map(|i| i.coords.len()).sum();
+    if m == 0 {
+        return Ok(());
+    }
+    let group = file.create_group("interfaces")?;
+    let coords: Vec<f64> = f.interfaces.iter().flat_map(|i| i.coords.iter().flatten().copied()).collect();
+    group.new_dataset::<f64>().shape((m, 3)).create("coordinates")?.write_raw(&coords)?;
+    let which: Vec<i64> = f.interfaces.iter().enumerate().flat_map(|(k, i)| vec![k as i64; i.coords.len()]).collect();
+    group.new_dataset::<i64>().shape(m).create("interface")?.write_raw(&which)?;
+    let names: Vec<VarLenUnicode> = f
+        .interfaces
+        .iter()
+        .map(|i| i.name.parse().map_err(|e| FieldsError::Invalid(format!("interface name {:?}: {e}", i.name))))
+        .collect::<Result<_, _>>()?;
+    group.new_dataset::<VarLenUnicode>().shape(names.len()).create("names")?.write(&names)?;
+    let fields = file.group("fields")?;
+    let (pressure, gap, slip) =
+        (fields.create_group("contact_pressure")?, fields.create_group("gap")?, fields.create_group("slip")?);
+    for step in 0..steps {
+        let name = step_name(step);
+        let at = |v: fn(&glissade_solver::run::InterfaceOutput, usize) -> Vec<f64>| -> Vec<f64> {
+            f.interfaces.iter().flat_map(|i| v(i, step)).collect()
+        };
+        pressure.new_dataset::<f64>().shape(m).create(name.as_str())?.write_raw(&at(|i, k| i.pressure[k].clone()))?;
+        gap.new_dataset::<f64>().shape(m).create(name.as_str())?.write_raw(&at(|i, k| i.gap[k].clone()))?;
+        let s = at(|i, k| i.slip[k].iter().flatten().copied().collect());
+        slip.new_dataset::<f64>().shape((m, 3)).create(name.as_str())?.write_raw(&s)?;
+    }
+    Ok(())
 }
 
 fn write_h5(path: &Path, m: &Merged, f: &FieldOutput, scene_hash: &str) -> Result<(), FieldsError> {
@@ -262,6 +333,7 @@ fn write_h5(path: &Path, m: &Merged, f: &FieldOutput, scene_hash: &str) -> Resul
             stress.new_dataset::<f64>().shape((m.elements, 6)).create(name.as_str())?.write_raw(&tensor)?;
             von_mises.new_dataset::<f64>().shape(m.elements).create(name.as_str())?.write_raw(&equivalent)?;
         }
+        write_interfaces(&file, f)?;
     }
     file.close()?;
     Ok(())
@@ -339,6 +411,53 @@ fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
     x
 }
 
+/// XDMF 3 of the interfaces' nodes: a temporal collection of vertex grids.
+fn interfaces_xdmf_text(nodes: usize, times: &[f64], h5_name: &str) -> String {
+    let h5 = xml_escape(h5_name);
+    let item = |dims: &str, kind: &str, path: &str| {
+        format!(
+            r#"<DataItem Dimensions="{dims}" NumberType="{kind}" Precision="8" Format="HDF">{h5}:{path}</DataItem>"#
+        )
+    };
+    let mut x = String::new();
+    x.push_str("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
+    x.push_str("<Xdmf Version=\"3.0\">\n  <Domain>\n");
+    x.push_str("    <Grid Name=\"interfaces\" GridType=\"Collection\" CollectionType=\"Temporal\">\n");
+    for (step, t) in times.iter().enumerate() {
+        let name = step_name(step);
+        let _ = write!(
+            x,
+            r#"      <Grid Name="step {name}" GridType="Uniform">
+        <Time Value="{t:e}"/>
+        <Topology TopologyType="Polyvertex" NumberOfElements="{nodes}" NodesPerElement="1"/>
+        <Geometry GeometryType="XYZ">
+          {coordinates}
+        </Geometry>
+        <Attribute Name="interface" AttributeType="Scalar" Center="Node">
+          {interface}
+        </Attribute>
+        <Attribute Name="contact_pressure" AttributeType="Scalar" Center="Node">
+          {pressure}
+        </Attribute>
+        <Attribute Name="gap" AttributeType="Scalar" Center="Node">
+          {gap}
+        </Attribute>
+        <Attribute Name="slip" AttributeType="Vector" Center="Node">
+          {slip}
+        </Attribute>
+      </Grid>
+"#,
+            coordinates = item(&format!("{nodes} 3"), "Float", "/interfaces/coordinates"),
+            interface = item(&format!("{nodes}"), "Int", "/interfaces/interface"),
+            pressure = item(&format!("{nodes}"), "Float", &format!("/fields/contact_pressure/{name}")),
+            gap = item(&format!("{nodes}"), "Float", &format!("/fields/gap/{name}")),
+            slip = item(&format!("{nodes} 3"), "Float", &format!("/fields/slip/{name}")),
+        );
+    }
+    x.push_str("    </Grid>\n  </Domain>\n</Xdmf>\n");
+    x
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -366,10 +485,19 @@ mod tests {
                 })
                 .collect()
         };
+        // the glued line x = 1 between them: its two nodes, pressed at 5 Pa then opening
+        let interface = glissade_solver::run::InterfaceOutput {
+            name: "glue".into(),
+            coords: vec![[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]],
+            pressure: (0..times.len()).map(|k| vec![5.0 - k as f64, 5.0 - k as f64]).collect(),
+            gap: (0..times.len()).map(|k| vec![0.0, 1e-6 * k as f64]).collect(),
+            slip: (0..times.len()).map(|k| vec![[0.0, 2e-6 * k as f64, 0.0]; 2]).collect(),
+        };
         FieldOutput {
             meshes: vec![square(0.0), square(1.0)],
             history: FieldHistory { displacement: field(1.0), velocity: field(-1.0) },
             times,
+            interfaces: vec![interface],
         }
     }
 
@@ -419,8 +547,23 @@ mod tests {
         ));
         assert!(text.contains(r#"Name="von_mises" AttributeType="Scalar" Center="Cell""#));
         assert_well_formed(&text);
-        // only the two files are left
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+        // the interface: its nodes and fields, and its own XDMF file
+        let ic: Vec<f64> = file.dataset("interfaces/coordinates").unwrap().read_raw().unwrap();
+        assert_eq!(ic, [1.0, 0.0, 0.0, 1.0, 1.0, 0.0]);
+        let names: Vec<VarLenUnicode> = file.dataset("interfaces/names").unwrap().read_raw().unwrap();
+        assert_eq!(names[0].as_str(), "glue");
+        let p: Vec<f64> = file.dataset("fields/contact_pressure/000002").unwrap().read_raw().unwrap();
+        assert_eq!(p, [3.0, 3.0]);
+        let g: Vec<f64> = file.dataset("fields/gap/000001").unwrap().read_raw().unwrap();
+        assert_eq!(g, [0.0, 1e-6]);
+        let sl: Vec<f64> = file.dataset("fields/slip/000002").unwrap().read_raw().unwrap();
+        assert_eq!(sl, [0.0, 4e-6, 0.0, 0.0, 4e-6, 0.0]);
+        let itext = std::fs::read_to_string(dir.path().join("out-interfaces.xdmf")).unwrap();
+        assert!(itext.contains(r#"TopologyType="Polyvertex" NumberOfElements="2""#), "{itext}");
+        assert!(itext.contains("out.h5:/fields/gap/000002"), "{itext}");
+        assert_well_formed(&itext);
+        // only the three files are left
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
     }
 
     /// Tags balance (enough of an XML check for text we generate ourselves).
