@@ -452,7 +452,8 @@ fn solve_dim<const D: usize>(
             .collect(),
         times: (0..=model.steps).map(|n| glissade_core::text::decimal(n as f64 * model.dt)).collect(),
         history,
-        interfaces: interface_output(&model, &report.solution),
+        // (the interfaces' fields are gathered on rank 0, which writes the field file)
+        interfaces: if comm.rank() == 0 { interface_output(&model, &report.solution) } else { Vec::new() },
     });
     let summary = SolveSummary {
         converged: report.converged(),

@@ -207,27 +207,26 @@ fn mpi_failing_rank_stops_the_job() {
     assert!(!out.status.success() && stderr.contains("at most 2 ranks"), "{stderr}");
 }
 
-/// `--fields` under P = 2 ranks gathers every substructure's history on rank 0: the written
-/// fields equal the P = 1 ones value for value.
+/// `--fields` under P = 2 ranks gathers every substructure's history and every interface's
+/// fields on rank 0: the written fields (the interfaces' pressure and slip too) equal the P = 1
+/// ones value for value.
 #[test]
 fn mpi_fields_are_gathered_on_rank_zero() {
     let dir = tempfile::tempdir().unwrap();
     let scene = scene_path("three-blocks-tiny.toml");
-    let read = |np: &str| -> (Vec<f64>, Vec<f64>) {
+    let read = |np: &str| -> [Vec<f64>; 4] {
         let h5 = dir.path().join(format!("p{np}.h5"));
         let out =
             mpiexec(&["-n", np, worker_bin(), "solve", &scene, "--tol", "1e-3", "--fields", h5.to_str().unwrap()]);
         assert!(out.status.success(), "P = {np}: {}", String::from_utf8_lossy(&out.stderr));
         let file = hdf5::File::open(&h5).unwrap();
-        let u = file.dataset("fields/displacement/000050").unwrap().read_raw().unwrap();
-        let v = file.dataset("fields/velocity/000025").unwrap().read_raw().unwrap();
-        (u, v)
+        ["displacement/000050", "velocity/000025", "contact_pressure/000030", "slip/000050"]
+            .map(|d| file.dataset(&format!("fields/{d}")).unwrap().read_raw().unwrap())
     };
-    let (u1, v1) = read("1");
-    let (u2, v2) = read("2");
-    assert!(u1.iter().any(|x| *x != 0.0));
-    assert_eq!(u1, u2);
-    assert_eq!(v1, v2);
+    let one = read("1");
+    let two = read("2");
+    assert!(one[0].iter().any(|x| *x != 0.0) && one[2].iter().any(|x| *x != 0.0));
+    assert_eq!(one, two);
 }
 
 /// A solve that runs out of iterations says which stage fell short and what it was held to (a
