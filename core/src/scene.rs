@@ -510,6 +510,12 @@ pub fn read_mesh_file(path: &std::path::Path) -> Result<Vec<u8>, String> {
 /// declare at most 4.
 pub const MAX_QOIS: usize = 64;
 
+/// Most bodies, interfaces, materials, loads or boundary conditions a scene may declare, each
+/// (issue 48: a limit on every count a user sets; within the 1 MiB a scene may weigh, about
+/// 10,000 fit, each read and checked at every submit and by every pool). The shipped scenes
+/// declare at most 8 of any.
+pub const MAX_PARTS: usize = 1000;
+
 impl Scene {
     /// Parses TOML text; errors carry the TOML key path and line.
     pub fn parse(text: &str) -> Result<Self, SceneError> {
@@ -525,6 +531,16 @@ impl Scene {
         if scene.qoi.len() > MAX_QOIS {
             let n = scene.qoi.len();
             return Err(invalid("qoi", format!("{n} quantities of interest, more than the {MAX_QOIS} accepted")));
+        }
+        let parts = [
+            ("bodies", scene.bodies.len()),
+            ("interfaces", scene.interfaces.len()),
+            ("materials", scene.materials.len()),
+            ("loads", scene.loads.len()),
+            ("boundary", scene.boundary.len()),
+        ];
+        if let Some((key, n)) = parts.into_iter().find(|&(_, n)| n > MAX_PARTS) {
+            return Err(invalid(key, format!("{n} entries, more than the {MAX_PARTS} accepted")));
         }
         for q in &scene.qoi {
             if q.point.iter().flatten().any(|c| matches!(c, Scalar::Number(x) if !x.is_finite())) {
@@ -1111,6 +1127,11 @@ initial_velocity = ["v0"]
             .collect();
         let err = Scene::parse(&format!("{HASHED}\n{many}")).unwrap_err().to_string();
         assert!(err.contains("qoi") && err.contains(&MAX_QOIS.to_string()), "{err}");
+        // and every other list a user fills: here loads
+        let loads: String =
+            (0..=MAX_PARTS).map(|_| "[[loads]]\nface = \"bar.x-\"\npressure = 1.0\nhistory = [[0.0, 1.0]]\n").collect();
+        let err = Scene::parse(&format!("{HASHED}\n{loads}")).unwrap_err().to_string();
+        assert!(err.starts_with("loads: 1001 entries, more than the 1000 accepted"), "{err}");
         for bad in ["nan", "inf", "-inf"] {
             let text =
                 format!("{HASHED}\n[[qoi]]\nname = \"q\"\nkind = \"displacement\"\nbody = \"bar\"\npoint = [{bad}]\n");
