@@ -27,8 +27,14 @@ pub fn viridis(t: f64) -> RGBColor {
 }
 
 /// The colour of `z` on a bar from `lo` to `hi` (the middle when the bar has no width).
-pub fn on_bar(z: f64, (lo, hi): (f64, f64)) -> RGBColor {
-    viridis(if hi > lo { (z - lo) / (hi - lo) } else { 0.5 })
+pub fn on_bar(z: f64, range: (f64, f64)) -> RGBColor {
+    viridis(bar_position(z, range))
+}
+
+/// Where `z` lies on a bar from `lo` to `hi`, 0 to 1 (0.5 when the bar has no width): the
+/// viridis parameter of [`on_bar`], and the level of an embedded map's pixel.
+pub fn bar_position(z: f64, (lo, hi): (f64, f64)) -> f64 {
+    if hi > lo { (z - lo) / (hi - lo) } else { 0.5 }
 }
 
 #[cfg(test)]

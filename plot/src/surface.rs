@@ -10,7 +10,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::cell::RefCell;
 
 use crate::bitmap::{Bitmap, Embedded, MARKER_RADIUS, PLACEHOLDER};
-use crate::colour::on_bar;
+use crate::colour::{bar_position, on_bar};
 use crate::grid::{Grid, Segment, chains};
 use crate::ticks::Ticks;
 use crate::{Axis, CAPTION_TEXT, DESC, FONT, PlotError, TICK, TITLE, draw_legend, min_max, pad_degenerate};
@@ -410,9 +410,8 @@ impl Panel<'_> {
                 let ((left, top), (right, bottom)) = (chart.backend_coord(&(x0, y1)), chart.backend_coord(&(x1, y0)));
                 let (w, h) = ((right - left) / EMBEDDED_PIXEL, (bottom - top) / EMBEDDED_PIXEL);
                 // each pixel the colour at its centre; rows from the top, as an image's
-                let t = |z: f64| if range.1 > range.0 { (z - range.0) / (range.1 - range.0) } else { 0.5 };
                 bitmaps.borrow_mut().bitmaps.push(Bitmap::paint(w.max(1) as u32, h.max(1) as u32, |u, v| {
-                    t(grid.value(x0 + u * x_span, y1 - v * y_span))
+                    bar_position(grid.value(x0 + u * x_span, y1 - v * y_span), range)
                 }));
                 chart.draw_series(std::iter::once(Rectangle::new([(x0, y0), (x1, y1)], PLACEHOLDER.filled())))?;
             }
@@ -453,8 +452,7 @@ where
             }))?;
         }
         Raster::Embedded(bitmaps) => {
-            let t = |z: f64| if range.1 > range.0 { (z - range.0) / (range.1 - range.0) } else { 0.5 };
-            bitmaps.borrow_mut().bitmaps.push(Bitmap::paint(1, 128, |_, v| t(b1 - v * span)));
+            bitmaps.borrow_mut().bitmaps.push(Bitmap::paint(1, 128, |_, v| bar_position(b1 - v * span, range)));
             chart.draw_series(std::iter::once(Rectangle::new([(0.0, b0), (1.0, b1)], PLACEHOLDER.filled())))?;
         }
     }

@@ -188,11 +188,13 @@ fn interface_output<const D: usize>(model: &Model<D>, solution: &InterfaceSoluti
             };
             // the prestress's normal separation and traction, where there is one
             let statics = solution.static_stage.as_ref().map(|st| &st.interfaces[i]);
-            let static_jump = |j: usize| {
-                statics.map_or(0.0, |s| {
-                    s.hat.get(1).map_or(0.0, |b| normal(j, &b.velocity, 0)) - normal(j, &s.hat[0].velocity, 0)
+            let static_jump: Vec<f64> = (0..n)
+                .map(|j| {
+                    statics.map_or(0.0, |s| {
+                        s.hat.get(1).map_or(0.0, |b| normal(j, &b.velocity, 0)) - normal(j, &s.hat[0].velocity, 0)
+                    })
                 })
-            };
+                .collect();
             let relative: Vec<Vec<[f64; D]>> =
                 (0..n).map(|j| crate::latin::relative_displacement(model, f, i, j)).collect();
             let steps = model.steps + 1;
@@ -208,7 +210,7 @@ fn interface_output<const D: usize>(model: &Model<D>, solution: &InterfaceSoluti
                 .collect();
             let along = |r: &[f64; D], j: usize| -> f64 { (0..D).map(|c| r[c] * itf.normal[j][c]).sum() };
             let gap = (0..steps)
-                .map(|k| (0..n).map(|j| itf.gap0[j] + static_jump(j) + along(&relative[j][k], j)).collect())
+                .map(|k| (0..n).map(|j| itf.gap0[j] + static_jump[j] + along(&relative[j][k], j)).collect())
                 .collect();
             let slip = (0..steps)
                 .map(|k| {

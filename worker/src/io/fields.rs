@@ -354,27 +354,47 @@ fn xml_escape(s: &str) -> String {
     out
 }
 
-/// XDMF 3: a temporal collection of uniform grids sharing the mesh datasets.
-fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
-    let h5 = xml_escape(h5_name);
-    let (n, e, npe) = (m.nodes, m.elements, m.kind.nodes(m.dimension));
-    let item = |dims: &str, kind: &str, path: &str| {
-        format!(
-            r#"<DataItem Dimensions="{dims}" NumberType="{kind}" Precision="8" Format="HDF">{h5}:{path}</DataItem>"#
-        )
-    };
+/// XDMF 3: a temporal collection `name` of one uniform grid a step (its time, then what `grid`
+/// writes for the step: topology, geometry, attributes), every data item in `h5_name`.
+fn temporal_xdmf(name: &str, times: &[f64], h5_name: &str, grid: impl Fn(&str, &Items) -> String) -> String {
+    let items = Items { h5: xml_escape(h5_name) };
     let mut x = String::new();
     x.push_str("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
     x.push_str("<Xdmf Version=\"3.0\">\n  <Domain>\n");
-    x.push_str("    <Grid Name=\"glissade\" GridType=\"Collection\" CollectionType=\"Temporal\">\n");
+    let _ = writeln!(x, "    <Grid Name=\"{name}\" GridType=\"Collection\" CollectionType=\"Temporal\">");
     for (step, t) in times.iter().enumerate() {
-        let name = step_name(step);
+        let step = step_name(step);
         // writing to a String cannot fail
         let _ = write!(
             x,
-            r#"      <Grid Name="step {name}" GridType="Uniform">
-        <Time Value="{t:e}"/>
-        <Topology {topo} NumberOfElements="{e}">
+            "      <Grid Name=\"step {step}\" GridType=\"Uniform\">\n        <Time Value=\"{t:e}\"/>\n{}      </Grid>\n",
+            grid(&step, &items)
+        );
+    }
+    x.push_str("    </Grid>\n  </Domain>\n</Xdmf>\n");
+    x
+}
+
+/// The HDF5 file's data items, as XDMF names them.
+struct Items {
+    h5: String,
+}
+
+impl Items {
+    fn item(&self, dims: &str, kind: &str, path: &str) -> String {
+        format!(
+            r#"<DataItem Dimensions="{dims}" NumberType="{kind}" Precision="8" Format="HDF">{}:{path}</DataItem>"#,
+            self.h5
+        )
+    }
+}
+
+/// The merged mesh's time series: topology, geometry, the nodes' and the elements' fields.
+fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
+    let (n, e, npe) = (m.nodes, m.elements, m.kind.nodes(m.dimension));
+    temporal_xdmf("glissade", times, h5_name, |name, i| {
+        format!(
+            r#"        <Topology {topo} NumberOfElements="{e}">
           {topology}
         </Topology>
         <Geometry GeometryType="XYZ">
@@ -395,41 +415,24 @@ fn xdmf_text(m: &Merged, times: &[f64], h5_name: &str) -> String {
         <Attribute Name="von_mises" AttributeType="Scalar" Center="Cell">
           {von_mises}
         </Attribute>
-      </Grid>
 "#,
             topo = xdmf_topology(m.dimension, m.kind),
-            topology = item(&format!("{e} {npe}"), "Int", "/mesh/topology"),
-            coordinates = item(&format!("{n} 3"), "Float", "/mesh/coordinates"),
-            substructure = item(&format!("{e}"), "Int", "/mesh/substructure"),
-            displacement = item(&format!("{n} 3"), "Float", &format!("/fields/displacement/{name}")),
-            velocity = item(&format!("{n} 3"), "Float", &format!("/fields/velocity/{name}")),
-            stress = item(&format!("{e} 6"), "Float", &format!("/fields/stress/{name}")),
-            von_mises = item(&format!("{e}"), "Float", &format!("/fields/von_mises/{name}")),
-        );
-    }
-    x.push_str("    </Grid>\n  </Domain>\n</Xdmf>\n");
-    x
+            topology = i.item(&format!("{e} {npe}"), "Int", "/mesh/topology"),
+            coordinates = i.item(&format!("{n} 3"), "Float", "/mesh/coordinates"),
+            substructure = i.item(&format!("{e}"), "Int", "/mesh/substructure"),
+            displacement = i.item(&format!("{n} 3"), "Float", &format!("/fields/displacement/{name}")),
+            velocity = i.item(&format!("{n} 3"), "Float", &format!("/fields/velocity/{name}")),
+            stress = i.item(&format!("{e} 6"), "Float", &format!("/fields/stress/{name}")),
+            von_mises = i.item(&format!("{e}"), "Float", &format!("/fields/von_mises/{name}")),
+        )
+    })
 }
 
-/// XDMF 3 of the interfaces' nodes: a temporal collection of vertex grids.
+/// The interfaces' nodes' time series: vertices and their fields.
 fn interfaces_xdmf_text(nodes: usize, times: &[f64], h5_name: &str) -> String {
-    let h5 = xml_escape(h5_name);
-    let item = |dims: &str, kind: &str, path: &str| {
+    temporal_xdmf("interfaces", times, h5_name, |name, i| {
         format!(
-            r#"<DataItem Dimensions="{dims}" NumberType="{kind}" Precision="8" Format="HDF">{h5}:{path}</DataItem>"#
-        )
-    };
-    let mut x = String::new();
-    x.push_str("<?xml version=\"1.0\" encoding=\"utf-8\"?>\n");
-    x.push_str("<Xdmf Version=\"3.0\">\n  <Domain>\n");
-    x.push_str("    <Grid Name=\"interfaces\" GridType=\"Collection\" CollectionType=\"Temporal\">\n");
-    for (step, t) in times.iter().enumerate() {
-        let name = step_name(step);
-        let _ = write!(
-            x,
-            r#"      <Grid Name="step {name}" GridType="Uniform">
-        <Time Value="{t:e}"/>
-        <Topology TopologyType="Polyvertex" NumberOfElements="{nodes}" NodesPerElement="1"/>
+            r#"        <Topology TopologyType="Polyvertex" NumberOfElements="{nodes}" NodesPerElement="1"/>
         <Geometry GeometryType="XYZ">
           {coordinates}
         </Geometry>
@@ -445,17 +448,14 @@ fn interfaces_xdmf_text(nodes: usize, times: &[f64], h5_name: &str) -> String {
         <Attribute Name="slip" AttributeType="Vector" Center="Node">
           {slip}
         </Attribute>
-      </Grid>
 "#,
-            coordinates = item(&format!("{nodes} 3"), "Float", "/interfaces/coordinates"),
-            interface = item(&format!("{nodes}"), "Int", "/interfaces/interface"),
-            pressure = item(&format!("{nodes}"), "Float", &format!("/fields/contact_pressure/{name}")),
-            gap = item(&format!("{nodes}"), "Float", &format!("/fields/gap/{name}")),
-            slip = item(&format!("{nodes} 3"), "Float", &format!("/fields/slip/{name}")),
-        );
-    }
-    x.push_str("    </Grid>\n  </Domain>\n</Xdmf>\n");
-    x
+            coordinates = i.item(&format!("{nodes} 3"), "Float", "/interfaces/coordinates"),
+            interface = i.item(&format!("{nodes}"), "Int", "/interfaces/interface"),
+            pressure = i.item(&format!("{nodes}"), "Float", &format!("/fields/contact_pressure/{name}")),
+            gap = i.item(&format!("{nodes}"), "Float", &format!("/fields/gap/{name}")),
+            slip = i.item(&format!("{nodes} 3"), "Float", &format!("/fields/slip/{name}")),
+        )
+    })
 }
 
 #[cfg(test)]
