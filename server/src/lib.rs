@@ -59,6 +59,9 @@ pub struct ServerOptions {
     pub max_connections: usize,
     /// Most connections open at once from one client address.
     pub max_connections_per_client: usize,
+    /// Where there are tokens, how long a connection may stay open without presenting one
+    /// (conn.rs: it is closed then, and may be displaced by a newer connection before).
+    pub probation: Duration,
     /// The user and pool tokens; None: no authentication, which is allowed on loopback only
     /// unless `open` says otherwise.
     pub tokens: Option<auth::Tokens>,
@@ -100,6 +103,7 @@ impl ServerOptions {
             idle: Duration::from_secs(60),
             max_connections: DEFAULT_MAX_CONNECTIONS,
             max_connections_per_client: DEFAULT_MAX_CONNECTIONS_PER_CLIENT,
+            probation: Duration::from_secs(10),
             tokens: None,
             open: false,
             tls: None,
@@ -147,8 +151,13 @@ pub async fn bind(
     }
     let tokens = options.tokens.clone();
     let tls = options.tls.is_some();
-    let (idle, max_connections, per_client) =
-        (options.idle, options.max_connections, options.max_connections_per_client);
+    let limits = conn::Limits {
+        max_connections: options.max_connections,
+        max_per_client: options.max_connections_per_client,
+        idle: options.idle,
+        probation: options.tokens.is_some().then_some(options.probation),
+    };
+    let idle = options.idle;
     // Pings keep a live HTTP/2 client's connection busy (conn.rs closes a silent one); one that
     // leaves a ping unanswered for the idle time is gone.
     let mut builder = Server::builder().http2_keepalive_interval(Some(idle / 4)).http2_keepalive_timeout(Some(idle));
@@ -165,7 +174,7 @@ pub async fn bind(
             tonic::service::Routes::new(standard_health).add_service(reflection_v1).add_service(reflection_v1alpha);
         let routes = routes(standard, &coordinator, &metrics, tokens.as_ref(), tls);
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
-            conn::Incoming::new(listener, max_connections, per_client, idle),
+            conn::Incoming::new(listener, limits),
             {
                 let c = coordinator.clone();
                 async move {
@@ -282,8 +291,27 @@ fn routes(
     // every request, gRPC or HTTP, counted by method and status for /metrics
     *routes.axum_router_mut() = grpc
         .merge(web::router(coordinator.clone(), metrics.clone(), tokens, tls))
-        .layer(axum::middleware::from_fn_with_state(metrics.clone(), metrics::count_requests));
+        .layer(axum::middleware::from_fn_with_state(metrics.clone(), metrics::count_requests))
+        .layer(axum::middleware::from_fn_with_state(tokens.cloned(), trust_tokens));
     routes
+}
+
+/// A request that presents a valid token (either role's, as `Authorization: Bearer`, which is
+/// gRPC's metadata too, or as the page's login cookie) takes its connection off probation
+/// (conn.rs). Whether the token may call what it asks is each service's check, after this.
+async fn trust_tokens(
+    axum::extract::State(tokens): axum::extract::State<Option<auth::Tokens>>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> axum::response::Response {
+    if let (Some(tokens), Some(conn)) = (&tokens, conn::conn_of(request.extensions()))
+        && !conn.trust.granted()
+        && web::presented(request.headers()).is_some_and(|p| tokens.user.matches(&p) || tokens.pool.matches(&p))
+    {
+        conn.trust.grant();
+        tracing::debug!(peer = ?conn.tcp.remote_addr(), "a token presented: the connection leaves its probation");
+    }
+    next.run(request).await
 }
 
 /// The gRPC routes answer gRPC requests only: anything else (a browser's GET of a method's path)

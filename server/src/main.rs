@@ -56,6 +56,11 @@ struct Args {
     /// keepalive pings sent every quarter of it, so open streams and long polls stay up).
     #[arg(long, value_name = "SECONDS", default_value_t = 60.0, env = "GLISSADE_IDLE_SECONDS")]
     idle_seconds: f64,
+    /// Where there are tokens: a connection that has not presented a valid one within this long
+    /// is closed, and at the connection limit a new connection displaces the oldest such
+    /// connection (strangers cannot hold the slots that clients with a token need).
+    #[arg(long, value_name = "SECONDS", default_value_t = 10.0, env = "GLISSADE_PROBATION_SECONDS")]
+    probation_seconds: f64,
     /// Most connections open at once; more are closed as they arrive. Keep it below the
     /// process's file limit (`ulimit -n`).
     #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_MAX_CONNECTIONS, env = "GLISSADE_MAX_CONNECTIONS")]
@@ -124,6 +129,7 @@ async fn run(args: Args) -> Result<()> {
     let options = ServerOptions {
         point_budget: seconds("--point-seconds", args.point_seconds, 1.0)?,
         idle: seconds("--idle-seconds", args.idle_seconds, 0.1)?,
+        probation: seconds("--probation-seconds", args.probation_seconds, 0.1)?,
         max_connections: args.max_connections,
         max_connections_per_client: args.max_connections_per_client,
         max_pending: args.max_pending,

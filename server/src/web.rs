@@ -141,6 +141,17 @@ fn unhex(text: &str) -> Option<String> {
     String::from_utf8(bytes?).ok()
 }
 
+/// The token a request presents: `Authorization: Bearer` (gRPC's metadata as well), else the
+/// login cookie.
+pub fn presented(headers: &HeaderMap) -> Option<String> {
+    let bearer = headers
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::to_owned);
+    bearer.or_else(|| cookie(headers, COOKIE).and_then(unhex))
+}
+
 /// The user token, when the coordinator asks for one: from `Authorization: Bearer` or the login
 /// cookie. A token in the URL is refused whether or not it is right.
 fn check(web: &Web, headers: &HeaderMap, params: &HashMap<String, String>) -> Result<(), Refusal> {
@@ -151,12 +162,7 @@ fn check(web: &Web, headers: &HeaderMap, params: &HashMap<String, String>) -> Re
         ));
     }
     let Some(token) = &web.token else { return Ok(()) };
-    let bearer = headers
-        .get(header::AUTHORIZATION)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::to_owned);
-    match bearer.or_else(|| cookie(headers, COOKIE).and_then(unhex)) {
+    match presented(headers) {
         Some(p) if token.matches(&p) => Ok(()),
         Some(_) => Err(refuse(StatusCode::UNAUTHORIZED, "wrong user token (log in again at /login)")),
         None => Err(refuse(

@@ -241,6 +241,73 @@ fn one_client_cannot_hold_every_connection() -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Where there are tokens, a connection that presents none is on probation (issue 48 item 1:
+/// 800 sockets sending a PING a second, or a login body a byte every 2 s, held every slot for as
+/// long as their sender liked). Six strangers fill the six slots and keep sending; a client with
+/// a token is served all the same (it displaces the oldest stranger), every stranger is closed
+/// by the end of its probation however busy, and a connection that presented the token outlives
+/// the probation. On main the client with a token found every slot taken.
+#[test]
+fn strangers_on_probation_cannot_hold_the_connections() -> anyhow::Result<()> {
+    use std::io::Write;
+    let dir = tempfile::tempdir()?;
+    let tokens = Tokens::write(dir.path())?;
+    let mut args = tokens.server_args().to_vec();
+    args.extend(["--max-connections", "6", "--max-connections-per-client", "6", "--probation-seconds", "3"]);
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &args);
+    let opened = std::time::Instant::now();
+    let mut strangers: Vec<std::net::TcpStream> =
+        (0..6).map(|_| std::net::TcpStream::connect(addr)).collect::<Result<_, _>>()?;
+    for s in &mut strangers {
+        write!(
+            s,
+            "POST /login HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-www-form-urlencoded\r\nContent-Length: 1000\r\n\r\n"
+        )?;
+    }
+    // a byte of each body every 200 ms, for longer than the probation
+    let trickle: Vec<std::net::TcpStream> = strangers.iter().map(|s| s.try_clone()).collect::<Result<_, _>>()?;
+    let trickler = std::thread::spawn(move || {
+        let mut trickle = trickle;
+        for _ in 0..30 {
+            for s in &mut trickle {
+                let _ = s.write_all(b"t");
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    });
+    std::thread::sleep(Duration::from_millis(300));
+
+    let health = glissade(
+        Some(&format!("http://{addr}")),
+        &["--token-file", tokens.user_file.to_str().expect("utf-8"), "health"],
+    );
+    assert!(health.status.success(), "a client with a token is locked out: {}", text(&health.stderr));
+    assert!(closed_within(&mut strangers[0], Duration::from_millis(500)), "the oldest stranger was not displaced");
+    // a connection that presents the token (HTTP/1.1 keep-alive, answered) stays past the probation
+    let mut trusted = std::net::TcpStream::connect(addr)?;
+    write!(trusted, "GET /api/studies HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {}\r\n\r\n", tokens.user)?;
+    for (i, s) in strangers.iter_mut().enumerate().skip(1) {
+        let left = (opened + Duration::from_secs(5)).saturating_duration_since(std::time::Instant::now());
+        assert!(closed_within(s, left), "stranger {i} still open 5 s after it opened (probation 3 s)");
+    }
+    assert!(
+        opened.elapsed() >= Duration::from_millis(2900),
+        "closed before the probation's end: {:?}",
+        opened.elapsed()
+    );
+    let mut answer = [0u8; 16];
+    {
+        use std::io::Read;
+        trusted.set_read_timeout(Some(Duration::from_secs(2)))?;
+        trusted.read_exact(&mut answer)?;
+    }
+    assert!(answer.starts_with(b"HTTP/1.1 200"), "{}", String::from_utf8_lossy(&answer));
+    assert!(!closed_within(&mut trusted, Duration::from_millis(500)), "a connection with a token was closed");
+    trickler.join().expect("trickler");
+    Ok(())
+}
+
 #[test]
 fn pending_points_are_bounded_across_studies_and_a_cancel_frees_its_share() -> anyhow::Result<()> {
     let dir = tempfile::tempdir()?;
