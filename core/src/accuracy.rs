@@ -504,27 +504,8 @@ fn cheapest_level(
 /// accuracy solves the first few as pilots and checks the next few as held-out points: the
 /// pilots span the box (its centre, then its corners), the held-out points lie between them.
 pub fn spread_order(points: &[DesignPoint], space: &ParameterSpace, n: usize) -> Vec<usize> {
-    if points.is_empty() {
-        return Vec::new();
-    }
     let coords: Vec<Vec<f64>> = points.iter().map(|p| space.normalised_coordinates(p)).collect();
-    let dim = coords[0].len();
-    let centre: Vec<f64> = (0..dim).map(|d| coords.iter().map(|c| c[d]).sum::<f64>() / coords.len() as f64).collect();
-    let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
-    let first =
-        (0..points.len()).min_by(|&a, &b| distance(&coords[a], &centre).total_cmp(&distance(&coords[b], &centre)));
-    let mut order: Vec<usize> = first.into_iter().collect();
-    while order.len() < n.min(points.len()) {
-        let farthest = (0..points.len()).filter(|i| !order.contains(i)).max_by(|&a, &b| {
-            let d = |i: usize| order.iter().map(|&o| distance(&coords[i], &coords[o])).fold(f64::INFINITY, f64::min);
-            d(a).total_cmp(&d(b))
-        });
-        match farthest {
-            Some(i) => order.push(i),
-            None => break,
-        }
-    }
-    order
+    crate::study::space::farthest_first(&coords, n)
 }
 
 /// The pilots a study to an accuracy takes unless told.

@@ -208,7 +208,7 @@ mod tests {
     fn picture_cost() {
         let scene = Scene::parse(SCENE).unwrap();
         let names = vec!["a".to_owned(), "b".to_owned()];
-        for n in [5usize, 11, 20] {
+        for n in [5usize, 11, 20, 32, 44] {
             let xs: Vec<(f64, f64)> =
                 (0..n * n).map(|k| ((k % n) as f64 / (n - 1) as f64, 2.0 * (k / n) as f64 / (n - 1) as f64)).collect();
             let data = rows(|a, b| (3.0 * a).sin() * b + (a - 0.4).max(0.0), &xs);

@@ -312,6 +312,44 @@ fn factors(axes: &[GridAxis]) -> Result<Vec<Vec<&GridAxis>>, SpaceError> {
     Ok(out)
 }
 
+/// Indices of `coords` in a spread-out order, at most `n`: the one nearest their centre first,
+/// then each time the one farthest (Euclidean) from all those already taken, the last of equals.
+/// O(len x n): each point's distance to the order is kept as it grows.
+pub fn farthest_first(coords: &[Vec<f64>], n: usize) -> Vec<usize> {
+    if coords.is_empty() {
+        return Vec::new();
+    }
+    let dim = coords[0].len();
+    let centre: Vec<f64> = (0..dim).map(|d| coords.iter().map(|c| c[d]).sum::<f64>() / coords.len() as f64).collect();
+    let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt();
+    let first = (0..coords.len())
+        .min_by(|&a, &b| distance(&coords[a], &centre).total_cmp(&distance(&coords[b], &centre)))
+        .unwrap_or(0);
+    let mut order = vec![first];
+    // distance of each point to the order; None once taken
+    let mut nearest: Vec<Option<f64>> = coords.iter().map(|c| Some(distance(c, &coords[first]))).collect();
+    nearest[first] = None;
+    while order.len() < n.min(coords.len()) {
+        let mut farthest: Option<(usize, f64)> = None;
+        for (i, d) in nearest.iter().enumerate() {
+            if let Some(d) = *d
+                && farthest.is_none_or(|(_, f)| d.total_cmp(&f).is_ge())
+            {
+                farthest = Some((i, d));
+            }
+        }
+        let Some((next, _)) = farthest else { break };
+        order.push(next);
+        nearest[next] = None;
+        for (i, d) in nearest.iter_mut().enumerate() {
+            if let Some(d) = d {
+                *d = d.min(distance(&coords[i], &coords[next]));
+            }
+        }
+    }
+    order
+}
+
 /// The number of design points the axes give, computed from the specs alone (nothing is
 /// allocated), or None when it does not fit in a usize.
 pub fn point_count(axes: &[GridAxis]) -> Result<Option<usize>, SpaceError> {

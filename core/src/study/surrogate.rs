@@ -19,14 +19,18 @@
 //! sum_i |w_i| e_i, which is added to the standard deviation ([`Surrogate::with_point_errors`];
 //! docs/surrogate.md, "Error bars of grid studies").
 //!
-//! Cost: O(n^3) per likelihood evaluation; fits are refused above [`MAX_POINTS`] points before
-//! anything is allocated.
+//! Cost: O(n^3) per likelihood evaluation, about 80 of them, on at most [`SEARCH_POINTS`] points,
+//! then one on all; fits are refused above [`MAX_POINTS`] points before anything is allocated.
 
 use super::space::ParameterSpace;
 use crate::point::DesignPoint;
 
 /// The most points a surface is fitted to (an n x n matrix: 32 MB at this size).
 pub const MAX_POINTS: usize = 2000;
+/// Above this many points the likelihood's search runs on a spread-out subset of this size and
+/// the surface is then fitted to all of them with what it chose (docs/surrogate.md, "Pictures
+/// of the surface").
+pub const SEARCH_POINTS: usize = 500;
 /// The most parameters a surface is fitted over.
 pub const MAX_DIMENSION: usize = 8;
 /// The shortest length scale (in units of a parameter's range): shorter ones let the likelihood
@@ -105,6 +109,11 @@ impl Prediction {
 impl Surrogate {
     /// Fits `values` at `points` (each with the same number of coordinates, scaled to [0, 1]).
     pub fn fit(points: &[Vec<f64>], values: &[f64]) -> Result<Self, SurrogateError> {
+        Self::fit_searching(points, values, SEARCH_POINTS)
+    }
+
+    /// [`Self::fit`], the likelihood searched on at most `search` of the points.
+    fn fit_searching(points: &[Vec<f64>], values: &[f64], search: usize) -> Result<Self, SurrogateError> {
         let n = points.len();
         if n != values.len() || n < 2 {
             return Err(SurrogateError::TooFewPoints(n.min(values.len())));
@@ -131,36 +140,23 @@ impl Surrogate {
                 }
             }
         }
-        // Length scales: a log grid common to all parameters, then each refined in turn.
-        let grid: Vec<f64> = (0..12).map(|i| MIN_LENGTH * 2f64.powf(i as f64 * 0.5)).collect();
-        let mut best: Option<(f64, Vec<f64>, f64)> = None;
-        for &nugget in &NUGGETS {
-            for &l in &grid {
-                let lengths = vec![l; dim];
-                if let Some(ll) = log_likelihood(points, values, &lengths, nugget)
-                    && best.as_ref().is_none_or(|(b, ..)| ll > *b)
-                {
-                    best = Some((ll, lengths, nugget));
-                }
-            }
-        }
-        let (mut best_ll, mut lengths, nugget) = best.unwrap_or((f64::NEG_INFINITY, vec![0.3; dim], NUGGETS[4]));
-        for _sweep in 0..2 {
-            for d in 0..dim {
-                for factor in [0.35, 0.5, 0.7, 1.4, 2.0, 2.8] {
-                    let mut trial = lengths.clone();
-                    trial[d] = (trial[d] * factor).clamp(MIN_LENGTH, 20.0);
-                    if let Some(ll) = log_likelihood(points, values, &trial, nugget)
-                        && ll > best_ll
-                    {
-                        best_ll = ll;
-                        lengths = trial;
-                    }
-                }
-            }
-        }
-        Ok(Self::with_lengths(points, values, lengths, nugget)
-            .expect("the chosen lengths factorised during the search"))
+        // The likelihood's search on a spread-out subset of a large study's points (each of its
+        // ~80 evaluations is a factorisation: 2000 points took minutes), then one on all of them.
+        let (lengths, nugget) = if n > search {
+            let subset = super::space::farthest_first(points, search);
+            let sub_points: Vec<Vec<f64>> = subset.iter().map(|&i| points[i].clone()).collect();
+            let sub_values: Vec<f64> = subset.iter().map(|&i| values[i]).collect();
+            most_likely(&sub_points, &sub_values)
+        } else {
+            most_likely(points, values)
+        };
+        // (the subset's nugget may be too small for the closer points of the whole set)
+        Ok(NUGGETS
+            .iter()
+            .filter(|&&g| g >= nugget)
+            .find_map(|&g| Self::with_lengths(points, values, lengths.clone(), g))
+            .or_else(|| Self::with_lengths(points, values, lengths, NUGGETS[NUGGETS.len() - 1] * 10.0))
+            .expect("a nugget of 1e-2 factorises a Matérn correlation matrix"))
     }
 
     /// The process with given length scales (signal variance and mean in closed form); None if
@@ -732,6 +728,40 @@ fn erfc(x: f64) -> f64 {
     if x >= 0.0 { r } else { 2.0 - r }
 }
 
+/// The lengths and nugget of the largest likelihood: a log grid of lengths common to all
+/// parameters for each nugget, then each length refined in turn.
+fn most_likely(points: &[Vec<f64>], values: &[f64]) -> (Vec<f64>, f64) {
+    let dim = points[0].len();
+    let grid: Vec<f64> = (0..12).map(|i| MIN_LENGTH * 2f64.powf(i as f64 * 0.5)).collect();
+    let mut best: Option<(f64, Vec<f64>, f64)> = None;
+    for &nugget in &NUGGETS {
+        for &l in &grid {
+            let lengths = vec![l; dim];
+            if let Some(ll) = log_likelihood(points, values, &lengths, nugget)
+                && best.as_ref().is_none_or(|(b, ..)| ll > *b)
+            {
+                best = Some((ll, lengths, nugget));
+            }
+        }
+    }
+    let (mut best_ll, mut lengths, nugget) = best.unwrap_or((f64::NEG_INFINITY, vec![0.3; dim], NUGGETS[4]));
+    for _sweep in 0..2 {
+        for d in 0..dim {
+            for factor in [0.35, 0.5, 0.7, 1.4, 2.0, 2.8] {
+                let mut trial = lengths.clone();
+                trial[d] = (trial[d] * factor).clamp(MIN_LENGTH, 20.0);
+                if let Some(ll) = log_likelihood(points, values, &trial, nugget)
+                    && ll > best_ll
+                {
+                    best_ll = ll;
+                    lengths = trial;
+                }
+            }
+        }
+    }
+    (lengths, nugget)
+}
+
 /// Matérn 3/2 correlation of two scaled points: rougher than the squared exponential, whose
 /// error bars the stick / slip edges of friction QoIs make overconfident (docs/surrogate.md).
 fn kernel(a: &[f64], b: &[f64], lengths: &[f64]) -> f64 {
@@ -777,7 +807,7 @@ fn cholesky(a: &[f64], n: usize) -> Option<Vec<f64>> {
     let mut l = vec![0.0; n * n];
     for i in 0..n {
         for j in 0..=i {
-            let s: f64 = (0..j).map(|k| l[i * n + k] * l[j * n + k]).sum();
+            let s = dot(&l[i * n..i * n + j], &l[j * n..j * n + j]);
             if i == j {
                 let d = a[i * n + i] - s;
                 if d.is_nan() || d <= 0.0 {
@@ -796,19 +826,36 @@ fn cholesky(a: &[f64], n: usize) -> Option<Vec<f64>> {
 fn forward(l: &[f64], n: usize, b: &[f64]) -> Vec<f64> {
     let mut y = vec![0.0; n];
     for i in 0..n {
-        let s: f64 = (0..i).map(|k| l[i * n + k] * y[k]).sum();
+        let s = dot(&l[i * n..i * n + i], &y[..i]);
         y[i] = (b[i] - s) / l[i * n + i];
     }
     y
 }
 
-/// L'^-1 y.
+/// L'^-1 y, by rows of L (contiguous): once x_k is known, its share leaves every earlier entry.
 fn backward(l: &[f64], n: usize, mut x: Vec<f64>) -> Vec<f64> {
-    for i in (0..n).rev() {
-        let s: f64 = (i + 1..n).map(|k| l[k * n + i] * x[k]).sum();
-        x[i] = (x[i] - s) / l[i * n + i];
+    for k in (0..n).rev() {
+        x[k] /= l[k * n + k];
+        let xk = x[k];
+        for (xi, lki) in x[..k].iter_mut().zip(&l[k * n..k * n + k]) {
+            *xi -= lki * xk;
+        }
     }
     x
+}
+
+/// a . b, in four interleaved sums (the compiler keeps one sum in order, which it cannot
+/// vectorise): the factorisations and solves of a large surface are these dot products.
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let mut sums = [0.0; 4];
+    let (a4, b4) = (a.chunks_exact(4), b.chunks_exact(4));
+    let tail: f64 = a4.remainder().iter().zip(b4.remainder()).map(|(x, y)| x * y).sum();
+    for (x, y) in a4.zip(b4) {
+        for k in 0..4 {
+            sums[k] += x[k] * y[k];
+        }
+    }
+    (sums[0] + sums[1]) + (sums[2] + sums[3]) + tail
 }
 
 /// (L L')^-1 b.
@@ -946,6 +993,36 @@ pub(crate) mod tests {
 
     /// The closed form against what it stands for: n refits, each without one point, with the
     /// same lengths and nugget (its mean re-estimated), predicting at the point left out.
+    /// A large study's surface, its likelihood searched on a spread-out subset, predicts as the
+    /// one searched on every point: a 17 x 17 grid of the analytic function, searched on 60 of
+    /// its points or all 289, against the function on 15 x 15 points between them.
+    #[test]
+    fn a_search_on_a_spread_out_subset_fits_as_well_as_on_every_point() {
+        let points = grid(17);
+        let values: Vec<f64> = points.iter().map(|p| analytic(p)).collect();
+        let all = Surrogate::fit_searching(&points, &values, points.len()).unwrap();
+        let subset = Surrogate::fit_searching(&points, &values, 60).unwrap();
+        let test: Vec<Vec<f64>> = grid(15).into_iter().map(|p| p.iter().map(|x| 0.02 + 0.96 * x).collect()).collect();
+        let rms = |s: &Surrogate| {
+            (test.iter().map(|x| (s.predict(x).mean - analytic(x)).powi(2)).sum::<f64>() / test.len() as f64).sqrt()
+        };
+        let within = |s: &Surrogate| {
+            test.iter().filter(|x| (s.predict(x).mean - analytic(x)).abs() <= 2.0 * s.predict(x).std).count() as f64
+                / test.len() as f64
+        };
+        let spread = values.iter().cloned().fold(f64::MIN, f64::max) - values.iter().cloned().fold(f64::MAX, f64::min);
+        assert!(rms(&all) < 1e-3 * spread, "the full search's fit: rms {:.2e} of a spread {spread:.2e}", rms(&all));
+        assert!(
+            rms(&subset) <= 1.5 * rms(&all),
+            "subset {:.3e} against all {:.3e} (lengths {:?} against {:?})",
+            rms(&subset),
+            rms(&all),
+            subset.lengths(),
+            all.lengths()
+        );
+        assert!(within(&subset) >= 0.9, "within 2 sd: {}", within(&subset));
+    }
+
     #[test]
     fn leave_one_out_equals_refitting_without_each_point() {
         let mut points = grid(4);
