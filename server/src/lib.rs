@@ -8,6 +8,7 @@ mod convert;
 mod coordinator;
 mod figures;
 mod health;
+mod low_priority;
 mod metrics;
 mod pool;
 mod records;
@@ -137,6 +138,7 @@ pub async fn bind(
         tonic_reflection::server::Builder::configure()
             .register_encoded_file_descriptor_set(glissade_proto::FILE_DESCRIPTOR_SET)
     };
+    let heavy = Arc::new(low_priority::LowPriority::for_this_machine().context("starting the web's threads")?);
     let reflection_v1 = reflection().build_v1().context("building the reflection service")?;
     let reflection_v1alpha = reflection().build_v1alpha().context("building the reflection service")?;
     let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("binding {listen}"))?;
@@ -172,7 +174,7 @@ pub async fn bind(
         let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
         let standard =
             tonic::service::Routes::new(standard_health).add_service(reflection_v1).add_service(reflection_v1alpha);
-        let routes = routes(standard, &coordinator, &metrics, tokens.as_ref(), tls);
+        let routes = routes(standard, &coordinator, &metrics, tokens.as_ref(), tls, heavy);
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
             conn::Incoming::new(listener, limits),
             {
@@ -267,6 +269,7 @@ fn routes(
     metrics: &Arc<metrics::Metrics>,
     tokens: Option<&auth::Tokens>,
     tls: bool,
+    heavy: Arc<low_priority::LowPriority>,
 ) -> tonic::service::Routes {
     routes = routes
         .add_service(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
@@ -290,7 +293,7 @@ fn routes(
         std::mem::take(routes.axum_router_mut()).fallback(web::not_found).layer(axum::middleware::from_fn(grpc_only));
     // every request, gRPC or HTTP, counted by method and status for /metrics
     *routes.axum_router_mut() = grpc
-        .merge(web::router(coordinator.clone(), metrics.clone(), tokens, tls))
+        .merge(web::router(coordinator.clone(), metrics.clone(), tokens, tls, heavy))
         .layer(axum::middleware::from_fn_with_state(metrics.clone(), metrics::count_requests))
         .layer(axum::middleware::from_fn_with_state(tokens.cloned(), trust_tokens));
     routes

@@ -37,6 +37,7 @@ use crate::coordinator::{
     state_word,
 };
 use crate::figures::{self, FigureCache};
+use crate::low_priority::{LowPriority, NotBuilt};
 use crate::metrics::{self, Metrics};
 use crate::records::{PointRecord, PointState};
 use glissade_core::text::{parameter, percent, qoi_digits, qoi_value, same_parameter, utc_minute, wall_time};
@@ -50,6 +51,8 @@ struct Web {
     secure_cookie: bool,
     /// the surfaces' pictures of the last loads
     figures: Arc<FigureCache>,
+    /// where the heavy answers are built (low_priority.rs)
+    heavy: Arc<LowPriority>,
 }
 
 /// The cookie that carries the user token (hex-encoded: any printable token fits a cookie).
@@ -67,9 +70,10 @@ pub fn router(
     metrics: Arc<Metrics>,
     tokens: Option<&Tokens>,
     secure_cookie: bool,
+    heavy: Arc<LowPriority>,
 ) -> axum::Router {
-    let web =
-        Web { coordinator, metrics, token: tokens.map(|t| t.user.clone()), secure_cookie, figures: Arc::default() };
+    let token = tokens.map(|t| t.user.clone());
+    let web = Web { coordinator, metrics, token, secure_cookie, figures: Arc::default(), heavy };
     axum::Router::new()
         .route("/", get(index))
         .route("/login", get(login_form).post(login))
@@ -226,6 +230,35 @@ async fn metrics_text(State(web): State<Web>, headers: HeaderMap, Query(params):
     match tokio::task::spawn_blocking(move || web.metrics.render()).await {
         Ok(text) => ([(header::CONTENT_TYPE, metrics::CONTENT_TYPE)], text).into_response(),
         Err(e) => refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("rendering the metrics: {e}")).into_response(),
+    }
+}
+
+/// Runs `build` on the web's low-priority threads: the answer, or why there is none (503 when
+/// they are all busy and their queue is full).
+async fn heavy(web: &Web, build: impl FnOnce() -> Response + Send + 'static) -> Response {
+    web.heavy.run(build).await.unwrap_or_else(not_built)
+}
+
+fn not_built(e: NotBuilt) -> Response {
+    not_built_refusal(e).into_response()
+}
+
+fn not_built_refusal(e: NotBuilt) -> Refusal {
+    match e {
+        NotBuilt::Busy => {
+            refuse(StatusCode::SERVICE_UNAVAILABLE, "the coordinator is busy with other pages: try again in a moment")
+        }
+        NotBuilt::Failed => {
+            refuse(StatusCode::INTERNAL_SERVER_ERROR, "this answer could not be built (the coordinator's log says why)")
+        }
+    }
+}
+
+/// JSON, serialised where it is built (a large study's is megabytes).
+fn json_response(value: &serde_json::Value) -> Response {
+    match serde_json::to_vec(value) {
+        Ok(bytes) => ([(header::CONTENT_TYPE, "application/json")], bytes).into_response(),
+        Err(e) => refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("writing the JSON: {e}")).into_response(),
     }
 }
 
@@ -390,41 +423,40 @@ async fn api_studies(State(web): State<Web>, headers: HeaderMap, Query(q): Param
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    // (off the async threads: the views and their JSON of a large database take a while)
+    // (the views and their JSON of a large database take a while)
     let coordinator = web.coordinator.clone();
-    match tokio::task::spawn_blocking(move || coordinator.studies().iter().map(study_json).collect::<Vec<_>>()).await {
-        Ok(list) => axum::Json(list).into_response(),
-        Err(_) => refuse(StatusCode::INTERNAL_SERVER_ERROR, "the studies could not be read").into_response(),
-    }
+    heavy(&web, move || json_response(&coordinator.studies().iter().map(study_json).collect())).await
 }
 
 async fn api_study(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    // (off the async threads: a large study's points and their JSON take a while)
-    match tokio::task::spawn_blocking(move || study(&web, &id, true).map(|v| study_json(&v))).await {
-        Ok(Ok(json)) => axum::Json(json).into_response(),
-        Ok(Err(r)) => r.into_response(),
-        Err(_) => refuse(StatusCode::INTERNAL_SERVER_ERROR, "the study could not be read").into_response(),
-    }
+    // (a large study's points and their JSON take a while)
+    let w = web.clone();
+    heavy(&web, move || match study(&w, &id, true) {
+        Ok(v) => json_response(&study_json(&v)),
+        Err(r) => r.into_response(),
+    })
+    .await
 }
 
 async fn api_surface(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    match surface(&web, &id) {
-        Ok(s) => axum::Json(json!({
+    let w = web.clone();
+    heavy(&web, move || match surface(&w, &id) {
+        Ok(s) => json_response(&json!({
             "parameters": s.parameters,
             "qoi": s.qoi,
             "points": s.rows.iter().map(|r| json!({
                 "parameters": BTreeMap::from(r.parameters.clone()), "qoi": r.qoi, "state": point_state_word(&r.state),
             })).collect::<Vec<_>>(),
-        }))
-        .into_response(),
+        })),
         Err(r) => r.into_response(),
-    }
+    })
+    .await
 }
 
 async fn api_surface_csv(
@@ -436,7 +468,12 @@ async fn api_surface_csv(
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    let s = match surface(&web, &id) {
+    let w = web.clone();
+    heavy(&web, move || surface_csv(&w, &id)).await
+}
+
+fn surface_csv(web: &Web, id: &str) -> Response {
+    let s = match surface(web, id) {
         Ok(s) => s,
         Err(r) => return r.into_response(),
     };
@@ -513,22 +550,20 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     if let Err(r) = check(&web, &headers, &q) {
         return page_refusal(r);
     }
-    // the audits and pilots' levels are listed on their study's page and counted on its row;
-    // read off the async threads (a large database takes a while under the coordinator's lock)
+    // (a large database takes a while under the coordinator's lock)
     let coordinator = web.coordinator.clone();
-    let Ok((studies, means)) = tokio::task::spawn_blocking(move || {
-        let studies: Vec<StudyView> = coordinator
-            .studies()
-            .into_iter()
-            .filter(|v| v.record.audit_of.is_none() && v.record.pilot_of.is_none())
-            .collect();
-        let means: Vec<[Option<f64>; 2]> = studies.iter().map(|v| coordinator.mean_work(v.record.id)).collect();
-        (studies, means)
-    })
-    .await
-    else {
-        return page_refusal(refuse(StatusCode::INTERNAL_SERVER_ERROR, "the studies could not be read"));
-    };
+    heavy(&web, move || studies_page(&coordinator)).await
+}
+
+/// The page of every study but the audits and pilots' levels (listed on their study's page and
+/// counted on its row).
+fn studies_page(coordinator: &Coordinator) -> Response {
+    let studies: Vec<StudyView> = coordinator
+        .studies()
+        .into_iter()
+        .filter(|v| v.record.audit_of.is_none() && v.record.pilot_of.is_none())
+        .collect();
+    let means: Vec<[Option<f64>; 2]> = studies.iter().map(|v| coordinator.mean_work(v.record.id)).collect();
     // mean work of the points solved cold and warm (answered ones aside)
     let mean = |k: usize, warm: bool| means[k][usize::from(warm)].map_or("-".to_owned(), |w| format!("{w:.1}"));
     let body = html! {
@@ -664,6 +699,7 @@ fn surface_figures(
 /// parameters and values changed since (figures.rs), else drawn again off the async threads.
 async fn cached_figures(
     cache: &Arc<FigureCache>,
+    heavy: &LowPriority,
     study: StudyId,
     s: &Arc<Surface>,
     scene: &Option<Arc<glissade_core::scene::Scene>>,
@@ -683,22 +719,25 @@ async fn cached_figures(
     }
     // The drawing keeps its pictures itself: a page that gives up (a browser's timeout, a
     // reload) does not throw minutes of drawing away, and the next load finds them.
-    let (cache, s, scene, fixed) = (cache.clone(), s.clone(), scene.clone(), fixed.to_vec());
-    let resolution = resolution.clone();
-    tokio::task::spawn_blocking(move || {
-        struct Ends<'a>(&'a FigureCache, StudyId, &'a [(String, f64)], u64);
-        impl Drop for Ends<'_> {
-            fn drop(&mut self) {
-                self.0.end(self.1, self.2, self.3);
-            }
+    // The drawing ends (the next load may draw) when it is kept, and also if its job panicked or
+    // was refused (the threads busy).
+    struct Ends(Arc<FigureCache>, StudyId, Vec<(String, f64)>, u64);
+    impl Drop for Ends {
+        fn drop(&mut self) {
+            self.0.end(self.1, &self.2, self.3);
         }
-        let _ends = Ends(&cache, study, &fixed, hash);
-        let drawn = Arc::new(surface_figures(&s, scene.as_deref(), &fixed, &resolution));
-        cache.put(study, &fixed, hash, drawn.clone());
-        drawn
-    })
-    .await
-    .map_err(|e| refuse(StatusCode::INTERNAL_SERVER_ERROR, &format!("drawing the surfaces: {e}")))
+    }
+    let ends = Ends(cache.clone(), study, fixed.to_vec(), hash);
+    let (s, scene, resolution) = (s.clone(), scene.clone(), resolution.clone());
+    heavy
+        .run_to_end(move || {
+            let Ends(cache, study, fixed, hash) = &ends;
+            let drawn = Arc::new(surface_figures(&s, scene.as_deref(), fixed, &resolution));
+            cache.put(*study, fixed, *hash, drawn.clone());
+            drawn
+        })
+        .await
+        .map_err(not_built_refusal)
 }
 
 /// The slice a page shows (`?fix=NAME=VALUE`), the values there are when it holds no point, and
@@ -747,82 +786,120 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     if let Err(r) = check(&web, &headers, &q) {
         return page_refusal(r);
     }
-    let (v, s) = match study(&web, &id, true).and_then(|v| Ok((v, surface(&web, &id)?))) {
-        Ok(both) => both,
-        Err(r) => return r.into_response(),
+    // read and built on the low-priority threads, the pictures too
+    let w = web.clone();
+    let shown = match web.heavy.run(move || StudyShown::read(&w, &id, &q)).await {
+        Ok(Ok(shown)) => shown,
+        Ok(Err(r)) => return r.into_response(),
+        Err(e) => return not_built(e),
     };
-    let s = Arc::new(s);
-    let r = &v.record;
-    // the units the scene gives its parameters and QoIs (parsed once, when the study entered)
-    let scene = Some(v.scene.clone());
-    let units: BTreeMap<String, String> = r
-        .parameters
-        .iter()
-        .chain(&s.qoi)
-        .filter_map(|n| Some((n.clone(), scene.as_ref()?.unit(n)?.to_owned())))
-        .collect();
-    // what the solve resolves of each QoI: values below it show as 0 (the API keeps them)
-    let resolution = glissade_core::study::resolutions(r.tolerance, s.rows.iter().map(|row| &row.qoi), |q| {
-        scene.as_ref()?.unit(q).map(str::to_owned)
-    });
-    let slicing = Slicing::of(&s, &q);
-    let figures = match &slicing.miss {
+    let figures = match &shown.slicing.miss {
         Some(_) => Arc::default(),
         None => {
-            let fixed: Vec<(String, f64)> = slicing.fixed.iter().cloned().collect();
-            match cached_figures(&web.figures, r.id, &s, &scene, &fixed, &resolution).await {
+            let fixed: Vec<(String, f64)> = shown.slicing.fixed.iter().cloned().collect();
+            match cached_figures(
+                &web.figures,
+                &web.heavy,
+                shown.v.record.id,
+                &shown.s,
+                &shown.scene,
+                &fixed,
+                &shown.resolution,
+            )
+            .await
+            {
                 Ok(f) => f,
                 Err(refusal) => return refusal.into_response(),
             }
         }
     };
-    let series: Vec<glissade_plot::ConvergenceSeries> = v
-        .points
-        .iter()
-        .filter_map(|p| {
-            let history = p.result.as_ref()?.eta_history.clone();
-            Some(glissade_plot::ConvergenceSeries { label: format!("#{}", p.id.0), history })
-        })
-        .collect();
-    let here = format!("/studies/{}", r.id.0);
-    let state = state_word(v.state);
-    let p = v.progress;
-    let body = html! {
-        p #progress data-state=(state) data-api=(format!("/api/studies/{}", r.id.0)) {
-            (format!("{state}: {} of {} done, {} running, {} pending, {} failed", p.done, p.total, p.leased, p.pending, p.failed))
-        }
-        (audits_paragraph(&v))
-        p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
-        // the pictures first, then how far to trust them (issue 47: the page opened on five
-        // paragraphs of numbers)
-        (slicing.links(&here))
-        @if let Some(miss) = &slicing.miss {
-            p #slice-miss { (miss) }
-        } @else {
-            @for svg in figures.iter() { (PreEscaped(svg)) }
-        }
-        h2 { "Accuracy" }
-        (target_paragraph(&v))
-        (ill_posed_paragraph(&v))
-        (audit_paragraphs(&v))
-        // the running points: the script fills this table from the JSON while the study runs
-        @if v.state == StudyState::Active {
-            table #running {
-                caption { "running points" }
-                tr { th { "point" } @for n in &r.parameters { th { (named(n, &units)) } } th { "pool" } th { "iterations" } th { "eta" } }
+    heavy(&web, move || shown.page(&figures)).await
+}
+
+/// What a study's page shows but its pictures.
+struct StudyShown {
+    v: StudyView,
+    s: Arc<Surface>,
+    scene: Option<Arc<glissade_core::scene::Scene>>,
+    /// the units the scene gives its parameters and QoIs
+    units: BTreeMap<String, String>,
+    /// what the solve resolves of each QoI: values below it show as 0 (the API keeps them)
+    resolution: BTreeMap<String, f64>,
+    slicing: Slicing,
+}
+
+impl StudyShown {
+    fn read(web: &Web, id: &str, q: &HashMap<String, String>) -> Result<Self, Refusal> {
+        let v = study(web, id, true)?;
+        let s = Arc::new(surface(web, id)?);
+        let r = &v.record;
+        // (parsed once, when the study entered)
+        let scene = Some(v.scene.clone());
+        let units: BTreeMap<String, String> = r
+            .parameters
+            .iter()
+            .chain(&s.qoi)
+            .filter_map(|n| Some((n.clone(), scene.as_ref()?.unit(n)?.to_owned())))
+            .collect();
+        let resolution = glissade_core::study::resolutions(r.tolerance, s.rows.iter().map(|row| &row.qoi), |q| {
+            scene.as_ref()?.unit(q).map(str::to_owned)
+        });
+        let slicing = Slicing::of(&s, q);
+        Ok(Self { v, s, scene, units, resolution, slicing })
+    }
+
+    fn page(&self, figures: &[String]) -> Response {
+        let StudyShown { v, s, units, resolution, slicing, .. } = self;
+        let r = &v.record;
+        let series: Vec<glissade_plot::ConvergenceSeries> = v
+            .points
+            .iter()
+            .filter_map(|p| {
+                let history = p.result.as_ref()?.eta_history.clone();
+                Some(glissade_plot::ConvergenceSeries { label: format!("#{}", p.id.0), history })
+            })
+            .collect();
+        let here = format!("/studies/{}", r.id.0);
+        let state = state_word(v.state);
+        let p = v.progress;
+        let body = html! {
+            p #progress data-state=(state) data-api=(format!("/api/studies/{}", r.id.0)) {
+                (format!("{state}: {} of {} done, {} running, {} pending, {} failed", p.done, p.total, p.leased, p.pending, p.failed))
             }
-        }
-        (convergence_figure(&series, r.tolerance))
-        (undrawn_iterations(&v))
-        p {
-            "download: " a href=(format!("/api/studies/{}/surface.csv", r.id.0)) { "surface.csv" } ", "
-            a href=(format!("/api/studies/{}", r.id.0)) { "study JSON" }
-        }
-        (points_table(&v, &s.qoi, &units, &resolution))
-        script src="/static/study.js" {}
-    };
-    let title = if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
-    page(&title, body).into_response()
+            (audits_paragraph(v))
+            p { (format!("tolerance {:.1e}, strategy {}, parameters ", r.tolerance, r.strategy.name())) (r.parameters.join(", ")) }
+            // the pictures first, then how far to trust them (issue 47: the page opened on five
+            // paragraphs of numbers)
+            (slicing.links(&here))
+            @if let Some(miss) = &slicing.miss {
+                p #slice-miss { (miss) }
+            } @else {
+                @for svg in figures.iter() { (PreEscaped(svg)) }
+            }
+            h2 { "Accuracy" }
+            (target_paragraph(v))
+            (ill_posed_paragraph(v))
+            (audit_paragraphs(v))
+            // the running points: the script fills this table from the JSON while the study runs
+            @if v.state == StudyState::Active {
+                table #running {
+                    caption { "running points" }
+                    tr { th { "point" } @for n in &r.parameters { th { (named(n, units)) } } th { "pool" } th { "iterations" } th { "eta" } }
+                }
+            }
+            (convergence_figure(&series, r.tolerance))
+            (undrawn_iterations(v))
+            p {
+                "download: " a href=(format!("/api/studies/{}/surface.csv", r.id.0)) { "surface.csv" } ", "
+                a href=(format!("/api/studies/{}", r.id.0)) { "study JSON" }
+            }
+            (points_table(v, &s.qoi, units, resolution))
+            script src="/static/study.js" {}
+        };
+        let title =
+            if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
+        page(&title, body).into_response()
+    }
 }
 
 /// What the convergence plot leaves out: the static stage's iterations (a prestressed scene's),
@@ -1204,12 +1281,15 @@ mod tests {
     async fn a_drawing_a_page_gave_up_on_is_kept_and_two_loads_at_once_draw_once() {
         let scene = Some(Arc::new(glissade_core::scene::Scene::parse(SCENE).unwrap()));
         let cache = Arc::new(FigureCache::default());
+        let heavy = LowPriority::start(1).unwrap();
         let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5)];
         let resolution = BTreeMap::from([("ux".to_owned(), 0.0), ("slip".to_owned(), 0.0)]);
         let s = Arc::new(study_surface(&points, 4));
-        let gave_up =
-            tokio::time::timeout(Duration::ZERO, cached_figures(&cache, StudyId(3), &s, &scene, &[], &resolution))
-                .await;
+        let gave_up = tokio::time::timeout(
+            Duration::ZERO,
+            cached_figures(&cache, &heavy, StudyId(3), &s, &scene, &[], &resolution),
+        )
+        .await;
         assert!(gave_up.is_err(), "the page gave up before the pictures were drawn");
         let hash = figures::content_hash(&s, &[], &resolution);
         let waited = std::time::Instant::now();
@@ -1218,14 +1298,14 @@ mod tests {
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
         assert!(!cache.drawing(StudyId(3), &[], hash));
-        let next = cached_figures(&cache, StudyId(3), &s, &scene, &[], &resolution).await.ok().unwrap();
+        let next = cached_figures(&cache, &heavy, StudyId(3), &s, &scene, &[], &resolution).await.ok().unwrap();
         assert_eq!(cache.stats().0, 1, "the next load found them");
         assert_eq!(*next, surface_figures(&s, scene.as_deref(), &[], &resolution));
         // a point lands and two pages load at once: one drawing
         let landed = Arc::new(study_surface(&points, 5));
         let (a, b) = tokio::join!(
-            cached_figures(&cache, StudyId(3), &landed, &scene, &[], &resolution),
-            cached_figures(&cache, StudyId(3), &landed, &scene, &[], &resolution)
+            cached_figures(&cache, &heavy, StudyId(3), &landed, &scene, &[], &resolution),
+            cached_figures(&cache, &heavy, StudyId(3), &landed, &scene, &[], &resolution)
         );
         assert!(Arc::ptr_eq(&a.ok().unwrap(), &b.ok().unwrap()));
         assert_eq!(cache.stats().0, 2);
@@ -1235,11 +1315,14 @@ mod tests {
     async fn a_second_load_draws_nothing_and_a_new_point_draws_again() {
         let scene = Some(Arc::new(glissade_core::scene::Scene::parse(SCENE).unwrap()));
         let cache = Arc::new(FigureCache::default());
+        let heavy = LowPriority::start(1).unwrap();
         let points = [(0.1, 0.3), (0.8, 0.2), (0.5, 1.0), (0.2, 1.7), (0.9, 1.5)];
         let resolution = BTreeMap::from([("ux".to_owned(), 0.0), ("slip".to_owned(), 0.0)]);
         let load = |s: Surface, fixed: Vec<(String, f64)>| {
-            let (cache, scene, resolution) = (&cache, &scene, &resolution);
-            async move { cached_figures(cache, StudyId(3), &Arc::new(s), scene, &fixed, resolution).await.ok().unwrap() }
+            let (cache, scene, resolution, heavy) = (&cache, &scene, &resolution, &heavy);
+            async move {
+                cached_figures(cache, heavy, StudyId(3), &Arc::new(s), scene, &fixed, resolution).await.ok().unwrap()
+            }
         };
         let first = load(study_surface(&points, 4), vec![]).await;
         assert_eq!(cache.stats().0, 1);

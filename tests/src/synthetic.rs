@@ -12,6 +12,7 @@ use glissade_core::field::{InterfaceField, InterfaceSolution, StageSolution};
 use glissade_core::io::solution_file::{self, SolutionMeta};
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
+use glissade_proto::auth::{Token, WithToken};
 use glissade_proto::v1::pool_client::PoolClient;
 use glissade_proto::v1::{self, complete_point_message, lease_message};
 
@@ -56,9 +57,18 @@ pub fn solution(scene: &Scene, hash: &str, lease: &v1::Lease, answer: &Answer) -
 }
 
 /// One pool: lease, complete at once, until no work is left (a lease that waits 300 ms for nothing).
-pub async fn pool(url: String, id: String, scene: Scene, answering: Answering) -> Result<PoolRun, Error> {
+/// `token`: the pool token of a coordinator that asks for one.
+pub async fn pool(
+    url: String,
+    token: Option<String>,
+    id: String,
+    scene: Scene,
+    answering: Answering,
+) -> Result<PoolRun, Error> {
     let hash = scene.content_hash();
-    let mut pool = PoolClient::connect(url).await?;
+    let token = token.map(|t| Token::parse(&t, "the pool token")).transpose()?;
+    let channel = tonic::transport::Endpoint::from_shared(url)?.connect().await?;
+    let mut pool = PoolClient::with_interceptor(channel, WithToken::new(token.as_ref()));
     pool.register_pool(v1::RegisterPoolRequest {
         pool_id: id.clone(),
         ranks: 1,

@@ -116,7 +116,13 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
         Arc::new(|_| synthetic::Answer { qoi: [("q".to_string(), 1.0)].into(), history: Vec::new() });
     let tasks: Vec<_> = (0..args.pools)
         .map(|i| {
-            tokio::spawn(synthetic::pool(args.url.clone(), format!("bench-{i}"), scene.clone(), answering.clone()))
+            tokio::spawn(synthetic::pool(
+                args.url.clone(),
+                None,
+                format!("bench-{i}"),
+                scene.clone(),
+                answering.clone(),
+            ))
         })
         .collect();
     let (mut lease_ms, mut complete_ms, mut last) = (Vec::new(), Vec::new(), start);

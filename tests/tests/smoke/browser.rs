@@ -212,6 +212,7 @@ fn a_121_point_study_page_is_light_and_its_labels_read_clear_in_a_browser() -> a
             .map(|k| {
                 tokio::spawn(glissade_e2e::synthetic::pool(
                     url.clone(),
+                    None,
                     format!("s{k}"),
                     scene.clone(),
                     answering.clone(),
