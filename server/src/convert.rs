@@ -13,8 +13,8 @@ use glissade_proto::{PointId, StudyId};
 use tonic::{Code, Status};
 
 use crate::coordinator::{
-    Completion, CoordError, Event, EventKind, Failure, HeldOutCheck, MeshUpload, PoolInfo, Progress, SolutionSelector,
-    StudyState, StudyView, Submission, Surface, SurfaceSource,
+    Completion, CoordError, Discretisation, Event, EventKind, Failure, HeldOutCheck, MeshUpload, PoolInfo, Progress,
+    SolutionSelector, StudyState, StudyView, Submission, Surface, SurfaceSource,
 };
 use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::{InitStrategy, StrategyKind};
@@ -559,38 +559,7 @@ pub fn study(v: &StudyView) -> v1::Study {
         kind: v.kind.to_owned(),
         scene_title: v.scene_title.clone(),
         finished_unix_ms: v.finished_unix_ms.unwrap_or(0),
-        discretisation: v.discretisation.as_ref().map(|d| v1::StudyDiscretisation {
-            level_study_ids: d.levels.iter().map(|(s, _)| s.0).collect(),
-            factors: d.levels.iter().map(|&(_, f)| f).collect(),
-            audited: d.audited,
-            planned: d.planned,
-            work_seconds: d.work_seconds,
-            study_seconds: d.study_seconds,
-            qoi: d
-                .qoi
-                .iter()
-                .map(|(name, q)| {
-                    (
-                        name.clone(),
-                        v1::QoiDiscretisation {
-                            change: q.change,
-                            error: q.error,
-                            order: q.order.unwrap_or(0.0),
-                            order_assumed: q.order_assumed,
-                            erratic: q.erratic,
-                            below_tolerance: q.below_tolerance,
-                            mesh_change: q.mesh.map(|m| m.change),
-                            mesh_error: q.mesh.map(|m| m.error),
-                            mesh_below_tolerance: q.mesh.is_some_and(|m| m.below_tolerance),
-                        },
-                    )
-                })
-                .collect(),
-            mesh_study_id: d.mesh.as_ref().map_or(0, |m| m.study.0),
-            mesh_factor: d.mesh.as_ref().map_or(0, |m| m.factor),
-            mesh_audited: d.mesh.as_ref().map_or(0, |m| m.audited),
-            mesh_work_seconds: d.mesh.as_ref().map_or(0.0, |m| m.work_seconds),
-        }),
+        discretisation: v.discretisation.as_ref().map(discretisation),
         refines: r.refines.map_or(0, |x| x.study.0),
         refine_factor: r.refines.map_or(0, |x| x.factor),
         refines_mesh: r.refines.is_some_and(|x| x.refinement == glissade_core::refine::Refinement::Mesh),
@@ -620,6 +589,42 @@ pub fn study(v: &StudyView) -> v1::Study {
                 work: crate::records::work_of(&v.points),
             })
         }),
+    }
+}
+
+/// What a study's discretisation audit measured.
+fn discretisation(d: &Discretisation) -> v1::StudyDiscretisation {
+    v1::StudyDiscretisation {
+        level_study_ids: d.levels.iter().map(|(s, _)| s.0).collect(),
+        factors: d.levels.iter().map(|&(_, f)| f).collect(),
+        audited: d.audited,
+        planned: d.planned,
+        work_seconds: d.work_seconds,
+        study_seconds: d.study_seconds,
+        qoi: d
+            .qoi
+            .iter()
+            .map(|(name, q)| {
+                (
+                    name.clone(),
+                    v1::QoiDiscretisation {
+                        change: q.change,
+                        error: q.error,
+                        order: q.order.unwrap_or(0.0),
+                        order_assumed: q.order_assumed,
+                        erratic: q.erratic,
+                        below_tolerance: q.below_tolerance,
+                        mesh_change: q.mesh.map(|m| m.change),
+                        mesh_error: q.mesh.map(|m| m.error),
+                        mesh_below_tolerance: q.mesh.is_some_and(|m| m.below_tolerance),
+                    },
+                )
+            })
+            .collect(),
+        mesh_study_id: d.mesh.as_ref().map_or(0, |m| m.study.0),
+        mesh_factor: d.mesh.as_ref().map_or(0, |m| m.factor),
+        mesh_audited: d.mesh.as_ref().map_or(0, |m| m.audited),
+        mesh_work_seconds: d.mesh.as_ref().map_or(0.0, |m| m.work_seconds),
     }
 }
 

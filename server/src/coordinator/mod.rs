@@ -985,41 +985,10 @@ impl Coordinator {
         let old = state.solutions.get(&key).cloned();
         let (entry, i) = Self::held(&mut state, &c.pool, c.lease_id, c.study, c.point)?;
         let started_from = if c.started_cold { None } else { leased_from(&entry.points[i]) };
-        let record = SolutionRecord {
-            scene_hash: study_hash.clone(),
-            parameters: full.clone(),
-            solver_version: meta.solver_version.clone(),
-            converged: meta.converged,
-            // the pool's exact value (the file's JSON header may differ in the last bit)
-            error_indicator: c.error_indicator,
-            tolerance: meta.tolerance,
-            iterations: meta.iterations as u64,
-            wall_seconds: c.wall_seconds,
-            qoi: c.qoi.clone(),
-            parent: started_from.clone(),
-            study: Some(c.study),
-            point: Some(c.point),
-            stored_unix_ms: now_unix_ms(),
-            file_bytes: file.len() as u64,
-            stored_bytes: compressed.len() as u64,
-            contact: c.contact.clone(),
-            qoi_largest: c.qoi_largest.clone(),
-        };
-        let converged = meta.converged && c.error_indicator <= entry.record.tolerance;
-        let result = PointResult {
-            pool: c.pool.clone(),
-            converged,
-            iterations: c.iterations,
-            error_indicator: c.error_indicator,
-            qoi: c.qoi.clone(),
-            wall_seconds: c.wall_seconds,
-            started_from,
-            answered: false,
-            eta_history: c.eta_history.clone(),
-            work: c.work,
-            contact: c.contact.clone(),
-            qoi_largest: c.qoi_largest.clone(),
-        };
+        let sizes = (file.len() as u64, compressed.len() as u64);
+        let (record, result) =
+            completion_records(&c, &meta, &study_hash, &full, started_from, sizes, entry.record.tolerance);
+        let converged = result.converged;
         let tolerance = entry.record.tolerance;
         let point = apply(&entry.points[i], Transition::Complete { result, finished_seq: seq, tolerance })?;
         // a study with a target: judged with this point, in the same commit (so its outcome is
@@ -1359,6 +1328,54 @@ fn accuracy(study: &StudyEntry, audit: &StudyEntry) -> Accuracy {
         work: budget.map_or(0.0, |b| b.spent),
         work_cap: budget.map_or(0.0, |b| b.cap),
     }
+}
+
+/// What a completion stores: the solution's record (`sizes`: its file's bytes, as stored) and
+/// the point's result, converged when the solve says so within the study's `tolerance`.
+fn completion_records(
+    c: &Completion,
+    meta: &SolutionMeta,
+    scene_hash: &str,
+    full: &DesignPoint,
+    started_from: Option<SolutionOrigin>,
+    sizes: (u64, u64),
+    tolerance: f64,
+) -> (SolutionRecord, PointResult) {
+    let record = SolutionRecord {
+        scene_hash: scene_hash.to_owned(),
+        parameters: full.clone(),
+        solver_version: meta.solver_version.clone(),
+        converged: meta.converged,
+        // the pool's exact value (the file's JSON header may differ in the last bit)
+        error_indicator: c.error_indicator,
+        tolerance: meta.tolerance,
+        iterations: meta.iterations as u64,
+        wall_seconds: c.wall_seconds,
+        qoi: c.qoi.clone(),
+        parent: started_from.clone(),
+        study: Some(c.study),
+        point: Some(c.point),
+        stored_unix_ms: now_unix_ms(),
+        file_bytes: sizes.0,
+        stored_bytes: sizes.1,
+        contact: c.contact.clone(),
+        qoi_largest: c.qoi_largest.clone(),
+    };
+    let result = PointResult {
+        pool: c.pool.clone(),
+        converged: meta.converged && c.error_indicator <= tolerance,
+        iterations: c.iterations,
+        error_indicator: c.error_indicator,
+        qoi: c.qoi.clone(),
+        wall_seconds: c.wall_seconds,
+        started_from,
+        answered: false,
+        eta_history: c.eta_history.clone(),
+        work: c.work,
+        contact: c.contact.clone(),
+        qoi_largest: c.qoi_largest.clone(),
+    };
+    (record, result)
 }
 
 /// The solution a leased point's warm start came from.

@@ -862,25 +862,37 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 }
                 return Ok(report);
             }
-            let memory = end.memory;
-            // The next window starts where this one ends: the substructures' states from a
-            // sweep over the converged fields (what the post-processing sweep will find), the
-            // nodes' memory from the last local stage.
             let t = Instant::now();
-            let mut scratch = fields.to_vec();
-            let mut body = window.body.clone();
-            let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
-            let range = window.steps.clone();
-            self.linear_stage(stage, &mut scratch, u0, Some(&mut record), range.clone(), window.states.as_deref());
-            let states = self.ops.iter().map(|o| o.as_ref().map(SubstructureOperators::save)).collect();
-            let next = range.end..(range.end + length).min(steps);
+            let ended = window.steps.end;
+            let next = ended..(ended + length).min(steps);
+            window = self.next_window(stage, fields, u0, &window, end.memory, next.clone());
             // (a window iterated again starts the next from its converged fields, not held ones)
             if cold && floors.is_none() {
-                hold_last_step(fields, steps, range.end, next.end);
+                hold_last_step(fields, steps, ended, next.end);
             }
-            window = Window { steps: next, states: Some(states), memory, body };
             it.timings.linear_stage += t.elapsed().as_secs_f64();
         }
+    }
+
+    /// The window of steps `next`, which starts where `window` ends: the substructures' states
+    /// from a sweep over the converged fields (what the post-processing sweep will find), the
+    /// nodes' `memory` from its last local stage.
+    fn next_window(
+        &mut self,
+        stage: Stage,
+        fields: &[InterfaceField],
+        u0: &[Option<Vec<f64>>],
+        window: &Window,
+        memory: Vec<Vec<NodeMemory>>,
+        next: Range<usize>,
+    ) -> Window {
+        let mut scratch = fields.to_vec();
+        let mut body = window.body.clone();
+        let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
+        let range = window.steps.clone();
+        self.linear_stage(stage, &mut scratch, u0, Some(&mut record), range, window.states.as_deref());
+        let states = self.ops.iter().map(|o| o.as_ref().map(SubstructureOperators::save)).collect();
+        Window { steps: next, states: Some(states), memory, body }
     }
 
     /// LATIN iterations of one stage over one time window (or the whole interval) until the
