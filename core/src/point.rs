@@ -40,9 +40,13 @@ pub enum ParameterError {
 ///
 /// Stored (sled, solution files) and sent as JSON as the map `{"f1": 0.1}`: `Deserialize`
 /// checks it like every other constructor.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(try_from = "BTreeMap<String, f64>", into = "BTreeMap<String, f64>")]
-pub struct DesignPoint(BTreeMap<String, f64>);
+///
+/// Held as a vector sorted by name, not a map: the coordinator keeps several points per design
+/// point it ever stored, and a `BTreeMap` of two entries takes a node of eleven (about 450 bytes
+/// against 150; docs/performance.md, "Memory per design point").
+#[derive(Clone, Default, PartialEq, Deserialize)]
+#[serde(try_from = "BTreeMap<String, f64>")]
+pub struct DesignPoint(Vec<(Box<str>, f64)>);
 
 /// The one rule a name and a value are judged by.
 fn check(name: &str, value: f64) -> Result<(), ParameterError> {
@@ -66,22 +70,31 @@ impl DesignPoint {
         let mut point = Self::new();
         for (name, value) in pairs {
             let name = name.into();
-            if point.0.contains_key(&name) {
+            if point.find(&name).is_ok() {
                 return Err(ParameterError::Duplicate { name });
             }
             point.insert(name, value)?;
         }
+        point.0.shrink_to_fit();
         Ok(point)
+    }
+
+    /// Where `name` is, or would go.
+    fn find(&self, name: &str) -> Result<usize, usize> {
+        self.0.binary_search_by(|(k, _)| (**k).cmp(name))
     }
 
     /// Sets `name` to `value` (replacing an earlier value), after checking both and the count.
     pub fn insert(&mut self, name: impl Into<String>, value: f64) -> Result<(), ParameterError> {
         let name = name.into();
         check(&name, value)?;
-        if self.0.len() >= MAX_PARAMETERS && !self.0.contains_key(&name) {
-            return Err(ParameterError::TooMany { count: self.0.len() + 1 });
+        match self.find(&name) {
+            Ok(at) => self.0[at].1 = value,
+            Err(_) if self.0.len() >= MAX_PARAMETERS => {
+                return Err(ParameterError::TooMany { count: self.0.len() + 1 });
+            }
+            Err(at) => self.0.insert(at, (name.into_boxed_str(), value)),
         }
-        self.0.insert(name, value);
         Ok(())
     }
 
@@ -94,16 +107,16 @@ impl DesignPoint {
     }
 
     pub fn get(&self, name: &str) -> Option<f64> {
-        self.0.get(name).copied()
+        self.find(name).ok().map(|at| self.0[at].1)
     }
 
     /// `(name, value)` pairs in name order.
     pub fn iter(&self) -> impl Iterator<Item = (&str, f64)> {
-        self.0.iter().map(|(k, v)| (k.as_str(), *v))
+        self.0.iter().map(|(k, v)| (&**k, *v))
     }
 
     pub fn names(&self) -> impl Iterator<Item = &str> {
-        self.0.keys().map(String::as_str)
+        self.0.iter().map(|(k, _)| &**k)
     }
 
     pub fn len(&self) -> usize {
@@ -112,11 +125,6 @@ impl DesignPoint {
 
     pub fn is_empty(&self) -> bool {
         self.0.is_empty()
-    }
-
-    /// The values by name, read only.
-    pub fn as_map(&self) -> &BTreeMap<String, f64> {
-        &self.0
     }
 }
 
@@ -130,13 +138,36 @@ impl TryFrom<BTreeMap<String, f64>> for DesignPoint {
         for (name, value) in &map {
             check(name, *value)?;
         }
-        Ok(Self(map))
+        // (a map's order is the name order)
+        Ok(Self(map.into_iter().map(|(k, v)| (k.into_boxed_str(), v)).collect()))
     }
 }
 
 impl From<DesignPoint> for BTreeMap<String, f64> {
     fn from(point: DesignPoint) -> Self {
-        point.0
+        point.0.into_iter().map(|(k, v)| (k.into_string(), v)).collect()
+    }
+}
+
+impl Serialize for DesignPoint {
+    /// The map `{"f1": 0.1}`, in name order (as the `BTreeMap` it was wrote it).
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.collect_map(self.iter())
+    }
+}
+
+impl fmt::Debug for DesignPoint {
+    /// `DesignPoint({"f1": 0.1})`, as a map prints.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_tuple("DesignPoint").field(&DebugMap(self)).finish()
+    }
+}
+
+struct DebugMap<'a>(&'a DesignPoint);
+
+impl fmt::Debug for DebugMap<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_map().entries(self.0.iter()).finish()
     }
 }
 

@@ -65,7 +65,8 @@ impl Tree {
 /// Writes applied together or not at all.
 #[derive(Debug, Default)]
 pub struct Batch {
-    ops: Vec<(Tree, Vec<u8>, Vec<u8>)>,
+    /// (tree, key, the value to store or None to remove the key)
+    ops: Vec<(Tree, Vec<u8>, Option<Vec<u8>>)>,
 }
 
 impl Batch {
@@ -76,7 +77,13 @@ impl Batch {
 
     /// Stores `value` under `key` in `tree`, replacing any previous value.
     pub fn put(&mut self, tree: Tree, key: impl Into<Vec<u8>>, value: impl Into<Vec<u8>>) -> &mut Self {
-        self.ops.push((tree, key.into(), value.into()));
+        self.ops.push((tree, key.into(), Some(value.into())));
+        self
+    }
+
+    /// Removes `key` from `tree` (nothing if it is absent).
+    pub fn delete(&mut self, tree: Tree, key: impl Into<Vec<u8>>) -> &mut Self {
+        self.ops.push((tree, key.into(), None));
         self
     }
 
@@ -148,6 +155,11 @@ pub trait Store: Send + Sync {
     }
 }
 
+/// sled's page cache (its default is 1 GiB): the coordinator keeps every record it serves in its
+/// own memory, and solution files are read once per warm start, so the cache mostly holds what
+/// was just written (docs/performance.md, "Memory per design point").
+const CACHE_BYTES: u64 = 64 << 20;
+
 /// [`Store`] backed by a sled database directory.
 pub struct SledStore {
     /// The first write error: sled keeps failing after one, until it is reopened.
@@ -165,7 +177,7 @@ impl SledStore {
     /// version) is migrated; any other version is refused.
     pub fn open(dir: &Path) -> Result<Self, StoreError> {
         let path = dir.to_path_buf();
-        let db = sled::open(dir).map_err(|source| match source {
+        let db = sled::Config::new().path(dir).cache_capacity(CACHE_BYTES).open().map_err(|source| match source {
             // sled 0.34 reports a held file lock only as text ("could not acquire lock on ...").
             sled::Error::Io(ref io) if io.to_string().starts_with("could not acquire lock") => {
                 StoreError::Locked { path: path.clone() }
@@ -262,7 +274,10 @@ impl Store for SledStore {
             .transaction(|views| {
                 for (tree, key, value) in &batch.ops {
                     let view = &views[involved.iter().position(|t| t == tree).expect("tree listed above")];
-                    view.insert(key.as_slice(), value.as_slice())?;
+                    match value {
+                        Some(value) => drop(view.insert(key.as_slice(), value.as_slice())?),
+                        None => drop(view.remove(key.as_slice())?),
+                    }
                 }
                 Ok(())
             })
@@ -317,7 +332,11 @@ impl Store for InMemoryStore {
     fn commit(&self, batch: Batch) -> Result<(), StoreError> {
         let mut trees = self.trees.lock().unwrap();
         for (tree, key, value) in batch.ops {
-            trees.entry(tree).or_default().insert(key, value);
+            let tree = trees.entry(tree).or_default();
+            match value {
+                Some(value) => drop(tree.insert(key, value)),
+                None => drop(tree.remove(&key)),
+            }
         }
         Ok(())
     }

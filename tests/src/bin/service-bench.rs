@@ -8,11 +8,12 @@
 //! web page's requests cost on the study solved (its page, its JSON whole, the progress an open page polls,
 //! the list of studies): bytes and the median of 5 fetches.
 //!
-//!   service-bench URL SCENE.toml POOLS STRATEGY ORDER GRID...
+//!   service-bench [--no-web] URL SCENE.toml POOLS STRATEGY ORDER GRID...
 //!   service-bench http://127.0.0.1:50051 scenes/three-blocks-tiny.toml 4 nearest asc \
 //!       f1=0.1:0.2:50 f2=0.1:0.2:40
 //!
-//! STRATEGY: cold | previous | nearest | blend; ORDER: asc | desc | greedy.
+//! STRATEGY: cold | previous | nearest | blend; ORDER: asc | desc | greedy. `--no-web`: no web
+//! request (the coordinator's memory is then what the study left).
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -25,6 +26,7 @@ use glissade_proto::v1;
 use glissade_proto::v1::user_client::UserClient;
 
 struct Args {
+    web: bool,
     url: String,
     scene_text: String,
     pools: usize,
@@ -34,9 +36,13 @@ struct Args {
 }
 
 fn parse_args() -> Result<Args, Error> {
-    let a: Vec<String> = std::env::args().skip(1).collect();
+    let mut a: Vec<String> = std::env::args().skip(1).collect();
+    let web = a.first().is_none_or(|f| f != "--no-web");
+    if !web {
+        a.remove(0);
+    }
     if a.len() < 6 {
-        return Err("usage: service-bench URL SCENE.toml POOLS STRATEGY ORDER GRID...".into());
+        return Err("usage: service-bench [--no-web] URL SCENE.toml POOLS STRATEGY ORDER GRID...".into());
     }
     let strategy = match a[3].as_str() {
         "cold" => v1::InitStrategy::Cold,
@@ -52,6 +58,7 @@ fn parse_args() -> Result<Args, Error> {
         s => return Err(format!("unknown order {s}").into()),
     };
     Ok(Args {
+        web,
         url: a[0].clone(),
         scene_text: std::fs::read_to_string(&a[1]).map_err(|e| format!("{}: {e}", a[1]))?,
         pools: a[2].parse()?,
@@ -140,12 +147,16 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
     let done = study.progress.map_or(0, |p| p.done);
     let elapsed = last - start;
     let id = reply.study_id;
-    let web = serde_json::json!({
-        "study_json": web_cost(&args.url, &format!("/api/studies/{id}"))?,
-        "study_page": web_cost(&args.url, &format!("/studies/{id}"))?,
-        "progress_json": web_cost(&args.url, &format!("/api/studies/{id}/progress"))?,
-        "studies_page": web_cost(&args.url, "/")?,
-    });
+    let web = if args.web {
+        serde_json::json!({
+            "study_json": web_cost(&args.url, &format!("/api/studies/{id}"))?,
+            "study_page": web_cost(&args.url, &format!("/studies/{id}"))?,
+            "progress_json": web_cost(&args.url, &format!("/api/studies/{id}/progress"))?,
+            "studies_page": web_cost(&args.url, "/")?,
+        })
+    } else {
+        serde_json::Value::Null
+    };
     Ok(serde_json::json!({
         "points": reply.points,
         "done": done,
