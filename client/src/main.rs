@@ -24,7 +24,7 @@ use tracing_subscriber::EnvFilter;
 use commands::convergence::{ConvergenceArgs, convergence};
 use commands::health::health;
 use commands::show::{accuracy_line, discretisation_line, show, surface_accuracy_line};
-use commands::studies::{cancel, retry, studies};
+use commands::studies::{cancel, purge_pool, retry, studies};
 use commands::submit::{SubmitArgs, submit};
 use commands::surface::{SurfaceArgs, surface};
 use commands::watch::watch;
@@ -116,6 +116,12 @@ enum Command {
     Retry {
         /// The study id.
         study: u64,
+    },
+    /// Remove every stored solution a pool sent (no later point starts from one or is answered
+    /// by one; the points it solved keep their results): for a pool no longer trusted.
+    PurgePool {
+        /// The pool's id, as it registered (`show --points` and the server's log name it).
+        pool: String,
     },
     /// The response surface of a study: a table, CSV, JSON, or a PNG (a colour map with contour
     /// lines over two parameters, a curve over one).
@@ -235,6 +241,7 @@ async fn run(cli: Cli) -> Result<Outcome> {
         Command::Studies { json, all } => done(studies(server, json, all).await),
         Command::Show { study, points, json } => done(show(server, study, points, json).await),
         Command::Cancel { study } => done(cancel(server, study).await),
+        Command::PurgePool { pool } => done(purge_pool(server, &pool).await),
         Command::Retry { study } => done(retry(server, study).await),
         Command::Surface(args) => done(surface(server, args).await),
         Command::Convergence(args) => done(convergence(server, args).await),

@@ -464,6 +464,10 @@ pub struct SolutionRecord {
     /// The largest magnitude of each QoI's history (none from older pools and records).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub qoi_largest: BTreeMap<String, f64>,
+    /// The pool that sent it, as it registered (empty in records written before it existed):
+    /// an operator can purge one pool's answers (`glissade purge-pool`).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub pool: String,
 }
 
 impl SolutionRecord {

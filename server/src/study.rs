@@ -198,6 +198,11 @@ impl SceneSolutions {
         })
     }
 
+    /// The parameters and ranges its index is over.
+    pub fn space(&self) -> &ParameterSpace {
+        self.index.space()
+    }
+
     /// Makes a stored solution (already committed to the database) findable; a better solution
     /// at a key already indexed only replaces the record.
     pub fn index(&mut self, key: SolutionKey, record: &SolutionRecord) -> Result<(), StoreError> {

@@ -111,6 +111,16 @@ impl User for UserService {
         Ok(Response::new(v1::RetryFailedReply { requeued, study: Some(convert::study(&view)), kept, kept_because }))
     }
 
+    async fn purge_pool(&self, request: Request<v1::PurgePoolRequest>) -> Result<Response<v1::PurgePoolReply>, Status> {
+        let pool = request.into_inner().pool_id;
+        if pool.is_empty() || pool.len() > 256 {
+            return Err(Status::invalid_argument("give the pool's id, as it registered (1 to 256 bytes)"));
+        }
+        let c = self.coordinator.clone();
+        let purged = blocking(move || c.purge_pool(&pool)).await?;
+        Ok(Response::new(v1::PurgePoolReply { purged: purged as u64 }))
+    }
+
     async fn query_surface(
         &self,
         request: Request<v1::QuerySurfaceRequest>,

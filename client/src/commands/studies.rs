@@ -101,6 +101,17 @@ pub(crate) async fn cancel(server: &Server, id: u64) -> Result<()> {
     Ok(())
 }
 
+pub(crate) async fn purge_pool(server: &Server, pool: &str) -> Result<()> {
+    let r = user(server)
+        .await?
+        .purge_pool(v1::PurgePoolRequest { pool_id: pool.to_owned() })
+        .await
+        .map_err(|s| refused(&format!("purge-pool {pool}"), s))?
+        .into_inner();
+    outln!("purged {} stored solutions of pool {pool}", r.purged);
+    Ok(())
+}
+
 pub(crate) async fn retry(server: &Server, id: u64) -> Result<()> {
     let r = user(server)
         .await?

@@ -1048,6 +1048,37 @@ impl Coordinator {
         Ok(point)
     }
 
+    /// Removes every solution `pool` sent, from the database, the indexes and their decoded
+    /// copies: a pool token can store a forged answer, which later studies would be served
+    /// (issue 48). The points it solved keep their results (what they were answered); no later
+    /// point starts from one of its solutions or is answered by one. Returns how many.
+    pub fn purge_pool(&self, pool: &str) -> Result<usize, CoordError> {
+        let mut state = self.lock();
+        let keys: Vec<SolutionKey> =
+            state.solutions.iter().filter(|(_, r)| r.pool == pool).map(|(k, _)| k.clone()).collect();
+        if keys.is_empty() {
+            return Ok(0);
+        }
+        let mut batch = Batch::new();
+        for key in &keys {
+            batch.delete(Tree::Solutions, key.as_bytes()).delete(Tree::SolutionFields, key.as_bytes());
+        }
+        self.store.commit(batch)?;
+        let scenes: std::collections::BTreeSet<String> =
+            keys.iter().filter_map(|k| state.solutions.remove(k)).map(|r| r.scene_hash).collect();
+        // each scene's index again, from what is left
+        for hash in scenes {
+            let Some(old) = state.by_scene.remove(&hash) else { continue };
+            let mut index = SceneSolutions::new(hash.clone(), old.space().clone(), self.store.clone())?;
+            for (key, record) in state.solutions.iter().filter(|(_, r)| r.scene_hash == hash && r.converged) {
+                index.index(key.clone(), record)?;
+            }
+            state.by_scene.insert(hash, index);
+        }
+        tracing::warn!(pool, purged = keys.len(), "purged the solutions of a pool");
+        Ok(keys.len())
+    }
+
     /// Records a solver failure: the point is FAILED with the error (retryable).
     pub fn fail(&self, f: Failure) -> Result<PointRecord, CoordError> {
         let mut state = self.lock();
@@ -1360,6 +1391,7 @@ fn completion_records(
         stored_bytes: sizes.1,
         contact: c.contact.clone(),
         qoi_largest: c.qoi_largest.clone(),
+        pool: c.pool.clone(),
     };
     let result = PointResult {
         pool: c.pool.clone(),

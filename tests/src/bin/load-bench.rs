@@ -232,8 +232,9 @@ async fn hostile(addr: std::net::SocketAddr, k: usize, attack: Arc<Attack>, stop
 /// GET `path` with the user token: the whole answer.
 async fn get(addr: std::net::SocketAddr, path: &str) -> std::io::Result<Vec<u8>> {
     let mut s = tokio::net::TcpStream::connect(addr).await?;
-    let head =
-        format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {USER_TOKEN}\r\nConnection: close\r\n\r\n");
+    let head = format!(
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {USER_TOKEN}\r\nConnection: close\r\n\r\n"
+    );
     s.write_all(head.as_bytes()).await?;
     let mut answer = Vec::new();
     s.read_to_end(&mut answer).await?;

@@ -160,3 +160,48 @@ fn tls_serves_https_clients_that_trust_its_authority_and_no_one_else() -> anyhow
     assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));
     Ok(())
 }
+
+/// A pool token can store a forged answer, which later studies are then served (issue 48): each
+/// stored solution keeps the pool that sent it, and `glissade purge-pool` removes that pool's
+/// solutions. Here a "forger" solves a study with a made-up QoI; a second study of the same
+/// points is answered from those solutions; once purged, a third is solved again, by an honest
+/// pool, and keeps the honest values.
+#[test]
+fn a_pools_solutions_can_be_purged_and_no_later_point_is_answered_from_them() -> anyhow::Result<()> {
+    use glissade_e2e::synthetic;
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &[]);
+    let url = format!("http://{addr}");
+    let scene = glissade_core::scene::Scene::parse(&tiny_scene())?;
+    let answer = |value: f64| -> synthetic::Answering {
+        std::sync::Arc::new(move |_| synthetic::Answer {
+            qoi: ["middle_ux", "slip_A", "slip_B"].map(|q| (q.to_owned(), value)).into(),
+            history: Vec::new(),
+        })
+    };
+    let rt = runtime();
+    // a study of two points, solved by `pool`; its points' middle_ux, and whether each was answered
+    let study = |pool: &'static str, value: f64| -> anyhow::Result<Vec<(f64, bool)>> {
+        rt.block_on(async {
+            let mut request = grid_request(&["f1=0.1,0.2"], STUDY_TOL);
+            (request.audit_points, request.refine_points) = (Some(0), Some(0));
+            let id = user(&url).await?.submit_study(request).await?.into_inner().study_id;
+            synthetic::pool(url.clone(), None, pool.into(), scene.clone(), answer(value))
+                .await
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            let request = v1::GetStudyRequest { study_id: id, points: true, scene: false };
+            let points = user(&url).await?.get_study(request).await?.into_inner().points;
+            Ok(points.iter().map(|p| (p.qoi["middle_ux"], p.answered)).collect())
+        })
+    };
+    assert_eq!(study("forger", 42.0)?, [(42.0, false); 2]);
+    // the forged answers are served to a later study of the same points
+    assert_eq!(study("honest", 1.0)?, [(42.0, true); 2]);
+    let out = glissade(Some(&url), &["purge-pool", "forger"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(text(&out.stdout), "purged 2 stored solutions of pool forger\n");
+    assert_eq!(study("honest", 1.0)?, [(1.0, false); 2], "a purged solution answered a point");
+    let out = glissade(Some(&url), &["purge-pool", "forger"]);
+    assert_eq!(text(&out.stdout), "purged 0 stored solutions of pool forger\n");
+    Ok(())
+}
