@@ -1,6 +1,6 @@
 //! The readers of untrusted bytes, as a fuzzer would drive them, at a bounded cost in the suite
 //! (proptest: a few hundred cases each, well under a second): a scene's text, an MSH mesh file,
-//! a solution file. Arbitrary bytes, and valid inputs with bytes replaced and cut short (those
+//! a solution file; and the response surface, fitted to whatever values a study's points hold. Arbitrary bytes, and valid inputs with bytes replaced and cut short (those
 //! get past the first check, into the parsers' depths). Each must answer Ok or an error: no
 //! panic, and no allocation from a size the input claims (the decoders bound sizes before they
 //! allocate; a claimed size of 2^60 would abort the process here).
@@ -14,6 +14,7 @@ use glissade_core::gmsh::Msh;
 use glissade_core::io::solution_file::{self, SolutionMeta};
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
+use glissade_core::study::surrogate::Surrogate;
 use proptest::prelude::*;
 use proptest::strategy::ValueTree;
 
@@ -110,6 +111,30 @@ proptest! {
         if let Ok(msh) = Msh::parse(&bytes) {
             let _ = msh.volume("left");
             let _ = msh.volume("right");
+        }
+    }
+
+    /// Any points a study may hold (repeated places, one value everywhere, values from 1e-30
+    /// to 1e30 in size and either sign): the surface fits or says why not, and where it fits,
+    /// its predictions anywhere in the box and its cross-validation are finite.
+    #[test]
+    fn surface_of_any_points(
+        dim in 1usize..4,
+        rows in prop::collection::vec(
+            (prop::collection::vec(prop_oneof![Just(0.0), Just(1.0), Just(0.5), 0.0..=1.0f64], 3),
+             prop_oneof![Just(0.0), -1e30..1e30f64, -1e-30..1e-30f64, -1.0..1.0f64]),
+            2..30,
+        ),
+        at in prop::collection::vec(0.0..=1.0f64, 3),
+    ) {
+        let points: Vec<Vec<f64>> = rows.iter().map(|(x, _)| x[..dim].to_vec()).collect();
+        let values: Vec<f64> = rows.iter().map(|(_, v)| *v).collect();
+        if let Ok(s) = Surrogate::fit(&points, &values) {
+            let p = s.predict(&at[..dim]);
+            prop_assert!(p.mean.is_finite() && p.std.is_finite() && p.std >= 0.0, "{p:?}");
+            for p in s.leave_one_out() {
+                prop_assert!(p.mean.is_finite() && p.std.is_finite(), "leave-one-out {p:?}");
+            }
         }
     }
 

@@ -423,9 +423,55 @@ async fn api_studies(State(web): State<Web>, headers: HeaderMap, Query(q): Param
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
+    let (after, limit) = match paging(&q) {
+        Ok(p) => p,
+        Err(r) => return r.into_response(),
+    };
     // (the views and their JSON of a large database take a while)
     let coordinator = web.coordinator.clone();
-    heavy(&web, move || json_response(&coordinator.studies().iter().map(study_json).collect())).await
+    heavy(&web, move || {
+        let (page, more) = coordinator.studies_page(after, limit);
+        let mut response = json_response(&page.iter().map(study_json).collect());
+        let last = page.last().map(|v| v.record.id.0);
+        if let Some(next) = next_page("/api/studies", last, more, limit)
+            && let Ok(link) = HeaderValue::from_str(&format!("<{next}>; rel=\"next\""))
+        {
+            response.headers_mut().insert(header::LINK, link);
+        }
+        response
+    })
+    .await
+}
+
+/// Studies a list gives at most unless `?limit=` says otherwise (1 to [`MAX_PAGE_STUDIES`]): a
+/// database of thousands of studies made each list megabytes built under the coordinator's lock
+/// (issue 48).
+const PAGE_STUDIES: usize = 200;
+const MAX_PAGE_STUDIES: usize = 1000;
+
+/// `?after=ID&limit=N`: the studies after `ID` in id order, at most `N`.
+fn paging(q: &HashMap<String, String>) -> Result<(StudyId, usize), Refusal> {
+    let after = match q.get("after") {
+        None => 0,
+        Some(a) => a.parse().map_err(|_| refuse(StatusCode::BAD_REQUEST, "after=ID takes a study id"))?,
+    };
+    let limit = match q.get("limit") {
+        None => PAGE_STUDIES,
+        Some(l) => l.parse().ok().filter(|n| (1..=MAX_PAGE_STUDIES).contains(n)).ok_or_else(|| {
+            refuse(StatusCode::BAD_REQUEST, &format!("limit=N takes 1 to {MAX_PAGE_STUDIES} studies"))
+        })?,
+    };
+    Ok((StudyId(after), limit))
+}
+
+/// The address of the page after one that ended at study `last`, when more follow.
+fn next_page(path: &str, last: Option<u64>, more: bool, limit: usize) -> Option<String> {
+    let last = last.filter(|_| more)?;
+    Some(if limit == PAGE_STUDIES {
+        format!("{path}?after={last}")
+    } else {
+        format!("{path}?after={last}&limit={limit}")
+    })
 }
 
 async fn api_study(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
@@ -550,19 +596,22 @@ async fn index(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> 
     if let Err(r) = check(&web, &headers, &q) {
         return page_refusal(r);
     }
+    let (after, limit) = match paging(&q) {
+        Ok(p) => p,
+        Err(r) => return page_refusal(r),
+    };
     // (a large database takes a while under the coordinator's lock)
     let coordinator = web.coordinator.clone();
-    heavy(&web, move || studies_page(&coordinator)).await
+    heavy(&web, move || studies_html(&coordinator, after, limit)).await
 }
 
-/// The page of every study but the audits and pilots' levels (listed on their study's page and
-/// counted on its row).
-fn studies_page(coordinator: &Coordinator) -> Response {
-    let studies: Vec<StudyView> = coordinator
-        .studies()
-        .into_iter()
-        .filter(|v| v.record.audit_of.is_none() && v.record.pilot_of.is_none())
-        .collect();
+/// A page of the studies (`limit` of them after `after`, in id order) but the audits and pilots'
+/// levels, which are listed on their study's page and counted on its row.
+fn studies_html(coordinator: &Coordinator, after: StudyId, limit: usize) -> Response {
+    let (listed, more) = coordinator.studies_page(after, limit);
+    let next = next_page("/", listed.last().map(|v| v.record.id.0), more, limit);
+    let studies: Vec<StudyView> =
+        listed.into_iter().filter(|v| v.record.audit_of.is_none() && v.record.pilot_of.is_none()).collect();
     let means: Vec<[Option<f64>; 2]> = studies.iter().map(|v| coordinator.mean_work(v.record.id)).collect();
     // mean work of the points solved cold and warm (answered ones aside)
     let mean = |k: usize, warm: bool| means[k][usize::from(warm)].map_or("-".to_owned(), |w| format!("{w:.1}"));
@@ -591,7 +640,10 @@ fn studies_page(coordinator: &Coordinator) -> Response {
             }
         }
         p { "work: dynamic iterations + static iterations / time steps, mean per point solved; audits and pilots' levels are listed on their study's page" }
-        p { "JSON: " a href="/api/studies" { "/api/studies" } }
+        @if let Some(next) = &next {
+            p #next-page { a href=(next) { "next page" } (format!(" ({limit} studies a page, audits and levels included)")) }
+        }
+        p { "JSON: " a href="/api/studies" { "/api/studies" } " (" (PAGE_STUDIES) " a page; the next in its Link header)" }
     };
     page("glissade studies", body).into_response()
 }

@@ -430,6 +430,8 @@ impl Coordinator {
         sums.map(|(w, n)| (n > 0).then(|| w / n as f64))
     }
 
+    /// Every study (the lists are paged: [`Self::studies_page`]).
+    #[cfg(test)]
     pub fn studies(&self) -> Vec<StudyView> {
         let state = self.lock();
         state.studies.values().map(|e| Self::view(&state, e, false)).collect()

@@ -453,3 +453,43 @@ fn a_cancel_stops_every_rank_of_an_mpi_pool_together() -> anyhow::Result<()> {
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }
+
+/// The lists of studies come in pages (issue 48: 5,000 studies made each list megabytes, built
+/// under the coordinator's lock): `/api/studies?limit=2` gives two and a `Link` to the next page,
+/// which gives the third and no link; the page `/` links its next page; a bad `after` or `limit`
+/// is a 400 that says what it takes.
+#[test]
+fn the_lists_of_studies_come_in_pages() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let (_server, addr) = start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &[]);
+    let url = format!("http://{addr}");
+    runtime().block_on(async {
+        let mut client = user(&url).await?;
+        for f1 in ["0.1", "0.15", "0.2"] {
+            let mut request = grid_request(&[&format!("f1={f1}")], STUDY_TOL);
+            (request.audit_points, request.refine_points) = (Some(0), Some(0));
+            client.submit_study(request).await?;
+        }
+        anyhow::Ok(())
+    })?;
+    let ids = |body: &str| -> Vec<u64> {
+        let list: serde_json::Value = serde_json::from_str(body).expect("JSON");
+        list.as_array().expect("an array").iter().map(|s| s["study_id"].as_u64().expect("an id")).collect()
+    };
+    let get = |path: &str| http_request(&addr, &format!("GET {path} HTTP/1.1\r\n"), "");
+    let (status, head, body) = get("/api/studies?limit=2");
+    assert_eq!((status, ids(&body)), (200, vec![1, 2]), "{head}");
+    assert!(head.to_ascii_lowercase().contains("link: </api/studies?after=2&limit=2>; rel=\"next\""), "{head}");
+    let (status, head, body) = get("/api/studies?after=2&limit=2");
+    assert_eq!((status, ids(&body)), (200, vec![3]));
+    assert!(!head.to_ascii_lowercase().contains("link:"), "{head}");
+    assert_eq!(ids(&get("/api/studies").2), vec![1, 2, 3]);
+    let (status, _, body) = get("/?limit=2");
+    assert!(status == 200 && body.contains("href=\"/?after=2&amp;limit=2\""), "{body}");
+    assert!(!get("/").2.contains("next page"));
+    for (query, says) in [("limit=0", "1 to 1000"), ("limit=1001", "1 to 1000"), ("after=x", "study id")] {
+        let (status, _, body) = get(&format!("/api/studies?{query}"));
+        assert!(status == 400 && body.contains(says), "{query}: {status} {body}");
+    }
+    Ok(())
+}
