@@ -279,7 +279,7 @@ impl Guarded {
             return None;
         }
         if self.trust.evicted.load(Ordering::Acquire) {
-            return Some(io::Error::new(io::ErrorKind::ConnectionAborted, "displaced by a newer connection: no token"));
+            return Some(displaced());
         }
         if probation.as_mut().poll(cx).is_ready() {
             return Some(io::Error::new(io::ErrorKind::TimedOut, "no token presented within the probation"));
@@ -290,11 +290,12 @@ impl Guarded {
         }
         drop(waker);
         // evicted between the check and the waker's registration
-        self.trust
-            .evicted
-            .load(Ordering::Acquire)
-            .then(|| io::Error::new(io::ErrorKind::ConnectionAborted, "displaced by a newer connection: no token"))
+        self.trust.evicted.load(Ordering::Acquire).then(displaced)
     }
+}
+
+fn displaced() -> io::Error {
+    io::Error::new(io::ErrorKind::ConnectionAborted, "displaced by a newer connection: no token")
 }
 
 impl AsyncRead for Guarded {

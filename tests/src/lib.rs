@@ -1,6 +1,7 @@
 //! Helpers for the end-to-end tests: finding the workspace's binaries and running them with a
 //! time limit, so a hung child fails a test instead of hanging CI.
 
+pub mod bench;
 pub mod synthetic;
 use std::io::Read;
 use std::path::PathBuf;

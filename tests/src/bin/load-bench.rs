@@ -27,6 +27,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use glissade_core::scene::Scene;
+use glissade_e2e::bench::{self, percentile};
 use glissade_e2e::synthetic::{self, Error};
 use glissade_proto::auth::{Token, WithToken};
 use glissade_proto::v1;
@@ -104,14 +105,6 @@ fn rss_mib(server: &Server) -> f64 {
         .find_map(|l| l.strip_prefix("VmRSS:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
         .map_or(f64::NAN, |kb| kb / 1024.0)
-}
-
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * p).round() as usize]
 }
 
 fn token() -> Token {
@@ -340,14 +333,5 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
 fn main() -> ExitCode {
     let result = parse_args()
         .and_then(|args| tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(run(args)));
-    match result {
-        Ok(v) => {
-            println!("{v}");
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    bench::report(result)
 }

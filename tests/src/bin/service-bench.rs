@@ -21,6 +21,7 @@ use std::time::Instant;
 use std::sync::Arc;
 
 use glissade_core::scene::Scene;
+use glissade_e2e::bench::{self, percentile};
 use glissade_e2e::synthetic::{self, Error};
 use glissade_proto::v1;
 use glissade_proto::v1::user_client::UserClient;
@@ -88,14 +89,6 @@ fn web_cost(url: &str, path: &str) -> Result<serde_json::Value, Error> {
         bytes = answer.len() - head;
     }
     Ok(serde_json::json!({"bytes": bytes, "ms_p50": percentile(&mut ms, 0.5)}))
-}
-
-fn percentile(v: &mut [f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[((v.len() - 1) as f64 * p).round() as usize]
 }
 
 async fn run(args: Args) -> Result<serde_json::Value, Error> {
@@ -175,14 +168,5 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
 fn main() -> ExitCode {
     let result = parse_args()
         .and_then(|args| tokio::runtime::Builder::new_multi_thread().enable_all().build()?.block_on(run(args)));
-    match result {
-        Ok(v) => {
-            println!("{v}");
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    bench::report(result)
 }
