@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::comm::Communicator;
 use crate::contact_activity::{ContactActivity, contact_activity};
 use crate::latin::{
-    FieldHistory, LatinSolver, Operators, SolveOptions, SolverError, StageReport, Timings, WindowCheck,
+    CheckOutcome, FieldHistory, LatinSolver, Operators, SolveOptions, SolverError, StageReport, Timings, WindowCheck,
 };
 use crate::model::Model;
 use glissade_core::field::InterfaceSolution;
@@ -386,6 +386,21 @@ fn apply_request<const D: usize>(model: &mut Model<D>, scene: &Scene, request: &
     Ok(())
 }
 
+/// Why the dynamic stage did not converge and what to change: the stage's diagnosis, led by the
+/// time scheme's advice where its iterations fell short (not where the check found an answer
+/// that moves with the iteration error: that is the motion's, not the scheme's).
+fn dynamic_diagnosis<const D: usize>(model: &Model<D>, stage: &StageReport) -> String {
+    let diagnosis = stage.diagnosis(model.settings.tolerance);
+    let sensitive = stage
+        .window_check
+        .as_ref()
+        .is_some_and(|c| matches!(c.outcome, CheckOutcome::Parted | CheckOutcome::BelowFloor));
+    match model.scheme_advice().filter(|_| !sensitive) {
+        Some(advice) => format!("{advice}; {diagnosis}"),
+        None => diagnosis,
+    }
+}
+
 fn solve_dim<const D: usize>(
     comm: &dyn Communicator,
     scene: &Scene,
@@ -469,7 +484,7 @@ fn solve_dim<const D: usize>(
         dynamic_windows_stalled: report.dynamic.windows_stalled,
         dynamic_windows_redone: report.dynamic.windows_redone,
         window_check: report.dynamic.window_check.clone(),
-        dynamic_diagnosis: (!report.dynamic.converged).then(|| report.dynamic.diagnosis(model.settings.tolerance)),
+        dynamic_diagnosis: (!report.dynamic.converged).then(|| dynamic_diagnosis(&model, &report.dynamic)),
         static_stage: report.static_stage.clone(),
         tolerance: model.settings.tolerance,
         wall_seconds: start.elapsed().as_secs_f64(),

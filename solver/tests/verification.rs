@@ -1663,6 +1663,62 @@ fn a_dissipative_newmark_holds_a_chattering_slip_between_dt_and_dt_over_2() {
     }
 }
 
+/// A titanium bar of our own (60 mm, 30 elements, 3 substructures) hits a wall at 3 m/s at a
+/// step ten times below its elements' transit time (c dt / h = 0.1). Under the trapezoidal rule
+/// the iterations stall (as the impact bars did at dt / 10, issue 45), and the message says
+/// first what converges it: gamma = 0.55, under which the answer is d'Alembert's: the free end
+/// leaves at -v0, the wall pushes rho c v0 for 2L / c.
+#[test]
+fn an_impact_that_stalls_under_the_trapezoidal_rule_is_told_to_damp_and_then_converges() {
+    let (e, rho, length, v0) = (110e9f64, 4500.0, 0.06, 3.0);
+    let text = |gamma: &str| {
+        format!(
+            "title = \"titanium bar\"\ndimension = 1\n[time]\nduration = 4e-5\nsteps = 1000\n{gamma}\n\
+             [materials.ti]\nE = {e:e}\nrho = {rho}\n\
+             [[bodies]]\nname = \"bar\"\nmaterial = \"ti\"\nsize = [{length}]\nelements = [30]\nsubstructures = [3]\n\
+             initial_velocity = [{v0}]\n\
+             [[interfaces]]\nname = \"wall\"\na = \"bar.x+\"\nb = \"wall\"\nlaw = \"contact\"\n\
+             [[qoi]]\nname = \"wall_force\"\nkind = \"force\"\ninterface = \"wall\"\ncomponent = \"x\"\n\
+             [[qoi]]\nname = \"free_end_velocity\"\nkind = \"velocity\"\nbody = \"bar\"\npoint = [0.0]\ncomponent = \"x\"\n"
+        )
+    };
+    let solve = |gamma: &str, limit: usize| {
+        let scene = Scene::parse(&text(gamma)).expect("the bar's scene");
+        let request = glissade_solver::run::SolveRequest { max_iterations: Some(limit), ..Default::default() };
+        glissade_solver::run::solve_scene(&scene, &request, None).expect("a solve").summary
+    };
+    let trapezoidal = solve("", 400);
+    let why = trapezoidal.shortfall().expect("the trapezoidal rule does not converge here");
+    eprintln!("trapezoidal: {why}");
+    assert!(why.contains("first try a little numerical dissipation, [time] newmark_gamma = 0.55"), "{why}");
+
+    let damped = solve("newmark_gamma = 0.55", 1000);
+    assert!(damped.converged, "{:?}", damped.shortfall());
+    assert!(damped.shortfall().is_none());
+    let c = (e / rho).sqrt();
+    let (contact, force) = (2.0 * length / c, -rho * c * v0);
+    let free = damped.qoi["free_end_velocity"].final_value;
+    let wall = &damped.qoi["wall_force"];
+    // the force's mean over the middle of the contact (its first steps ring), and the contact's end
+    let middle: Vec<f64> = wall
+        .times
+        .iter()
+        .zip(&wall.values)
+        .filter(|(t, _)| **t > 0.2 * contact && **t < 0.8 * contact)
+        .map(|(_, f)| *f)
+        .collect();
+    let mean = middle.iter().sum::<f64>() / middle.len() as f64;
+    let end = wall.times.iter().zip(&wall.values).filter(|(_, f)| **f != 0.0).map(|(t, _)| *t).fold(0.0, f64::max);
+    eprintln!(
+        "gamma 0.55: {} iterations; free end {free:.5} m/s (-v0 = -{v0}); wall {mean:.4e} Pa (rho c v0 {force:.4e}) \
+         until {end:.4e} s (2L / c = {contact:.4e})",
+        damped.iterations
+    );
+    assert!((free + v0).abs() < 1e-3 * v0, "the free end leaves at -v0: {free}");
+    assert!((mean - force).abs() < 0.01 * force.abs(), "the wall pushes rho c v0: {mean} against {force}");
+    assert!((end - contact).abs() < 0.02 * contact, "the contact lasts 2L / c: {end} against {contact}");
+}
+
 /// One element per substructure (the block of our own, 6 x 3 quads cut 6 x 3, pressed from
 /// t = 0) converges multiscale within the default limit, in at most twice the iterations of the
 /// same block cut 2 x 1 (single scale it stalls past 1000), to the same slip.
