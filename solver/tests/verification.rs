@@ -1846,19 +1846,27 @@ fn time_windows_give_the_whole_intervals_answer_for_less_work() {
 
 /// The work of a windowed solve does not grow as the time step falls: the brass block at dt and
 /// dt / 10 (1000 steps, where the whole interval runs out of the default 1000 iterations)
-/// converges within the default limit at 2e-4 and 1e-5, for at most twice the sweeps at dt; at
-/// dt / 10 the answer at 2e-4 lies within it of the answer at 1e-6.
+/// converges within the default limit at 2e-4 and 1e-5, its windows taking at most twice the
+/// sweeps they take at dt; at dt / 10 the answer at 2e-4 lies within it of the answer at 1e-6.
 #[test]
 fn time_windows_keep_the_work_flat_as_the_time_step_falls() {
     let mut sweeps = Vec::new();
+    // the windows' own work; the check's passes apart (at dt they go on from an answer three
+    // windows long and cost 14 sweeps, at dt / 10 about the solve's own: docs/performance.md)
+    let own = |r: &SolveReport| r.dynamic.sweeps - r.dynamic.window_check.as_ref().map_or(0.0, |c| c.sweeps);
     for tol in [2e-4, 1e-5] {
         let coarse = solve(&brass_block(100, 25, tol), false);
         let fine = solve(&brass_block(1000, 25, tol), false);
         eprintln!(
-            "tolerance {tol:.0e}: {:.1} sweeps at dt, {:.1} at dt / 10 ({} iterations in {} windows)",
-            coarse.dynamic.sweeps, fine.dynamic.sweeps, fine.dynamic.iterations, fine.dynamic.windows
+            "tolerance {tol:.0e}: {:.1} sweeps at dt ({:.1} the check's), {:.1} at dt / 10 ({:.1} the check's; {} iterations in {} windows)",
+            coarse.dynamic.sweeps,
+            coarse.dynamic.sweeps - own(&coarse),
+            fine.dynamic.sweeps,
+            fine.dynamic.sweeps - own(&fine),
+            fine.dynamic.iterations,
+            fine.dynamic.windows
         );
-        assert!(fine.dynamic.sweeps <= 2.0 * coarse.dynamic.sweeps, "dt / 10: {} sweeps", fine.dynamic.sweeps);
+        assert!(own(&fine) <= 2.0 * own(&coarse), "dt / 10: {} sweeps of its own", own(&fine));
         sweeps.push(fine);
     }
     let tight = solve(&brass_block(1000, 25, 1e-6), false);
@@ -2115,15 +2123,17 @@ fn a_windowed_solve_is_checked_against_another_windowing() {
     assert_eq!(checked.dynamic.sweeps, unchecked.dynamic.sweeps + check.sweeps);
     assert_eq!(check.floor, None, "every pass converged where it was aimed");
 
-    // Where a pass cannot be iterated as far as it is aimed (here a window's limit of 100
+    // Where a pass cannot be iterated as far as it is aimed (here a window's limit of 68
     // iterations: the pass at 7e-9 runs out), it is tried again at the geometric mean of that
-    // and its partner's tolerance, and the check goes on from there rather than failing.
+    // and its partner's tolerance, and the check goes on from there rather than failing. (The
+    // band is narrow since the passes go on from the answer: at 67 the retry runs out too, from
+    // 69 every pass reaches its aim.)
     let mut limited = titanium("[solver]");
-    limited.settings.max_iterations = 100;
+    limited.settings.max_iterations = 68;
     let floored = solve(&limited, false);
     let check = floored.dynamic.window_check.as_ref().expect("a windowed solve is checked");
     let e = largest_history_difference(&floored, &reference);
-    eprintln!("limited to 100 iterations a window: {check:?}, error {e:.2e}");
+    eprintln!("limited to 68 iterations a window: {check:?}, error {e:.2e}");
     let floor = check.floor.expect("a pass ran out of iterations");
     assert!(check.iteration_tolerance > floor, "the answer returned is the retry's, looser than the floor");
     assert!(floored.converged(), "{}", floored.dynamic.diagnosis(2e-4));
@@ -2137,14 +2147,15 @@ fn a_windowed_solve_is_checked_against_another_windowing() {
 /// A check pass that does not converge stops in some window, and the windows after it are never
 /// iterated: the answer returned is the last pass that converged (here the solve itself), not
 /// that one's half-iterated histories (the 3D block's slip used to end at 1e-13 m, its value
-/// before sliding). The titanium block, 60 iterations a window: the solve converges, the
-/// check's pass at 2e-5 and its retry at 6.3e-5 run out. A solve that itself stops in a window
+/// before sliding). The titanium block, 56 iterations a window: the solve converges (from 53),
+/// the check's pass at 2e-5 and its retry at 6.3e-5 run out (up to 59: the passes go on from
+/// the solve's answer, and from 60 the retry converges). A solve that itself stops in a window
 /// says where, and that the rest is no answer.
 #[test]
 fn a_check_whose_pass_stops_part_way_returns_the_last_converged_answer() {
     let titanium = |extra: &str| {
         let mut m = build::<2>(&PUSHED_TITANIUM_BLOCK.replace("STEPS", "200").replace("[solver]", extra), &[]);
-        m.settings.max_iterations = 60;
+        m.settings.max_iterations = 56;
         m
     };
     let unchecked = solve(&titanium("[solver]\nwindow_check = false"), false);
@@ -2164,7 +2175,8 @@ fn a_check_whose_pass_stops_part_way_returns_the_last_converged_answer() {
 
     // With 20 iterations a window the solve itself stops in its first window: it says so, and
     // that its histories after it are no answer (they stay at the prestress's values).
-    let mut limited = titanium("[solver]");
+    let steps = std::env::var("STEPS").unwrap_or("200".into());
+    let mut limited = build::<2>(&PUSHED_TITANIUM_BLOCK.replace("STEPS", &steps), &[]);
     limited.settings.max_iterations = 20;
     let stopped =
         LatinSolver::serial(&limited).expect("factorisation").solve(None, &SolveOptions::default()).expect("solve");

@@ -574,7 +574,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let ratio = if from_neighbour { m.settings.warm_tolerance_ratio } else { 1.0 };
         let tolerance = m.settings.tolerance * ratio;
         let checked = m.settings.window_check && m.settings.time_window > 0 && !m.qois.is_empty();
-        let initial = checked.then(|| dynamic.interfaces.clone());
         let mut report = self.dynamic_stage(
             prestress.as_ref(),
             (tolerance, m.settings.time_window, init.is_none()),
@@ -582,9 +581,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             &mut timings,
             options,
         )?;
-        if let Some(initial) = initial.filter(|_| report.converged && report.windows > 1) {
-            let start = CheckStart { init, tolerance, initial: &initial };
-            self.check_windows(start, &mut report, &mut prestress, &mut dynamic.interfaces, &mut timings, options)?;
+        if checked && report.converged && report.windows > 1 {
+            self.check_windows(tolerance, &mut report, &mut prestress, &mut dynamic.interfaces, &mut timings, options)?;
         }
         let (static_report, static_solution, u0) = match prestress {
             Some(p) => (Some(p.report), Some(p.solution), p.u0),
@@ -1016,7 +1014,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             if eta <= tolerance && (report.error_estimate <= estimate_tolerance || within_budget(budget, &estimator)) {
                 if let Some(t) = tightening.as_mut() {
-                    if let Some(next) = t.reached(tolerance, &it.qois.values, &m.qois, estimator.scales()) {
+                    if let Some(next) = t.reached(iteration, tolerance, &it.qois.values, &m.qois, estimator.scales()) {
                         // on, a tenth tighter; the first time, with iterations to spare
                         limit = if t.check.passes == 1 { iteration + stage.iteration_limit(m) } else { limit };
                         (tolerance, estimate_tolerance) = (next, estimate_tolerance * next / tolerance);
@@ -1426,14 +1424,6 @@ struct Prestress {
     report: StageReport,
     solution: StageSolution,
     u0: Vec<Option<Vec<f64>>>,
-}
-
-/// What the check of a windowed solve starts from: the solve's initial solution (`None`: a
-/// cold start), its dynamic tolerance and the dynamic fields it began with.
-struct CheckStart<'a> {
-    init: Option<&'a InterfaceSolution>,
-    tolerance: f64,
-    initial: &'a [InterfaceField],
 }
 
 /// A time window of a stage: its steps, and at its first one the substructures' states (`None`:
