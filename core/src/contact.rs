@@ -116,6 +116,42 @@ impl ContactActivity {
     }
 }
 
+/// A slide chatters when its contact nodes lifted off and landed while it slid at least this many
+/// times each on average. Measured on issue 30's blocks (docs/notebook/2026-11-29.md, "A slide
+/// that chatters says so"): 62 to 880 landings on 5 to 45 nodes wherever the answer moved with
+/// the time step; 4 on 9 nodes at f = 1 and none on the shipped scenes, whose answers settle.
+pub const CHATTER_LANDINGS_PER_NODE: usize = 1;
+
+impl ContactActivity {
+    /// Its nodes lifted off and landed while it slid, [`CHATTER_LANDINGS_PER_NODE`] times each or
+    /// more: a slide whose answer moves with the time step by more than any iteration tolerance
+    /// bounds (docs/verification.md 4d).
+    pub fn chatters(&self) -> bool {
+        self.contact_nodes > 0 && self.landings_while_sliding >= CHATTER_LANDINGS_PER_NODE * self.contact_nodes
+    }
+
+    /// The warning a user reads where the slide chatters (and is not ill-posed, whose warning
+    /// says more), with its evidence and what to do.
+    pub fn chatter_warning(&self) -> Option<String> {
+        (self.chatters() && !self.ill_posed).then(|| {
+            format!(
+                "interface '{}' chatters while it slides: its {} contact nodes lifted off and landed {} times, the total \
+                 normal force peaking at {:.1} x its mean. Such an answer, its normal force above all, moves with the \
+                 time step by more than the tolerance bounds and need not settle as dt falls (docs/verification.md 4d: \
+                 a block of ours slid 1.6 %, 6.9 % and 9.0 % further at dt / 2, dt / 4 and dt / 10); measure it \
+                 (glissade-worker refine --dt 1,2,4, or solve to an accuracy) or damp it with a Prakash-Clifton law \
+                 (docs/scenes.md)",
+                self.interface, self.contact_nodes, self.landings_while_sliding, self.peak_normal_force_ratio
+            )
+        })
+    }
+
+    /// The warning of either kind: ill-posed, else chattering.
+    pub fn any_warning(&self) -> Option<String> {
+        self.warning().or_else(|| self.chatter_warning())
+    }
+}
+
 impl ContactActivity {
     /// Whether it is a report the solver could have made: numbers finite and not negative, the
     /// name a short single line.
@@ -140,6 +176,32 @@ impl ContactActivity {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A slide chatters from one landing per contact node while it slides; an ill-posed one is
+    /// warned of as such, once; a contact that never touched does not chatter.
+    #[test]
+    fn a_slide_chatters_from_one_landing_a_node() {
+        let report = |nodes: usize, landings: usize, ill_posed: bool| ContactActivity {
+            interface: "floor".into(),
+            friction: if ill_posed { 1.5 } else { 0.4 },
+            rigid_wall: true,
+            contact_nodes: nodes,
+            first_slip_time: Some(3e-4),
+            landings_while_sliding: landings,
+            peak_normal_force_ratio: 6.5,
+            ill_posed,
+        };
+        assert!(!report(9, 8, false).chatters() && report(9, 9, false).chatters());
+        assert!(!report(0, 0, false).chatters());
+        let w = report(9, 229, false).chatter_warning().expect("229 landings on 9 nodes chatter");
+        assert!(w.contains("'floor' chatters") && w.contains("9 contact nodes lifted off and landed 229 times"), "{w}");
+        assert!(w.contains("refine --dt 1,2,4") && w.contains("6.5 x its mean"), "{w}");
+        assert_eq!(report(9, 229, false).any_warning(), Some(w));
+        assert_eq!(report(9, 4, false).any_warning(), None);
+        let ill = report(9, 229, true);
+        assert_eq!(ill.chatter_warning(), None);
+        assert!(ill.any_warning().is_some_and(|w| w.contains("ill-posed")));
+    }
 
     /// The law's step is its equation's exact solution: constant inputs relax N* exponentially
     /// at the rate (|V| + V*) / L, two half steps make one step, and a vanishing length is

@@ -25,6 +25,7 @@ use axum::extract::{Form, Path, Query, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Redirect, Response};
 use axum::routing::get;
+use glissade_core::contact::ContactActivity;
 use glissade_core::point::DesignPoint;
 use glissade_proto::StudyId;
 use glissade_proto::auth::Token;
@@ -416,6 +417,11 @@ fn point_json(p: &PointRecord) -> serde_json::Value {
         "work": r.map(|r| r.work),
         "started_from": r.and_then(|r| r.started_from.as_ref()).map(|o| BTreeMap::from(o.parameters.clone())),
         "qoi": r.map(|r| r.qoi.clone()).unwrap_or_default(),
+        // the contacts whose answer moves under refinement whatever the tolerance (docs/verification.md 4d)
+        "flagged_contacts": r.map(|r| r.contact.iter()
+            .filter(|c| c.ill_posed || c.chatters())
+            .map(|c| json!({ "interface": c.interface, "ill_posed": c.ill_posed, "chatters": c.chatters() }))
+            .collect::<Vec<_>>()).unwrap_or_default(),
     })
 }
 
@@ -930,7 +936,7 @@ impl StudyShown {
             }
             h2 { "Accuracy" }
             (target_paragraph(v))
-            (ill_posed_paragraph(v))
+            (contact_paragraphs(v))
             (audit_paragraphs(v))
             // the running points: the script fills this table from the JSON while the study runs
             @if v.state == StudyState::Active {
@@ -1174,20 +1180,26 @@ fn discretisation_paragraphs(d: &crate::coordinator::Discretisation) -> Markup {
     }
 }
 
-/// The points whose sliding is ill-posed (docs/verification.md 4d): their answers move as the
-/// mesh and the time step are refined whatever the tolerance, and the surface through them
-/// with them.
-fn ill_posed_paragraph(v: &StudyView) -> Markup {
-    let flagged: Vec<(u64, String)> = v
-        .points
-        .iter()
-        .filter_map(|p| Some((p.id.0, p.result.as_ref()?.contact.iter().find_map(|c| c.warning())?)))
-        .collect();
+/// The points whose sliding is ill-posed, then those whose slide chatters (docs/verification.md
+/// 4d): their answers move as the mesh and the time step are refined whatever the tolerance,
+/// and the surface through them with them.
+fn contact_paragraphs(v: &StudyView) -> Markup {
+    html! {
+        (flagged_paragraph(v, "ill-posed", "slide ill-posed", ContactActivity::warning))
+        (flagged_paragraph(v, "chatter", "chatter while they slide", ContactActivity::chatter_warning))
+    }
+}
+
+/// One warning paragraph for the points one of whose contacts `warning` flags, with the first's
+/// words.
+fn flagged_paragraph(v: &StudyView, id: &str, what: &str, warning: fn(&ContactActivity) -> Option<String>) -> Markup {
+    let flagged: Vec<(u64, String)> =
+        v.points.iter().filter_map(|p| Some((p.id.0, p.result.as_ref()?.contact.iter().find_map(warning)?))).collect();
     let Some((_, first)) = flagged.first() else { return html! {} };
     let ids: Vec<String> = flagged.iter().map(|(id, _)| format!("#{id}")).collect();
     html! {
-        p #ill-posed class="warning" {
-            (format!("warning: {} of {} points slide ill-posed ({}). ", flagged.len(), v.points.len(), ids.join(", ")))
+        p id=(id) class="warning" {
+            (format!("warning: {} of {} points {what} ({}). ", flagged.len(), v.points.len(), ids.join(", ")))
             (first)
         }
     }
@@ -1226,8 +1238,12 @@ fn points_table(
                     // why it failed (or why its last attempt did)
                     td class="note" {
                         @if let Some(e) = &point.error { (e) }
-                        @for c in res.iter().flat_map(|r| &r.contact).filter(|c| c.ill_posed) {
-                            (format!("ill-posed: '{}' slides on a rigid wall at friction {}", c.interface, c.friction))
+                        @for c in res.iter().flat_map(|r| &r.contact) {
+                            @if c.ill_posed {
+                                (format!("ill-posed: '{}' slides on a rigid wall at friction {}", c.interface, c.friction))
+                            } @else if c.chatters() {
+                                (format!("chatters: '{}' landed {} times while it slid", c.interface, c.landings_while_sliding))
+                            }
                         }
                     }
                 }

@@ -478,6 +478,9 @@ struct Output<'a> {
     /// above is the chosen level's
     #[serde(skip_serializing_if = "Option::is_none")]
     accuracy: Option<AccuracyReport>,
+    /// what a user must know beside the answer: each contact that slides ill-posed or chatters
+    /// (`ContactActivity::any_warning`), also on stderr
+    warnings: Vec<String>,
 }
 
 /// The design point of `--set NAME=VALUE`s (a name set twice takes its last value).
@@ -631,12 +634,13 @@ fn solve(args: SolveArgs, comm: &dyn Communicator) -> Result<Exit> {
             units: s.qoi.keys().filter_map(|q| Some((q.clone(), scene.unit(q)?))).collect(),
             profile,
             accuracy,
+            warnings: s.contact.iter().filter_map(|c| c.any_warning()).collect(),
         };
         println!("{}", serde_json::to_string(&out)?);
     } else {
         print_human(&args, &scene, s, field_files.as_ref(), profile.as_ref(), accuracy.as_ref());
     }
-    for w in s.contact.iter().filter_map(|c| c.warning()) {
+    for w in s.contact.iter().filter_map(|c| c.any_warning()) {
         eprintln!("warning: {w}");
     }
     if let Some(why) = s.shortfall() {

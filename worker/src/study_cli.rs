@@ -190,7 +190,7 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
             r.wall_seconds,
             r.started_from()
         );
-        for w in r.contact.iter().filter_map(|c| c.warning()) {
+        for w in r.contact.iter().filter_map(|c| c.any_warning()) {
             let _ = writeln!(std::io::stderr(), "warning: {}: {w}", values.join(" "));
         }
     };
@@ -234,45 +234,13 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
         write_atomically(&dir.join("results.csv"), result.to_csv().as_bytes())?;
         write_atomically(&dir.join("results.json"), serde_json::to_string_pretty(&result)?.as_bytes())?;
     }
-    let s = &result.summary;
     if args.json {
         match &accuracy {
             Some(a) => println!("{}", serde_json::to_string(&StudyOutput { result: Some(&result), accuracy: a })?),
             None => println!("{}", serde_json::to_string(&result)?),
         }
     } else {
-        println!(
-            "{}: {} points ({} converged, {} reused, {} not converged, {} failed), strategy {}, order {}, tolerance {:.1e}",
-            path.display(),
-            s.points,
-            s.converged,
-            s.reused,
-            s.not_converged,
-            s.failed,
-            strategy.name(),
-            order.name(),
-            result.tolerance
-        );
-        println!(
-            "  iterations: {} in all; first point {}, later points {:.1} on average",
-            s.total_iterations, s.first_iterations, s.mean_later_iterations
-        );
-        println!("  work: {:.1} (dynamic iterations + static iterations / time steps)", s.work);
-        if let Some(line) = s.warm_against_cold() {
-            println!("  {line}");
-        }
-        println!("  wall time: {:.2} s", s.wall_seconds);
-        let ill_posed = result.records.iter().filter(|r| r.contact.iter().any(|c| c.ill_posed)).count();
-        if ill_posed > 0 {
-            // docs/verification.md 4d: no tolerance bounds how far these answers move under refinement
-            println!(
-                "  warning: {ill_posed} of {} points slide ill-posed (on a rigid wall above friction 1; stderr names them)",
-                s.points
-            );
-        }
-        if let Some(dir) = &args.out {
-            println!("  results: {}, {}", dir.join("results.csv").display(), dir.join("results.json").display());
-        }
+        print_summary(path, &result, (strategy.name(), order.name()), args.out.as_deref());
         if let Some(a) = &accuracy {
             print_study_accuracy(a);
         }
@@ -285,6 +253,57 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
         }
         _ => super::Exit::Done,
     })
+}
+
+/// The study's summary in words: its points and their outcomes, the work, and the warnings of
+/// points whose answers move under refinement whatever the tolerance (docs/verification.md 4d).
+fn print_summary(
+    path: &std::path::Path,
+    result: &StudyResult,
+    (strategy, order): (&str, &str),
+    out: Option<&std::path::Path>,
+) {
+    let s = &result.summary;
+    println!(
+        "{}: {} points ({} converged, {} reused, {} not converged, {} failed), strategy {}, order {}, tolerance {:.1e}",
+        path.display(),
+        s.points,
+        s.converged,
+        s.reused,
+        s.not_converged,
+        s.failed,
+        strategy,
+        order,
+        result.tolerance
+    );
+    println!(
+        "  iterations: {} in all; first point {}, later points {:.1} on average",
+        s.total_iterations, s.first_iterations, s.mean_later_iterations
+    );
+    println!("  work: {:.1} (dynamic iterations + static iterations / time steps)", s.work);
+    if let Some(line) = s.warm_against_cold() {
+        println!("  {line}");
+    }
+    println!("  wall time: {:.2} s", s.wall_seconds);
+    let ill_posed = result.records.iter().filter(|r| r.contact.iter().any(|c| c.ill_posed)).count();
+    if ill_posed > 0 {
+        // docs/verification.md 4d: no tolerance bounds how far these answers move under refinement
+        println!(
+            "  warning: {ill_posed} of {} points slide ill-posed (on a rigid wall above friction 1; stderr names them)",
+            s.points
+        );
+    }
+    let chatter = result.records.iter().filter(|r| r.contact.iter().any(|c| c.chatters() && !c.ill_posed)).count();
+    if chatter > 0 {
+        // docs/verification.md 4d: their answers move with the time step beyond the tolerance
+        println!(
+            "  warning: {chatter} of {} points chatter while they slide (their answers move with the time step; stderr names them)",
+            s.points
+        );
+    }
+    if let Some(dir) = out {
+        println!("  results: {}, {}", dir.join("results.csv").display(), dir.join("results.json").display());
+    }
 }
 
 /// The pilots of `study --accuracy`, each solved to the accuracy (progress on stderr), and the

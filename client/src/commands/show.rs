@@ -33,7 +33,7 @@ pub(crate) async fn show(server: &Server, study: u64, points: bool, json: bool) 
         p.iterations
     );
     work(&s);
-    ill_posed(&s);
+    contact_warnings(&s);
     if !points {
         // why a point failed, without asking for every point
         for point in s.points.iter().filter(|x| x.state == v1::PointState::Failed as i32) {
@@ -202,16 +202,22 @@ fn work(s: &v1::Study) {
     }
 }
 
-/// The points whose sliding is ill-posed (docs/verification.md 4d): no tolerance bounds how far
-/// their answers move as the mesh and the time step are refined, and a user reading the
-/// surface should know which they are.
-fn ill_posed(s: &v1::Study) {
+/// The points whose sliding is ill-posed, then those whose slide chatters (docs/verification.md
+/// 4d): no tolerance bounds how far their answers move as the mesh and the time step are
+/// refined, and a user reading the surface should know which they are.
+fn contact_warnings(s: &v1::Study) {
+    flagged_points(s, "slide ill-posed", ContactActivity::warning);
+    flagged_points(s, "chatter while they slide", ContactActivity::chatter_warning);
+}
+
+/// One warning line for the points one of whose contacts `warning` flags, and the first's words.
+fn flagged_points(s: &v1::Study, what: &str, warning: fn(&ContactActivity) -> Option<String>) {
     let flagged: Vec<(&v1::PointStatus, String)> = s
         .points
         .iter()
         .filter_map(|p| {
-            let warning = p.contact.iter().find_map(|c| ContactActivity::try_from(c.clone()).ok()?.warning())?;
-            Some((p, warning))
+            let w = p.contact.iter().find_map(|c| warning(&ContactActivity::try_from(c.clone()).ok()?))?;
+            Some((p, w))
         })
         .collect();
     let Some((_, first)) = flagged.first() else { return };
@@ -222,7 +228,7 @@ fn ill_posed(s: &v1::Study) {
         .map(|(p, _)| format!("#{} {}", p.point_id, describe_parameters(&p.parameters)))
         .collect();
     let more = if flagged.len() > LISTED { format!(" and {} more", flagged.len() - LISTED) } else { String::new() };
-    outln!("  warning   {} of {} points slide ill-posed: {}{more}", flagged.len(), s.points.len(), listed.join(", "));
+    outln!("  warning   {} of {} points {what}: {}{more}", flagged.len(), s.points.len(), listed.join(", "));
     outln!("            the first: {first}");
 }
 
@@ -264,7 +270,13 @@ fn point_lines(s: &v1::Study) {
         );
         let contact = point.contact.iter().filter_map(|c| ContactActivity::try_from(c.clone()).ok());
         for c in contact.filter(|c| c.landings_while_sliding > 0 || c.ill_posed) {
-            let flag = if c.ill_posed { " (ILL-POSED: on a rigid wall above friction 1)" } else { "" };
+            let flag = if c.ill_posed {
+                " (ILL-POSED: on a rigid wall above friction 1)"
+            } else if c.chatters() {
+                " (CHATTERS: the answer moves with the time step)"
+            } else {
+                ""
+            };
             outln!("        {}{flag}", c.evidence());
         }
     }
@@ -407,6 +419,7 @@ pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
             "landings_while_sliding": c.landings_while_sliding,
             "peak_normal_force_ratio": c.peak_normal_force_ratio,
             "ill_posed": c.ill_posed,
+            "chatters": ContactActivity::try_from(c.clone()).is_ok_and(|a| a.chatters()),
         })).collect::<Vec<_>>(),
     })
 }

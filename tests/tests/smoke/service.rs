@@ -637,7 +637,8 @@ fn a_pool_fails_a_point_too_big_for_its_memory_with_the_reason_and_lives_on() ->
 /// A brass block of our own pushed along a rigid floor hard enough to slide at f = 0.5 and at
 /// f = 1.4: through a real pool and the coordinator, each point keeps what its contact did, and
 /// `glissade show` warns of the one whose sliding is ill-posed (above friction 1 on a rigid
-/// wall, docs/verification.md 4d), with the evidence, where a user reads the study.
+/// wall, docs/verification.md 4d), and of the other, whose slide chatters (39 landings on 5
+/// nodes), with the evidence, where a user reads the study.
 #[test]
 fn a_study_says_which_points_slide_ill_posed() -> anyhow::Result<()> {
     const BRASS_BLOCK: &str = r#"
@@ -708,15 +709,32 @@ point = [0.01, 0]
     assert!(out.status.success(), "show: {}", text(&out.stderr));
     assert!(shown.contains("warning   1 of 2 points slide ill-posed: #1 f=1.4"), "{shown}");
     assert!(shown.contains("'floor' slides on a rigid wall at friction 1.4"), "{shown}");
+    assert!(shown.contains("warning   1 of 2 points chatter while they slide: #0 f=0.5"), "{shown}");
+    assert!(shown.contains("interface 'floor' chatters while it slides: its 5 contact nodes"), "{shown}");
     let out = glissade(Some(&url), &["show", &id.to_string(), "--points", "--json"]);
     let json: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     let flags: Vec<bool> =
         json["points"].as_array().expect("points").iter().map(|p| p["contact"][0]["ill_posed"] == true).collect();
     assert_eq!(flags, [false, true], "{json}");
+    let chatters: Vec<bool> =
+        json["points"].as_array().expect("points").iter().map(|p| p["contact"][0]["chatters"] == true).collect();
+    assert_eq!(chatters, [true, true], "both land more than once a node: {json}");
     // and the web page, where the surface is read
     let (status, _, page) = http_get(&addr, &format!("/studies/{id}"));
     assert_eq!(status, 200, "{page}");
     assert!(page.contains("warning: 1 of 2 points slide ill-posed (#1)"), "{page}");
     assert!(page.contains("ill-posed: 'floor' slides on a rigid wall at friction 1.4"), "{page}");
+    assert!(page.contains("warning: 1 of 2 points chatter while they slide (#0)"), "{page}");
+    assert!(page.contains("chatters: 'floor' landed"), "{page}");
+    let (status, _, api) = http_get(&addr, &format!("/api/studies/{id}"));
+    assert_eq!(status, 200, "{api}");
+    let api: serde_json::Value = serde_json::from_str(&api)?;
+    let flagged: Vec<(bool, bool)> = api["points"]
+        .as_array()
+        .expect("points")
+        .iter()
+        .map(|p| (p["flagged_contacts"][0]["chatters"] == true, p["flagged_contacts"][0]["ill_posed"] == true))
+        .collect();
+    assert_eq!(flagged, [(true, false), (true, true)], "{api}");
     Ok(())
 }
