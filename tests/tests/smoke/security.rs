@@ -165,7 +165,7 @@ fn tls_serves_https_clients_that_trust_its_authority_and_no_one_else() -> anyhow
 /// stored solution keeps the pool that sent it, and `glissade purge-pool` removes that pool's
 /// solutions. Here a "forger" solves a study with a made-up QoI; a second study of the same
 /// points is answered from those solutions; once purged, a third is solved again, by an honest
-/// pool, and keeps the honest values.
+/// pool, and keeps the honest values. An id no pool could have is refused and purges nothing.
 #[test]
 fn a_pools_solutions_can_be_purged_and_no_later_point_is_answered_from_them() -> anyhow::Result<()> {
     use glissade_e2e::synthetic;
@@ -203,5 +203,13 @@ fn a_pools_solutions_can_be_purged_and_no_later_point_is_answered_from_them() ->
     assert_eq!(study("honest", 1.0)?, [(1.0, false); 2], "a purged solution answered a point");
     let out = glissade(Some(&url), &["purge-pool", "forger"]);
     assert_eq!(text(&out.stdout), "purged 0 stored solutions of pool forger\n");
+    // an id no pool can register is refused with what it takes, and harms nothing: the honest
+    // pool's solutions still answer
+    for bad in [String::new(), "p".repeat(257)] {
+        let out = glissade(Some(&url), &["purge-pool", &bad]);
+        assert!(!out.status.success(), "purge-pool {:?}: {}", bad.len(), text(&out.stdout));
+        assert!(text(&out.stderr).contains("1 to 256 bytes"), "{}", text(&out.stderr));
+    }
+    assert_eq!(study("honest", 1.0)?, [(1.0, true); 2], "the honest solutions are kept");
     Ok(())
 }
