@@ -602,7 +602,6 @@ fn declared_interfaces<const D: usize>(
     local_of: &[HashMap<usize, usize>],
     interfaces: &mut Vec<Interface<D>>,
 ) -> Result<BTreeMap<String, std::ops::Range<usize>>, SceneError> {
-    let side = |s: usize, body_nodes: &[usize]| interface_side(local_of, s, body_nodes);
     let mut interface_index = BTreeMap::new();
     for (ii, spec) in scene.interfaces.iter().enumerate() {
         let key = format!("interfaces[{ii}]");
@@ -611,120 +610,150 @@ fn declared_interfaces<const D: usize>(
         }
         let law = resolve_law(r, &key, spec)?;
         let (ba, faces_a) = find_face_set(bodies, &format!("{key}.a"), &spec.a)?;
-        let mesh_a = &bodies[ba].mesh;
         let first = interfaces.len();
+        let new = Sides { spec, key: &key, law, bodies, local_of };
         if spec.b == "wall" {
-            if matches!(law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
-                return Err(invalid(
-                    format!("{key}.law"),
-                    "a glued interface with a wall is a boundary condition: use [[boundary]] (clamped or displacement)",
-                ));
-            }
-            let gap = match &spec.gap {
-                Some(g) => r.get(&format!("{key}.gap"), g)?,
-                None => 0.0,
-            };
-            if gap < 0.0 {
-                return Err(invalid(format!("{key}.gap"), "an initial gap must be >= 0"));
-            }
-            let mut groups: BTreeMap<usize, Vec<Face>> = BTreeMap::new();
-            for f in faces_a {
-                groups.entry(bodies[ba].partition[f.element]).or_default().push(*f);
-            }
-            for (s1, faces) in groups {
-                let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
-                let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
-                interfaces.push(Interface {
-                    name: spec.name.clone(),
-                    law,
-                    sides: vec![side(s1, &nodes)],
-                    gap0: vec![gap; nodes.len()],
-                    area,
-                    normal,
-                    coords,
-                });
-            }
+            wall_interfaces(&new, r, ba, faces_a, interfaces)?;
         } else {
-            if spec.gap.is_some() {
-                return Err(invalid(
-                    format!("{key}.gap"),
-                    "a gap is only allowed with b = \"wall\" (body faces must touch)",
-                ));
-            }
-            let (bb, faces_b) = find_face_set(bodies, &format!("{key}.b"), &spec.b)?;
-            if ba == bb {
-                return Err(invalid(format!("{key}.b"), "both sides are on the same body"));
-            }
-            let mesh_b = &bodies[bb].mesh;
-            let scale = bbox_size(mesh_a).max(bbox_size(mesh_b));
-            let tol = 1e-9 * scale;
-            let quant = |p: &[f64; D]| -> Vec<i64> { p.iter().map(|x| (x / tol).round() as i64).collect() };
-            let mut node_b: HashMap<Vec<i64>, usize> = HashMap::new();
-            let mut face_b: HashMap<Vec<usize>, usize> = HashMap::new();
-            for f in faces_b {
-                let nodes = mesh_b.face_nodes(*f);
-                for &n in &nodes {
-                    node_b.insert(quant(&mesh_b.nodes[n]), n);
-                }
-                let mut k = nodes;
-                k.sort_unstable();
-                face_b.insert(k, bodies[bb].partition[f.element]);
-            }
-            let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
-            for f in faces_a {
-                let mut matched = Vec::new();
-                let fnodes = mesh_a.face_nodes(*f);
-                // names the face by its nodes' coordinates, what the user can find in a viewer
-                let nonconforming = |why: String| {
-                    let at: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh_a.nodes[n]).collect();
-                    invalid(
-                        key.clone(),
-                        format!(
-                            "interface faces do not match: the face of '{}' at {at:?} {why} on '{}'",
-                            spec.a, spec.b
-                        ),
-                    )
-                };
-                for &n in &fnodes {
-                    let p = mesh_a.nodes[n];
-                    let nb = node_b
-                        .get(&quant(&p))
-                        .ok_or_else(|| nonconforming(format!("has a node at {p:?} with no counterpart")))?;
-                    matched.push(*nb);
-                }
-                matched.sort_unstable();
-                let s2 = face_b.get(&matched).ok_or_else(|| nonconforming("has no conforming face".into()))?;
-                groups.entry((bodies[ba].partition[f.element], *s2)).or_default().push(*f);
-            }
-            if groups.values().map(Vec::len).sum::<usize>() != faces_b.len() {
-                return Err(invalid(
-                    key.clone(),
-                    format!(
-                        "interface faces do not match: '{}' and '{}' have different numbers of faces",
-                        spec.a, spec.b
-                    ),
-                ));
-            }
-            for ((s1, s2), faces) in groups {
-                let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
-                let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
-                let nodes_b: Vec<usize> = coords.iter().map(|p| node_b[&quant(p)]).collect();
-                let mut sides = vec![side(s1, &nodes), side(s2, &nodes_b)];
-                sides[1].nodes = nodes_b.iter().map(|g| local_of[s2][g]).collect();
-                interfaces.push(Interface {
-                    name: spec.name.clone(),
-                    law,
-                    sides,
-                    gap0: vec![0.0; nodes.len()],
-                    area,
-                    normal,
-                    coords,
-                });
-            }
+            body_interfaces(&new, ba, faces_a, interfaces)?;
         }
         interface_index.insert(spec.name.clone(), first..interfaces.len());
     }
     Ok(interface_index)
+}
+
+/// What the interfaces of one declared interface are built from.
+struct Sides<'a, const D: usize> {
+    spec: &'a glissade_core::scene::InterfaceSpec,
+    key: &'a str,
+    law: InterfaceLaw,
+    bodies: &'a [Body<D>],
+    local_of: &'a [HashMap<usize, usize>],
+}
+
+/// A declared interface with a rigid wall: one interface per substructure its faces lie on.
+fn wall_interfaces<const D: usize>(
+    new: &Sides<D>,
+    r: &Resolver,
+    ba: usize,
+    faces_a: &[Face],
+    interfaces: &mut Vec<Interface<D>>,
+) -> Result<(), SceneError> {
+    let Sides { spec, key, law, bodies, local_of } = *new;
+    let side = |s: usize, body_nodes: &[usize]| interface_side(local_of, s, body_nodes);
+    let mesh_a = &bodies[ba].mesh;
+    if matches!(law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
+        return Err(invalid(
+            format!("{key}.law"),
+            "a glued interface with a wall is a boundary condition: use [[boundary]] (clamped or displacement)",
+        ));
+    }
+    let gap = match &spec.gap {
+        Some(g) => r.get(&format!("{key}.gap"), g)?,
+        None => 0.0,
+    };
+    if gap < 0.0 {
+        return Err(invalid(format!("{key}.gap"), "an initial gap must be >= 0"));
+    }
+    let mut groups: BTreeMap<usize, Vec<Face>> = BTreeMap::new();
+    for f in faces_a {
+        groups.entry(bodies[ba].partition[f.element]).or_default().push(*f);
+    }
+    for (s1, faces) in groups {
+        let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
+        let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+        interfaces.push(Interface {
+            name: spec.name.clone(),
+            law,
+            sides: vec![side(s1, &nodes)],
+            gap0: vec![gap; nodes.len()],
+            area,
+            normal,
+            coords,
+        });
+    }
+    Ok(())
+}
+
+/// A declared interface between two bodies whose faces conform: one interface per pair of
+/// substructures it joins.
+fn body_interfaces<const D: usize>(
+    new: &Sides<D>,
+    ba: usize,
+    faces_a: &[Face],
+    interfaces: &mut Vec<Interface<D>>,
+) -> Result<(), SceneError> {
+    let Sides { spec, key, law, bodies, local_of } = *new;
+    let side = |s: usize, body_nodes: &[usize]| interface_side(local_of, s, body_nodes);
+    let mesh_a = &bodies[ba].mesh;
+    if spec.gap.is_some() {
+        return Err(invalid(format!("{key}.gap"), "a gap is only allowed with b = \"wall\" (body faces must touch)"));
+    }
+    let (bb, faces_b) = find_face_set(bodies, &format!("{key}.b"), &spec.b)?;
+    if ba == bb {
+        return Err(invalid(format!("{key}.b"), "both sides are on the same body"));
+    }
+    let mesh_b = &bodies[bb].mesh;
+    let scale = bbox_size(mesh_a).max(bbox_size(mesh_b));
+    let tol = 1e-9 * scale;
+    let quant = |p: &[f64; D]| -> Vec<i64> { p.iter().map(|x| (x / tol).round() as i64).collect() };
+    let mut node_b: HashMap<Vec<i64>, usize> = HashMap::new();
+    let mut face_b: HashMap<Vec<usize>, usize> = HashMap::new();
+    for f in faces_b {
+        let nodes = mesh_b.face_nodes(*f);
+        for &n in &nodes {
+            node_b.insert(quant(&mesh_b.nodes[n]), n);
+        }
+        let mut k = nodes;
+        k.sort_unstable();
+        face_b.insert(k, bodies[bb].partition[f.element]);
+    }
+    let mut groups: BTreeMap<(usize, usize), Vec<Face>> = BTreeMap::new();
+    for f in faces_a {
+        let mut matched = Vec::new();
+        let fnodes = mesh_a.face_nodes(*f);
+        // names the face by its nodes' coordinates, what the user can find in a viewer
+        let nonconforming = |why: String| {
+            let at: Vec<[f64; D]> = fnodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+            invalid(
+                key,
+                format!("interface faces do not match: the face of '{}' at {at:?} {why} on '{}'", spec.a, spec.b),
+            )
+        };
+        for &n in &fnodes {
+            let p = mesh_a.nodes[n];
+            let nb = node_b
+                .get(&quant(&p))
+                .ok_or_else(|| nonconforming(format!("has a node at {p:?} with no counterpart")))?;
+            matched.push(*nb);
+        }
+        matched.sort_unstable();
+        let s2 = face_b.get(&matched).ok_or_else(|| nonconforming("has no conforming face".into()))?;
+        groups.entry((bodies[ba].partition[f.element], *s2)).or_default().push(*f);
+    }
+    if groups.values().map(Vec::len).sum::<usize>() != faces_b.len() {
+        return Err(invalid(
+            key,
+            format!("interface faces do not match: '{}' and '{}' have different numbers of faces", spec.a, spec.b),
+        ));
+    }
+    for ((s1, s2), faces) in groups {
+        let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
+        let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
+        let nodes_b: Vec<usize> = coords.iter().map(|p| node_b[&quant(p)]).collect();
+        let mut sides = vec![side(s1, &nodes), side(s2, &nodes_b)];
+        sides[1].nodes = nodes_b.iter().map(|g| local_of[s2][g]).collect();
+        interfaces.push(Interface {
+            name: spec.name.clone(),
+            law,
+            sides,
+            gap0: vec![0.0; nodes.len()],
+            area,
+            normal,
+            coords,
+        });
+    }
+    Ok(())
 }
 
 /// Boundary conditions and loads onto the substructures' dofs; the load histories (the first is
