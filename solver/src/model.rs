@@ -611,11 +611,11 @@ fn declared_interfaces<const D: usize>(
         let law = resolve_law(r, &key, spec)?;
         let (ba, faces_a) = find_face_set(bodies, &format!("{key}.a"), &spec.a)?;
         let first = interfaces.len();
-        let new = Sides { spec, key: &key, law, bodies, local_of };
+        let new = Sides { spec, key: &key, law, bodies, local_of, a: (ba, faces_a) };
         if spec.b == "wall" {
-            wall_interfaces(&new, r, ba, faces_a, interfaces)?;
+            wall_interfaces(&new, r, interfaces)?;
         } else {
-            body_interfaces(&new, ba, faces_a, interfaces)?;
+            body_interfaces(&new, interfaces)?;
         }
         interface_index.insert(spec.name.clone(), first..interfaces.len());
     }
@@ -629,19 +629,30 @@ struct Sides<'a, const D: usize> {
     law: InterfaceLaw,
     bodies: &'a [Body<D>],
     local_of: &'a [HashMap<usize, usize>],
+    /// side 1's body and its faces
+    a: (usize, &'a [Face]),
+}
+
+impl<const D: usize> Sides<'_, D> {
+    /// Side 1's body's mesh.
+    fn mesh_a(&self) -> &Mesh<D> {
+        &self.bodies[self.a.0].mesh
+    }
+
+    /// The side of substructure `s` on the body nodes `body_nodes`.
+    fn side(&self, s: usize, body_nodes: &[usize]) -> InterfaceSide {
+        interface_side(self.local_of, s, body_nodes)
+    }
 }
 
 /// A declared interface with a rigid wall: one interface per substructure its faces lie on.
 fn wall_interfaces<const D: usize>(
     new: &Sides<D>,
     r: &Resolver,
-    ba: usize,
-    faces_a: &[Face],
     interfaces: &mut Vec<Interface<D>>,
 ) -> Result<(), SceneError> {
-    let Sides { spec, key, law, bodies, local_of } = *new;
-    let side = |s: usize, body_nodes: &[usize]| interface_side(local_of, s, body_nodes);
-    let mesh_a = &bodies[ba].mesh;
+    let Sides { spec, key, law, bodies, a: (ba, faces_a), .. } = *new;
+    let mesh_a = new.mesh_a();
     if matches!(law, InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. }) {
         return Err(invalid(
             format!("{key}.law"),
@@ -665,7 +676,7 @@ fn wall_interfaces<const D: usize>(
         interfaces.push(Interface {
             name: spec.name.clone(),
             law,
-            sides: vec![side(s1, &nodes)],
+            sides: vec![new.side(s1, &nodes)],
             gap0: vec![gap; nodes.len()],
             area,
             normal,
@@ -677,15 +688,9 @@ fn wall_interfaces<const D: usize>(
 
 /// A declared interface between two bodies whose faces conform: one interface per pair of
 /// substructures it joins.
-fn body_interfaces<const D: usize>(
-    new: &Sides<D>,
-    ba: usize,
-    faces_a: &[Face],
-    interfaces: &mut Vec<Interface<D>>,
-) -> Result<(), SceneError> {
-    let Sides { spec, key, law, bodies, local_of } = *new;
-    let side = |s: usize, body_nodes: &[usize]| interface_side(local_of, s, body_nodes);
-    let mesh_a = &bodies[ba].mesh;
+fn body_interfaces<const D: usize>(new: &Sides<D>, interfaces: &mut Vec<Interface<D>>) -> Result<(), SceneError> {
+    let Sides { spec, key, law, bodies, local_of, a: (ba, faces_a) } = *new;
+    let mesh_a = new.mesh_a();
     if spec.gap.is_some() {
         return Err(invalid(format!("{key}.gap"), "a gap is only allowed with b = \"wall\" (body faces must touch)"));
     }
@@ -741,7 +746,7 @@ fn body_interfaces<const D: usize>(
         let (nodes, area, normal) = face_group_geometry(mesh_a, &faces);
         let coords: Vec<[f64; D]> = nodes.iter().map(|&n| mesh_a.nodes[n]).collect();
         let nodes_b: Vec<usize> = coords.iter().map(|p| node_b[&quant(p)]).collect();
-        let mut sides = vec![side(s1, &nodes), side(s2, &nodes_b)];
+        let mut sides = vec![new.side(s1, &nodes), new.side(s2, &nodes_b)];
         sides[1].nodes = nodes_b.iter().map(|g| local_of[s2][g]).collect();
         interfaces.push(Interface {
             name: spec.name.clone(),

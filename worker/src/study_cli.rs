@@ -293,7 +293,7 @@ fn print_summary(
             s.points
         );
     }
-    let chatter = result.records.iter().filter(|r| r.contact.iter().any(|c| c.chatters() && !c.ill_posed)).count();
+    let chatter = result.records.iter().filter(|r| r.contact.iter().any(|c| c.chatter_warning().is_some())).count();
     if chatter > 0 {
         // docs/verification.md 4d: their answers move with the time step beyond the tolerance
         println!(
