@@ -12,6 +12,7 @@ mod low_priority;
 mod metrics;
 mod pool;
 mod records;
+mod renderings;
 mod store;
 mod study;
 mod user;

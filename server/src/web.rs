@@ -41,6 +41,8 @@ use crate::figures::{self, FigureCache};
 use crate::low_priority::{LowPriority, NotBuilt};
 use crate::metrics::{self, Metrics};
 use crate::records::{PointRecord, PointState};
+use crate::renderings::{NotRendered, Rendered, Renderings};
+use axum::body::Bytes;
 use glissade_core::text::{parameter, percent, qoi_digits, qoi_value, same_parameter, utc_minute, wall_time};
 
 #[derive(Clone)]
@@ -54,6 +56,8 @@ struct Web {
     figures: Arc<FigureCache>,
     /// where the heavy answers are built (low_priority.rs)
     heavy: Arc<LowPriority>,
+    /// the studies' JSON and pages last built, kept under their versions
+    renderings: Arc<Renderings>,
 }
 
 /// The cookie that carries the user token (hex-encoded: any printable token fits a cookie).
@@ -74,7 +78,12 @@ pub fn router(
     heavy: Arc<LowPriority>,
 ) -> axum::Router {
     let token = tokens.map(|t| t.user.clone());
-    let web = Web { coordinator, metrics, token, secure_cookie, figures: Arc::default(), heavy };
+    let web =
+        Web { coordinator, metrics, token, secure_cookie, figures: Arc::default(), heavy, renderings: Arc::default() };
+    routes(web)
+}
+
+fn routes(web: Web) -> axum::Router {
     axum::Router::new()
         .route("/", get(index))
         .route("/login", get(login_form).post(login))
@@ -484,13 +493,39 @@ async fn api_study(State(web): State<Web>, Path(id): Path<String>, headers: Head
     if let Err(r) = check(&web, &headers, &q) {
         return r.into_response();
     }
-    // (a large study's points and their JSON take a while)
+    // (a large study's points and their JSON take a while: kept while the study stays as it is)
     let w = web.clone();
-    heavy(&web, move || match study(&w, &id, true) {
-        Ok(v) => json_response(&study_json(&v)),
-        Err(r) => r.into_response(),
+    heavy(&web, move || {
+        let (id, version) = match versioned(&w, &id) {
+            Ok(v) => v,
+            Err(r) => return r.into_response(),
+        };
+        let built = w.renderings.get_or_build(id, "json", version, || {
+            let v = w.coordinator.study(id, true).map_err(|e| not_rendered(failed(e)))?;
+            let bytes = serde_json::to_vec(&study_json(&v))
+                .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, format!("writing the JSON: {e}")))?;
+            Ok(("application/json", bytes.into()))
+        });
+        rendered(built)
     })
     .await
+}
+
+/// The study's id from the path, and its version (None while it changes as it is read).
+fn versioned(web: &Web, id: &str) -> Result<(StudyId, Option<crate::coordinator::StudyVersion>), Refusal> {
+    let id = study_id(id)?;
+    Ok((id, web.coordinator.study_version(id).map_err(failed)?))
+}
+
+fn not_rendered(r: Refusal) -> NotRendered {
+    (r.0, r.1)
+}
+
+fn rendered(r: Result<Rendered, NotRendered>) -> Response {
+    match r {
+        Ok((content_type, body)) => ([(header::CONTENT_TYPE, content_type)], body).into_response(),
+        Err((status, why)) => Refusal(status, why).into_response(),
+    }
 }
 
 async fn api_surface(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
@@ -844,10 +879,21 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     if let Err(r) = check(&web, &headers, &q) {
         return page_refusal(r);
     }
-    // read and built on the low-priority threads, the pictures too
+    // read and built on the low-priority threads, the pictures too; kept while the study stays
+    // as it is (per slice)
+    let what = format!("page {}", q.get("fix").map_or("", String::as_str));
     let w = web.clone();
-    let shown = match web.heavy.run(move || StudyShown::read(&w, &id, &q)).await {
-        Ok(Ok(shown)) => shown,
+    let key = what.clone();
+    let read = web.heavy.run(move || -> Result<PageRead, Refusal> {
+        let (study, version) = versioned(&w, &id)?;
+        if let Some(kept) = version.as_ref().and_then(|v| w.renderings.get(study, &key, v)) {
+            return Ok(PageRead::Kept(kept));
+        }
+        Ok(PageRead::Shown(study, version, Box::new(StudyShown::read(&w, &id, &q)?)))
+    });
+    let (study, version, shown) = match read.await {
+        Ok(Ok(PageRead::Shown(study, version, shown))) => (study, version, shown),
+        Ok(Ok(PageRead::Kept(kept))) => return rendered(Ok(kept)),
         Ok(Err(r)) => return r.into_response(),
         Err(e) => return not_built(e),
     };
@@ -871,7 +917,22 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
             }
         }
     };
-    heavy(&web, move || shown.page(&figures)).await
+    let w = web.clone();
+    heavy(&web, move || {
+        let html: Bytes = shown.page(&figures).into_string().into();
+        let built = ("text/html; charset=utf-8", html);
+        if let Some(version) = version {
+            w.renderings.put(study, &what, version, built.clone());
+        }
+        rendered(Ok(built))
+    })
+    .await
+}
+
+/// A study's page kept at the study's version, or what to build it from.
+enum PageRead {
+    Kept(Rendered),
+    Shown(StudyId, Option<crate::coordinator::StudyVersion>, Box<StudyShown>),
 }
 
 /// What a study's page shows but its pictures.
@@ -906,7 +967,7 @@ impl StudyShown {
         Ok(Self { v, s, scene, units, resolution, slicing })
     }
 
-    fn page(&self, figures: &[String]) -> Response {
+    fn page(&self, figures: &[String]) -> Markup {
         let StudyShown { v, s, units, resolution, slicing, .. } = self;
         let r = &v.record;
         let series: Vec<glissade_plot::ConvergenceSeries> = v
@@ -956,7 +1017,7 @@ impl StudyShown {
         };
         let title =
             if r.label.is_empty() { format!("study {}", r.id.0) } else { format!("study {}: {}", r.id.0, r.label) };
-        page(&title, body).into_response()
+        page(&title, body)
     }
 }
 
@@ -1422,6 +1483,96 @@ mod tests {
         // each picture is the drawing of its points, as without a cache
         let fresh = surface_figures(&study_surface(&points, 5), scene.as_deref(), &[], &resolution);
         assert_eq!(*landed, fresh);
+    }
+
+    /// A study's JSON and page are built once while it stays as it is, however many read them
+    /// (issue 48: every read of a finished 100,000-point study copied its records under the
+    /// coordinator's lock and wrote 17.5 MB again), and built again as soon as it changes: what a
+    /// reader gets is what a rebuild would give.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_studys_json_and_page_are_built_once_while_it_stays_as_it_is() {
+        use crate::coordinator::tests::{VERSION, open, pool, solution_file, submit};
+        use crate::coordinator::{CoordError, Failure};
+        use glissade_core::study::strategy::InitStrategy;
+        use tower::ServiceExt;
+
+        let dir = tempfile::tempdir().unwrap();
+        let c = Arc::new(open(dir.path(), 60_000, 1));
+        pool(&c, "p", VERSION);
+        let id = submit(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Cold);
+        let renderings = Arc::new(Renderings::default());
+        let web = Web {
+            coordinator: c.clone(),
+            metrics: Arc::new(Metrics::new(c.clone())),
+            token: None,
+            secure_cookie: false,
+            figures: Arc::default(),
+            heavy: Arc::new(LowPriority::start(1).unwrap()),
+            renderings: renderings.clone(),
+        };
+        let app = routes(web);
+        let get = |path: String| {
+            let app = app.clone();
+            async move {
+                let request = axum::http::Request::get(path).body(axum::body::Body::empty()).unwrap();
+                let response = app.oneshot(request).await.unwrap();
+                assert_eq!(response.status(), StatusCode::OK);
+                let body = axum::body::to_bytes(response.into_body(), usize::MAX).await.unwrap();
+                String::from_utf8(body.to_vec()).unwrap()
+            }
+        };
+        let json = || get(format!("/api/studies/{}", id.0));
+        let state = |text: &str| serde_json::from_str::<serde_json::Value>(text).unwrap()["state"].clone();
+        let builds = || renderings.stats().0;
+        // two points done, the third failed: the study has ended
+        for k in 0..3 {
+            let grant = c.lease("p").unwrap().unwrap();
+            if k < 2 {
+                let (done, file) = solution_file(&grant, 5e-4, true);
+                c.complete(done, file).unwrap();
+            } else {
+                let failure = Failure {
+                    pool: "p".into(),
+                    lease_id: grant.lease_id,
+                    study: grant.study,
+                    point: grant.point,
+                    error: "diverged".into(),
+                    error_indicator: Some(1.0),
+                    iterations: 3,
+                };
+                c.fail(failure).unwrap();
+            }
+        }
+        let first = json().await;
+        assert_eq!(state(&first), "failed");
+        assert_eq!(json().await, first);
+        assert_eq!(builds(), 1, "read twice, built once");
+        let page = get(format!("/studies/{}", id.0)).await;
+        assert!(page.contains("failed"), "{page}");
+        assert_eq!(get(format!("/studies/{}", id.0)).await, page);
+        assert_eq!(builds(), 2, "the page too");
+        // a retry: the next read is built again, and says so
+        c.retry_failed(id).unwrap();
+        assert_eq!(state(&json().await), "active");
+        assert_eq!(builds(), 3);
+        // leased: its reports move without a version, so every read is built
+        let grant = c.lease("p").unwrap().unwrap();
+        assert_eq!(state(&json().await), "active");
+        json().await;
+        assert_eq!(builds(), 3, "none kept while a point is solved");
+        let (done, file) = solution_file(&grant, 5e-4, true);
+        c.complete(done, file).unwrap();
+        let done = json().await;
+        assert_eq!(state(&done), "done");
+        assert_eq!(json().await, done);
+        assert_eq!(builds(), 4);
+        // another study's work leaves this one's kept
+        let other = submit(&c, &["f1=0.13"], 1e-3, InitStrategy::Cold);
+        let grant = c.lease("p").unwrap().unwrap();
+        assert_eq!(grant.study, other);
+        assert_eq!(json().await, done);
+        assert_eq!(builds(), 4);
+        assert!(matches!(c.study_version(StudyId(99)), Err(CoordError::UnknownStudy(_))));
     }
 
     #[test]

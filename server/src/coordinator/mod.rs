@@ -106,9 +106,59 @@ impl StudyEntry {
     }
 }
 
+/// The studies, with a version each that changes whenever the study may have changed: every
+/// mutable access goes through [`Studies::get_mut`] or [`Studies::insert`], so a rendering kept
+/// under its versions ([`StudyVersion`]) cannot be stale. Reads go through the map itself
+/// (`Deref`); code that only reads should not take `get_mut`, or the study's page is built again.
+#[derive(Default)]
+struct Studies {
+    map: BTreeMap<StudyId, StudyEntry>,
+    versions: HashMap<StudyId, u64>,
+    clock: u64,
+}
+
+impl std::ops::Deref for Studies {
+    type Target = BTreeMap<StudyId, StudyEntry>;
+    fn deref(&self) -> &Self::Target {
+        &self.map
+    }
+}
+
+impl Studies {
+    fn tick(&mut self, id: StudyId) {
+        self.clock += 1;
+        self.versions.insert(id, self.clock);
+    }
+
+    fn get_mut(&mut self, id: &StudyId) -> Option<&mut StudyEntry> {
+        if self.map.contains_key(id) {
+            self.tick(*id);
+        }
+        self.map.get_mut(id)
+    }
+
+    fn insert(&mut self, id: StudyId, entry: StudyEntry) {
+        self.tick(id);
+        self.map.insert(id, entry);
+    }
+
+    /// The versions a study's view reads (its own and its audits'), or None while a point of it
+    /// is leased: its view then shows the solves' last reports, which change without it.
+    fn version(&self, id: StudyId) -> Option<StudyVersion> {
+        let entry = self.map.get(&id)?;
+        if entry.points.iter().any(|p| matches!(p.state, PointState::Leased { .. })) {
+            return None;
+        }
+        let of = |id: StudyId| (id.0, self.versions.get(&id).copied().unwrap_or(0));
+        let mut read = vec![of(id)];
+        read.extend(entry.record.dependents(|d| self.map.get(&d).map(|e| &e.record)).into_iter().map(|(d, _)| of(d)));
+        Some(StudyVersion(read))
+    }
+}
+
 #[derive(Default)]
 struct State {
-    studies: BTreeMap<StudyId, StudyEntry>,
+    studies: Studies,
     /// Metadata of every stored solution.
     solutions: HashMap<SolutionKey, SolutionRecord>,
     /// Nearest-neighbour index of the converged solutions, per scene hash.
@@ -400,6 +450,16 @@ impl Coordinator {
         }
     }
 
+    /// What a rendering of the study's view may be kept under: the same version, the same view
+    /// (None while the view changes without a version: a point is being solved).
+    pub fn study_version(&self, id: StudyId) -> Result<Option<StudyVersion>, CoordError> {
+        let state = self.lock();
+        if !state.studies.contains_key(&id) {
+            return Err(CoordError::UnknownStudy(id));
+        }
+        Ok(state.studies.version(id))
+    }
+
     pub fn study(&self, id: StudyId, with_points: bool) -> Result<StudyView, CoordError> {
         let state = self.lock();
         let entry = state.studies.get(&id).ok_or(CoordError::UnknownStudy(id))?;
@@ -645,7 +705,9 @@ impl Coordinator {
                         Some(budget) => Some(budget),
                     },
                 };
-                let entry = studies.get_mut(&id).expect("id listed above");
+                // (read first, changed only where it changes: a study changed is a new version
+                // of its page, Studies)
+                let entry = &studies[&id];
                 // a study to an accuracy waits for its pilots' level
                 if entry.record.to_accuracy.as_ref().is_some_and(|t| t.chosen.is_none()) {
                     break;
@@ -658,12 +720,17 @@ impl Coordinator {
                     && !entry.record.cancelled
                     && !entry.points.iter().any(|p| p.state == PointState::Pending)
                 {
-                    self.choose_adaptive_point(entry)?;
+                    let choice = adaptive_choice(entry)?;
+                    if !matches!(choice, AdaptiveChoice::None) {
+                        self.apply_adaptive_choice(studies.get_mut(&id).expect("id listed above"), choice)?;
+                    }
                 }
                 // (the cheap test first: the policy copies every point)
+                let entry = &studies[&id];
                 if entry.record.cancelled || !entry.points.iter().any(|p| p.state == PointState::Pending) {
                     break;
                 }
+                let entry = studies.get_mut(&id).expect("id listed above");
                 let Some(i) = entry.plan.next(&entry.points) else { break };
                 let start = entry.plan.start(
                     &entry.record,
@@ -799,36 +866,14 @@ impl Coordinator {
         Ok(())
     }
 
-    /// Adds the next point of an adaptive study that has none pending, if its budget allows:
-    /// where the response surface is least sure (core::study::adaptive). A box with no room left
-    /// ends the study at the points it has. A study with a target first judges it (recorded once
-    /// decided: no point is chosen after).
-    fn choose_adaptive_point(&self, entry: &mut StudyEntry) -> Result<(), CoordError> {
-        let Some(spec) = entry.record.adaptive.clone() else { return Ok(()) };
-        let work_spent = spec.work_spent(&entry.points);
-        if work_spent && spec.target.is_none() && entry.points.len() < spec.budget as usize {
-            // the points chosen are the study's (those in flight finish); a study with a target
-            // says so in its outcome instead
-            tracing::info!(study = %entry.record.id, points = entry.points.len(), "adaptive study: its work budget is spent");
-            return self.end_adaptive_choice(entry, spec);
-        }
-        let spent = entry.points.len() >= spec.budget as usize || work_spent;
-        if spec.outcome.is_some() || (spent && spec.target.is_none()) {
-            return Ok(());
-        }
-        let (outcome, next) = adaptive_step(entry, &entry.points, !spent);
-        if let Some(outcome) = outcome {
-            let mut record = entry.record.clone();
-            record.adaptive = Some(AdaptiveSpec { outcome: Some(outcome), ..spec });
-            return self.commit(entry, Vec::new(), Some(record), Batch::new());
-        }
-        if spent {
-            return Ok(());
-        }
-        match next {
-            Some(next) => {
-                // every parameter of the point, for the plan: refused before anything is stored
-                let full = entry.plan.space().complete(&next).map_err(|e| CoordError::Invalid(e.to_string()))?;
+    /// Makes what [`adaptive_choice`] decided: the outcome recorded, the next point added, or
+    /// the choice ended at the points it has.
+    fn apply_adaptive_choice(&self, entry: &mut StudyEntry, choice: AdaptiveChoice) -> Result<(), CoordError> {
+        match choice {
+            AdaptiveChoice::None => Ok(()),
+            AdaptiveChoice::End(spec) => self.end_adaptive_choice(entry, spec),
+            AdaptiveChoice::Outcome(record) => self.commit(entry, Vec::new(), Some(*record), Batch::new()),
+            AdaptiveChoice::Point(next, full) => {
                 let point = PointRecord::pending(entry.record.id, PointId(entry.points.len() as u64), next);
                 let mut batch = Batch::new();
                 batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
@@ -837,10 +882,6 @@ impl Coordinator {
                 entry.plan.full.push(full);
                 entry.points.push(point);
                 Ok(())
-            }
-            None => {
-                tracing::warn!(study = %entry.record.id, points = entry.points.len(), "adaptive study: no room left in the box");
-                self.end_adaptive_choice(entry, spec)
             }
         }
     }
@@ -1180,7 +1221,10 @@ impl Coordinator {
         let State { studies, leases, lease_progress, lease_since, .. } = &mut *state;
         lease_since.retain(|id, _| leases.contains_key(id));
         let mut expired = 0;
-        for entry in studies.values_mut() {
+        let ids: Vec<StudyId> = studies.keys().copied().collect();
+        for id in ids {
+            // (read, and changed only where a lease expired: Studies' versions)
+            let entry = &studies[&id];
             let mut changes = Vec::new();
             let mut lost = Vec::new();
             for (i, p) in entry.points.iter().enumerate() {
@@ -1213,7 +1257,7 @@ impl Coordinator {
                 continue;
             }
             expired += changes.len();
-            self.commit(entry, changes, None, Batch::new())?;
+            self.commit(studies.get_mut(&id).expect("listed above"), changes, None, Batch::new())?;
             for lease_id in lost {
                 leases.remove(&lease_id);
                 lease_progress.remove(&lease_id);
@@ -1231,6 +1275,58 @@ impl Coordinator {
     pub fn flush(&self) -> Result<(), CoordError> {
         Ok(self.store.flush()?)
     }
+}
+
+/// What an adaptive study that has no point pending does next (decided without changing it, so
+/// that a study with nothing to do is not a new version of itself).
+enum AdaptiveChoice {
+    /// nothing: its outcome is known, or its budget is spent
+    None,
+    /// end the choice at the points it has (the work budget is spent, or no room is left)
+    End(AdaptiveSpec),
+    /// record the target's outcome (no point is chosen after)
+    Outcome(Box<StudyRecord>),
+    /// add this point (its swept values, then every parameter)
+    Point(DesignPoint, DesignPoint),
+}
+
+/// The next point of an adaptive study that has none pending, if its budget allows: where the
+/// response surface is least sure (core::study::adaptive). A box with no room left ends the study
+/// at the points it has. A study with a target first judges it (recorded once decided: no point
+/// is chosen after).
+fn adaptive_choice(entry: &StudyEntry) -> Result<AdaptiveChoice, CoordError> {
+    let Some(spec) = entry.record.adaptive.clone() else { return Ok(AdaptiveChoice::None) };
+    let work_spent = spec.work_spent(&entry.points);
+    if work_spent && spec.target.is_none() && entry.points.len() < spec.budget as usize {
+        // the points chosen are the study's (those in flight finish); a study with a target
+        // says so in its outcome instead
+        tracing::info!(study = %entry.record.id, points = entry.points.len(), "adaptive study: its work budget is spent");
+        return Ok(AdaptiveChoice::End(spec));
+    }
+    let spent = entry.points.len() >= spec.budget as usize || work_spent;
+    if spec.outcome.is_some() || (spent && spec.target.is_none()) {
+        return Ok(AdaptiveChoice::None);
+    }
+    let (outcome, next) = adaptive_step(entry, &entry.points, !spent);
+    if let Some(outcome) = outcome {
+        let mut record = entry.record.clone();
+        record.adaptive = Some(AdaptiveSpec { outcome: Some(outcome), ..spec });
+        return Ok(AdaptiveChoice::Outcome(Box::new(record)));
+    }
+    if spent {
+        return Ok(AdaptiveChoice::None);
+    }
+    Ok(match next {
+        Some(next) => {
+            // every parameter of the point, for the plan: refused before anything is stored
+            let full = entry.plan.space().complete(&next).map_err(|e| CoordError::Invalid(e.to_string()))?;
+            AdaptiveChoice::Point(next, full)
+        }
+        None => {
+            tracing::warn!(study = %entry.record.id, points = entry.points.len(), "adaptive study: no room left in the box");
+            AdaptiveChoice::End(spec)
+        }
+    })
 }
 
 /// The record of an audit of `study` that re-solves points cold at [`AUDIT_TOLERANCE_RATIO`] of
@@ -1509,4 +1605,4 @@ pub fn point_state_word(s: &PointState) -> &'static str {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -12,9 +12,9 @@ use glissade_core::scene::Tolerance;
 use glissade_core::study::space::ParameterSpace;
 
 const TINY: &str = include_str!("../../../scenes/three-blocks-tiny.toml");
-const VERSION: &str = env!("CARGO_PKG_VERSION");
+pub(crate) const VERSION: &str = env!("CARGO_PKG_VERSION");
 
-fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator {
+pub(crate) fn open(dir: &std::path::Path, lease_ms: u64, max_attempts: u32) -> Coordinator {
     // a coordinator is often reopened at once on the database another just dropped
     let store = Arc::new(crate::store::open_when_unlocked(dir));
     let config = Config { lease: Duration::from_millis(lease_ms), max_attempts, ..config(VERSION) };
@@ -40,7 +40,7 @@ fn tolerance(t: f64) -> Tolerance {
 }
 
 /// A study without an audit (the tests lease its points one by one).
-fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy) -> StudyId {
+pub(crate) fn submit(c: &Coordinator, grid: &[&str], tolerance: f64, strategy: InitStrategy) -> StudyId {
     submit_audited(c, grid, tolerance, strategy, Some(0))
 }
 
@@ -164,7 +164,7 @@ fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
 }
 
 /// A solution file of the tiny scene at `grant`'s point, with the outcome given.
-fn solution_file(grant: &LeaseGrant, eta: f64, converged: bool) -> (Completion, Vec<u8>) {
+pub(crate) fn solution_file(grant: &LeaseGrant, eta: f64, converged: bool) -> (Completion, Vec<u8>) {
     solution_file_with_qoi(grant, eta, converged, &[("slip_A".to_string(), 1e-6)].into())
 }
 
@@ -233,11 +233,11 @@ fn solution_file_after(
     (completion, bytes)
 }
 
-fn pool(c: &Coordinator, id: &str, version: &str) {
+pub(crate) fn pool(c: &Coordinator, id: &str, version: &str) {
     c.register_pool(id.into(), PoolInfo { ranks: 1, host: "h".into(), solver_version: version.into() });
 }
 
-fn state_of(c: &Coordinator, study: StudyId, point: u64) -> PointRecord {
+pub(crate) fn state_of(c: &Coordinator, study: StudyId, point: u64) -> PointRecord {
     c.study(study, true).unwrap().points[point as usize].clone()
 }
 
@@ -658,6 +658,75 @@ fn an_audit_measures_the_accuracy_a_study_got() {
     // no audit when asked for none
     let plain = submit(&c, &["f1=0.12"], 1e-3, InitStrategy::Cold);
     assert!(c.study(plain, false).unwrap().accuracy.is_none());
+}
+
+/// A study's version, under which the web keeps its JSON and page, changes with everything its
+/// view shows: its points' leases and completions, its audit's points, a cancel, a retry; and
+/// with nothing else (another study's work, a heartbeat, a read). While a point of it is leased
+/// it has none: its view shows the solves' reports, which move without a change of record.
+#[test]
+fn a_studys_version_changes_with_every_change_its_view_shows_and_with_nothing_else() {
+    let dir = tempfile::tempdir().unwrap();
+    let c = open(dir.path(), 60_000, 1);
+    pool(&c, "p", VERSION);
+    let id = submit_audited(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Cold, Some(2));
+    let audit = c.study(id, false).unwrap().record.audit.expect("an audit");
+    let version = || c.study_version(id).unwrap();
+    let pending = version().expect("nothing leased yet");
+    assert_eq!(version(), Some(pending.clone()), "a read changes nothing");
+    let mut seen = vec![pending];
+    let mut fresh = |v: Option<StudyVersion>| {
+        let v = v.expect("nothing leased");
+        assert!(!seen.contains(&v), "{v:?} was seen before: {seen:?}");
+        seen.push(v);
+    };
+    // each point of the study: leased (no version), then done (a new one)
+    for _ in 0..3 {
+        let grant = c.lease("p").unwrap().unwrap();
+        assert_eq!(grant.study, id);
+        assert_eq!(version(), None, "a point is being solved");
+        assert!(c.heartbeat("p", &[grant.lease_id], &[(grant.lease_id, 4, 0.1)])[0].is_some());
+        assert_eq!(version(), None);
+        let (done, file) = solution_file(&grant, 5e-4, true);
+        c.complete(done, file).unwrap();
+        fresh(version());
+    }
+    // another study's lease, heartbeat and completion leave this one's version as it is
+    let before = version();
+    let other = submit(&c, &["f1=0.13"], 1e-3, InitStrategy::Cold);
+    let grant = c.lease("p").unwrap().unwrap();
+    assert_eq!(grant.study, other);
+    c.heartbeat("p", &[grant.lease_id], &[(grant.lease_id, 2, 0.2)]);
+    let (done, file) = solution_file(&grant, 5e-4, true);
+    c.complete(done, file).unwrap();
+    assert_eq!(version(), before);
+    // the audit's points are the study's view too (its accuracy, its audits' progress)
+    let grant = c.lease("p").unwrap().unwrap();
+    assert_eq!(grant.study, audit);
+    // (its progress shows the point leased)
+    fresh(version());
+    let (done, file) = solution_file(&grant, 5e-6, true);
+    c.complete(done, file).unwrap();
+    fresh(version());
+    // a failed audit point, then a retry of it
+    let grant = c.lease("p").unwrap().unwrap();
+    c.fail(Failure {
+        pool: "p".into(),
+        lease_id: grant.lease_id,
+        study: grant.study,
+        point: grant.point,
+        error: "diverged".into(),
+        error_indicator: Some(1.0),
+        iterations: 3,
+    })
+    .unwrap();
+    assert_eq!(state_of(&c, audit, grant.point.0).state, PointState::Failed);
+    fresh(version());
+    c.retry_failed(audit).unwrap();
+    fresh(version());
+    c.cancel(audit).unwrap();
+    fresh(version());
+    assert_eq!(version(), seen.last().cloned());
 }
 
 /// A study of `grid` with the discretisation audit asked for (`refine_points`, `refine_levels`)

@@ -151,6 +151,11 @@ pub struct Event {
 }
 
 /// A study as GetStudy shows it.
+/// The version of a study's view (its own and its audits' records and points): two readings
+/// with the same version read the same view.
+#[derive(Debug, Clone, PartialEq, Eq, Hash)]
+pub struct StudyVersion(pub(crate) Vec<(u64, u64)>);
+
 #[derive(Debug, Clone)]
 pub struct StudyView {
     pub record: StudyRecord,

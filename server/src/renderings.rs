@@ -1,0 +1,238 @@
+//! A study's heavy answers (its JSON with every point, its page), kept between reads: a finished
+//! study of 100,000 points is 17.5 MB of JSON, and rebuilding it for every reader copied its
+//! records under the coordinator's lock each time. An answer is kept under the study's version
+//! ([`StudyVersion`]: its own and its audits', changed by every mutable access to them), so a
+//! kept answer is the one a rebuild would give; a study with a point being solved has no version
+//! and is built each time. Readers of the same version wait for one build instead of making
+//! their own. Bounded in bytes, the least recently read dropped first.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
+
+use axum::body::Bytes;
+use axum::http::StatusCode;
+use glissade_proto::StudyId;
+
+use crate::coordinator::StudyVersion;
+
+/// What the kept answers of all studies may take.
+pub const MAX_BYTES: usize = 128 << 20;
+
+/// An answer: its content type and body.
+pub type Rendered = (&'static str, Bytes);
+
+/// An answer that could not be built: its status and why (not kept; its waiters get it too).
+pub type NotRendered = (StatusCode, String);
+
+/// Which study and which answer of it (the JSON, the page with its query).
+type Slot = (StudyId, String);
+
+struct Entry {
+    version: StudyVersion,
+    answer: Arc<OnceLock<Result<Rendered, NotRendered>>>,
+    /// its body's length once built (0 while building)
+    bytes: usize,
+    /// when it was last read (the cache's clock)
+    used: u64,
+}
+
+#[derive(Default)]
+struct Inner {
+    entries: HashMap<Slot, Entry>,
+    bytes: usize,
+    clock: u64,
+    builds: u64,
+}
+
+pub struct Renderings {
+    max_bytes: usize,
+    inner: Mutex<Inner>,
+}
+
+impl Default for Renderings {
+    fn default() -> Self {
+        Renderings::new(MAX_BYTES)
+    }
+}
+
+impl Renderings {
+    pub fn new(max_bytes: usize) -> Self {
+        Renderings { max_bytes, inner: Mutex::new(Inner::default()) }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
+        // a panic while holding it leaves a consistent map (no build runs under it)
+        self.inner.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The answer `what` of `study` at `version`: the kept one, or `build`'s, kept (a second
+    /// reader of the same version waits for the first's build). Without a version (the study
+    /// changes as it is read) it is built and not kept; neither is a refusal.
+    pub fn get_or_build(
+        &self,
+        study: StudyId,
+        what: &str,
+        version: Option<StudyVersion>,
+        build: impl FnOnce() -> Result<Rendered, NotRendered>,
+    ) -> Result<Rendered, NotRendered> {
+        let Some(version) = version else { return build() };
+        let slot = (study, what.to_owned());
+        let answer = {
+            let mut inner = self.lock();
+            inner.clock += 1;
+            let used = inner.clock;
+            match inner.entries.get_mut(&slot).filter(|e| e.version == version) {
+                Some(e) => {
+                    e.used = used;
+                    e.answer.clone()
+                }
+                None => {
+                    let answer = Arc::new(OnceLock::new());
+                    let entry = Entry { version, answer: answer.clone(), bytes: 0, used };
+                    if let Some(old) = inner.entries.insert(slot.clone(), entry) {
+                        inner.bytes -= old.bytes;
+                    }
+                    answer
+                }
+            }
+        };
+        let built = answer
+            .get_or_init(|| {
+                self.lock().builds += 1;
+                build()
+            })
+            .clone();
+        match &built {
+            Ok((_, body)) => self.account(&slot, &answer, body.len()),
+            // not kept: the next reader builds again
+            Err(_) => {
+                let mut inner = self.lock();
+                if inner.entries.get(&slot).is_some_and(|e| Arc::ptr_eq(&e.answer, &answer)) {
+                    inner.entries.remove(&slot);
+                }
+            }
+        }
+        built
+    }
+
+    /// The answer `what` of `study` kept at `version`, if any (for answers built in stages,
+    /// which [`Renderings::put`] keeps).
+    pub fn get(&self, study: StudyId, what: &str, version: &StudyVersion) -> Option<Rendered> {
+        let mut inner = self.lock();
+        inner.clock += 1;
+        let used = inner.clock;
+        let entry = inner.entries.get_mut(&(study, what.to_owned())).filter(|e| &e.version == version)?;
+        entry.used = used;
+        entry.answer.get()?.clone().ok()
+    }
+
+    /// Keeps an answer built at `version` (replacing that slot's older one).
+    pub fn put(&self, study: StudyId, what: &str, version: StudyVersion, answer: Rendered) {
+        let slot = (study, what.to_owned());
+        let bytes = answer.1.len();
+        let cell = Arc::new(OnceLock::from(Ok(answer)));
+        {
+            let mut inner = self.lock();
+            inner.builds += 1;
+            inner.clock += 1;
+            let used = inner.clock;
+            let entry = Entry { version, answer: cell.clone(), bytes: 0, used };
+            if let Some(old) = inner.entries.insert(slot.clone(), entry) {
+                inner.bytes -= old.bytes;
+            }
+        }
+        self.account(&slot, &cell, bytes);
+    }
+
+    /// Counts a built answer's bytes once, then drops the least recently read answers until all
+    /// fit the bound (an answer larger than the bound alone is not kept).
+    fn account(&self, slot: &Slot, answer: &Arc<OnceLock<Result<Rendered, NotRendered>>>, bytes: usize) {
+        let mut inner = self.lock();
+        let Some(entry) = inner.entries.get_mut(slot).filter(|e| Arc::ptr_eq(&e.answer, answer) && e.bytes == 0) else {
+            return;
+        };
+        if bytes > self.max_bytes {
+            inner.entries.remove(slot);
+            return;
+        }
+        entry.bytes = bytes;
+        inner.bytes += bytes;
+        while inner.bytes > self.max_bytes {
+            let Some(oldest) =
+                inner.entries.iter().filter(|(k, _)| *k != slot).min_by_key(|(_, e)| e.used).map(|(k, _)| k.clone())
+            else {
+                break;
+            };
+            if let Some(e) = inner.entries.remove(&oldest) {
+                inner.bytes -= e.bytes;
+            }
+        }
+    }
+
+    /// How many answers were built (kept or not, versioned ones only) and the bytes kept.
+    #[cfg(test)]
+    pub fn stats(&self) -> (u64, usize) {
+        let inner = self.lock();
+        (inner.builds, inner.bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn version(v: u64) -> Option<StudyVersion> {
+        Some(StudyVersion(vec![(1, v)]))
+    }
+
+    fn body(text: &str, bytes: usize) -> Result<Rendered, NotRendered> {
+        Ok(("text/plain", Bytes::from(text.repeat(bytes))))
+    }
+
+    #[test]
+    fn readers_of_one_version_wait_for_one_build() {
+        let kept = Renderings::default();
+        let started = std::sync::Barrier::new(4);
+        std::thread::scope(|s| {
+            for _ in 0..4 {
+                s.spawn(|| {
+                    started.wait();
+                    let got = kept.get_or_build(StudyId(1), "json", version(7), || {
+                        std::thread::sleep(std::time::Duration::from_millis(50));
+                        body("a", 10)
+                    });
+                    assert_eq!(got.unwrap().1, "a".repeat(10));
+                });
+            }
+        });
+        assert_eq!(kept.stats(), (1, 10));
+        // a new version is built again and replaces the old; no version is built and not kept
+        kept.get_or_build(StudyId(1), "json", version(8), || body("b", 20)).unwrap();
+        assert_eq!(kept.stats(), (2, 20));
+        kept.get_or_build(StudyId(1), "json", None, || body("c", 30)).unwrap();
+        kept.get_or_build(StudyId(1), "json", None, || body("c", 30)).unwrap();
+        assert_eq!(kept.stats(), (2, 20));
+        assert_eq!(kept.get(StudyId(1), "json", &version(8).unwrap()).unwrap().1, "b".repeat(20));
+        assert!(kept.get(StudyId(1), "json", &version(7).unwrap()).is_none());
+    }
+
+    #[test]
+    fn a_refusal_is_not_kept_and_the_bound_drops_the_least_recently_read() {
+        let kept = Renderings::new(100);
+        let refused = kept.get_or_build(StudyId(1), "json", version(1), || Err((StatusCode::NOT_FOUND, "gone".into())));
+        assert_eq!(refused.unwrap_err().0, StatusCode::NOT_FOUND);
+        kept.get_or_build(StudyId(1), "json", version(1), || body("a", 40)).unwrap();
+        assert_eq!(kept.stats(), (2, 40), "built again after the refusal");
+        kept.put(StudyId(2), "page", version(1).unwrap(), body("b", 40).unwrap());
+        // read 1, then add a third: 2 (read least recently) goes
+        assert!(kept.get(StudyId(1), "json", &version(1).unwrap()).is_some());
+        kept.get_or_build(StudyId(3), "json", version(1), || body("c", 40)).unwrap();
+        assert_eq!(kept.stats().1, 80);
+        assert!(kept.get(StudyId(2), "page", &version(1).unwrap()).is_none());
+        assert!(kept.get(StudyId(1), "json", &version(1).unwrap()).is_some());
+        // an answer larger than the bound is served, not kept
+        let large = kept.get_or_build(StudyId(4), "json", version(1), || body("d", 200)).unwrap();
+        assert_eq!(large.1.len(), 200);
+        assert_eq!(kept.stats().1, 80);
+    }
+}
