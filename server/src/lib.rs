@@ -8,6 +8,8 @@ mod convert;
 mod coordinator;
 mod figures;
 mod health;
+#[cfg(test)]
+mod heap;
 mod low_priority;
 mod metrics;
 mod pool;

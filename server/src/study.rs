@@ -91,7 +91,7 @@ impl StudyPlan {
         } else {
             self.engine.answer(solutions, &self.full[i], solver_version)
         };
-        solutions.keys.get(info.ok()??.id as usize).cloned()
+        solutions.key_of(info.ok()??.id)
     }
 
     /// How point `i` begins on a pool of `solver_version`, by the study engine, from `solutions`
@@ -115,8 +115,8 @@ impl StudyPlan {
         let point = &self.full[i];
         let previous = previous.and_then(|k| solutions.id_of(k));
         match self.engine.start(solutions, point, previous, solver_version) {
-            Ok(Start::Answer(info)) => match solutions.keys.get(info.id as usize) {
-                Some(key) => PointStart::Answer(key.clone()),
+            Ok(Start::Answer(info)) => match solutions.key_of(info.id) {
+                Some(key) => PointStart::Answer(key),
                 None => PointStart::Solve(None),
             },
             Ok(Start::Solve { init, kind }) => PointStart::Solve(solutions.warm_start(init, kind)),
@@ -175,9 +175,9 @@ pub struct SceneSolutions {
     /// Descriptions and neighbours; the fields stay in the database.
     index: PointIndex,
     scene_hash: String,
-    keys: Vec<SolutionKey>,
     ids: HashMap<SolutionKey, SolutionId>,
-    records: Vec<SolutionRecord>,
+    /// (shared with the coordinator's map of every stored solution: one copy of each)
+    records: Vec<Arc<SolutionRecord>>,
     store: Arc<dyn Store>,
     /// The solutions read last, newest last: a strategy reads the ones it picks twice (to check
     /// them, to use them).
@@ -190,7 +190,6 @@ impl SceneSolutions {
         Ok(Self {
             index: PointIndex::new(space)?,
             scene_hash,
-            keys: Vec::new(),
             ids: HashMap::new(),
             records: Vec::new(),
             store,
@@ -205,7 +204,7 @@ impl SceneSolutions {
 
     /// Makes a stored solution (already committed to the database) findable; a better solution
     /// at a key already indexed only replaces the record.
-    pub fn index(&mut self, key: SolutionKey, record: &SolutionRecord) -> Result<(), StoreError> {
+    pub fn index(&mut self, key: SolutionKey, record: &Arc<SolutionRecord>) -> Result<(), StoreError> {
         let info = SolutionInfo {
             id: 0,
             point: record.parameters.clone(),
@@ -226,7 +225,6 @@ impl SceneSolutions {
             return Ok(());
         }
         let id = self.index.insert(info)?;
-        self.keys.push(key.clone());
         self.ids.insert(key, id);
         self.records.push(record.clone());
         Ok(())
@@ -244,6 +242,12 @@ impl SceneSolutions {
         recent.push(loaded);
     }
 
+    /// The key of solution `id` (made from its record: the index keeps no second copy).
+    fn key_of(&self, id: SolutionId) -> Option<SolutionKey> {
+        let record = self.records.get(id as usize)?;
+        Some(SolutionKey::new(&record.scene_hash, &record.parameters))
+    }
+
     pub fn id_of(&self, key: &SolutionKey) -> Option<SolutionId> {
         self.ids.get(key).copied()
     }
@@ -252,7 +256,7 @@ impl SceneSolutions {
         if let Some(l) = self.recent.lock().unwrap_or_else(PoisonError::into_inner).iter().find(|l| l.id == id) {
             return Ok(l.clone());
         }
-        let key = self.keys.get(id as usize).ok_or(StoreError::UnknownId(id))?;
+        let key = self.key_of(id).ok_or(StoreError::UnknownId(id))?;
         let compressed = self
             .store
             .get(Tree::SolutionFields, key.as_bytes())
@@ -321,7 +325,7 @@ impl SolutionStore for SceneSolutions {
             .ok_or_else(|| StoreError::Backend(format!("no solution record at {parameters} in the database")))?;
         let record: SolutionRecord = crate::records::decode("solutions", key.as_bytes(), &bytes)
             .map_err(|e| StoreError::Backend(e.to_string()))?;
-        self.index(key.clone(), &record)?;
+        self.index(key.clone(), &Arc::new(record))?;
         Ok(self.ids[&key])
     }
 

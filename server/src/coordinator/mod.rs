@@ -159,8 +159,8 @@ impl Studies {
 #[derive(Default)]
 struct State {
     studies: Studies,
-    /// Metadata of every stored solution.
-    solutions: HashMap<SolutionKey, SolutionRecord>,
+    /// Metadata of every stored solution (shared with its scene's index).
+    solutions: HashMap<SolutionKey, Arc<SolutionRecord>>,
     /// Nearest-neighbour index of the converged solutions, per scene hash.
     by_scene: HashMap<String, SceneSolutions>,
     /// Lease id -> the point holding it.
@@ -208,7 +208,7 @@ impl Coordinator {
             let record: SolutionRecord = decode("solutions", &key, &value)?;
             let key = SolutionKey::new(&record.scene_hash, &record.parameters);
             in_key_order.push(key.clone());
-            state.solutions.insert(key, record);
+            state.solutions.insert(key, Arc::new(record));
         }
         let deadline = now_unix_ms() + config.lease.as_millis() as i64;
         let mut batch = Batch::new();
@@ -1080,6 +1080,7 @@ impl Coordinator {
         state.leases.remove(&c.lease_id);
         state.lease_progress.remove(&c.lease_id);
         if keep {
+            let record = Arc::new(record);
             let index = state.by_scene.get_mut(&record.scene_hash).filter(|_| record.converged);
             if let Some(index) = index {
                 // The next point's warm start is likely this one: keep it decoded.
@@ -1108,7 +1109,7 @@ impl Coordinator {
         }
         self.store.commit(batch)?;
         let scenes: std::collections::BTreeSet<String> =
-            keys.iter().filter_map(|k| state.solutions.remove(k)).map(|r| r.scene_hash).collect();
+            keys.iter().filter_map(|k| state.solutions.remove(k)).map(|r| r.scene_hash.clone()).collect();
         // each scene's index again, from what is left
         for hash in scenes {
             let Some(old) = state.by_scene.remove(&hash) else { continue };

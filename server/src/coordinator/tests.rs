@@ -729,6 +729,59 @@ fn a_studys_version_changes_with_every_change_its_view_shows_and_with_nothing_el
     assert_eq!(version(), seen.last().cloned());
 }
 
+/// The bytes a reopened coordinator holds for each stored point (its study's point record and
+/// plan, the solution record, the warm-start index; not the database's, whose page cache is
+/// bounded apart: `store::CACHE_BYTES`), measured
+/// between 200 and 1,200 points solved whose completions carry `history` and `qoi` (as their
+/// largest values too) and, if `contact`, a contact report.
+fn memory_per_point(history: &[f64], qoi: &BTreeMap<String, f64>, contact: bool) -> f64 {
+    let store = Arc::new(crate::store::InMemoryStore::default());
+    let open = || Coordinator::open(store.clone(), config(VERSION)).unwrap();
+    let solve = |grid: &str| {
+        let c = open();
+        pool(&c, "p", VERSION);
+        submit(&c, &[grid], 1e-3, InitStrategy::Cold);
+        while let Some(grant) = c.lease("p").unwrap() {
+            let (mut done, file) = solution_file_after(&grant, 5e-4, true, qoi, history.len() as u64);
+            done.eta_history = history.to_vec();
+            done.qoi_largest = qoi.clone();
+            if !contact {
+                done.contact.clear();
+            }
+            c.complete(done, file).unwrap();
+        }
+    };
+    let held = || {
+        let before = crate::heap::held();
+        let c = open();
+        let held = crate::heap::held() - before;
+        drop(c);
+        held
+    };
+    solve("f1=0.1:0.2:200");
+    let first = held();
+    solve("f1=0.10005:0.19995:1000");
+    (held() - first) as f64 / 1000.0
+}
+
+/// What a stored point costs the coordinator's memory, the figure docs/performance.md gives
+/// ("Memory per design point"): a bare record (one QoI, no history, as the benchmarks' instant
+/// pools send) within 4 kB, a real solve's (100 iterations of eta history, three QoIs, a contact
+/// report) within 6 kB: 3,974 and 5,808 bytes, where each solution's record held twice (the
+/// coordinator's map and its scene's index, before they shared it) made 5,921 and 7,870. Issue
+/// 48's 2 kB is not met by either.
+#[test]
+fn a_stored_point_costs_the_coordinator_a_bounded_documented_memory() {
+    let bare = memory_per_point(&[], &[("slip_A".to_owned(), 1.2e-6)].into(), false);
+    let history: Vec<f64> = (0..100).map(|k| 0.9f64.powi(k)).collect();
+    let qoi: BTreeMap<String, f64> =
+        [("slip_A".to_owned(), 1.2e-6), ("slip_B".to_owned(), 3.4e-6), ("middle_ux".to_owned(), 5.6e-6)].into();
+    let real = memory_per_point(&history, &qoi, true);
+    eprintln!("a stored point holds {bare:.0} bytes bare, {real:.0} bytes as a real solve's");
+    assert!(bare <= 4096.0, "{bare:.0} bytes a bare point");
+    assert!(real <= 6144.0, "{real:.0} bytes a real point");
+}
+
 /// A study of `grid` with the discretisation audit asked for (`refine_points`, `refine_levels`)
 /// and no iteration audit.
 fn submit_refined(
