@@ -920,12 +920,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let mut relaxation = Relaxation::new(settings.relaxation, m.qois.iter().map(|q| q.target.unit()).collect());
         // the QoIs are followed up to the window's end (later steps are not computed yet)
         let known = window.steps.end + 1;
-        // each interface's values of the window's steps: what an iteration changes
-        let at: Vec<Range<usize>> = m
-            .interfaces
-            .iter()
-            .map(|itf| window.steps.start * itf.n_nodes() * D..window.steps.end * itf.n_nodes() * D)
-            .collect();
+        let at = Self::window_values(m, &window.steps);
         let mut limit = stage.iteration_limit(m);
         for iteration in 1.. {
             if iteration > limit {
@@ -945,15 +940,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 window.steps.clone(),
                 window.states.as_deref(),
             );
-            // relaxation (mu = 1 at the first iteration), on the sides this rank computed
+            // relaxation (mu = 1 at the first iteration)
             if iteration > 1 {
-                for (i, (f, p)) in fields.iter_mut().zip(&it.previous).enumerate() {
-                    for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
-                        if self.dist.owns_substructure(m.interfaces[i].sides[k].substructure) {
-                            side.relax_from(old, relaxation.mu(), at[i].clone());
-                        }
-                    }
-                }
+                self.relax(fields, &it.previous, relaxation.mu(), &at);
             }
             let c = Instant::now();
             self.dist.send_sides_to_owners(self.comm, m, fields, window.steps.clone());
@@ -987,15 +976,10 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 if eta.is_finite()
                     && let Some(q) = series.iter().position(|v| v[..known].iter().any(|v| !v.is_finite()))
                 {
-                    return Err(SolverError::NonFiniteQoi {
-                        stage: stage_name,
-                        iteration,
-                        qoi: m.qois[q].name.clone(),
-                    });
+                    let qoi = m.qois[q].name.clone();
+                    return Err(SolverError::NonFiniteQoi { stage: stage_name, iteration, qoi });
                 }
-                for v in series.iter_mut() {
-                    v.truncate(known);
-                }
+                series.iter_mut().for_each(|v| v.truncate(known));
                 let estimate = estimator.update(series, &scales, eta);
                 relaxation.update(series, &scales);
                 if it.options.trace_qois {
@@ -1030,21 +1014,47 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 break;
             }
         }
+        report.relaxation = relaxation.mu();
+        Ok(self.window_end(report, worst, tightening, &estimator, it))
+    }
+
+    /// Each interface's values of the window's steps: what an iteration changes.
+    fn window_values(m: &Model<D>, steps: &Range<usize>) -> Vec<Range<usize>> {
+        m.interfaces.iter().map(|itf| steps.start * itf.n_nodes() * D..steps.end * itf.n_nodes() * D).collect()
+    }
+
+    /// Relaxes the new fields toward the last iteration's (`previous`) by `mu` at the window's
+    /// values `at`, on the sides this rank computed.
+    fn relax(&self, fields: &mut [InterfaceField], previous: &[Vec<SideField>], mu: f64, at: &[Range<usize>]) {
+        for (i, (f, p)) in fields.iter_mut().zip(previous).enumerate() {
+            for (k, (side, old)) in f.s.iter_mut().zip(p).enumerate() {
+                if self.dist.owns_substructure(self.model.interfaces[i].sides[k].substructure) {
+                    side.relax_from(old, mu, at[i].clone());
+                }
+            }
+        }
+    }
+
+    /// A window's report completed (the interface with the largest share of eta, `worst`, and
+    /// the check's outcome), with the nodes' memory and the QoIs' errors it ends with.
+    fn window_end(
+        &self,
+        mut report: StageReport,
+        worst: Option<usize>,
+        tightening: Option<Tightening>,
+        estimator: &ErrorEstimator,
+        it: &Iterations,
+    ) -> WindowEnd {
+        let m = self.model;
         report.worst_interface = worst.map(|i| m.interfaces[i].name.clone());
         // geometry for the diagnosis, which only a window that did not converge needs
         if !report.converged {
             report.worst_interface_aspect = worst.and_then(|i| m.interfaces[i].element_aspect(&m.substructures));
         }
-        report.relaxation = relaxation.mu();
         if let Some(t) = tightening {
             report.window_check = t.end(&mut report);
         }
-        Ok(WindowEnd {
-            report,
-            memory: it.memory.clone(),
-            errors: estimator.errors(),
-            scales: estimator.scales().to_vec(),
-        })
+        WindowEnd { report, memory: it.memory.clone(), errors: estimator.errors(), scales: estimator.scales().to_vec() }
     }
 
     /// eta's numerator and denominator on every interface this rank owns (zeros elsewhere), then
