@@ -1,25 +1,30 @@
-//! `glissade demo`: the whole service on this machine with nothing to set up. A coordinator runs
-//! in this process on a temporary database, one pool solves on a thread of it, and the CLI's own
-//! commands submit a study of the shipped `three-blocks` `tiny` scene, watch it, print its
-//! response surface and draw its pictures.
+//! `glissade demo`: the whole service on this machine with nothing to set up. It starts a
+//! coordinator (`glissade-server`) on a temporary database and one pool (`glissade-worker pool`)
+//! as processes, as a deployment runs them, and the CLI's own commands submit a study of the
+//! shipped `three-blocks` `tiny` scene, watch it, print its response surface and draw its
+//! pictures.
 
 use glissade_cli::outln;
 use glissade_core::scene::check_tolerance;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
 use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use glissade_proto::v1;
-use glissade_server::ServerOptions;
-use glissade_worker::pool::{PoolOptions, SerialPoolSolver, run_pool};
+use tokio::io::AsyncBufReadExt;
+use tokio::process::{Child, Command};
 
 use crate::{
     ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, discretisation_line, get_study, refused,
-    surface, surface_accuracy_line, user, watch,
+    sibling, surface, surface_accuracy_line, user, watch,
 };
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
 const SCENE: &str = include_str!("../../scenes/three-blocks-tiny.toml");
+
+/// How long the coordinator may take to say where it listens.
+const START_TIMEOUT: Duration = Duration::from_secs(30);
 
 #[derive(Debug, clap::Args)]
 pub struct DemoArgs {
@@ -38,48 +43,79 @@ pub async fn demo(args: DemoArgs) -> Result<Outcome> {
     if let Some(t) = args.tol {
         check_tolerance("--tol", t)?;
     }
+    let (server_bin, worker_bin) = (sibling::find("glissade-server")?, sibling::find("glissade-worker")?);
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let data = tempfile::tempdir().context("creating a temporary database directory")?;
+    let data = tempfile::tempdir().context("creating a temporary directory")?;
 
-    let (stop_server, server_stopped) = tokio::sync::oneshot::channel::<()>();
-    let (addr, serving) = glissade_server::bind(
-        ServerOptions::new(data.path().join("db")),
-        "127.0.0.1:0".parse().expect("literal address"),
-        async {
-            let _ = server_stopped.await;
-        },
-    )
-    .await
-    .context("starting the embedded coordinator")?;
-    let server = tokio::spawn(serving);
+    let (mut coordinator, addr) = start_coordinator(&server_bin, &data.path().join("db")).await?;
     let url = format!("http://{addr}");
     outln!("coordinator on {url} (database in {}, removed at the end)", data.path().display());
+    let mut pool = own_environment(Command::new(&worker_bin));
+    pool.args(["pool", "--coordinator", &url, "--pool-id", "demo-pool", "--spool"])
+        .arg(data.path().join("spool"))
+        .stdin(Stdio::null())
+        .kill_on_drop(true);
+    let mut pool = pool.spawn().with_context(|| format!("starting the pool ({})", worker_bin.display()))?;
 
-    // One pool, on a thread of its own: the solver runs there, the pool's gRPC on its runtime.
-    let (stop_pool, pool_stop) = tokio::sync::watch::channel(false);
-    let mut options = PoolOptions::new(url.clone());
-    options.pool_id = Some("demo-pool".into());
-    options.wait = Duration::from_millis(500);
-    options.stop = Some(pool_stop);
-    let pool = std::thread::Builder::new()
-        .name("demo-pool".into())
-        .spawn(move || run_pool(options, &mut SerialPoolSolver::default()))
-        .context("starting the pool thread")?;
+    let outcome = tokio::select! {
+        outcome = run_study(&url, &args) => outcome,
+        ended = coordinator.wait() => Err(ended_early("the coordinator", ended)),
+        ended = pool.wait() => Err(ended_early("the pool", ended)),
+    };
+    // the study has ended (or failed): the two processes have nothing left to keep
+    let _ = pool.kill().await;
+    let _ = coordinator.kill().await;
+    outcome
+}
 
-    let outcome = run_study(&url, &args).await;
-
-    let _ = stop_pool.send(true);
-    let pool_result = tokio::task::spawn_blocking(move || pool.join()).await;
-    let _ = stop_server.send(());
-    let served = server.await;
-    let outcome = outcome?;
-    match pool_result {
-        Ok(Ok(Ok(()))) => {}
-        Ok(Ok(Err(e))) => return Err(e.context("the demo pool")),
-        _ => bail!("the demo pool panicked"),
+/// A child of the demo with none of the user's GLISSADE_ settings (a token file, a data
+/// directory, an address): the demo's coordinator and pool are its own. They say only what goes
+/// wrong, unless RUST_LOG asks for more.
+fn own_environment(mut command: Command) -> Command {
+    for (key, _) in std::env::vars_os() {
+        if key.to_string_lossy().starts_with("GLISSADE_") {
+            command.env_remove(key);
+        }
     }
-    served.context("the embedded coordinator panicked")?.context("the embedded coordinator")?;
-    Ok(outcome)
+    if std::env::var_os("RUST_LOG").is_none() {
+        command.env("RUST_LOG", "warn");
+    }
+    command
+}
+
+/// Starts `glissade-server` on a free loopback port over `db`, and reads where it listens.
+async fn start_coordinator(bin: &Path, db: &Path) -> Result<(Child, String)> {
+    let mut command = own_environment(Command::new(bin));
+    command
+        .args(["--listen", "127.0.0.1:0", "--data"])
+        .arg(db)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .kill_on_drop(true);
+    let mut child = command.spawn().with_context(|| format!("starting the coordinator ({})", bin.display()))?;
+    let stdout = child.stdout.take().context("the coordinator's output")?;
+    let mut lines = tokio::io::BufReader::new(stdout).lines();
+    let listening = async {
+        while let Some(line) = lines.next_line().await? {
+            if let Some(addr) = line.strip_prefix("listening on ") {
+                return Ok(Some(addr.trim().to_owned()));
+            }
+        }
+        Ok::<_, std::io::Error>(None)
+    };
+    match tokio::time::timeout(START_TIMEOUT, listening).await {
+        Ok(Ok(Some(addr))) => Ok((child, addr)),
+        Ok(Ok(None)) => Err(ended_early("the coordinator", child.wait().await)),
+        Ok(Err(e)) => Err(e).context("reading the coordinator's output"),
+        Err(_) => bail!("the coordinator did not start within {} s", START_TIMEOUT.as_secs()),
+    }
+}
+
+fn ended_early(who: &str, status: std::io::Result<std::process::ExitStatus>) -> anyhow::Error {
+    match status {
+        Ok(status) => anyhow::anyhow!("{who} stopped before the demo's end ({status}; its messages are above)"),
+        Err(e) => anyhow::anyhow!("{who}: {e}"),
+    }
 }
 
 async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {

@@ -1,46 +1,84 @@
-//! `glissade fields`: the full fields of one design point, re-solved on this machine from the
-//! study's nearest stored solution (the same point's own solution when it is done: then the
-//! solve converges at once) and written as HDF5 + XDMF for ParaView.
+//! `glissade fields`' arguments and design point, shared by the CLI (which hands the command to
+//! `glissade-worker fields`: the re-solve needs the solver and HDF5, which the CLI does not link)
+//! and the worker (which runs it).
 
-use glissade_cli::outln;
-use glissade_core::point::DesignPoint;
-use std::collections::BTreeMap;
+use std::ffi::OsString;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, anyhow, bail};
-use glissade_core::io::solution_file;
-use glissade_core::scene::{Scene, Tolerance};
-use glissade_core::study::space::ParameterSpace;
-use glissade_core::text::same_parameter;
-use glissade_proto::Assembler;
-use glissade_proto::v1;
-use glissade_solver::run::{SolveRequest, solve_scene};
-use glissade_worker::io::fields;
+use glissade_core::point::DesignPoint;
 
-use crate::{get_study, refused};
-use glissade_cli::names::describe_parameters;
-
-/// Largest solution file accepted from the coordinator (a paper-size scene's is about 100 MB).
-const MAX_SOLUTION_BYTES: u64 = 4 << 30;
-
-#[derive(Debug, clap::Args)]
+#[derive(Debug, Clone, clap::Args)]
 pub struct FieldsArgs {
     /// The study id.
-    study: u64,
+    pub study: u64,
     /// The design point, every swept parameter: NAME=VALUE,NAME=VALUE (need not be a point of
     /// the study: it is solved from the nearest one).
     #[arg(long, value_name = "NAME=VALUE,...")]
-    point: String,
+    pub point: String,
     /// HDF5 file to write; the XDMF file ParaView opens goes beside it (OUT.xdmf).
     #[arg(long, value_name = "OUT.h5")]
-    out: PathBuf,
+    pub out: PathBuf,
     /// Directory of the scene's mesh files, for a scene with mesh bodies (the coordinator does
     /// not hand them to users): they must be the study's, checked by the scene hash.
     #[arg(long, value_name = "DIR")]
-    meshes: Option<PathBuf>,
+    pub meshes: Option<PathBuf>,
     /// Print one JSON object instead of text.
     #[arg(long)]
-    json: bool,
+    pub json: bool,
+}
+
+impl FieldsArgs {
+    /// The arguments as given (what `glissade-worker fields` parses back).
+    pub fn to_args(&self) -> Vec<OsString> {
+        let mut args: Vec<OsString> =
+            vec![self.study.to_string().into(), "--point".into(), self.point.clone().into(), "--out".into()];
+        args.push(self.out.clone().into());
+        if let Some(dir) = &self.meshes {
+            args.extend(["--meshes".into(), dir.clone().into()]);
+        }
+        if self.json {
+            args.push("--json".into());
+        }
+        args
+    }
+}
+
+/// Where the coordinator is and how to present oneself to it: the options every command of the
+/// CLI takes, and `glissade-worker fields` too.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServerArgs {
+    /// URL of the glissade coordinator (glissade-server).
+    #[arg(long, global = true, env = "GLISSADE_SERVER", value_name = "URL", default_value = "http://127.0.0.1:50051")]
+    pub server: String,
+    /// File holding the user token of a coordinator that asks for one (else GLISSADE_TOKEN,
+    /// else the file GLISSADE_TOKEN_FILE names).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
+    /// PEM certificate of the authority that signed an https:// coordinator's certificate
+    /// (else GLISSADE_CA_CERT, else the system's roots).
+    #[arg(long, global = true, value_name = "FILE")]
+    pub ca_cert: Option<PathBuf>,
+}
+
+impl ServerArgs {
+    /// The options as given (the token itself is never on a command line).
+    pub fn to_args(&self) -> Vec<OsString> {
+        let mut args: Vec<OsString> = vec!["--server".into(), self.server.clone().into()];
+        if let Some(f) = &self.token_file {
+            args.extend(["--token-file".into(), f.clone().into()]);
+        }
+        if let Some(f) = &self.ca_cert {
+            args.extend(["--ca-cert".into(), f.clone().into()]);
+        }
+        args
+    }
+
+    /// The coordinator these options name, with its token read.
+    pub fn server(&self) -> Result<crate::connect::Server> {
+        let token = glissade_proto::auth::Token::for_client(self.token_file.as_deref())?;
+        Ok(crate::connect::Server { url: self.server.clone(), token, ca_cert: self.ca_cert.clone() })
+    }
 }
 
 /// `f1=0.12,f2=0.15` with exactly the swept parameters, finite values (`flag` names the option).
@@ -67,128 +105,6 @@ pub fn parse_point(flag: &str, spec: &str, swept: &[String]) -> Result<DesignPoi
     Ok(point)
 }
 
-/// The done point of `study` nearest to `target`, in the scene's normalised parameter space (the
-/// distance the coordinator's warm starts use).
-fn nearest_done<'a>(scene: &Scene, study: &'a v1::Study, target: &DesignPoint) -> Option<&'a v1::PointStatus> {
-    let space = ParameterSpace::from_scene(scene);
-    // (a point the coordinator sent that is no design point is no start)
-    let distance = |p: &v1::PointStatus| {
-        DesignPoint::try_from(p.parameters.clone()).map_or(f64::INFINITY, |p| space.normalised_distance(&p, target))
-    };
-    let done = study.points.iter().filter(|p| p.state == v1::PointState::Done as i32);
-    done.min_by(|a, b| distance(a).total_cmp(&distance(b)))
-}
-
-pub async fn fields(client: &mut crate::User, args: FieldsArgs) -> Result<()> {
-    if fields::xdmf_path(&args.out) == args.out {
-        bail!("--out {}: give the HDF5 file (e.g. point.h5); the .xdmf file is written beside it", args.out.display());
-    }
-    let study = get_study(client, "fields", args.study, true, true).await?;
-    let target = parse_point("--point", &args.point, &study.parameters)?;
-    let mut scene = Scene::parse(&study.scene).context("the study's scene")?;
-    if !scene.mesh_files().is_empty() {
-        let dir = args.meshes.as_ref().ok_or_else(|| {
-            let files: Vec<&str> = scene.mesh_files().into_iter().collect();
-            anyhow!(
-                "study {}: its scene has mesh bodies: give --meshes DIR, where {} are",
-                args.study,
-                files.join(", ")
-            )
-        })?;
-        scene.attach_meshes(dir).with_context(|| format!("--meshes {}", dir.display()))?;
-        if scene.content_hash() != study.scene_hash {
-            bail!(
-                "--meshes {}: these mesh files are not the study's (scene hash {}, the study's {})",
-                dir.display(),
-                scene.content_hash(),
-                study.scene_hash
-            );
-        }
-    }
-    let from = nearest_done(&scene, &study, &target)
-        .ok_or_else(|| anyhow!("study {}: no point is done yet, nothing to start from", args.study))?;
-    let key = v1::PointKey { study_id: study.study_id, point_id: from.point_id };
-    let mut stream = client
-        .fetch_solution(v1::FetchSolutionRequest { solution: Some(v1::fetch_solution_request::Solution::Point(key)) })
-        .await
-        .map_err(|s| refused(&format!("solution of point {}", from.point_id), s))?
-        .into_inner();
-    let mut assembler: Option<Assembler> = None;
-    while let Some(chunk) = stream.message().await.map_err(|s| refused("fetching the solution", s))? {
-        let assembler = match &mut assembler {
-            Some(a) => a,
-            None => assembler.insert(Assembler::new(chunk.total_bytes, MAX_SOLUTION_BYTES)?),
-        };
-        assembler.push(chunk).context("fetching the solution")?;
-    }
-    let bytes = assembler.map_or(Ok(Vec::new()), Assembler::finish).context("fetching the solution")?;
-    let (meta, init) = solution_file::read_from(&bytes[..]).context("the stored solution")?;
-    meta.check_fits(&scene).context("the stored solution")?;
-    // the point's own converged solution: one linear stage gives its fields, nothing to iterate
-    let own = target.iter().all(|(k, v)| from.parameters.get(k).is_some_and(|&x| same_parameter(x, v)))
-        && meta.converged
-        && meta.error_indicator <= study.tolerance;
-    let request = SolveRequest {
-        point: target.clone(),
-        tolerance: Some(Tolerance::new("the study's tolerance", study.tolerance)?),
-        max_iterations: Some(if own { 1 } else { study.max_iterations as usize }),
-        scale: None,
-        record_fields: true,
-        init_parameters: Some(meta.parameters.clone()),
-        progress: None,
-    };
-    let out = args.out.clone();
-    let scene_hash = study.scene_hash.clone();
-    // The solve is seconds of CPU: off the async threads.
-    let (summary, xdmf) = tokio::task::spawn_blocking(move || -> Result<_> {
-        let outcome = solve_scene(&scene, &request, Some(&init))?;
-        let fields = outcome.fields.as_ref().ok_or_else(|| anyhow!("the solver returned no fields"))?;
-        let xdmf = fields::write(&out, fields, &scene_hash).with_context(|| format!("--out {}", out.display()))?;
-        Ok((outcome.summary, xdmf))
-    })
-    .await
-    .context("the solve panicked")??;
-    if !summary.converged && !own {
-        bail!(
-            "the re-solve did not converge: eta = {:.3e} > {:.1e} after {} iterations",
-            summary.error_indicator,
-            summary.tolerance,
-            summary.iterations
-        );
-    }
-    let from_text = describe_parameters(&from.parameters);
-    if args.json {
-        let value = serde_json::json!({
-            "parameters": target,
-            "started_from": { "point_id": from.point_id, "parameters": from.parameters },
-            "iterations": summary.iterations,
-            "dynamic_iterations": summary.history.len(),
-            "error_indicator": summary.error_indicator,
-            "qoi": summary.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect::<BTreeMap<_, _>>(),
-            "h5": args.out,
-            "xdmf": xdmf,
-        });
-        outln!("{value}");
-    } else {
-        let from_text = if own {
-            format!("its own stored solution, point #{} (converged at eta {:.2e})", from.point_id, meta.error_indicator)
-        } else {
-            format!("stored point #{} ({from_text})", from.point_id)
-        };
-        let dynamic = summary.history.len();
-        let statics = summary.iterations - dynamic;
-        outln!(
-            "point {}: {dynamic} iteration{} of the dynamic stage{} from {from_text}, eta {:.2e}",
-            target,
-            if dynamic == 1 { "" } else { "s" },
-            if statics > 0 { format!(" (and {statics} of the static one)") } else { String::new() },
-            summary.error_indicator
-        );
-        outln!("wrote {} and {} (open the .xdmf in ParaView)", args.out.display(), xdmf.display());
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -201,5 +117,23 @@ mod tests {
         for bad in ["f1=0.12", "f1=0.1,f2=x", "f1=0.1,f3=0.1", "f1=0.1,f1=0.2", "f1=0.1,f2=inf", "f1"] {
             assert!(parse_point("--at", bad, &swept).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn the_arguments_handed_on_parse_back_to_the_same() {
+        #[derive(clap::Parser)]
+        struct Both {
+            #[command(flatten)]
+            fields: FieldsArgs,
+            #[command(flatten)]
+            server: ServerArgs,
+        }
+        use clap::Parser;
+        let given = ["x", "7", "--point", "f1=0.1,f2=0.2", "--out", "a b/p.h5", "--meshes", "m", "--json"];
+        let both = Both::try_parse_from(given.iter().chain(&["--server", "http://h:1", "--token-file", "t"])).unwrap();
+        let again: Vec<OsString> =
+            std::iter::once("x".into()).chain(both.fields.to_args()).chain(both.server.to_args()).collect();
+        let back = Both::try_parse_from(again).unwrap();
+        assert_eq!(format!("{:?} {:?}", back.fields, back.server), format!("{:?} {:?}", both.fields, both.server));
     }
 }

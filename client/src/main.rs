@@ -3,22 +3,15 @@
 
 mod commands;
 mod demo;
-mod fields;
+mod sibling;
 
 use glissade_core::text::one_line;
 use std::io::IsTerminal;
-use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use glissade_plot as plot;
-use glissade_proto::auth::{Token, WithToken};
-use glissade_proto::v1;
-use glissade_proto::v1::user_client::UserClient;
-use tonic::service::interceptor::InterceptedService;
-use tonic::transport::Channel;
 use tracing_subscriber::EnvFilter;
 
 use commands::convergence::{ConvergenceArgs, convergence};
@@ -28,9 +21,9 @@ use commands::studies::{cancel, purge_pool, retry, studies};
 use commands::submit::{SubmitArgs, submit};
 use commands::surface::{SurfaceArgs, surface};
 use commands::watch::watch;
-
-/// How long to wait for the coordinator to accept a connection before giving up.
-const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+use glissade_cli::connect::{Server, User, connect, get_study, refused, user};
+use glissade_cli::fields;
+use glissade_cli::fields::{FieldsArgs, ServerArgs};
 
 /// Command-line client of glissade, a parametric-study service for transient dynamics with
 /// contact and friction.
@@ -50,17 +43,8 @@ const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
       Logs go to stderr; set RUST_LOG=debug for details."
 )]
 struct Cli {
-    /// URL of the glissade coordinator (glissade-server).
-    #[arg(long, global = true, env = "GLISSADE_SERVER", value_name = "URL", default_value = "http://127.0.0.1:50051")]
-    server: String,
-    /// File holding the user token of a coordinator that asks for one (else GLISSADE_TOKEN,
-    /// else the file GLISSADE_TOKEN_FILE names).
-    #[arg(long, global = true, value_name = "FILE")]
-    token_file: Option<PathBuf>,
-    /// PEM certificate of the authority that signed an https:// coordinator's certificate
-    /// (else GLISSADE_CA_CERT, else the system's roots).
-    #[arg(long, global = true, value_name = "FILE")]
-    ca_cert: Option<PathBuf>,
+    #[command(flatten)]
+    server: ServerArgs,
     #[command(subcommand)]
     command: Command,
 }
@@ -138,16 +122,16 @@ enum Command {
     Convergence(ConvergenceArgs),
     /// The fields of one design point as HDF5 + XDMF (ParaView): displacement, velocity and
     /// stress, and the interfaces' contact pressure, gap and slip; re-solved here from the nearest
-    /// stored solution of the study (a few iterations).
+    /// stored solution of the study (a few iterations) by glissade-worker, which this runs.
     #[command(after_help = "Examples:\n  \
         glissade fields 3 --point f1=0.15,f2=0.15 --out p.h5          # a point of the study: 1 iteration a stage\n  \
         glissade fields 3 --point f1=0.123,f2=0.187 --out q.h5        # any point: from its nearest neighbour\n\n\
         Then open p.xdmf in ParaView (displacement, velocity and stress at every time step) and \
         p-interfaces.xdmf (contact pressure, gap and slip at the interfaces' nodes).")]
-    Fields(fields::FieldsArgs),
-    /// Run a small study of the three-blocks scene on this machine, with no set-up: an embedded
-    /// coordinator on a temporary database, one local pool, progress, the response surface and
-    /// its pictures.
+    Fields(FieldsArgs),
+    /// Run a small study of the three-blocks scene on this machine, with no set-up: a coordinator
+    /// (glissade-server) on a temporary database and one pool (glissade-worker), run beside this
+    /// glissade, progress, the response surface and its pictures.
     #[command(after_help = "Examples:\n  \
         glissade demo\n  \
         glissade demo --grid 9 --out /tmp/demo     # 81 points")]
@@ -170,6 +154,8 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
 enum Outcome {
     Success,
     StudyFailed,
+    /// the exit status of the binary a command was handed to
+    Exited(u8),
 }
 
 /// A parser error as every other error: one line on stderr, exit status 1 (clap's own is 2); its
@@ -218,6 +204,7 @@ fn main() -> ExitCode {
     match result {
         Ok(Outcome::Success) => ExitCode::SUCCESS,
         Ok(Outcome::StudyFailed) => ExitCode::from(2),
+        Ok(Outcome::Exited(code)) => ExitCode::from(code),
         Err(e) => {
             // A CLI user wants one readable line, not a Debug dump or a backtrace.
             let message = format!("{e:#}");
@@ -228,8 +215,7 @@ fn main() -> ExitCode {
 }
 
 async fn run(cli: Cli) -> Result<Outcome> {
-    let token = Token::for_client(cli.token_file.as_deref())?;
-    let server = &Server { url: cli.server, token, ca_cert: cli.ca_cert };
+    let server = &cli.server.server()?;
     let done = |r: Result<()>| r.map(|()| Outcome::Success);
     match cli.command {
         Command::Health { json } => done(health(server, json).await),
@@ -245,78 +231,13 @@ async fn run(cli: Cli) -> Result<Outcome> {
         Command::Retry { study } => done(retry(server, study).await),
         Command::Surface(args) => done(surface(server, args).await),
         Command::Convergence(args) => done(convergence(server, args).await),
-        Command::Fields(args) => done(fields::fields(&mut user(server).await?, args).await),
+        // (the re-solve needs the solver and HDF5: glissade-worker has them)
+        Command::Fields(args) => {
+            let handed = [vec!["fields".into()], args.to_args(), cli.server.to_args()].concat();
+            sibling::run("glissade-worker", &handed, "glissade fields").await
+        }
         Command::Demo(args) => demo::demo(args).await,
     }
-}
-
-/// One line for a refused call: what was asked, the server's reason, the status code.
-fn refused(what: &str, status: tonic::Status) -> anyhow::Error {
-    anyhow!("{what}: {} ({:?})", one_line(status.message()), status.code())
-}
-
-/// The coordinator a command talks to: its URL and the user token (if it needs one).
-pub struct Server {
-    pub url: String,
-    pub token: Option<Token>,
-    /// CA certificate of an `https://` coordinator (else GLISSADE_CA_CERT, else system roots).
-    pub ca_cert: Option<PathBuf>,
-}
-
-impl std::fmt::Display for Server {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.url)
-    }
-}
-
-/// A user-service client that presents the token with every call.
-pub type User = UserClient<InterceptedService<Channel, WithToken>>;
-
-async fn user(server: &Server) -> Result<User> {
-    Ok(UserClient::with_interceptor(connect(server).await?, WithToken::new(server.token.as_ref())))
-}
-
-/// The study with its points and (when asked) its scene text; errors start with `command ID`.
-async fn get_study(client: &mut User, command: &str, id: u64, points: bool, scene: bool) -> Result<v1::Study> {
-    Ok(client
-        .get_study(v1::GetStudyRequest { study_id: id, points, scene })
-        .await
-        .map_err(|s| refused(&format!("{command} {id}"), s))?
-        .into_inner())
-}
-
-/// Connects to `server`, turning transport errors into one line that says what went wrong.
-async fn connect(server: &Server) -> Result<Channel> {
-    let endpoint =
-        glissade_proto::auth::endpoint(&server.url, server.ca_cert.as_deref())?.connect_timeout(CONNECT_TIMEOUT);
-    tracing::debug!(server = %server, "connecting");
-    endpoint.connect().await.map_err(|e| {
-        tracing::debug!(error = ?e, "connect failed");
-        anyhow!("cannot reach glissade server at {server}: {}", root_cause(&e))
-    })
-}
-
-/// The innermost cause of a transport error, in words (tonic's own message is only
-/// "transport error"; the useful part, e.g. "connection refused", sits at the bottom).
-fn root_cause(error: &(dyn std::error::Error + 'static)) -> String {
-    let mut current = error;
-    let mut io_error = current.downcast_ref::<std::io::Error>();
-    while let Some(next) = current.source() {
-        current = next;
-        io_error = current.downcast_ref::<std::io::Error>().or(io_error);
-    }
-    if let Some(io) = io_error {
-        return match io.kind() {
-            std::io::ErrorKind::ConnectionRefused => "connection refused".to_owned(),
-            std::io::ErrorKind::TimedOut => {
-                format!("no answer within {}s", CONNECT_TIMEOUT.as_secs())
-            }
-            _ => io.to_string(),
-        };
-    }
-    let text = current.to_string();
-    // Timeouts surface as a bare "timed out" from tower/hyper without an io::Error.
-    if text.contains("timed out") { format!("no answer within {}s", CONNECT_TIMEOUT.as_secs()) } else { text }
 }
 
 #[cfg(test)]

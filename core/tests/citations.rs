@@ -163,7 +163,8 @@ fn workspace_dependencies(manifest: &str) -> Vec<(String, bool)> {
     let mut found: Vec<(String, bool)> = deps
         .iter()
         .filter_map(|(name, spec)| {
-            let short = name.strip_prefix("glissade-")?;
+            // (the CLI's package is `glissade`, its directory `client/`)
+            let short = if name == "glissade" { "client" } else { name.strip_prefix("glissade-")? };
             let defaults = spec.get("default-features").and_then(|d| d.as_bool()).unwrap_or(true);
             Some((short.to_string(), defaults))
         })
@@ -209,6 +210,38 @@ fn the_architecture_table_is_the_crate_graph() {
         );
     }
     assert_eq!(rows, crates.len(), "a row for every crate");
+}
+
+/// The CLI links what talking to a coordinator, drawing and printing take, and nothing of the
+/// solver, HDF5, MPI, the database or the web server (issue 50: it linked all of them through
+/// `fields` and `demo`, 292 packages): `fields` is glissade-worker's, `demo` runs the service's
+/// binaries.
+#[test]
+fn the_cli_links_no_solver_hdf5_mpi_database_or_web_server() {
+    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
+    let out = std::process::Command::new(cargo)
+        .args(["tree", "-p", "glissade", "-e", "normal", "--prefix", "none", "--offline"])
+        .current_dir(repository())
+        .output()
+        .expect("cargo tree runs");
+    assert!(out.status.success(), "cargo tree: {}", String::from_utf8_lossy(&out.stderr));
+    let mut packages: Vec<String> = String::from_utf8(out.stdout)
+        .expect("utf-8")
+        .lines()
+        .map(|l| l.replace(" (*)", "").replace(" (proc-macro)", ""))
+        .collect();
+    packages.sort();
+    packages.dedup();
+    for heavy in
+        ["glissade-solver", "glissade-worker", "glissade-server", "hdf5", "mpi", "sled", "axum", "faer", "metis"]
+    {
+        let found: Vec<&String> = packages
+            .iter()
+            .filter(|p| p.split(' ').next().is_some_and(|n| n == heavy || n.starts_with(&format!("{heavy}-"))))
+            .collect();
+        assert!(found.is_empty(), "the CLI links {found:?}");
+    }
+    assert!(packages.len() < 200, "the CLI links {} packages", packages.len());
 }
 
 #[test]

@@ -19,6 +19,7 @@ use glissade_solver::run::{SolveRequest, SolveSummary, solve_scene_on};
 use glissade_worker::io::fields;
 use glissade_worker::mpi_comm::Mpi;
 
+mod fields_cmd;
 mod study_cli;
 
 #[derive(Parser)]
@@ -61,6 +62,31 @@ enum Command {
     /// Solve a parametric study (a grid of design points) in this process, with warm starts.
     #[command(after_help = study_cli::STUDY_EXAMPLES)]
     Study(study_cli::StudyArgs),
+    /// The fields of one design point of a coordinator's study as HDF5 + XDMF (ParaView),
+    /// re-solved here from the study's nearest stored solution (what `glissade fields` runs).
+    Fields(FieldsCommand),
+}
+
+#[derive(Args)]
+struct FieldsCommand {
+    #[command(flatten)]
+    fields: glissade_cli::fields::FieldsArgs,
+    #[command(flatten)]
+    server: glissade_cli::fields::ServerArgs,
+}
+
+/// `glissade-worker fields`: a user-service client, then the re-solve (fields_cmd.rs).
+fn fields(args: FieldsCommand) -> Result<Exit> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the tokio runtime")?;
+    runtime.block_on(async {
+        let mut client = glissade_cli::connect::user(&args.server.server()?).await?;
+        fields_cmd::fields(&mut client, args.fields).await
+    })?;
+    Ok(Exit::Done)
 }
 
 const POOL_EXAMPLES: &str = "\
@@ -964,6 +990,7 @@ fn main() -> ExitCode {
         Command::Pool(args) => pool(args).map(Exit::from),
         Command::Refine(args) => refine(args),
         Command::Study(args) => study_cli::study(args),
+        Command::Fields(args) => fields(args),
     };
     match result {
         Ok(Exit::Done) => ExitCode::SUCCESS,
