@@ -707,24 +707,10 @@ impl Coordinator {
                 };
                 // (read first, changed only where it changes: a study changed is a new version
                 // of its page, Studies)
-                let entry = &studies[&id];
-                // a study to an accuracy waits for its pilots' level
-                if entry.record.to_accuracy.as_ref().is_some_and(|t| t.chosen.is_none()) {
+                if waits(&studies[&id]) {
                     break;
                 }
-                // held-out points are solved only once the surface has predicted them
-                if entry.record.held_out.as_ref().is_some_and(|h| h.predicted.is_none()) {
-                    break;
-                }
-                if entry.record.adaptive.is_some()
-                    && !entry.record.cancelled
-                    && !entry.points.iter().any(|p| p.state == PointState::Pending)
-                {
-                    let choice = adaptive_choice(entry)?;
-                    if !matches!(choice, AdaptiveChoice::None) {
-                        self.apply_adaptive_choice(studies.get_mut(&id).expect("id listed above"), choice)?;
-                    }
-                }
+                self.choose_adaptive_point(studies, id)?;
                 // (the cheap test first: the policy copies every point)
                 let entry = &studies[&id];
                 if entry.record.cancelled || !entry.points.iter().any(|p| p.state == PointState::Pending) {
@@ -864,6 +850,22 @@ impl Coordinator {
             self.commit(entry, changes, None, Batch::new())?;
         }
         Ok(())
+    }
+
+    /// An adaptive study with no point pending takes its next step ([`adaptive_choice`]); the
+    /// study is changed only where the step changes it.
+    fn choose_adaptive_point(&self, studies: &mut Studies, id: StudyId) -> Result<(), CoordError> {
+        let entry = &studies[&id];
+        if entry.record.adaptive.is_none()
+            || entry.record.cancelled
+            || entry.points.iter().any(|p| p.state == PointState::Pending)
+        {
+            return Ok(());
+        }
+        match adaptive_choice(entry)? {
+            AdaptiveChoice::None => Ok(()),
+            choice => self.apply_adaptive_choice(studies.get_mut(&id).expect("listed"), choice),
+        }
     }
 
     /// Makes what [`adaptive_choice`] decided: the outcome recorded, the next point added, or
@@ -1276,6 +1278,13 @@ impl Coordinator {
     pub fn flush(&self) -> Result<(), CoordError> {
         Ok(self.store.flush()?)
     }
+}
+
+/// Whether a study leases nothing yet: a study to an accuracy waits for its pilots' level, and
+/// held-out points are solved only once the surface has predicted them.
+fn waits(entry: &StudyEntry) -> bool {
+    entry.record.to_accuracy.as_ref().is_some_and(|t| t.chosen.is_none())
+        || entry.record.held_out.as_ref().is_some_and(|h| h.predicted.is_none())
 }
 
 /// What an adaptive study that has no point pending does next (decided without changing it, so
