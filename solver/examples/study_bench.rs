@@ -130,30 +130,7 @@ fn main() {
         )
     });
     for spec in &args.run {
-        let parts: Vec<&str> = spec.split(':').collect();
-        assert_eq!(parts.len(), 3, "--run {spec}: STRATEGY:ORDER:TOL");
-        let strategy = match parts[0] {
-            "cold" => InitStrategy::Cold,
-            "previous" => InitStrategy::Previous,
-            "nearest" => InitStrategy::Nearest,
-            "blend" => InitStrategy::Blend { k: args.k },
-            "linear" => InitStrategy::Linear { k: args.k },
-            s => panic!("unknown strategy {s}"),
-        };
-        let order = match parts[1] {
-            "asc" => OrderKind::Asc,
-            "desc" => OrderKind::Desc,
-            "greedy" => OrderKind::Greedy,
-            o => panic!("unknown order {o}"),
-        };
-        let tol: f64 = parts[2].parse().expect("tolerance");
-        let name = format!(
-            "{}{}-{}-{}",
-            parts[0],
-            if parts[0] == "blend" || parts[0] == "linear" { args.k.to_string() } else { String::new() },
-            parts[1],
-            parts[2]
-        );
+        let (strategy, order, tol, name) = parse_run(spec, args.k);
         run(&scene, &pts, strategy, order, tol, args.max_iter, &args.out.join(format!("{name}.json")));
     }
 
@@ -222,10 +199,40 @@ fn main() {
             reference.tolerance
         );
     }
-    // The shape of each run: the first points solved (the paper's table is the first row of the
-    // ascending sweep) and the cost of points where an interface sticks (a slip QoI is zero).
+    md += &shapes(&runs);
+    std::fs::write(args.out.join("summary.md"), &md).expect("summary");
+    print!("{md}");
+}
+
+/// `STRATEGY:ORDER:TOL` (`--run`): the strategy, the order, the tolerance and the run's name.
+fn parse_run(spec: &str, k: usize) -> (InitStrategy, OrderKind, f64, String) {
+    let parts: Vec<&str> = spec.split(':').collect();
+    assert_eq!(parts.len(), 3, "--run {spec}: STRATEGY:ORDER:TOL");
+    let strategy = match parts[0] {
+        "cold" => InitStrategy::Cold,
+        "previous" => InitStrategy::Previous,
+        "nearest" => InitStrategy::Nearest,
+        "blend" => InitStrategy::Blend { k },
+        "linear" => InitStrategy::Linear { k },
+        s => panic!("unknown strategy {s}"),
+    };
+    let order = match parts[1] {
+        "asc" => OrderKind::Asc,
+        "desc" => OrderKind::Desc,
+        "greedy" => OrderKind::Greedy,
+        o => panic!("unknown order {o}"),
+    };
+    let tol: f64 = parts[2].parse().expect("tolerance");
+    let neighbours = if parts[0] == "blend" || parts[0] == "linear" { k.to_string() } else { String::new() };
+    (strategy, order, tol, format!("{}{neighbours}-{}-{}", parts[0], parts[1], parts[2]))
+}
+
+/// The shape of each run: the first points solved (the paper's table is the first row of the
+/// ascending sweep) and the cost of points where an interface sticks (a slip QoI is zero).
+fn shapes(runs: &[(String, StudyResult)]) -> String {
+    let mut md = String::new();
     md += "\n| run | dynamic iterations of the first 11 points solved | warm points, some slip = 0: mean dynamic iterations | warm points, every slip > 0 |\n|---|---|---|---|\n";
-    for (name, r) in &runs {
+    for (name, r) in runs {
         let first: Vec<String> =
             r.records.iter().take(11).map(|p| (p.iterations - p.static_iterations).to_string()).collect();
         let sticks =
@@ -246,8 +253,7 @@ fn main() {
         };
         md += &format!("| {name} | {} | {} | {} |\n", first.join(", "), mean(true), mean(false));
     }
-    std::fs::write(args.out.join("summary.md"), &md).expect("summary");
-    print!("{md}");
+    md
 }
 
 /// Work of a study: dynamic iterations + static iterations / steps ([`PointRecord::work`]).

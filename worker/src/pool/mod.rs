@@ -419,21 +419,8 @@ async fn serve(
     let mut last_solved: Option<Instant> = None;
     loop {
         if let Some(delivery) = pending.take() {
-            let (study, point) = delivery.point();
-            let started = Instant::now();
-            match delivery.send(&mut session.client).await {
-                Ok(state) => {
-                    *progressed = true;
-                    let deliver_ms = started.elapsed().as_secs_f64() * 1e3;
-                    tracing::info!(study, point, state = ?state, deliver_ms, "delivered");
-                }
-                Err(status) if is_transient(&status) => {
-                    *pending = Some(delivery);
-                    return Break::Reconnect(status.message().to_owned());
-                }
-                Err(status) => {
-                    tracing::error!(study, point, code = ?status.code(), error = status.message(), "the coordinator refused the result");
-                }
+            if let Err(reconnect) = deliver(&mut session, delivery, pending, progressed).await {
+                return reconnect;
             }
             *idle_since = Instant::now();
         }
@@ -501,33 +488,9 @@ async fn serve(
         if work.send((job, reply_tx)).is_err() {
             return Break::Stop;
         }
-        // Heartbeat while the point is solved on the main thread. The solve stops at its next
-        // iteration when the coordinator says so (the study cancelled, the lease lost or past its
-        // budget) or at a second signal.
-        let mut ticker = tokio::time::interval(session.heartbeat);
-        ticker.tick().await;
-        let stop_solve = || {
-            if let Some(p) = &progress {
-                p.stop();
-            }
+        let Some(outcome) = solved(&mut session, lease.lease_id, progress.as_ref(), &mut reply_rx, stop).await else {
+            return Break::Stop;
         };
-        let outcome = loop {
-            tokio::select! {
-                r = &mut reply_rx => break r,
-                _ = ticker.tick() => {
-                    let solving = progress.as_ref().map(|p| p.get()).filter(|&(iterations, _)| iterations > 0);
-                    if !heartbeat(&mut session, lease.lease_id, solving).await {
-                        stop_solve();
-                    }
-                }
-                Ok(()) = stop.changed() => {
-                    if URGENT.load(std::sync::atomic::Ordering::Relaxed) {
-                        stop_solve();
-                    }
-                }
-            }
-        };
-        let Ok(outcome) = outcome else { return Break::Stop };
         if progress.as_ref().is_some_and(|p| p.stop_asked()) {
             // Not the point's fault: given back (a cancelled study's point becomes cancelled; a
             // lost lease's release is refused, and its point is already elsewhere).
@@ -549,6 +512,69 @@ async fn serve(
         );
         let outcome = outcome.map(|(o, started_cold)| (scene, o, started_cold)).map_err(|e| one_line(&e));
         *pending = Some(Delivery::new(&session.pool_id, Report { lease, outcome }));
+    }
+}
+
+/// Delivers a solved point: Err (reconnect) when the coordinator is away, the delivery kept
+/// `pending` for the next connection; a refusal is logged, the result dropped.
+async fn deliver(
+    session: &mut Session,
+    delivery: Delivery,
+    pending: &mut Option<Delivery>,
+    progressed: &mut bool,
+) -> Result<(), Break> {
+    let (study, point) = delivery.point();
+    let started = Instant::now();
+    match delivery.send(&mut session.client).await {
+        Ok(state) => {
+            *progressed = true;
+            let deliver_ms = started.elapsed().as_secs_f64() * 1e3;
+            tracing::info!(study, point, state = ?state, deliver_ms, "delivered");
+        }
+        Err(status) if is_transient(&status) => {
+            *pending = Some(delivery);
+            return Err(Break::Reconnect(status.message().to_owned()));
+        }
+        Err(status) => {
+            tracing::error!(study, point, code = ?status.code(), error = status.message(), "the coordinator refused the result");
+        }
+    }
+    Ok(())
+}
+
+/// The solve's outcome, heartbeating lease `lease_id` while the point is solved on the main
+/// thread (None: the solving thread is gone). The solve stops at its next iteration when the
+/// coordinator says so (the study cancelled, the lease lost or past its budget) or at a second
+/// signal.
+async fn solved<T>(
+    session: &mut Session,
+    lease_id: u64,
+    progress: Option<&std::sync::Arc<glissade_solver::latin::SolveProgress>>,
+    reply: &mut oneshot::Receiver<T>,
+    stop: &mut watch::Receiver<bool>,
+) -> Option<T> {
+    let mut ticker = tokio::time::interval(session.heartbeat);
+    ticker.tick().await;
+    let stop_solve = || {
+        if let Some(p) = progress {
+            p.stop();
+        }
+    };
+    loop {
+        tokio::select! {
+            r = &mut *reply => return r.ok(),
+            _ = ticker.tick() => {
+                let solving = progress.map(|p| p.get()).filter(|&(iterations, _)| iterations > 0);
+                if !heartbeat(session, lease_id, solving).await {
+                    stop_solve();
+                }
+            }
+            Ok(()) = stop.changed() => {
+                if URGENT.load(std::sync::atomic::Ordering::Relaxed) {
+                    stop_solve();
+                }
+            }
+        }
     }
 }
 
