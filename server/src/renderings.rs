@@ -18,8 +18,34 @@ use crate::coordinator::StudyVersion;
 /// What the kept answers of all studies may take.
 pub const MAX_BYTES: usize = 128 << 20;
 
-/// An answer: its content type and body.
-pub type Rendered = (&'static str, Bytes);
+/// An answer: its content type and body, and the body gzipped once a reader asks for it (a
+/// study's JSON compresses about 10 x: what greedy readers cost is sending it).
+#[derive(Debug)]
+pub struct Answer {
+    pub content_type: &'static str,
+    pub body: Bytes,
+    gzipped: OnceLock<Bytes>,
+}
+
+impl Answer {
+    pub fn new(content_type: &'static str, body: Bytes) -> Rendered {
+        Arc::new(Answer { content_type, body, gzipped: OnceLock::new() })
+    }
+
+    /// The body gzipped (the first call compresses, at the fastest level).
+    pub fn gzipped(&self) -> &Bytes {
+        self.gzipped.get_or_init(|| {
+            use std::io::Write;
+            let mut out = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+            // (writing to a Vec cannot fail)
+            let _ = out.write_all(&self.body);
+            Bytes::from(out.finish().unwrap_or_default())
+        })
+    }
+}
+
+/// An answer as kept and shared.
+pub type Rendered = Arc<Answer>;
 
 /// An answer that could not be built: its status and why (not kept; its waiters get it too).
 pub type NotRendered = (StatusCode, String);
@@ -103,7 +129,7 @@ impl Renderings {
             })
             .clone();
         match &built {
-            Ok((_, body)) => self.account(&slot, &answer, body.len()),
+            Ok(kept) => self.account(&slot, &answer, kept.body.len()),
             // not kept: the next reader builds again
             Err(_) => {
                 let mut inner = self.lock();
@@ -129,7 +155,7 @@ impl Renderings {
     /// Keeps an answer built at `version` (replacing that slot's older one).
     pub fn put(&self, study: StudyId, what: &str, version: StudyVersion, answer: Rendered) {
         let slot = (study, what.to_owned());
-        let bytes = answer.1.len();
+        let bytes = answer.body.len();
         let cell = Arc::new(OnceLock::from(Ok(answer)));
         {
             let mut inner = self.lock();
@@ -186,7 +212,7 @@ mod tests {
     }
 
     fn body(text: &str, bytes: usize) -> Result<Rendered, NotRendered> {
-        Ok(("text/plain", Bytes::from(text.repeat(bytes))))
+        Ok(Answer::new("text/plain", Bytes::from(text.repeat(bytes))))
     }
 
     #[test]
@@ -201,7 +227,7 @@ mod tests {
                         std::thread::sleep(std::time::Duration::from_millis(50));
                         body("a", 10)
                     });
-                    assert_eq!(got.unwrap().1, "a".repeat(10));
+                    assert_eq!(got.unwrap().body, "a".repeat(10));
                 });
             }
         });
@@ -212,7 +238,7 @@ mod tests {
         kept.get_or_build(StudyId(1), "json", None, || body("c", 30)).unwrap();
         kept.get_or_build(StudyId(1), "json", None, || body("c", 30)).unwrap();
         assert_eq!(kept.stats(), (2, 20));
-        assert_eq!(kept.get(StudyId(1), "json", &version(8).unwrap()).unwrap().1, "b".repeat(20));
+        assert_eq!(kept.get(StudyId(1), "json", &version(8).unwrap()).unwrap().body, "b".repeat(20));
         assert!(kept.get(StudyId(1), "json", &version(7).unwrap()).is_none());
     }
 
@@ -224,6 +250,12 @@ mod tests {
         kept.get_or_build(StudyId(1), "json", version(1), || body("a", 40)).unwrap();
         assert_eq!(kept.stats(), (2, 40), "built again after the refusal");
         kept.put(StudyId(2), "page", version(1).unwrap(), body("b", 40).unwrap());
+        // gzipped once, and gunzipped back to the body
+        let b = kept.get(StudyId(2), "page", &version(1).unwrap()).unwrap();
+        assert!(std::ptr::eq(b.gzipped(), b.gzipped()));
+        let mut back = String::new();
+        std::io::Read::read_to_string(&mut flate2::read::GzDecoder::new(&b.gzipped()[..]), &mut back).unwrap();
+        assert_eq!(back, "b".repeat(40));
         // read 1, then add a third: 2 (read least recently) goes
         assert!(kept.get(StudyId(1), "json", &version(1).unwrap()).is_some());
         kept.get_or_build(StudyId(3), "json", version(1), || body("c", 40)).unwrap();
@@ -232,7 +264,7 @@ mod tests {
         assert!(kept.get(StudyId(1), "json", &version(1).unwrap()).is_some());
         // an answer larger than the bound is served, not kept
         let large = kept.get_or_build(StudyId(4), "json", version(1), || body("d", 200)).unwrap();
-        assert_eq!(large.1.len(), 200);
+        assert_eq!(large.body.len(), 200);
         assert_eq!(kept.stats().1, 80);
     }
 }

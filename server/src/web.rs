@@ -41,7 +41,7 @@ use crate::figures::{self, FigureCache};
 use crate::low_priority::{LowPriority, NotBuilt};
 use crate::metrics::{self, Metrics};
 use crate::records::{PointRecord, PointState};
-use crate::renderings::{NotRendered, Rendered, Renderings};
+use crate::renderings::{Answer, NotRendered, Rendered, Renderings};
 use axum::body::Bytes;
 use glissade_core::text::{parameter, percent, qoi_digits, qoi_value, same_parameter, utc_minute, wall_time};
 
@@ -504,9 +504,9 @@ async fn api_study(State(web): State<Web>, Path(id): Path<String>, headers: Head
             let v = w.coordinator.study(id, true).map_err(|e| not_rendered(failed(e)))?;
             let bytes = serde_json::to_vec(&study_json(&v))
                 .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, format!("writing the JSON: {e}")))?;
-            Ok(("application/json", bytes.into()))
+            Ok(Answer::new("application/json", bytes.into()))
         });
-        rendered(built)
+        rendered(built, &headers)
     })
     .await
 }
@@ -521,11 +521,25 @@ fn not_rendered(r: Refusal) -> NotRendered {
     (r.0, r.1)
 }
 
-fn rendered(r: Result<Rendered, NotRendered>) -> Response {
-    match r {
-        Ok((content_type, body)) => ([(header::CONTENT_TYPE, content_type)], body).into_response(),
-        Err((status, why)) => Refusal(status, why).into_response(),
+/// An answer as the reader asked for it: gzipped when its `Accept-Encoding` takes gzip.
+fn rendered(r: Result<Rendered, NotRendered>, headers: &HeaderMap) -> Response {
+    let answer = match r {
+        Ok(answer) => answer,
+        Err((status, why)) => return Refusal(status, why).into_response(),
+    };
+    let gzip = headers
+        .get_all(header::ACCEPT_ENCODING)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .any(|coding| coding.split(';').next().is_some_and(|c| c.trim().eq_ignore_ascii_case("gzip")));
+    let vary = (header::VARY, HeaderValue::from_static("accept-encoding"));
+    let content_type = (header::CONTENT_TYPE, HeaderValue::from_static(answer.content_type));
+    if gzip {
+        let encoding = (header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
+        return ([content_type, encoding, vary], answer.gzipped().clone()).into_response();
     }
+    ([content_type, vary], answer.body.clone()).into_response()
 }
 
 async fn api_surface(State(web): State<Web>, Path(id): Path<String>, headers: HeaderMap, Query(q): Params) -> Response {
@@ -884,16 +898,18 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     let what = format!("page {}", q.get("fix").map_or("", String::as_str));
     let w = web.clone();
     let key = what.clone();
+    let asked = headers.clone();
     let read = web.heavy.run(move || -> Result<PageRead, Refusal> {
         let (study, version) = versioned(&w, &id)?;
         if let Some(kept) = version.as_ref().and_then(|v| w.renderings.get(study, &key, v)) {
-            return Ok(PageRead::Kept(kept));
+            // (gzipped here, on this thread, when asked)
+            return Ok(PageRead::Kept(rendered(Ok(kept), &asked)));
         }
         Ok(PageRead::Shown(study, version, Box::new(StudyShown::read(&w, &id, &q)?)))
     });
     let (study, version, shown) = match read.await {
         Ok(Ok(PageRead::Shown(study, version, shown))) => (study, version, shown),
-        Ok(Ok(PageRead::Kept(kept))) => return rendered(Ok(kept)),
+        Ok(Ok(PageRead::Kept(kept))) => return kept,
         Ok(Err(r)) => return r.into_response(),
         Err(e) => return not_built(e),
     };
@@ -920,18 +936,18 @@ async fn study_page(State(web): State<Web>, Path(id): Path<String>, headers: Hea
     let w = web.clone();
     heavy(&web, move || {
         let html: Bytes = shown.page(&figures).into_string().into();
-        let built = ("text/html; charset=utf-8", html);
+        let built = Answer::new("text/html; charset=utf-8", html);
         if let Some(version) = version {
             w.renderings.put(study, &what, version, built.clone());
         }
-        rendered(Ok(built))
+        rendered(Ok(built), &headers)
     })
     .await
 }
 
-/// A study's page kept at the study's version, or what to build it from.
+/// A study's page kept at the study's version (the answer to send), or what to build it from.
 enum PageRead {
-    Kept(Rendered),
+    Kept(Response),
     Shown(StudyId, Option<crate::coordinator::StudyVersion>, Box<StudyShown>),
 }
 
@@ -1573,6 +1589,21 @@ mod tests {
         assert_eq!(json().await, done);
         assert_eq!(builds(), 4);
         assert!(matches!(c.study_version(StudyId(99)), Err(CoordError::UnknownStudy(_))));
+        // a reader that takes gzip (a browser) gets the kept answer gzipped, and the same JSON
+        for path in [format!("/api/studies/{}", id.0), format!("/studies/{}", id.0)] {
+            let request = axum::http::Request::get(&path)
+                .header(header::ACCEPT_ENCODING, "br;q=1.0, gzip;q=0.8")
+                .body(axum::body::Body::empty())
+                .unwrap();
+            let response = app.clone().oneshot(request).await.unwrap();
+            assert_eq!(response.headers()[header::CONTENT_ENCODING], "gzip", "{path}");
+            let zipped = axum::body::to_bytes(response.into_body(), usize::MAX).await.unwrap();
+            let mut text = String::new();
+            std::io::Read::read_to_string(&mut flate2::read::GzDecoder::new(&zipped[..]), &mut text).unwrap();
+            assert_eq!(text, get(path.clone()).await, "{path}");
+            assert!(zipped.len() < text.len(), "{path}: {} gzipped bytes for {}", zipped.len(), text.len());
+        }
+        assert_eq!(builds(), 5, "the page kept at the study's last version, gzipped from it");
     }
 
     #[test]

@@ -13,7 +13,7 @@
 //!   coordinator allows and opened again when closed: half send HTTP/2's preface and a PING every
 //!   second, half a login body a byte every 2 s;
 //! - READERS clients with the user token, each fetching in turn the first study's whole JSON, its
-//!   page and the list of studies, as fast as they are answered.
+//!   page and the list of studies, as fast as they are answered, taking gzip as a browser does.
 //!
 //! Meanwhile a checker opens a new connection every 100 ms and asks Health with the user token
 //! (what a CLI call or a pool's first call does). Prints one JSON object: per phase the points per
@@ -226,7 +226,8 @@ async fn hostile(addr: std::net::SocketAddr, k: usize, attack: Arc<Attack>, stop
 async fn get(addr: std::net::SocketAddr, path: &str) -> std::io::Result<Vec<u8>> {
     let mut s = tokio::net::TcpStream::connect(addr).await?;
     let head = format!(
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {USER_TOKEN}\r\nConnection: close\r\n\r\n"
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {USER_TOKEN}\r\nAccept-Encoding: gzip\r\n\
+         Connection: close\r\n\r\n"
     );
     s.write_all(head.as_bytes()).await?;
     let mut answer = Vec::new();
