@@ -1,6 +1,6 @@
 //! The glissade coordinator as a library: [`serve`] runs the gRPC service (User, Pool, Health,
 //! reflection) over a sled database until a shutdown future resolves. `glissade-server` is a thin
-//! binary around it; `glissade demo` embeds it on a temporary directory.
+//! binary around it, which `glissade demo` runs on a temporary directory.
 
 pub mod auth;
 mod conn;
