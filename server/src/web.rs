@@ -1507,8 +1507,8 @@ mod tests {
     /// reader gets is what a rebuild would give.
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_studys_json_and_page_are_built_once_while_it_stays_as_it_is() {
-        use crate::coordinator::tests::{VERSION, open, pool, solution_file, submit};
-        use crate::coordinator::{CoordError, Failure};
+        use crate::coordinator::CoordError;
+        use crate::coordinator::tests::{VERSION, diverged, open, pool, solution_file, submit};
         use glissade_core::study::strategy::InitStrategy;
         use tower::ServiceExt;
 
@@ -1547,16 +1547,7 @@ mod tests {
                 let (done, file) = solution_file(&grant, 5e-4, true);
                 c.complete(done, file).unwrap();
             } else {
-                let failure = Failure {
-                    pool: "p".into(),
-                    lease_id: grant.lease_id,
-                    study: grant.study,
-                    point: grant.point,
-                    error: "diverged".into(),
-                    error_indicator: Some(1.0),
-                    iterations: 3,
-                };
-                c.fail(failure).unwrap();
+                c.fail(diverged(&grant)).unwrap();
             }
         }
         let first = json().await;

@@ -233,6 +233,19 @@ fn solution_file_after(
     (completion, bytes)
 }
 
+/// The failure a pool reports for `grant`'s point after 3 iterations that diverged.
+pub(crate) fn diverged(grant: &LeaseGrant) -> Failure {
+    Failure {
+        pool: "p".into(),
+        lease_id: grant.lease_id,
+        study: grant.study,
+        point: grant.point,
+        error: "diverged".into(),
+        error_indicator: Some(1.0),
+        iterations: 3,
+    }
+}
+
 pub(crate) fn pool(c: &Coordinator, id: &str, version: &str) {
     c.register_pool(id.into(), PoolInfo { ranks: 1, host: "h".into(), solver_version: version.into() });
 }
@@ -710,16 +723,7 @@ fn a_studys_version_changes_with_every_change_its_view_shows_and_with_nothing_el
     fresh(version());
     // a failed audit point, then a retry of it
     let grant = c.lease("p").unwrap().unwrap();
-    c.fail(Failure {
-        pool: "p".into(),
-        lease_id: grant.lease_id,
-        study: grant.study,
-        point: grant.point,
-        error: "diverged".into(),
-        error_indicator: Some(1.0),
-        iterations: 3,
-    })
-    .unwrap();
+    c.fail(diverged(&grant)).unwrap();
     assert_eq!(state_of(&c, audit, grant.point.0).state, PointState::Failed);
     fresh(version());
     c.retry_failed(audit).unwrap();
@@ -735,12 +739,9 @@ fn a_studys_version_changes_with_every_change_its_view_shows_and_with_nothing_el
 /// between 200 and 1,200 points solved whose completions carry `history` and `qoi` (as their
 /// largest values too) and, if `contact`, a contact report.
 fn memory_per_point(history: &[f64], qoi: &BTreeMap<String, f64>, contact: bool) -> f64 {
-    let store = Arc::new(crate::store::InMemoryStore::default());
-    let open = || Coordinator::open(store.clone(), config(VERSION)).unwrap();
-    let solve = |grid: &str| {
-        let c = open();
-        pool(&c, "p", VERSION);
-        submit(&c, &[grid], 1e-3, InitStrategy::Cold);
+    held_per_point(["f1=0.1:0.2:200", "f1=0.10005:0.19995:1000"], 1000, |c, grid| {
+        pool(c, "p", VERSION);
+        submit(c, &[grid], 1e-3, InitStrategy::Cold);
         while let Some(grant) = c.lease("p").unwrap() {
             let (mut done, file) = solution_file_after(&grant, 5e-4, true, qoi, history.len() as u64);
             done.eta_history = history.to_vec();
@@ -750,7 +751,15 @@ fn memory_per_point(history: &[f64], qoi: &BTreeMap<String, f64>, contact: bool)
             }
             c.complete(done, file).unwrap();
         }
-    };
+    })
+}
+
+/// The bytes a coordinator reopened over an in-memory store holds per point of `grids[1]` (of
+/// `points`): `add` puts each grid's points in (on a coordinator of their own), the coordinator
+/// is reopened after each, and the difference is divided by the second grid's points.
+fn held_per_point(grids: [&str; 2], points: usize, add: impl Fn(&Coordinator, &str)) -> f64 {
+    let store = Arc::new(crate::store::InMemoryStore::default());
+    let open = || Coordinator::open(store.clone(), config(VERSION)).unwrap();
     let held = || {
         let before = crate::heap::held();
         let c = open();
@@ -758,10 +767,10 @@ fn memory_per_point(history: &[f64], qoi: &BTreeMap<String, f64>, contact: bool)
         drop(c);
         held
     };
-    solve("f1=0.1:0.2:200");
+    add(&open(), grids[0]);
     let first = held();
-    solve("f1=0.10005:0.19995:1000");
-    (held() - first) as f64 / 1000.0
+    add(&open(), grids[1]);
+    (held() - first) as f64 / points as f64
 }
 
 /// What a stored point costs the coordinator's memory, the figure docs/performance.md gives
@@ -783,24 +792,10 @@ fn a_stored_point_costs_the_coordinator_a_bounded_documented_memory() {
     assert!(real <= 6144.0, "{real:.0} bytes a real point");
     // a point submitted and cancelled unsolved (issue 48 cancelled and resubmitted 100,000-point
     // studies): its record and its plan's parameters only
-    let store = Arc::new(crate::store::InMemoryStore::default());
-    let open = || Coordinator::open(store.clone(), config(VERSION)).unwrap();
-    let cancelled = |grid: &str| {
-        let c = open();
-        let id = submit(&c, &[grid], 1e-3, InitStrategy::Cold);
+    let unsolved = held_per_point(["f1=0.1:0.2:200", "f1=0.1:0.2:1200"], 1200, |c, grid| {
+        let id = submit(c, &[grid], 1e-3, InitStrategy::Cold);
         c.cancel(id).unwrap();
-    };
-    let held = || {
-        let before = crate::heap::held();
-        let c = open();
-        let held = crate::heap::held() - before;
-        drop(c);
-        held
-    };
-    cancelled("f1=0.1:0.2:200");
-    let first = held();
-    cancelled("f1=0.1:0.2:1200");
-    let unsolved = (held() - first) as f64 / 1200.0;
+    });
     eprintln!("a point cancelled unsolved holds {unsolved:.0} bytes");
     assert!(unsolved <= 1024.0, "{unsolved:.0} bytes a cancelled point");
 }
