@@ -181,6 +181,28 @@ impl<const D: usize> Interface<D> {
         self.element_depth(substructures).map(|r| r.max(1.0 / r))
     }
 
+    /// The depth along the interface's normal of each element with a face on it (its own
+    /// length), with the side it is on.
+    fn face_depths<'a>(&'a self, substructures: &'a [Substructure<D>]) -> impl Iterator<Item = (usize, f64)> + 'a {
+        let normal = self.mean_normal();
+        let along = move |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
+        self.sides.iter().enumerate().flat_map(move |(s, side)| {
+            let sub = &substructures[side.substructure];
+            let on_side: std::collections::HashSet<usize> = side.nodes.iter().copied().collect();
+            sub.connectivity
+                .chunks(sub.kind.nodes(D))
+                // a face on the interface, not an edge or a corner touching it
+                .filter(move |element| element.iter().filter(|n| on_side.contains(n)).count() >= D)
+                .map(move |element| {
+                    let (lo, hi) = element
+                        .iter()
+                        .map(|&n| along(&sub.coords[n]))
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+                    (s, hi - lo)
+                })
+        })
+    }
+
     /// The mean depth along the interface's normal of the elements with a face on it, against
     /// the side of a face (the interface's measure over their number): 1 for cubes, 100 for
     /// elements 100 x deeper than long along the interface (none in 1D).
@@ -188,24 +210,7 @@ impl<const D: usize> Interface<D> {
         if D < 2 {
             return None;
         }
-        let normal = self.mean_normal();
-        let along = |x: &[f64; D]| (0..D).map(|c| x[c] * normal[c]).sum::<f64>();
-        let (mut depth, mut faces) = (0.0, 0usize);
-        for side in &self.sides {
-            let sub = &substructures[side.substructure];
-            let on_side: std::collections::HashSet<usize> = side.nodes.iter().copied().collect();
-            for element in sub.connectivity.chunks(sub.kind.nodes(D)) {
-                // a face on the interface, not an edge or a corner touching it
-                if element.iter().filter(|n| on_side.contains(n)).count() >= D {
-                    let (lo, hi) = element
-                        .iter()
-                        .map(|&n| along(&sub.coords[n]))
-                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
-                    depth += hi - lo;
-                    faces += 1;
-                }
-            }
-        }
+        let (depth, faces) = self.face_depths(substructures).fold((0.0, 0usize), |(d, n), (_, h)| (d + h, n + 1));
         if faces == 0 {
             return None;
         }
@@ -213,6 +218,24 @@ impl<const D: usize> Interface<D> {
         let per_side = faces as f64 / self.sides.len() as f64;
         let face = (self.area.iter().sum::<f64>() / per_side).powf(1.0 / (D - 1) as f64);
         (depth > 0.0 && face > 0.0).then(|| depth / face)
+    }
+
+    /// Per side, c dt / h: the share of a step a dilatational wave takes to cross the mean depth
+    /// h of the side's elements along the normal (`None` for a side without faces on it).
+    pub fn transit_ratios(&self, substructures: &[Substructure<D>], dt: f64) -> Vec<Option<f64>> {
+        let mut depth = vec![(0.0, 0usize); self.sides.len()];
+        for (s, h) in self.face_depths(substructures) {
+            depth[s].0 += h;
+            depth[s].1 += 1;
+        }
+        self.sides
+            .iter()
+            .zip(depth)
+            .map(|(side, (h, n))| {
+                let c = substructures[side.substructure].material.bar_wave_speed();
+                (n > 0 && h > 0.0).then(|| c * dt * n as f64 / h)
+            })
+            .collect()
     }
 
     /// The area-weighted mean unit normal (the normal of a flat interface).
@@ -284,6 +307,9 @@ pub struct SolverSettings {
     pub joint_wall_nodes: bool,
 }
 
+/// Below this c dt / h at a contact, [`Model::short_step_advice`] speaks.
+pub const SHORT_STEP: f64 = 0.3;
+
 /// The whole decomposed problem of one design point.
 #[derive(Debug, Clone)]
 pub struct Model<const D: usize> {
@@ -338,6 +364,30 @@ impl<const D: usize> Model<D> {
 
     pub fn n_dofs(&self) -> usize {
         self.substructures.iter().map(|s| s.n_dofs()).sum()
+    }
+
+    /// Where a contact or friction interface meets a time step far shorter than a wave takes to
+    /// cross its elements (c dt / h below [`SHORT_STEP`]), the advice to refine the mesh with
+    /// the step. The contact's iterations grow about as h / (c dt) while the mesh stays and dt
+    /// falls, and stay flat when both fall together; measured (docs/notebook/2026-11-30.md,
+    /// "Refine dt and h together"): the impact bar under gamma 0.55 takes 35 iterations at
+    /// every level of dt and h halved together, 35 / 61 / 108 / 306 as dt alone falls to dt / 10.
+    pub fn short_step_advice(&self) -> Option<String> {
+        let (name, ratio) = self
+            .interfaces
+            .iter()
+            .filter(|i| matches!(i.law, InterfaceLaw::Contact | InterfaceLaw::Friction { .. }))
+            .flat_map(|i| i.transit_ratios(&self.substructures, self.dt).into_iter().flatten().map(|r| (&i.name, r)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))?;
+        (ratio < SHORT_STEP).then(|| {
+            format!(
+                "the time step is {:.0} x shorter than a wave takes to cross the elements at interface '{name}' \
+                 (c dt / h = {ratio:.2}): a contact's iterations grow about in proportion; refine the mesh across the \
+                 interface with the step (c dt / h near 1), or take a longer step (docs/accuracy.md, \"Refine dt and h \
+                 together\")",
+                1.0 / ratio
+            )
+        })
     }
 
     /// Moves the model to another design point that differs only in interface-law parameters

@@ -395,10 +395,11 @@ fn dynamic_diagnosis<const D: usize>(model: &Model<D>, stage: &StageReport) -> S
         .window_check
         .as_ref()
         .is_some_and(|c| matches!(c.outcome, CheckOutcome::Parted | CheckOutcome::BelowFloor));
-    match model.scheme_advice().filter(|_| !sensitive) {
-        Some(advice) => format!("{advice}; {diagnosis}"),
-        None => diagnosis,
+    let advice: Vec<String> = [model.scheme_advice(), model.short_step_advice()].into_iter().flatten().collect();
+    if sensitive || advice.is_empty() {
+        return diagnosis;
     }
+    format!("{}; {diagnosis}", advice.join("; "))
 }
 
 fn solve_dim<const D: usize>(

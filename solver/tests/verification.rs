@@ -1719,6 +1719,88 @@ fn an_impact_that_stalls_under_the_trapezoidal_rule_is_told_to_damp_and_then_con
     assert!((end - contact).abs() < 0.02 * contact, "the contact lasts 2L / c: {end} against {contact}");
 }
 
+/// A copper bar of our own hits a rigid wall (issue 45, item 1). Refined in dt and h together
+/// (c dt / h = 0.99 at every level) its contact converges in the same iterations at every level
+/// and its answer nears d'Alembert's; dt refined alone on the same mesh, the iterations grow
+/// about as h / (c dt), and a solve that runs out of them says so with that ratio and the remedy.
+#[test]
+fn an_impact_refined_in_dt_and_h_together_takes_the_same_iterations_at_every_level() {
+    let (e, rho, length, v0) = (120e9f64, 8900.0, 0.05, 2.0);
+    let c = (e / rho).sqrt();
+    let duration = 35e-6;
+    let text = |steps: usize, elements: usize| {
+        format!(
+            "title = \"copper bar\"\ndimension = 1\n[time]\nduration = {duration:e}\nsteps = {steps}\nnewmark_gamma = 0.55\n\
+             [materials.cu]\nE = {e:e}\nrho = {rho}\n\
+             [[bodies]]\nname = \"bar\"\nmaterial = \"cu\"\nsize = [{length}]\nelements = [{elements}]\nsubstructures = [2]\n\
+             initial_velocity = [{v0}]\n\
+             [[interfaces]]\nname = \"wall\"\na = \"bar.x+\"\nb = \"wall\"\nlaw = \"contact\"\n\
+             [[qoi]]\nname = \"wall_force\"\nkind = \"force\"\ninterface = \"wall\"\ncomponent = \"x\"\n\
+             [[qoi]]\nname = \"free_end_velocity\"\nkind = \"velocity\"\nbody = \"bar\"\npoint = [0.0]\ncomponent = \"x\"\n"
+        )
+    };
+    let solve = |steps: usize, elements: usize, limit: usize| {
+        let scene = Scene::parse(&text(steps, elements)).expect("the bar's scene");
+        let request = glissade_solver::run::SolveRequest { max_iterations: Some(limit), ..Default::default() };
+        glissade_solver::run::solve_scene(&scene, &request, None).expect("a solve").summary
+    };
+    // level 1: 25 elements, 64 steps
+    let transit = |steps: usize, elements: usize| c * (duration / steps as f64) / (length / elements as f64);
+    let model = build::<1>(&text(64, 25), &[]);
+    let wall = model.interfaces.iter().find(|i| i.name == "wall").expect("the wall's interface");
+    let ratios = wall.transit_ratios(&model.substructures, model.dt);
+    assert_eq!(ratios.len(), 1);
+    assert!((ratios[0].unwrap() / transit(64, 25) - 1.0).abs() < 1e-9, "{ratios:?} against {}", transit(64, 25));
+    assert!(model.short_step_advice().is_none());
+
+    let (contact, force) = (2.0 * length / c, -rho * c * v0);
+    let mut together = Vec::new();
+    for level in [1, 2, 4] {
+        let (steps, elements) = (64 * level, 25 * level);
+        let s = solve(steps, elements, 1000);
+        assert!(s.converged, "level {level}: {:?}", s.shortfall());
+        let free = s.qoi["free_end_velocity"].final_value;
+        let wall = &s.qoi["wall_force"];
+        let middle: Vec<f64> = wall
+            .times
+            .iter()
+            .zip(&wall.values)
+            .filter(|(t, _)| **t > 0.2 * contact && **t < 0.8 * contact)
+            .map(|(_, f)| *f)
+            .collect();
+        let mean = middle.iter().sum::<f64>() / middle.len() as f64;
+        let end = wall.times.iter().zip(&wall.values).filter(|(_, f)| **f != 0.0).map(|(t, _)| *t).fold(0.0, f64::max);
+        eprintln!(
+            "dt / {level}, h / {level} (c dt / h {:.3}): {} iterations; free end {free:.5} m/s, wall {mean:.4e} Pa \
+             (rho c v0 {force:.4e}) until {end:.4e} s (2L / c {contact:.4e})",
+            transit(steps, elements),
+            s.iterations
+        );
+        assert!((free + v0).abs() < 2e-3 * v0, "level {level}: the free end leaves at -v0: {free}");
+        assert!((mean - force).abs() < 0.01 * force.abs(), "level {level}: the wall pushes rho c v0: {mean}");
+        assert!((end - contact).abs() < 0.05 * contact, "level {level}: the contact lasts 2L / c: {end}");
+        together.push(s.iterations);
+    }
+    assert!(
+        together.iter().all(|&n| n as f64 <= 1.3 * together[0] as f64),
+        "flat as dt and h fall together: {together:?}"
+    );
+
+    // dt alone, on level 1's mesh: c dt / h = 0.25
+    let alone = solve(256, 25, 1000);
+    eprintln!("dt / 4 on the mesh of level 1: {} iterations (together: {together:?})", alone.iterations);
+    assert!(alone.converged);
+    assert!(alone.iterations >= 2 * together[2], "dt alone {} against together {together:?}", alone.iterations);
+
+    // at c dt / h = 0.13 with too few iterations, the diagnosis names the ratio and the remedy
+    let short = solve(512, 25, 60);
+    let why = short.shortfall().expect("60 iterations are too few at c dt / h = 0.13");
+    eprintln!("{why}");
+    assert!(why.contains("8 x shorter than a wave takes to cross the elements at interface 'wall'"), "{why}");
+    assert!(why.contains("(c dt / h = 0.13)") && why.contains("refine the mesh across the interface"), "{why}");
+    assert!(!why.contains("newmark_gamma"), "the scheme already damps: {why}");
+}
+
 /// One element per substructure (the block of our own, 6 x 3 quads cut 6 x 3, pressed from
 /// t = 0) converges multiscale within the default limit, in at most twice the iterations of the
 /// same block cut 2 x 1 (single scale it stalls past 1000), to the same slip.
