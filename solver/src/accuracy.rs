@@ -83,6 +83,7 @@ pub fn level_solved(refinement: Refinement, o: &SolveOutcome, time_factor: usize
             iterations: s.iterations,
             work: s.work(),
             wall_seconds: s.wall_seconds,
+            finals: Default::default(),
         },
         finals: s.qoi.iter().map(|(k, q)| (k.clone(), q.final_value)).collect(),
         largest: s.qoi.iter().map(|(k, q)| (k.clone(), q.values.iter().fold(0.0f64, |m, v| m.max(v.abs())))).collect(),

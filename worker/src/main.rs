@@ -254,8 +254,14 @@ fn print_accuracy_ladders(path: &Path, a: &AccuracyReport) {
         println!("  {name:<20} {}  order {order}  error at {finest}: {error}{tag}", finals.join("  "));
     };
     let Some(first) = a.qois.first() else { return };
+    // a staircase's ladders are its changes carried to the answer's other factor
+    let carried = if first.mesh.is_some() {
+        format!("carried to the answer's mesh h / {}", a.mesh_factor)
+    } else {
+        "on the scene's mesh".to_string()
+    };
     println!(
-        "{} dt ladder (dt / {}) on the scene's mesh, errors relative to each QoI's scale:",
+        "{} dt ladder (dt / {}) {carried}, errors relative to each QoI's scale:",
         path.display(),
         factors(first.time.finals.len())
     );
@@ -264,19 +270,22 @@ fn print_accuracy_ladders(path: &Path, a: &AccuracyReport) {
         row(&q.name, &q.time, time_finest.clone());
     }
     if let Some(m) = &first.mesh {
-        println!("{} h ladder (h / {}) at dt / {}:", path.display(), factors(m.finals.len()), a.time_factor);
+        println!(
+            "{} h ladder (h / {}) carried to the answer's step dt / {}:",
+            path.display(),
+            factors(m.finals.len()),
+            a.time_factor
+        );
         let finest = format!("h / {}", 1usize << (m.finals.len() - 1));
         for q in &a.qois {
             if let Some(m) = &q.mesh {
                 row(&q.name, m, finest.clone());
             }
         }
-    }
-    if first.time.at_answer.is_some() {
+        let solved: Vec<String> = a.levels.iter().map(|l| format!("({}, {})", l.time_factor, l.mesh_factor)).collect();
         println!(
-            "  the step checked again on the answer's mesh (h / {}) from dt / {}: each QoI's time error is the larger",
-            a.mesh_factor,
-            a.time_factor / 2
+            "  solved (dt / k, h / m), dt and h halved in turn: {}; each ladder's changes are those of its own halvings",
+            solved.join(" ")
         );
     }
 }

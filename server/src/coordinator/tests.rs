@@ -1960,7 +1960,8 @@ fn a_study_to_an_accuracy_climbs_its_pilots_ladders_and_says_above_or_not_reache
     let c = open(dir.path(), 60_000, 3);
     pool(&c, "p", VERSION);
     let submission = |accuracy: f64| to_accuracy(accuracy, Some(1));
-    // 1 %: the ladders of core's own test (dt / 1, 2, 4, 8, then h / 2, 4, then dt / 4 on h / 4),
+    // 1 %: the staircase of core's own test (dt and h halved in turn to dt / 4, h / 4, then dt / 8,
+    // then h / 2 at dt / 8),
     // the study at dt / 8, h / 4 (its pilot answered by its own solve), then its two held-out
     // points one level finer, 0.2 off: ABOVE
     let (id, ..) = c.submit(submission(0.01)).unwrap();
@@ -1970,7 +1971,7 @@ fn a_study_to_an_accuracy_climbs_its_pilots_ladders_and_says_above_or_not_reache
     assert_eq!(t.chosen, Some((8, 4)));
     assert_eq!(
         t.levels.iter().map(|l| (l.0, l.1)).collect::<Vec<_>>(),
-        [(1, 1), (2, 1), (4, 1), (8, 1), (8, 2), (8, 4), (4, 4)]
+        [(1, 1), (2, 1), (2, 2), (4, 2), (4, 4), (8, 4), (8, 2)]
     );
     assert_eq!(view.state, StudyState::Done);
     assert_eq!(view.points.iter().filter(|p| p.result.as_ref().is_some_and(|r| r.answered)).count(), 1);

@@ -443,6 +443,7 @@ fn level_solved(given: &Scene, refinement: Refinement, k: usize, m: usize, r: &P
             iterations: r.iterations as usize,
             work: r.work,
             wall_seconds: r.wall_seconds,
+            finals: Default::default(),
         },
         finals: r.qoi.clone(),
         largest,

@@ -144,16 +144,14 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
             assert!(point.answered, "{point:?}");
             for q in report["qois"].as_array().unwrap() {
                 let name = q["name"].as_str().unwrap();
-                // the worker's final at (k, m): on its dt ladder (the scene's mesh), its h ladder
-                // (at the answer's step), else the step's check on the answer's mesh
-                let worker = if m == 1 {
-                    q["time"]["finals"][k.trailing_zeros() as usize].as_f64()
-                } else if Some(k) == report["time_factor"].as_u64() {
-                    q["mesh"]["finals"][m.trailing_zeros() as usize].as_f64()
-                } else {
-                    None
-                };
-                let Some(worker) = worker else { continue };
+                // the worker's final at (k, m), as its report lists each level it solved
+                let worker = report["levels"]
+                    .as_array()
+                    .expect("levels")
+                    .iter()
+                    .find(|l| (l["time_factor"].as_u64(), l["mesh_factor"].as_u64()) == (Some(k), Some(m)))
+                    .and_then(|l| l["finals"][name].as_f64())
+                    .unwrap_or_else(|| panic!("the cheapest level ({k}, {m}) is one the worker solved: {report}"));
                 let service = point.qoi[name];
                 assert!(
                     (worker - service).abs() <= 1e-9 * worker.abs().max(1e-30),
