@@ -369,7 +369,7 @@ impl<const D: usize> Model<D> {
     /// Where a contact or friction interface meets a time step far shorter than a wave takes to
     /// cross its elements (c dt / h below [`SHORT_STEP`]), the advice to refine the mesh with
     /// the step. The contact's iterations grow about as h / (c dt) while the mesh stays and dt
-    /// falls, and stay flat when both fall together; measured (docs/notebook/2026-11-30.md,
+    /// falls, and stay flat when both fall together; measured (docs/notebook/2026-11-29.md,
     /// "Refine dt and h together"): the impact bar under gamma 0.55 takes 35 iterations at
     /// every level of dt and h halved together, 35 / 61 / 108 / 306 as dt alone falls to dt / 10.
     pub fn short_step_advice(&self) -> Option<String> {
