@@ -786,7 +786,16 @@ mod tests {
         // a level solved off the staircase (by an earlier rule: dt / 2, h / 2 after dt / 4, h) is
         // passed over, not read: the path goes on from dt / 4, h by halving h
         let q = |k: usize, m: usize| 1.0 + 0.2 / (k * k) as f64 + 0.05 / (m * m) as f64;
-        let level = |refinement, k: usize, m: usize| LevelSolved {
+        let level = |refinement, k: usize, m: usize| solved_at(refinement, k, m, q(k, m));
+        let accuracy = Accuracy::new("--accuracy", 0.01).unwrap();
+        let earlier = [level(Time, 1, 1), level(Time, 2, 1), level(Time, 4, 1), level(Mesh, 2, 2)];
+        let next = next_step(&scene, accuracy, AccuracyLimits::default(), &earlier);
+        assert_eq!(next, Step::Solve { refinement: Mesh, time_factor: 4, mesh_factor: 2 });
+    }
+
+    /// A level solved at dt / k, h / m whose QoI `u` ended at `v`.
+    fn solved_at(refinement: Refinement, k: usize, m: usize, v: f64) -> LevelSolved {
+        LevelSolved {
             level: AccuracyLevel {
                 refinement,
                 time_factor: k,
@@ -799,13 +808,9 @@ mod tests {
                 wall_seconds: 0.0,
                 finals: BTreeMap::new(),
             },
-            finals: [("u".to_string(), q(k, m))].into(),
-            largest: [("u".to_string(), q(k, m))].into(),
-        };
-        let accuracy = Accuracy::new("--accuracy", 0.01).unwrap();
-        let earlier = [level(Time, 1, 1), level(Time, 2, 1), level(Time, 4, 1), level(Mesh, 2, 2)];
-        let next = next_step(&scene, accuracy, AccuracyLimits::default(), &earlier);
-        assert_eq!(next, Step::Solve { refinement: Mesh, time_factor: 4, mesh_factor: 2 });
+            finals: [("u".to_string(), v)].into(),
+            largest: [("u".to_string(), v)].into(),
+        }
     }
 
     /// The rule run on a 1D bar whose QoI `u` is `q(k, m)` at dt / k, h / m.
@@ -822,23 +827,7 @@ mod tests {
                 Step::Solve { refinement, time_factor, mesh_factor } => {
                     asked.push((refinement, time_factor, mesh_factor));
                     assert!(asked.len() < 20, "{asked:?}");
-                    let v = q(time_factor, mesh_factor);
-                    solved.push(LevelSolved {
-                        level: AccuracyLevel {
-                            refinement,
-                            time_factor,
-                            mesh_factor,
-                            steps: 10 * time_factor,
-                            dofs: 0,
-                            converged: true,
-                            iterations: 1,
-                            work: 1.0,
-                            wall_seconds: 0.0,
-                            finals: BTreeMap::new(),
-                        },
-                        finals: [("u".to_string(), v)].into(),
-                        largest: [("u".to_string(), v)].into(),
-                    });
+                    solved.push(solved_at(refinement, time_factor, mesh_factor, q(time_factor, mesh_factor)));
                 }
                 Step::Done(report) => return (asked, *report),
             }

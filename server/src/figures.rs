@@ -5,13 +5,14 @@
 //! of exactly these: a point that lands changes the hash and the next load draws again, a load
 //! with nothing new draws nothing. Bounded in bytes, the least recently used dropped first.
 
-use std::collections::{HashMap, HashSet};
+use std::collections::HashSet;
 use std::hash::{DefaultHasher, Hash, Hasher};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use glissade_proto::StudyId;
 
 use crate::coordinator::Surface;
+use crate::kept::Kept;
 
 /// What the pictures of all studies may take (a picture is 0.3-0.5 MB of SVG, docs/surrogate.md).
 pub const MAX_BYTES: usize = 64 << 20;
@@ -22,16 +23,10 @@ type Slot = (StudyId, Vec<(String, u64)>);
 struct Entry {
     hash: u64,
     figures: Arc<Vec<String>>,
-    bytes: usize,
-    /// when it was last read (the cache's clock)
-    used: u64,
 }
 
-#[derive(Default)]
 struct Inner {
-    entries: HashMap<Slot, Entry>,
-    bytes: usize,
-    clock: u64,
+    entries: Kept<Slot, Entry>,
     draws: u64,
     /// pictures being drawn (slot and content hash): a second load waits for them
     drawing: HashSet<(Slot, u64)>,
@@ -39,7 +34,6 @@ struct Inner {
 
 /// The pictures last drawn per study and slice.
 pub struct FigureCache {
-    max_bytes: usize,
     inner: Mutex<Inner>,
 }
 
@@ -81,7 +75,7 @@ pub fn content_hash(
 
 impl FigureCache {
     pub fn new(max_bytes: usize) -> Self {
-        FigureCache { max_bytes, inner: Mutex::new(Inner::default()) }
+        FigureCache { inner: Mutex::new(Inner { entries: Kept::new(max_bytes), draws: 0, drawing: HashSet::new() }) }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
@@ -91,37 +85,17 @@ impl FigureCache {
 
     /// The pictures kept for `study` and `fixed` if they were drawn from content `hash`.
     pub fn get(&self, study: StudyId, fixed: &[(String, f64)], hash: u64) -> Option<Arc<Vec<String>>> {
-        let mut inner = self.lock();
-        inner.clock += 1;
-        let now = inner.clock;
-        let entry = inner.entries.get_mut(&slot(study, fixed)).filter(|e| e.hash == hash)?;
-        entry.used = now;
-        Some(entry.figures.clone())
+        Some(self.lock().entries.read(&slot(study, fixed), |e| e.hash == hash)?.figures.clone())
     }
 
     /// Keeps pictures just drawn from content `hash` (replacing that study's and slice's older
-    /// ones), then drops the least recently read until the whole fits the bound; pictures larger
+    /// ones), the least recently read dropped until the whole fits the bound; pictures larger
     /// than the bound alone are not kept.
     pub fn put(&self, study: StudyId, fixed: &[(String, f64)], hash: u64, figures: Arc<Vec<String>>) {
         let bytes: usize = figures.iter().map(String::len).sum();
         let mut inner = self.lock();
         inner.draws += 1;
-        inner.clock += 1;
-        let used = inner.clock;
-        if let Some(old) = inner.entries.remove(&slot(study, fixed)) {
-            inner.bytes -= old.bytes;
-        }
-        if bytes > self.max_bytes {
-            return;
-        }
-        while inner.bytes + bytes > self.max_bytes {
-            let Some(oldest) = inner.entries.iter().min_by_key(|(_, e)| e.used).map(|(k, _)| k.clone()) else { break };
-            if let Some(e) = inner.entries.remove(&oldest) {
-                inner.bytes -= e.bytes;
-            }
-        }
-        inner.bytes += bytes;
-        inner.entries.insert(slot(study, fixed), Entry { hash, figures, bytes, used });
+        inner.entries.insert(slot(study, fixed), Entry { hash, figures }, bytes);
     }
 
     /// Marks the pictures of `hash` as being drawn by the caller: false when another caller
@@ -145,7 +119,7 @@ impl FigureCache {
     #[cfg(test)]
     pub fn stats(&self) -> (u64, usize) {
         let inner = self.lock();
-        (inner.draws, inner.bytes)
+        (inner.draws, inner.entries.bytes())
     }
 }
 

@@ -10,6 +10,7 @@ mod figures;
 mod health;
 #[cfg(test)]
 mod heap;
+mod kept;
 mod low_priority;
 mod metrics;
 mod pool;

@@ -6,7 +6,6 @@
 //! and is built each time. Readers of the same version wait for one build instead of making
 //! their own. Bounded in bytes, the least recently read dropped first.
 
-use std::collections::HashMap;
 use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 use axum::body::Bytes;
@@ -14,6 +13,7 @@ use axum::http::StatusCode;
 use glissade_proto::StudyId;
 
 use crate::coordinator::StudyVersion;
+use crate::kept::Kept;
 
 /// What the kept answers of all studies may take.
 pub const MAX_BYTES: usize = 128 << 20;
@@ -56,22 +56,14 @@ type Slot = (StudyId, String);
 struct Entry {
     version: StudyVersion,
     answer: Arc<OnceLock<Result<Rendered, NotRendered>>>,
-    /// its body's length once built (0 while building)
-    bytes: usize,
-    /// when it was last read (the cache's clock)
-    used: u64,
 }
 
-#[derive(Default)]
 struct Inner {
-    entries: HashMap<Slot, Entry>,
-    bytes: usize,
-    clock: u64,
+    entries: Kept<Slot, Entry>,
     builds: u64,
 }
 
 pub struct Renderings {
-    max_bytes: usize,
     inner: Mutex<Inner>,
 }
 
@@ -83,7 +75,7 @@ impl Default for Renderings {
 
 impl Renderings {
     pub fn new(max_bytes: usize) -> Self {
-        Renderings { max_bytes, inner: Mutex::new(Inner::default()) }
+        Renderings { inner: Mutex::new(Inner { entries: Kept::new(max_bytes), builds: 0 }) }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Inner> {
@@ -105,19 +97,11 @@ impl Renderings {
         let slot = (study, what.to_owned());
         let answer = {
             let mut inner = self.lock();
-            inner.clock += 1;
-            let used = inner.clock;
-            match inner.entries.get_mut(&slot).filter(|e| e.version == version) {
-                Some(e) => {
-                    e.used = used;
-                    e.answer.clone()
-                }
+            match inner.entries.read(&slot, |e| e.version == version) {
+                Some(e) => e.answer.clone(),
                 None => {
                     let answer = Arc::new(OnceLock::new());
-                    let entry = Entry { version, answer: answer.clone(), bytes: 0, used };
-                    if let Some(old) = inner.entries.insert(slot.clone(), entry) {
-                        inner.bytes -= old.bytes;
-                    }
+                    inner.entries.insert(slot.clone(), Entry { version, answer: answer.clone() }, 0);
                     answer
                 }
             }
@@ -128,15 +112,11 @@ impl Renderings {
                 build()
             })
             .clone();
+        let this = |e: &Entry| Arc::ptr_eq(&e.answer, &answer);
         match &built {
-            Ok(kept) => self.account(&slot, &answer, kept.body.len()),
+            Ok(kept) => self.lock().entries.count(&slot, this, kept.body.len()),
             // not kept: the next reader builds again
-            Err(_) => {
-                let mut inner = self.lock();
-                if inner.entries.get(&slot).is_some_and(|e| Arc::ptr_eq(&e.answer, &answer)) {
-                    inner.entries.remove(&slot);
-                }
-            }
+            Err(_) => self.lock().entries.remove_if(&slot, this),
         }
         built
     }
@@ -145,61 +125,24 @@ impl Renderings {
     /// which [`Renderings::put`] keeps).
     pub fn get(&self, study: StudyId, what: &str, version: &StudyVersion) -> Option<Rendered> {
         let mut inner = self.lock();
-        inner.clock += 1;
-        let used = inner.clock;
-        let entry = inner.entries.get_mut(&(study, what.to_owned())).filter(|e| &e.version == version)?;
-        entry.used = used;
+        let entry = inner.entries.read(&(study, what.to_owned()), |e| &e.version == version)?;
         entry.answer.get()?.clone().ok()
     }
 
     /// Keeps an answer built at `version` (replacing that slot's older one).
     pub fn put(&self, study: StudyId, what: &str, version: StudyVersion, answer: Rendered) {
-        let slot = (study, what.to_owned());
         let bytes = answer.body.len();
-        let cell = Arc::new(OnceLock::from(Ok(answer)));
-        {
-            let mut inner = self.lock();
-            inner.builds += 1;
-            inner.clock += 1;
-            let used = inner.clock;
-            let entry = Entry { version, answer: cell.clone(), bytes: 0, used };
-            if let Some(old) = inner.entries.insert(slot.clone(), entry) {
-                inner.bytes -= old.bytes;
-            }
-        }
-        self.account(&slot, &cell, bytes);
-    }
-
-    /// Counts a built answer's bytes once, then drops the least recently read answers until all
-    /// fit the bound (an answer larger than the bound alone is not kept).
-    fn account(&self, slot: &Slot, answer: &Arc<OnceLock<Result<Rendered, NotRendered>>>, bytes: usize) {
+        let entry = Entry { version, answer: Arc::new(OnceLock::from(Ok(answer))) };
         let mut inner = self.lock();
-        let Some(entry) = inner.entries.get_mut(slot).filter(|e| Arc::ptr_eq(&e.answer, answer) && e.bytes == 0) else {
-            return;
-        };
-        if bytes > self.max_bytes {
-            inner.entries.remove(slot);
-            return;
-        }
-        entry.bytes = bytes;
-        inner.bytes += bytes;
-        while inner.bytes > self.max_bytes {
-            let Some(oldest) =
-                inner.entries.iter().filter(|(k, _)| *k != slot).min_by_key(|(_, e)| e.used).map(|(k, _)| k.clone())
-            else {
-                break;
-            };
-            if let Some(e) = inner.entries.remove(&oldest) {
-                inner.bytes -= e.bytes;
-            }
-        }
+        inner.builds += 1;
+        inner.entries.insert((study, what.to_owned()), entry, bytes);
     }
 
     /// How many answers were built (kept or not, versioned ones only) and the bytes kept.
     #[cfg(test)]
     pub fn stats(&self) -> (u64, usize) {
         let inner = self.lock();
-        (inner.builds, inner.bytes)
+        (inner.builds, inner.entries.bytes())
     }
 }
 

@@ -1698,8 +1698,20 @@ fn an_impact_that_stalls_under_the_trapezoidal_rule_is_told_to_damp_and_then_con
     let c = (e / rho).sqrt();
     let (contact, force) = (2.0 * length / c, -rho * c * v0);
     let free = damped.qoi["free_end_velocity"].final_value;
-    let wall = &damped.qoi["wall_force"];
-    // the force's mean over the middle of the contact (its first steps ring), and the contact's end
+    let (mean, end) = wall_force_mean_and_end(&damped.qoi["wall_force"], contact);
+    eprintln!(
+        "gamma 0.55: {} iterations; free end {free:.5} m/s (-v0 = -{v0}); wall {mean:.4e} Pa (rho c v0 {force:.4e}) \
+         until {end:.4e} s (2L / c = {contact:.4e})",
+        damped.iterations
+    );
+    assert!((free + v0).abs() < 1e-3 * v0, "the free end leaves at -v0: {free}");
+    assert!((mean - force).abs() < 0.01 * force.abs(), "the wall pushes rho c v0: {mean} against {force}");
+    assert!((end - contact).abs() < 0.02 * contact, "the contact lasts 2L / c: {end} against {contact}");
+}
+
+/// An impact's wall force: its mean over the middle of a contact expected to last `contact` (its
+/// first steps ring), and when it last pushed.
+fn wall_force_mean_and_end(wall: &glissade_solver::run::QoiJson, contact: f64) -> (f64, f64) {
     let middle: Vec<f64> = wall
         .times
         .iter()
@@ -1709,14 +1721,7 @@ fn an_impact_that_stalls_under_the_trapezoidal_rule_is_told_to_damp_and_then_con
         .collect();
     let mean = middle.iter().sum::<f64>() / middle.len() as f64;
     let end = wall.times.iter().zip(&wall.values).filter(|(_, f)| **f != 0.0).map(|(t, _)| *t).fold(0.0, f64::max);
-    eprintln!(
-        "gamma 0.55: {} iterations; free end {free:.5} m/s (-v0 = -{v0}); wall {mean:.4e} Pa (rho c v0 {force:.4e}) \
-         until {end:.4e} s (2L / c = {contact:.4e})",
-        damped.iterations
-    );
-    assert!((free + v0).abs() < 1e-3 * v0, "the free end leaves at -v0: {free}");
-    assert!((mean - force).abs() < 0.01 * force.abs(), "the wall pushes rho c v0: {mean} against {force}");
-    assert!((end - contact).abs() < 0.02 * contact, "the contact lasts 2L / c: {end} against {contact}");
+    (mean, end)
 }
 
 /// A copper bar of our own hits a rigid wall (issue 45, item 1). Refined in dt and h together
@@ -1760,16 +1765,7 @@ fn an_impact_refined_in_dt_and_h_together_takes_the_same_iterations_at_every_lev
         let s = solve(steps, elements, 1000);
         assert!(s.converged, "level {level}: {:?}", s.shortfall());
         let free = s.qoi["free_end_velocity"].final_value;
-        let wall = &s.qoi["wall_force"];
-        let middle: Vec<f64> = wall
-            .times
-            .iter()
-            .zip(&wall.values)
-            .filter(|(t, _)| **t > 0.2 * contact && **t < 0.8 * contact)
-            .map(|(_, f)| *f)
-            .collect();
-        let mean = middle.iter().sum::<f64>() / middle.len() as f64;
-        let end = wall.times.iter().zip(&wall.values).filter(|(_, f)| **f != 0.0).map(|(t, _)| *t).fold(0.0, f64::max);
+        let (mean, end) = wall_force_mean_and_end(&s.qoi["wall_force"], contact);
         eprintln!(
             "dt / {level}, h / {level} (c dt / h {:.3}): {} iterations; free end {free:.5} m/s, wall {mean:.4e} Pa \
              (rho c v0 {force:.4e}) until {end:.4e} s (2L / c {contact:.4e})",
