@@ -143,10 +143,11 @@ impl Studies {
     }
 
     /// The versions a study's view reads (its own and its audits'), or None while a point of it
-    /// is leased: its view then shows the solves' last reports, which change without it.
-    fn version(&self, id: StudyId) -> Option<StudyVersion> {
+    /// is `leased`: its view then shows the solves' last reports, which change without it.
+    fn version(&self, id: StudyId, leased: bool) -> Option<StudyVersion> {
         let entry = self.map.get(&id)?;
-        if entry.points.iter().any(|p| matches!(p.state, PointState::Leased { .. })) {
+        debug_assert_eq!(leased, entry.points.iter().any(|p| matches!(p.state, PointState::Leased { .. })));
+        if leased {
             return None;
         }
         let of = |id: StudyId| (id.0, self.versions.get(&id).copied().unwrap_or(0));
@@ -457,7 +458,9 @@ impl Coordinator {
         if !state.studies.contains_key(&id) {
             return Err(CoordError::UnknownStudy(id));
         }
-        Ok(state.studies.version(id))
+        // the leases held (a few per pool), not the study's points (up to millions)
+        let leased = state.leases.values().any(|(study, _)| *study == id);
+        Ok(state.studies.version(id, leased))
     }
 
     pub fn study(&self, id: StudyId, with_points: bool) -> Result<StudyView, CoordError> {
