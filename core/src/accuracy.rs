@@ -289,15 +289,17 @@ impl Ladder<'_> {
 
     /// This ladder read off a staircase's path: its changes (the levels that refined its
     /// factor, each against the level before it) summed back from the path's last level, which
-    /// is the ladder's finest. With `at_answer` (the answer's level with this ladder's factor
-    /// halved), the change nearest the answer is the one measured there instead.
-    fn rebuilt(&self, path: &[&LevelSolved], at_answer: Option<&LevelSolved>) -> Climb {
+    /// is the ladder's finest. `at_answer`: levels at the answer's other factor with this
+    /// ladder's halved, quartered, ...; the changes nearest the answer are the ones measured
+    /// between them instead.
+    fn rebuilt(&self, path: &[&LevelSolved], at_answer: &[&LevelSolved]) -> Climb {
         let last = *path.last().expect("a path has its first level");
         let value = |l: &LevelSolved, n: &str| l.finals.get(n).copied().unwrap_or(f64::NAN);
         let mut changes: Vec<(&LevelSolved, &LevelSolved)> =
             path.windows(2).rev().filter(|w| self.factor(w[1]) != self.factor(w[0])).map(|w| (w[0], w[1])).collect();
-        if let (Some(first), Some(check)) = (changes.first_mut(), at_answer) {
-            *first = (check, last);
+        let measured = std::iter::once(last).chain(at_answer.iter().copied());
+        for (change, (fine, coarse)) in changes.iter_mut().zip(measured.clone().zip(measured.skip(1))) {
+            *change = (coarse, fine);
         }
         let mut finals = vec![last.finals.clone()];
         for (coarse, fine) in changes {
@@ -404,7 +406,7 @@ fn staircase(
     }
     let Some(&last) = path.last() else { return solve(Refinement::Time, (1, 1)) };
     let (k, m) = (last.level.time_factor, last.level.mesh_factor);
-    let mut climbs = [time, mesh].map(|ladder| ladder.rebuilt(&path, None));
+    let mut climbs = [time, mesh].map(|ladder| ladder.rebuilt(&path, &[]));
     if !last.level.converged {
         let what = if last.level.refinement == Refinement::Mesh { 1 } else { 0 };
         climbs[what].stopped = Some(format!(
@@ -449,22 +451,29 @@ fn staircase(
     if let Some(&i) = open.iter().find(|&&i| Some(i) != took).or(open.first()) {
         return solve([time, mesh][i].refinement, next_of([time, mesh][i]));
     }
-    // The other ladder's last change was measured at a coarser level of this one (the errors
-    // need not add: a wave's depend on c dt / h). One more solve, at the answer's level with
-    // the other factor halved, measures it where the answer is.
+    // The other ladder's last changes were measured at coarser levels of this one (the errors
+    // need not add: a wave's depend on c dt / h). Up to two more solves, at the answer's level
+    // with the other factor halved and quartered, measure its last two changes where the answer
+    // is, so that its order is observed there too.
     if let Some(took) = took {
         let other = 1 - took;
-        if climbs[other].finals.len() >= 2 {
-            let (ck, cm) = if other == 0 { (k / RATIO, m) } else { (k, m / RATIO) };
+        let ladder = [time, mesh][other];
+        let levels = climbs[other].finals.len();
+        let mut checks = Vec::new();
+        for halvings in 1..levels.min(MIN_LEVELS) {
+            let d = RATIO.pow(halvings as u32);
+            let (ck, cm) = if other == 0 { (k / d, m) } else { (k, m / d) };
             match solved.iter().find(|l| (l.level.time_factor, l.level.mesh_factor) == (ck, cm)) {
-                None => return solve([time, mesh][other].refinement, (ck, cm)),
-                Some(check) if check.level.converged => {
-                    let stopped = climbs[other].stopped.take();
-                    climbs[other] = [time, mesh][other].rebuilt(&path, Some(check));
-                    climbs[other].stopped = stopped;
-                }
-                Some(_) => {}
+                None => return solve(ladder.refinement, (ck, cm)),
+                Some(check) if check.level.converged => checks.push(check),
+                // (a check that did not converge leaves the staircase's changes in its place)
+                Some(_) => break,
             }
+        }
+        if !checks.is_empty() {
+            let stopped = climbs[other].stopped.take();
+            climbs[other] = ladder.rebuilt(&path, &checks);
+            climbs[other].stopped = stopped;
         }
     }
     let [t, h] = climbs;
@@ -731,13 +740,21 @@ mod tests {
         use Refinement::{Mesh, Time};
         // dt and h halved in turn while both ladders need levels; the share of each is 0.45 %:
         // the mesh's error 0.05 / m^2 is 0.3 % at h / 4, the step's 0.2 / k^2 1.2 % at dt / 4 and
-        // 0.3 % at dt / 8, so dt alone goes on from there; then h / 2 at the answer's step, where
-        // the mesh's last change is measured again
-        let expected =
-            vec![(Time, 1, 1), (Time, 2, 1), (Mesh, 2, 2), (Time, 4, 2), (Mesh, 4, 4), (Time, 8, 4), (Mesh, 8, 2)];
+        // 0.3 % at dt / 8, so dt alone goes on from there; then h / 2 and h at the answer's step,
+        // where the mesh's last two changes are measured again
+        let expected = vec![
+            (Time, 1, 1),
+            (Time, 2, 1),
+            (Mesh, 2, 2),
+            (Time, 4, 2),
+            (Mesh, 4, 4),
+            (Time, 8, 4),
+            (Mesh, 8, 2),
+            (Mesh, 8, 1),
+        ];
         assert_eq!(asked, expected);
         assert!(report.reached, "{:?}", report.why_not);
-        assert_eq!((report.time_factor, report.mesh_factor, report.levels.len()), (8, 4, 7));
+        assert_eq!((report.time_factor, report.mesh_factor, report.levels.len()), (8, 4, 8));
         let u = &report.qois[0];
         assert_eq!((u.value, u.scale), (q(8, 4), q(8, 4)));
         // each ladder rebuilt at the answer's other factor from its own changes: the values a
@@ -761,9 +778,12 @@ mod tests {
         assert_eq!(Scene::parse(&text).unwrap().content_hash(), scene_at(&scene, 4, 2).unwrap().content_hash());
 
         // the mesh's error the larger: h alone goes on once the step is within its share, then
-        // dt / 2 at the answer's mesh measures the step's last change there
+        // dt / 2 and dt at the answer's mesh measure the step's last changes there
         let (asked, report) = climb(&scene, 0.01, |k, m| 1.0 + 0.05 / (k * k) as f64 + 0.2 / (m * m) as f64);
-        assert_eq!(asked, vec![(Time, 1, 1), (Time, 2, 1), (Mesh, 2, 2), (Time, 4, 2), (Mesh, 4, 4), (Time, 2, 4)]);
+        assert_eq!(
+            asked,
+            vec![(Time, 1, 1), (Time, 2, 1), (Mesh, 2, 2), (Time, 4, 2), (Mesh, 4, 4), (Time, 2, 4), (Time, 1, 4)]
+        );
         assert!(!report.reached, "h / 8 is past the limit: {report:?}");
         let why = report.why_not.unwrap();
         assert!(why.starts_with("'u' is estimated 1.6e-2 off"), "{why}");
@@ -773,10 +793,12 @@ mod tests {
         let q = |k: usize, m: usize| 1.0 + 0.2 / (k * k) as f64 + 0.05 / (m * m) as f64 + 0.3 / (k * m) as f64;
         let (asked, report) = climb(&scene, 0.01, q);
         let (k, m) = (report.time_factor, report.mesh_factor);
-        assert_eq!(asked.last(), Some(&(Mesh, k, m / 2)), "{asked:?}");
+        assert_eq!(asked[asked.len() - 2..], [(Mesh, k, m / 2), (Mesh, k, m / 4)], "{asked:?}");
         let mesh = report.qois[0].mesh.as_ref().unwrap();
         let n = mesh.finals.len();
-        assert!((mesh.finals[n - 1] - mesh.finals[n - 2] - (q(k, m) - q(k, m / 2))).abs() < 1e-12, "{mesh:?}");
+        for (i, mm) in [m / 4, m / 2, m].into_iter().enumerate() {
+            assert!((mesh.finals[n - 3 + i] - q(k, mm)).abs() < 1e-12, "{mesh:?}: the ladder at dt / {k}");
+        }
         // the staircase measured it at the step where it halved h last
         let &(_, at, _) = asked.iter().rev().skip(1).find(|(r, _, mm)| *r == Mesh && *mm == m).expect("h halved");
         assert!(at < k, "{asked:?}");

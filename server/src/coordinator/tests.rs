@@ -1961,17 +1961,17 @@ fn a_study_to_an_accuracy_climbs_its_pilots_ladders_and_says_above_or_not_reache
     pool(&c, "p", VERSION);
     let submission = |accuracy: f64| to_accuracy(accuracy, Some(1));
     // 1 %: the staircase of core's own test (dt and h halved in turn to dt / 4, h / 4, then dt / 8,
-    // then h / 2 at dt / 8),
+    // then h / 2 and h at dt / 8),
     // the study at dt / 8, h / 4 (its pilot answered by its own solve), then its two held-out
     // points one level finer, 0.2 off: ABOVE
     let (id, ..) = c.submit(submission(0.01)).unwrap();
-    assert_eq!(solve_at_levels(&c, 0.2, 100), 7 + 2 + 2);
+    assert_eq!(solve_at_levels(&c, 0.2, 100), 8 + 2 + 2);
     let view = c.study(id, true).unwrap();
     let t = view.record.to_accuracy.clone().unwrap();
     assert_eq!(t.chosen, Some((8, 4)));
     assert_eq!(
         t.levels.iter().map(|l| (l.0, l.1)).collect::<Vec<_>>(),
-        [(1, 1), (2, 1), (2, 2), (4, 2), (4, 4), (8, 4), (8, 2)]
+        [(1, 1), (2, 1), (2, 2), (4, 2), (4, 4), (8, 4), (8, 2), (8, 1)]
     );
     assert_eq!(view.state, StudyState::Done);
     assert_eq!(view.points.iter().filter(|p| p.result.as_ref().is_some_and(|r| r.answered)).count(), 1);
@@ -2063,9 +2063,9 @@ fn a_study_to_an_accuracy_survives_a_restart_between_its_levels() {
     };
     let c = open(dir.path(), 60_000, 3);
     pool(&c, "p", VERSION);
-    assert_eq!(solve_at_levels(&c, 0.0, 100), 4 + 2 + 2);
+    assert_eq!(solve_at_levels(&c, 0.0, 100), 5 + 2 + 2);
     let view = c.study(id, false).unwrap();
     let t = view.record.to_accuracy.unwrap();
-    assert_eq!((t.chosen, t.levels.len()), (Some((8, 4)), 7));
+    assert_eq!((t.chosen, t.levels.len()), (Some((8, 4)), 8));
     assert_eq!((view.state, view.held_out_check.unwrap().confirmed), (StudyState::Done, Some(true)));
 }
