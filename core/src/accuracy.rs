@@ -406,7 +406,31 @@ fn staircase(
     }
     let Some(&last) = path.last() else { return solve(Refinement::Time, (1, 1)) };
     let (k, m) = (last.level.time_factor, last.level.mesh_factor);
-    let mut climbs = [time, mesh].map(|ladder| ladder.rebuilt(&path, &[]));
+    // Each ladder's changes nearest the answer measured at the answer's other factor where those
+    // levels were solved (the answer's level with this ladder's factor halved, quartered): the
+    // errors need not add (a wave's depend on c dt / h), and the staircase measured them at
+    // coarser levels of the other ladder. `missing`: the first such level not solved yet.
+    let at_answer = |i: usize, levels: usize| {
+        let mut found = Vec::new();
+        for halvings in 1..levels.min(MIN_LEVELS) {
+            let d = RATIO.pow(halvings as u32);
+            let at = if i == 0 { (k / d, m) } else { (k, m / d) };
+            match solved.iter().find(|l| (l.level.time_factor, l.level.mesh_factor) == at) {
+                None => return (found, Some(at)),
+                Some(l) if l.level.converged => found.push(l),
+                // (a level that did not converge leaves the staircase's changes in its place)
+                Some(_) => break,
+            }
+        }
+        (found, None)
+    };
+    let mut missing = [None, None];
+    let mut climbs = [0, 1].map(|i| {
+        let ladder = [time, mesh][i];
+        let (found, first_missing) = at_answer(i, ladder.rebuilt(&path, &[]).finals.len());
+        missing[i] = first_missing;
+        ladder.rebuilt(&path, &found)
+    });
     if !last.level.converged {
         let what = if last.level.refinement == Refinement::Mesh { 1 } else { 0 };
         climbs[what].stopped = Some(format!(
@@ -451,30 +475,13 @@ fn staircase(
     if let Some(&i) = open.iter().find(|&&i| Some(i) != took).or(open.first()) {
         return solve([time, mesh][i].refinement, next_of([time, mesh][i]));
     }
-    // The other ladder's last changes were measured at coarser levels of this one (the errors
-    // need not add: a wave's depend on c dt / h). Up to two more solves, at the answer's level
-    // with the other factor halved and quartered, measure its last two changes where the answer
-    // is, so that its order is observed there too.
-    if let Some(took) = took {
-        let other = 1 - took;
-        let ladder = [time, mesh][other];
-        let levels = climbs[other].finals.len();
-        let mut checks = Vec::new();
-        for halvings in 1..levels.min(MIN_LEVELS) {
-            let d = RATIO.pow(halvings as u32);
-            let (ck, cm) = if other == 0 { (k / d, m) } else { (k, m / d) };
-            match solved.iter().find(|l| (l.level.time_factor, l.level.mesh_factor) == (ck, cm)) {
-                None => return solve(ladder.refinement, (ck, cm)),
-                Some(check) if check.level.converged => checks.push(check),
-                // (a check that did not converge leaves the staircase's changes in its place)
-                Some(_) => break,
-            }
-        }
-        if !checks.is_empty() {
-            let stopped = climbs[other].stopped.take();
-            climbs[other] = ladder.rebuilt(&path, &checks);
-            climbs[other].stopped = stopped;
-        }
+    // Neither ladder needs a level on the staircase's measure: the other ladder than the last
+    // level's is measured at the answer (up to two more solves), and the rule is read again
+    // with it (a ladder that then needs a level goes on climbing).
+    if let Some(other) = took.map(|t| 1 - t)
+        && let Some(at) = missing[other]
+    {
+        return solve([time, mesh][other].refinement, at);
     }
     let [t, h] = climbs;
     answered(t, Some(h))
@@ -804,6 +811,16 @@ mod tests {
         assert!(at < k, "{asked:?}");
         let staircase = (q(at, m) - q(at, m / 2)).abs();
         assert!((q(k, m) - q(k, m / 2)).abs() < 0.7 * staircase, "the check sees a smaller change: {asked:?}");
+
+        // a step's error that grows as h falls (a finer mesh carries modes the step resolves
+        // worse): the staircase's changes, measured on coarser meshes, say dt / 4 is enough; dt / 2
+        // on the answer's mesh says it is not, and the climb goes on in dt
+        let q = |k: usize, m: usize| 1.0 + 0.02 * (m * m) as f64 / (k * k) as f64 + 0.05 / (m * m) as f64;
+        let (asked, report) = climb(&scene, 0.05, q);
+        assert_eq!(asked[..6], [(Time, 1, 1), (Time, 2, 1), (Mesh, 2, 2), (Time, 4, 2), (Mesh, 4, 4), (Time, 2, 4)]);
+        let checked = 5;
+        assert!(asked[checked..].contains(&(Time, 8, 4)), "{asked:?}");
+        assert!(report.time_factor >= 8, "{report:?}");
 
         // a level solved off the staircase (by an earlier rule: dt / 2, h / 2 after dt / 4, h) is
         // passed over, not read: the path goes on from dt / 4, h by halving h
