@@ -442,7 +442,7 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
         pool_id: pool,
         iterations: r.map_or(0, |r| r.iterations),
         error_indicator: r.map_or(0.0, |r| r.error_indicator),
-        qoi: r.map(|r| r.qoi.clone()).unwrap_or_default(),
+        qoi: r.map(|r| r.qoi.clone().into()).unwrap_or_default(),
         started_from: started_from.map(origin),
         answered: r.is_some_and(|r| r.answered),
         wall_seconds: r.map_or(0.0, |r| r.wall_seconds),

@@ -14,6 +14,7 @@ mod kept;
 mod low_priority;
 mod metrics;
 mod pool;
+mod qoi_map;
 mod records;
 mod renderings;
 mod store;

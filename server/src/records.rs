@@ -22,6 +22,8 @@ use glissade_core::study::strategy::InitStrategy;
 use glissade_proto::{PointId, StudyId};
 use serde::{Deserialize, Serialize};
 
+pub use crate::qoi_map::QoiMap;
+
 /// `meta` key of the next study id to hand out.
 pub const NEXT_STUDY_KEY: &[u8] = b"next-study-id";
 
@@ -374,7 +376,7 @@ pub struct PointResult {
     pub converged: bool,
     pub iterations: u64,
     pub error_indicator: f64,
-    pub qoi: BTreeMap<String, f64>,
+    pub qoi: QoiMap,
     pub wall_seconds: f64,
     pub started_from: Option<SolutionOrigin>,
     /// Answered from a stored solution without iterations.
@@ -390,8 +392,8 @@ pub struct PointResult {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contact: Vec<ContactActivity>,
     /// The largest magnitude of each QoI's history (none from older pools and records).
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub qoi_largest: BTreeMap<String, f64>,
+    #[serde(default, skip_serializing_if = "QoiMap::is_empty")]
+    pub qoi_largest: QoiMap,
 }
 
 /// One design point of a study.
@@ -447,7 +449,7 @@ pub struct SolutionRecord {
     pub tolerance: f64,
     pub iterations: u64,
     pub wall_seconds: f64,
-    pub qoi: BTreeMap<String, f64>,
+    pub qoi: QoiMap,
     /// The solution its iterations started from.
     pub parent: Option<SolutionOrigin>,
     /// The study point whose solve stored it.
@@ -462,8 +464,8 @@ pub struct SolutionRecord {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contact: Vec<ContactActivity>,
     /// The largest magnitude of each QoI's history (none from older pools and records).
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub qoi_largest: BTreeMap<String, f64>,
+    #[serde(default, skip_serializing_if = "QoiMap::is_empty")]
+    pub qoi_largest: QoiMap,
     /// The pool that sent it, as it registered (empty in records written before it existed):
     /// an operator can purge one pool's answers (`glissade purge-pool`).
     #[serde(default, skip_serializing_if = "String::is_empty")]

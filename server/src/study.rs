@@ -213,7 +213,7 @@ impl SceneSolutions {
             converged: record.converged,
             iterations: record.iterations as usize,
             parent: None,
-            qoi: record.qoi.clone(),
+            qoi: record.qoi.clone().into(),
             solver_version: record.solver_version.clone(),
             contact: record.contact.clone(),
         };

@@ -19,7 +19,7 @@ use super::{
     StudyEntry,
 };
 use super::{DEFAULT_REFINE_POINTS, Submission};
-use crate::records::{PointResult, PointState, Refines, StudyRecord};
+use crate::records::{PointResult, PointState, QoiMap, Refines, StudyRecord};
 
 /// The time step's divisor between two levels.
 const RATIO: u32 = 2;
@@ -251,7 +251,7 @@ fn seconds(e: &StudyEntry) -> f64 {
 }
 
 /// One point's QoIs, level by level, the study's own first.
-type Ladder<'a> = Vec<&'a BTreeMap<String, f64>>;
+type Ladder<'a> = Vec<&'a QoiMap>;
 
 /// The QoIs of each point of the first level that is done at every level, level by level, the
 /// study's own first; and how many points the levels plan.

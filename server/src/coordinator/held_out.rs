@@ -13,7 +13,7 @@ use glissade_core::study::holdout::{self, held_out_points};
 use glissade_core::study::surrogate::{Prediction, QoiSurface};
 
 use super::{StudyEntry, SurfaceAccuracy, audit_cost, now_unix_ms};
-use crate::records::{AdaptiveSpec, PointState, Predicted};
+use crate::records::{AdaptiveSpec, PointState, Predicted, QoiMap};
 
 /// `n` points held out of a study of swept `names` over `design` (or, adaptive, over its
 /// ranges): uniform in the study's box (each parameter from its lowest to its highest value),
@@ -71,7 +71,7 @@ pub(super) fn job(study: &StudyEntry, audit: &StudyEntry) -> Job {
         .filter(|p| p.state == PointState::Done)
         .filter_map(|p| {
             let x: Option<Vec<f64>> = names.iter().map(|n| p.parameters.get(n)).collect();
-            Some((x?, p.result.as_ref()?.qoi.clone()))
+            Some((x?, p.result.as_ref()?.qoi.clone().into()))
         })
         .collect();
     let at = audit.points.iter().map(|p| p.parameters.clone()).collect();
@@ -127,7 +127,7 @@ pub(super) fn measure(study: &StudyEntry, audit: &StudyEntry) -> SurfaceAccuracy
     let budget = audit_cost(study, audit);
     let predicted = audit.record.held_out.as_ref().and_then(|h| h.predicted.as_ref());
     // (prediction per QoI, solved QoIs) at each held-out point solved
-    let pairs: Vec<(&QoiPredictions, &BTreeMap<String, f64>)> = match predicted {
+    let pairs: Vec<(&QoiPredictions, &QoiMap)> = match predicted {
         None => Vec::new(),
         Some(predicted) => audit
             .points

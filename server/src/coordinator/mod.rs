@@ -25,7 +25,7 @@ use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
 
 use crate::records::{
-    self, AdaptiveSpec, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, SolutionKey, SolutionOrigin,
+    self, AdaptiveSpec, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, QoiMap, SolutionKey, SolutionOrigin,
     SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, Tree};
@@ -1137,14 +1137,14 @@ impl Coordinator {
             converged: false,
             iterations: f.iterations,
             error_indicator: f.error_indicator.unwrap_or(f64::MAX),
-            qoi: BTreeMap::new(),
+            qoi: QoiMap::default(),
             wall_seconds: 0.0,
             started_from: leased_from(&entry.points[i]),
             answered: false,
             eta_history: Vec::new(),
             work: 0.0,
             contact: Vec::new(),
-            qoi_largest: BTreeMap::new(),
+            qoi_largest: QoiMap::default(),
         };
         // a pool's message, bounded and printable before it is stored, logged or shown
         let error = one_line(&f.error);
@@ -1354,13 +1354,12 @@ fn adaptive_step(
 ) -> (Option<TargetOutcome>, Option<DesignPoint>) {
     let Some(spec) = entry.record.adaptive.as_ref() else { return (None, None) };
     let design = spec.design();
-    let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> = points
+    let done: Vec<Option<BTreeMap<String, f64>>> = points
         .iter()
-        .map(|p| {
-            let done = (p.state == PointState::Done).then(|| p.result.as_ref().map(|r| &r.qoi)).flatten();
-            (p.parameters.clone(), done)
-        })
+        .map(|p| (p.state == PointState::Done).then(|| p.result.as_ref().map(|r| r.qoi.clone().into())).flatten())
         .collect();
+    let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
+        points.iter().zip(&done).map(|(p, d)| (p.parameters.clone(), d.as_ref())).collect();
     let readings = QoiReadings::of(&entry.scene);
     let surfaces = design.surfaces(entry.plan.space(), &readings, &chosen);
     let in_flight = points.iter().any(|p| matches!(p.state, PointState::Pending | PointState::Leased { .. }));
@@ -1493,7 +1492,7 @@ fn completion_records(
         tolerance: meta.tolerance,
         iterations: meta.iterations as u64,
         wall_seconds: c.wall_seconds,
-        qoi: c.qoi.clone(),
+        qoi: c.qoi.clone().into(),
         parent: started_from.clone(),
         study: Some(c.study),
         point: Some(c.point),
@@ -1501,7 +1500,7 @@ fn completion_records(
         file_bytes: sizes.0,
         stored_bytes: sizes.1,
         contact: c.contact.clone(),
-        qoi_largest: c.qoi_largest.clone(),
+        qoi_largest: c.qoi_largest.clone().into(),
         pool: c.pool.clone(),
     };
     let result = PointResult {
@@ -1509,14 +1508,14 @@ fn completion_records(
         converged: meta.converged && c.error_indicator <= tolerance,
         iterations: c.iterations,
         error_indicator: c.error_indicator,
-        qoi: c.qoi.clone(),
+        qoi: c.qoi.clone().into(),
         wall_seconds: c.wall_seconds,
         started_from,
         answered: false,
         eta_history: c.eta_history.clone(),
         work: c.work,
         contact: c.contact.clone(),
-        qoi_largest: c.qoi_largest.clone(),
+        qoi_largest: c.qoi_largest.clone().into(),
     };
     (record, result)
 }

@@ -72,7 +72,7 @@ impl Coordinator {
                         let r = p.result.as_ref();
                         SurfaceRow {
                             parameters: p.parameters.clone(),
-                            qoi: r.map(|r| r.qoi.clone()).unwrap_or_default(),
+                            qoi: r.map(|r| r.qoi.clone().into()).unwrap_or_default(),
                             iterations: r.map_or(0, |r| r.iterations),
                             error_indicator: r.map_or(0.0, |r| r.error_indicator),
                             converged: r.is_some_and(|r| r.converged),
@@ -90,7 +90,7 @@ impl Coordinator {
                     .filter(|s| &s.scene_hash == hash)
                     .map(|s| SurfaceRow {
                         parameters: s.parameters.clone(),
-                        qoi: s.qoi.clone(),
+                        qoi: s.qoi.clone().into(),
                         iterations: s.iterations,
                         error_indicator: s.error_indicator,
                         converged: s.converged,

@@ -445,7 +445,7 @@ fn level_solved(given: &Scene, refinement: Refinement, k: usize, m: usize, r: &P
             wall_seconds: r.wall_seconds,
             finals: Default::default(),
         },
-        finals: r.qoi.clone(),
+        finals: r.qoi.clone().into(),
         largest,
     }
 }

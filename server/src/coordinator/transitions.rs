@@ -196,14 +196,14 @@ mod tests {
             converged,
             iterations: 12,
             error_indicator: if converged { 1e-4 } else { 3e-3 },
-            qoi: BTreeMap::new(),
+            qoi: Default::default(),
             wall_seconds: 1.0,
             started_from: None,
             answered: false,
             eta_history: Vec::new(),
             work: 12.0,
             contact: Vec::new(),
-            qoi_largest: BTreeMap::new(),
+            qoi_largest: Default::default(),
         }
     }
 
