@@ -573,16 +573,21 @@ fn report(
     }
 }
 
-/// The cheapest converged level of `solved` (cost: steps x elements, dt / k and h / m costing
-/// k m^dimension) whose every QoI is within `accuracy` by the bound |level - answer| / scale +
-/// the answer's total: the triangle inequality, so no order is assumed for the coarser level.
+/// The cheapest converged level of `solved` whose every QoI is within `accuracy` by the bound
+/// |level - answer| / scale + the answer's total: the triangle inequality, so no order is
+/// assumed for the coarser level. Cost: the level's sweeps times steps x elements (dt / k and
+/// h / m costing k m^dimension): a level whose step is far below its mesh's transit time (the
+/// staircase's measurements at the answer) takes that many more iterations, and a study solves
+/// every point there.
 fn cheapest_level(
     scene: &Scene,
     accuracy: Accuracy,
     solved: &[LevelSolved],
     qois: &[QoiAccuracy],
 ) -> Option<CheapestLevel> {
-    let cost = |l: &AccuracyLevel| l.time_factor as f64 * (l.mesh_factor as f64).powi(scene.dimension as i32);
+    let cost = |l: &AccuracyLevel| {
+        l.work.max(1.0) * l.time_factor as f64 * (l.mesh_factor as f64).powi(scene.dimension as i32)
+    };
     solved
         .iter()
         .filter(|l| l.level.converged)
@@ -871,6 +876,41 @@ mod tests {
                 Step::Done(report) => return (asked, *report),
             }
         }
+    }
+
+    #[test]
+    fn the_cheapest_level_counts_its_sweeps() {
+        // two levels of the same steps x elements within the bound: the one that iterated less
+        let scene = Scene::parse(
+            "dimension = 2\n[time]\nduration = 1e-4\nsteps = 10\n[materials.m]\nE = 1e9\nrho = 1000\n[[bodies]]\nname = \"b\"\nmaterial = \"m\"\nsize = [1.0, 0.5]\nelements = [4, 2]\n",
+        )
+        .unwrap();
+        let with_work = |k: usize, m: usize, work: f64| {
+            let mut l = solved_at(Refinement::Time, k, m, 1.0);
+            l.level.work = work;
+            l
+        };
+        let answer = QoiAccuracy {
+            name: "u".into(),
+            value: 1.0,
+            scale: 1.0,
+            time: LadderError {
+                finals: vec![1.0],
+                error: FinestError { estimate: 0.0, order: None, erratic: false, below_noise: true },
+            },
+            mesh: None,
+            iteration: 1e-3,
+            total: 1e-3,
+            within: true,
+        };
+        let accuracy = Accuracy::new("--accuracy", 0.01).unwrap();
+        let pick = |solved: &[LevelSolved]| {
+            let c = cheapest_level(&scene, accuracy, solved, std::slice::from_ref(&answer)).unwrap();
+            (c.time_factor, c.mesh_factor)
+        };
+        // dt / 4 on h costs 4 x 1^2 = 4 in steps x elements, as dt on h / 2
+        assert_eq!(pick(&[with_work(4, 1, 400.0), with_work(1, 2, 30.0)]), (1, 2));
+        assert_eq!(pick(&[with_work(4, 1, 30.0), with_work(1, 2, 400.0)]), (4, 1));
     }
 
     #[test]
