@@ -1,8 +1,8 @@
 //! One design point solved to an asked accuracy (`--accuracy`, docs/accuracy.md, "Ask for an
-//! accuracy"): the iteration tolerance set from the accuracy, the time step halved until the
-//! time ladder says the step's error is within its share, then, for box bodies, the mesh
-//! halved at that step until the mesh ladder says the same of h. The answer is the finest level
-//! solved; per QoI its estimated error, split into time step, mesh and iterations. When the
+//! accuracy"): the iteration tolerance set from the accuracy, then the levels that
+//! `glissade_core::accuracy::next_step` asks for (for box bodies, dt and h halved in turn) solved
+//! one after the other until each ladder says its error is within its share. The answer is the
+//! finest level solved; per QoI its estimated error, split into time step, mesh and iterations. When the
 //! changes between levels do not fall within the largest factor allowed, the answer is the
 //! finest level and the report says the accuracy was not reached, with the ladder as evidence.
 
