@@ -475,9 +475,9 @@ fn staircase(
     if let Some(&i) = open.iter().find(|&&i| Some(i) != took).or(open.first()) {
         return solve([time, mesh][i].refinement, next_of([time, mesh][i]));
     }
-    // Neither ladder needs a level on the staircase's measure: the other ladder than the last
-    // level's is measured at the answer (up to two more solves), and the rule is read again
-    // with it (a ladder that then needs a level goes on climbing).
+    // Neither ladder needs a level: the other ladder than the last level's is measured at the
+    // answer where it was not yet (up to two more solves), and the rule is read again with it
+    // (a ladder that then needs a level goes on climbing).
     if let Some(other) = took.map(|t| 1 - t)
         && let Some(at) = missing[other]
     {
