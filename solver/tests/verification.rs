@@ -1709,6 +1709,41 @@ fn an_impact_that_stalls_under_the_trapezoidal_rule_is_told_to_damp_and_then_con
     assert!((end - contact).abs() < 0.02 * contact, "the contact lasts 2L / c: {end} against {contact}");
 }
 
+/// c dt / h per side of a frictional interface between two bodies of our own (a steel block on
+/// an aluminium one, elements of different depths across the interface): each side its own wave
+/// speed over its own elements' depth, and the advice from the smaller once it is below 0.3.
+#[test]
+fn each_side_of_a_contact_has_its_own_transit_ratio() {
+    let text = |steps: usize| {
+        format!(
+            "dimension = 2\n[time]\nduration = 1e-5\nsteps = {steps}\n\
+             [materials.steel]\nE = 210e9\nnu = 0.3\nrho = 7850\n[materials.al]\nE = 70e9\nnu = 0.33\nrho = 2700\n\
+             [[bodies]]\nname = \"lower\"\nmaterial = \"al\"\nsize = [0.02, 0.01]\nelements = [4, 5]\n\
+             [[bodies]]\nname = \"upper\"\nmaterial = \"steel\"\norigin = [0, 0.01]\nsize = [0.02, 0.012]\nelements = [4, 3]\n\
+             [[boundary]]\nface = \"lower.y-\"\nclamped = true\n\
+             [[interfaces]]\nname = \"joint\"\na = \"lower.y+\"\nb = \"upper.y-\"\nlaw = \"friction\"\nfriction = 0.3\n"
+        )
+    };
+    let (c_al, c_steel) = ((70e9f64 / 2700.0).sqrt(), (210e9f64 / 7850.0).sqrt());
+    for steps in [10, 200] {
+        let m = build::<2>(&text(steps), &[]);
+        let joint = m.interfaces.iter().find(|i| i.name == "joint").expect("the joint");
+        let ratios = joint.transit_ratios(&m.substructures, m.dt);
+        // side a on the aluminium (elements 2 mm deep), side b on the steel (4 mm)
+        let dt = 1e-5 / steps as f64;
+        let expected = [c_al * dt / 2e-3, c_steel * dt / 4e-3];
+        for (r, e) in ratios.iter().zip(expected) {
+            assert!((r.unwrap() / e - 1.0).abs() < 1e-9, "{ratios:?} against {expected:?}");
+        }
+        let advice = m.short_step_advice();
+        let smaller = expected[0].min(expected[1]);
+        assert_eq!(advice.is_some(), smaller < 0.3, "{steps} steps: {advice:?}");
+        if let Some(a) = advice {
+            assert!(a.contains(&format!("(c dt / h = {smaller:.2})")) && a.contains("'joint'"), "{a}");
+        }
+    }
+}
+
 /// An impact's wall force: its mean over the middle of a contact expected to last `contact` (its
 /// first steps ring), and when it last pushed.
 fn wall_force_mean_and_end(wall: &glissade_solver::run::QoiJson, contact: f64) -> (f64, f64) {
