@@ -250,6 +250,19 @@ impl Ladder<'_> {
         }
     }
 
+    /// The level (dt / k, h / m) with this ladder's factor set to `f`.
+    fn at(&self, (k, m): (usize, usize), f: usize) -> (usize, usize) {
+        match self.refinement {
+            Refinement::Time => (f, m),
+            Refinement::Mesh => (k, f),
+        }
+    }
+
+    /// Whether `l` refined this ladder's factor from `before`.
+    fn refined(&self, before: &LevelSolved, l: &LevelSolved) -> bool {
+        self.factor(l) != self.factor(before)
+    }
+
     /// Reads `solved` (factors 1, 2, 4, ... of this ladder, in order): the ladder as it stands
     /// when every QoI's finest error is within the share, a level did not converge or the next
     /// factor passes the limit or cannot be built (`build`); else the next factor to solve.
@@ -296,7 +309,7 @@ impl Ladder<'_> {
         let last = *path.last().expect("a path has its first level");
         let value = |l: &LevelSolved, n: &str| l.finals.get(n).copied().unwrap_or(f64::NAN);
         let mut changes: Vec<(&LevelSolved, &LevelSolved)> =
-            path.windows(2).rev().filter(|w| self.factor(w[1]) != self.factor(w[0])).map(|w| (w[0], w[1])).collect();
+            path.windows(2).rev().filter(|w| self.refined(w[0], w[1])).map(|w| (w[0], w[1])).collect();
         let measured = std::iter::once(last).chain(at_answer.iter().copied());
         for (change, (fine, coarse)) in changes.iter_mut().zip(measured.clone().zip(measured.skip(1))) {
             *change = (coarse, fine);
@@ -410,11 +423,11 @@ fn staircase(
     // levels were solved (the answer's level with this ladder's factor halved, quartered): the
     // errors need not add (a wave's depend on c dt / h), and the staircase measured them at
     // coarser levels of the other ladder. `missing`: the first such level not solved yet.
-    let at_answer = |i: usize, levels: usize| {
+    let at_answer = |ladder: &Ladder<'_>| {
+        let levels = 1 + path.windows(2).filter(|w| ladder.refined(w[0], w[1])).count();
         let mut found = Vec::new();
         for halvings in 1..levels.min(MIN_LEVELS) {
-            let d = RATIO.pow(halvings as u32);
-            let at = if i == 0 { (k / d, m) } else { (k, m / d) };
+            let at = ladder.at((k, m), ladder.factor(last) / RATIO.pow(halvings as u32));
             match solved.iter().find(|l| (l.level.time_factor, l.level.mesh_factor) == at) {
                 None => return (found, Some(at)),
                 Some(l) if l.level.converged => found.push(l),
@@ -427,7 +440,7 @@ fn staircase(
     let mut missing = [None, None];
     let mut climbs = [0, 1].map(|i| {
         let ladder = [time, mesh][i];
-        let (found, first_missing) = at_answer(i, ladder.rebuilt(&path, &[]).finals.len());
+        let (found, first_missing) = at_answer(ladder);
         missing[i] = first_missing;
         ladder.rebuilt(&path, &found)
     });
@@ -441,17 +454,14 @@ fn staircase(
         return answered(t, Some(h));
     }
     // which ladders still need a level, and which of them can take one
-    let next_of = |ladder: &Ladder<'_>| match ladder.refinement {
-        Refinement::Time => (k * RATIO, m),
-        Refinement::Mesh => (k, m * RATIO),
-    };
+    let next_of = |ladder: &Ladder<'_>| ladder.at((k, m), ladder.factor(last) * RATIO);
     let mut open = Vec::new();
     for (i, ladder) in [time, mesh].into_iter().enumerate() {
         if !ladder.needs(&climbs[i]) {
             continue;
         }
         let (nk, nm) = next_of(ladder);
-        let factor = if i == 0 { nk } else { nm };
+        let factor = ladder.factor(last) * RATIO;
         let what = ladder.what();
         if factor > ladder.max_factor {
             if climbs[i].finals.len() < MIN_LEVELS {
@@ -470,7 +480,7 @@ fn staircase(
     // in turn: the other ladder than the last level's, when it is open
     let took = match path.len() {
         1 => None,
-        n => Some(if path[n - 1].level.time_factor == path[n - 2].level.time_factor { 1 } else { 0 }),
+        n => Some(if time.refined(path[n - 2], path[n - 1]) { 0 } else { 1 }),
     };
     if let Some(&i) = open.iter().find(|&&i| Some(i) != took).or(open.first()) {
         return solve([time, mesh][i].refinement, next_of([time, mesh][i]));
