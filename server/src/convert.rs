@@ -465,6 +465,7 @@ fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64, check: Option<&He
                 total: e.total,
                 time: e.time,
                 mesh: e.mesh.unwrap_or(-1.0),
+                joint: e.joint,
                 iteration: e.iteration,
                 within: e.within,
             };

@@ -215,6 +215,7 @@ impl ToAccuracy {
                 total: q.total,
                 time: q.time.error.estimate,
                 mesh: q.mesh.as_ref().map(|m| m.error.estimate),
+                joint: q.joint.as_ref().map(|j| j.error.estimate),
                 iteration: q.iteration,
                 within: q.within,
             };
@@ -236,6 +237,9 @@ pub struct QoiEstimate {
     pub time: f64,
     /// None: the mesh was not refined (its error in no estimate)
     pub mesh: Option<f64>,
+    /// dt and h halved together, where the answer was read there: the total is this and the
+    /// iterations', the time step's and the mesh's apart are not added
+    pub joint: Option<f64>,
     pub iteration: f64,
     pub within: bool,
 }

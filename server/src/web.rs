@@ -1181,13 +1181,23 @@ fn to_accuracy_paragraphs(
             }
             @for (name, e) in t.largest_estimates() {
                 br;
-                (format!(
-                    "{name}: {} (time step {}, mesh {}, iterations {})",
-                    percent(e.total),
-                    percent(e.time),
-                    e.mesh.map_or("not estimated".to_string(), percent),
-                    percent(e.iteration)
-                ))
+                (match e.joint {
+                    Some(j) => format!(
+                        "{name}: {} (dt and h together {}, iterations {}; apart: time step {}, mesh {})",
+                        percent(e.total),
+                        percent(j),
+                        percent(e.iteration),
+                        percent(e.time),
+                        e.mesh.map_or("not estimated".to_string(), percent)
+                    ),
+                    None => format!(
+                        "{name}: {} (time step {}, mesh {}, iterations {})",
+                        percent(e.total),
+                        percent(e.time),
+                        e.mesh.map_or("not estimated".to_string(), percent),
+                        percent(e.iteration)
+                    ),
+                })
                 @if !e.within { strong { " ABOVE" } }
             }
         }

@@ -288,6 +288,19 @@ fn print_accuracy_ladders(path: &Path, a: &AccuracyReport) {
             solved.join(" ")
         );
     }
+    if let Some(j) = &first.joint {
+        println!(
+            "{} dt and h halved together ((dt / k, h / k), k = {}): the answer's total is this and the iterations'",
+            path.display(),
+            factors(j.finals.len())
+        );
+        let finest = format!("dt / {0}, h / {0}", 1usize << (j.finals.len() - 1));
+        for q in &a.qois {
+            if let Some(j) = &q.joint {
+                row(&q.name, j, finest.clone());
+            }
+        }
+    }
 }
 
 #[derive(Args)]
@@ -464,12 +477,13 @@ struct AccuracyArgs {
     #[arg(long, value_name = "A", conflicts_with = "tol")]
     accuracy: Option<f64>,
     /// With --accuracy: the finest time step it may take, dt / N (a power of 2)
-    #[arg(long, value_name = "N", default_value_t = 16, requires = "accuracy")]
+    #[arg(long, value_name = "N", default_value_t = glissade_core::accuracy::DEFAULT_MAX_TIME_FACTOR, requires = "accuracy")]
     max_dt_factor: usize,
     /// With --accuracy: the finest mesh it may take, h / N along each axis (a power of 2; 1: the
     /// mesh is kept)
-    #[arg(long, value_name = "N", default_value_t = 4, requires = "accuracy")]
-    max_h_factor: usize,
+    /// (default: 16 in 1D, 8 in 2D, 4 in 3D: the element count grows at most 64-fold)
+    #[arg(long, value_name = "N", requires = "accuracy")]
+    max_h_factor: Option<usize>,
 }
 
 /// How a command ended, for the exit status.
@@ -789,7 +803,7 @@ fn solve_accurately(
     scene_path: &Path,
 ) -> Result<(Scene, glissade_solver::run::SolveOutcome, AccuracyReport)> {
     let accuracy = glissade_core::refine::Accuracy::new("--accuracy", accuracy)?;
-    let limits = AccuracyLimits::new(args.max_dt_factor, args.max_h_factor)?;
+    let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, scene.dimension)?;
     let root = comm.rank() == 0;
     if root {
         eprintln!(
@@ -844,8 +858,8 @@ fn print_accuracy(a: &AccuracyReport) {
     }
     println!("    errors relative to each QoI's scale (the largest magnitude of its history):");
     println!(
-        "    {:<20} {:>14} {:>10} {:>9} {:>9} {:>9} {:>9}",
-        "QoI", "value", "scale", "time", "mesh", "iter.", "total"
+        "    {:<20} {:>14} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9}",
+        "QoI", "value", "scale", "time", "mesh", "dt+h", "iter.", "total"
     );
     for q in &a.qois {
         let mark = |e: &glissade_solver::accuracy::LadderError| {
@@ -865,12 +879,13 @@ fn print_accuracy(a: &AccuracyReport) {
             format!("{:.1e}{tag}", e.error.estimate)
         };
         println!(
-            "    {:<20} {:>14.6e} {:>10.3e} {:>9} {:>9} {:>9.1e} {:>9.1e}{}",
+            "    {:<20} {:>14.6e} {:>10.3e} {:>9} {:>9} {:>9} {:>9.1e} {:>9.1e}{}",
             q.name,
             q.value,
             q.scale,
             mark(&q.time),
             q.mesh.as_ref().map_or("-".to_string(), mark),
+            q.joint.as_ref().map_or("-".to_string(), mark),
             q.iteration,
             q.total,
             if q.within {
@@ -880,6 +895,12 @@ fn print_accuracy(a: &AccuracyReport) {
             } else {
                 "  UNKNOWN"
             }
+        );
+    }
+    if a.qois.iter().any(|q| q.joint.is_some()) {
+        println!(
+            "    read where dt and h were halved together (dt, h; dt / 2, h / 2; ...: c dt / h kept): total = dt+h + iter.; \
+             time and mesh are the ladders apart, shown, not added"
         );
     }
     println!(

@@ -87,11 +87,12 @@ pub struct StudyArgs {
     #[arg(long, value_name = "N", default_value_t = glissade_core::accuracy::DEFAULT_HELD_OUT, requires = "accuracy")]
     held_out: usize,
     /// With --accuracy: the finest time step a pilot may take, dt / N (a power of 2)
-    #[arg(long, value_name = "N", default_value_t = 16, requires = "accuracy")]
+    #[arg(long, value_name = "N", default_value_t = glissade_core::accuracy::DEFAULT_MAX_TIME_FACTOR, requires = "accuracy")]
     max_dt_factor: usize,
     /// With --accuracy: the finest mesh a pilot may take, h / N (a power of 2; 1: kept)
-    #[arg(long, value_name = "N", default_value_t = 4, requires = "accuracy")]
-    max_h_factor: usize,
+    /// (default: 16 in 1D, 8 in 2D, 4 in 3D: the element count grows at most 64-fold)
+    #[arg(long, value_name = "N", requires = "accuracy")]
+    max_h_factor: Option<usize>,
 }
 
 /// `study --accuracy`: what the pilots chose and what the held-out points said.
@@ -213,7 +214,7 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
     if let Some(a) = accuracy.as_mut() {
         held_out(&args, &given, &points, &space, &result, a)?;
         // ABOVE: the grid solved again at the check's level, and checked one level finer
-        let limits = AccuracyLimits::new(args.max_dt_factor, args.max_h_factor)?;
+        let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, given.dimension)?;
         let refine_mesh = a.pilots.iter().any(|p| p.report.mesh_refined);
         while let Some((k, m)) =
             above(a).then(|| level_after_above((a.time_factor, a.mesh_factor), refine_mesh, limits)).flatten()
@@ -315,7 +316,7 @@ fn pilots(
     space: &ParameterSpace,
     accuracy: Accuracy,
 ) -> Result<StudyAccuracy> {
-    let limits = AccuracyLimits::new(args.max_dt_factor, args.max_h_factor)?;
+    let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, scene.dimension)?;
     if args.pilots == 0 || args.pilots > 16 || args.held_out > 16 {
         bail!("--pilots {} --held-out {}: from 1 to 16 pilots, at most 16 held-out points", args.pilots, args.held_out);
     }

@@ -371,6 +371,8 @@ point = [0.01, 0]
 /// (aluminium, 0.3 m, 6 elements in 2 substructures, 20 steps, its tip's velocity read too): the
 /// same levels, the same choice and values, printed as ladders; every QoI within the accuracy of a
 /// solve two levels finer in dt and h at 1e-8; `--dt`, `--h` and `--tol` are refused beside it.
+/// The tip's velocity (trapezoidal rule, no contact) moves about 0.35 % at each halving of dt and
+/// h together from dt / 4, h / 4 on: 5 % is reached, 2 % is not claimed.
 #[test]
 fn refine_to_an_accuracy_prints_the_ladders_solve_climbs() {
     let dir = tempfile::tempdir().unwrap();
@@ -390,11 +392,11 @@ fn refine_to_an_accuracy_prints_the_ladders_solve_climbs() {
         path.to_str().unwrap().to_owned()
     };
     let scene = bar(20, 6);
-    let accuracy = 2e-2;
-    let (code, refined, stderr) = worker(&["refine", &scene, "--set", "p=3e7", "--accuracy", "2e-2", "--json"]);
+    let accuracy = 5e-2;
+    let (code, refined, stderr) = worker(&["refine", &scene, "--set", "p=3e7", "--accuracy", "5e-2", "--json"]);
     assert_eq!(code, 0, "{stderr}");
     let refined: serde_json::Value = serde_json::from_str(&refined).unwrap();
-    let (code, solved, stderr) = worker(&["solve", &scene, "--set", "p=3e7", "--accuracy", "2e-2", "--json"]);
+    let (code, solved, stderr) = worker(&["solve", &scene, "--set", "p=3e7", "--accuracy", "5e-2", "--json"]);
     assert_eq!(code, 0, "{stderr}");
     let solved: serde_json::Value = serde_json::from_str(&solved).unwrap();
     let solved = &solved["accuracy"];
@@ -427,13 +429,14 @@ fn refine_to_an_accuracy_prints_the_ladders_solve_climbs() {
         assert!(off <= accuracy && off <= q["total"].as_f64().unwrap(), "{name}: {off} off, estimated {}", q["total"]);
     }
 
-    let (code, table, stderr) = worker(&["refine", &scene, "--set", "p=3e7", "--accuracy", "2e-2"]);
+    let (code, table, stderr) = worker(&["refine", &scene, "--set", "p=3e7", "--accuracy", "5e-2"]);
     assert_eq!(code, 0, "{stderr}");
     assert!(table.contains("dt ladder (dt / 1, 2, 4") && table.contains("h ladder (h / 1, 2"), "{table}");
+    assert!(table.contains("dt and h halved together ((dt / k, h / k), k = 1, 2, 4"), "{table}");
     assert!(table.contains(&format!("REACHED at dt / {tf}, h / {mf}")), "{table}");
     for q in qois {
         let name = q["name"].as_str().unwrap();
-        for ladder in ["time", "mesh"] {
+        for ladder in ["time", "mesh", "joint"] {
             let l = &q[ladder];
             let finals: Vec<String> =
                 l["finals"].as_array().unwrap().iter().map(|v| format!("{:.6e}", v.as_f64().unwrap())).collect();
@@ -455,6 +458,11 @@ fn refine_to_an_accuracy_prints_the_ladders_solve_climbs() {
         assert!(code == 1 || code == 2, "{args:?}: {code} {stderr}");
         assert!(stderr.contains(says) && !stderr.contains("converged after"), "{args:?}: {stderr}");
     }
+
+    // at 2 % the tip's velocity, still moving, is not claimed (exit status 3)
+    let (code, _, stderr) = worker(&["solve", &scene, "--set", "p=3e7", "--accuracy", "2e-2"]);
+    assert_eq!(code, 3, "{stderr}");
+    assert!(stderr.contains("accuracy not reached: 'tip_vx' is estimated"), "{stderr}");
 }
 
 /// An aluminium bar of our own flying at 1 m/s onto a rigid wall across a gap `g`: the pilot at
@@ -556,9 +564,10 @@ fn a_study_whose_held_out_check_says_above_is_solved_again_one_level_finer() {
     let (code, out, stderr) = study("0.02");
     assert_eq!(code, 3, "{stderr}");
     let a = &out["accuracy"];
+    // (h / 16 is the 1D limit: the check at dt / 32, h / 32 would pass it)
     assert_eq!(
         (&a["above"], &a["confirmed"]),
-        (&serde_json::json!([[1, 1], [2, 2]]), &serde_json::json!(false)),
+        (&serde_json::json!([[1, 1], [2, 2], [4, 4], [8, 8]]), &serde_json::json!(false)),
         "{a}"
     );
     assert!(stderr.contains("accuracy not confirmed: at the held-out point g=0"), "{stderr}");
@@ -801,7 +810,16 @@ fn a_study_to_an_accuracy_takes_its_level_from_pilots_and_confirms_it_on_held_ou
         .iter()
         .map(|p| (factor(&p["report"]["cheapest"], "time_factor"), factor(&p["report"]["cheapest"], "mesh_factor")))
         .collect();
-    assert_eq!((tf, mf), cheapest.iter().fold((1, 1), |(t, m), &(pt, pm)| (t.max(pt), m.max(pm))));
+    // (where the held-out check says ABOVE there, the grid is solved again one level finer in
+    // both: the pilots' dt and h together put dt / 2, h there, 9.6e-3 bounded, and the check
+    // finds quarter_ux 8.4e-3 from dt / 4, h / 2, above half the accuracy)
+    let above: Vec<(u64, u64)> =
+        a["above"].as_array().unwrap().iter().map(|l| (l[0].as_u64().unwrap(), l[1].as_u64().unwrap())).collect();
+    let first = above.first().copied().unwrap_or((tf, mf));
+    assert_eq!(first, cheapest.iter().fold((1, 1), |(t, m), &(pt, pm)| (t.max(pt), m.max(pm))));
+    if let Some(&(k, m)) = above.last() {
+        assert_eq!((tf, mf), (2 * k, 2 * m), "{above:?}");
+    }
     assert!(
         pilots.iter().all(|p| tf * mf < factor(&p["report"], "time_factor") * factor(&p["report"], "mesh_factor")),
         "dt / {tf}, h / {mf}: {pilots:?}"

@@ -479,7 +479,7 @@ fn to_accuracy_json(t: &v1::StudyToAccuracy) -> serde_json::Value {
         "pilot_wall_seconds": t.pilot_wall_seconds,
         "qoi": t.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
             "total": e.total, "time": e.time, "mesh": (e.mesh >= 0.0).then_some(e.mesh),
-            "iteration": e.iteration, "within": e.within,
+            "joint": e.joint, "iteration": e.iteration, "within": e.within,
         }))).collect::<serde_json::Map<_, _>>(),
     })
 }
@@ -542,11 +542,18 @@ pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
     }
     for (name, q) in &t.qoi {
         let mesh = if q.mesh >= 0.0 { percent(q.mesh) } else { "not estimated".into() };
+        let parts = match q.joint {
+            Some(j) => format!(
+                "dt and h together {}, iterations {}; apart: time step {}, mesh {mesh}",
+                percent(j),
+                percent(q.iteration),
+                percent(q.time)
+            ),
+            None => format!("time step {}, mesh {mesh}, iterations {}", percent(q.time), percent(q.iteration)),
+        };
         lines.push(format!(
-            "            {name}: {} (time step {}, mesh {mesh}, iterations {}){}",
+            "            {name}: {} ({parts}){}",
             percent(q.total),
-            percent(q.time),
-            percent(q.iteration),
             if q.within { "" } else { " ABOVE" }
         ));
     }
