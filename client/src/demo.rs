@@ -2,7 +2,8 @@
 //! coordinator (`glissade-server`) on a temporary database and one pool (`glissade-worker pool`)
 //! as processes, as a deployment runs them, and the CLI's own commands submit a study of the
 //! shipped `three-blocks` `tiny` scene, watch it, print its response surface and draw its
-//! pictures.
+//! pictures; then a study of the shipped `sliding-block-2d` asked for an accuracy, whose time step
+//! and mesh the service chooses.
 
 use glissade_cli::outln;
 use glissade_core::scene::check_tolerance;
@@ -17,11 +18,20 @@ use tokio::process::{Child, Command};
 
 use crate::{
     ConvergenceArgs, Outcome, Server, SurfaceArgs, accuracy_line, convergence, discretisation_line, get_study, refused,
-    sibling, surface, surface_accuracy_line, user, watch,
+    sibling, surface, surface_accuracy_line, to_accuracy_lines, user, watch,
 };
 
 /// The scene of the demo, compiled in so that the binary alone is enough.
 const SCENE: &str = include_str!("../../scenes/three-blocks-tiny.toml");
+
+/// The scene of the demo's last study, asked for an accuracy: its bodies are generated boxes, so
+/// the service may refine its mesh as well as its time step.
+const ACCURACY_SCENE: &str = include_str!("../../scenes/sliding-block-2d.toml");
+
+/// What the last study asks: every QoI within 5 % of its scale. The pilot answers at dt / 4, h / 4
+/// in five levels (3 s in a release build), the study solves at dt / 2, h, its held-out point
+/// one level finer (docs/accuracy.md, "A study to an accuracy").
+const ACCURACY: f64 = 0.05;
 
 /// How long the coordinator may take to say where it listens.
 const START_TIMEOUT: Duration = Duration::from_secs(30);
@@ -203,6 +213,47 @@ async fn run_study(url: &str, args: &DemoArgs) -> Result<Outcome> {
         watch(&mut client, held_out).await?;
         if let Some(a) = get_study(&mut client, "demo", id, false, false).await?.surface_accuracy {
             outln!("surface accuracy (errors relative to each QoI's spread): {}", surface_accuracy_line(&a));
+        }
+    }
+    to_an_accuracy(&mut client).await
+}
+
+/// The same service asked for an accuracy instead of a tolerance: a pilot point climbs dt and h
+/// until its ladders bound every QoI's error within it, the grid is solved at the cheapest level
+/// that does, and a held-out point re-solved one level finer checks the choice.
+async fn to_an_accuracy(client: &mut crate::User) -> Result<Outcome> {
+    outln!(
+        "\nasked for an accuracy instead of a tolerance: sliding-block-2d (a steel block pushed along a rigid floor), \
+         friction f over 3 points, every QoI within {} % of its scale; the service chooses the time step, the mesh \
+         and the tolerance",
+        ACCURACY * 100.0
+    );
+    let reply = client
+        .submit_study(v1::SubmitStudyRequest {
+            scene: ACCURACY_SCENE.to_owned(),
+            grid: vec!["f=0.2:0.4:3".to_owned()],
+            accuracy: Some(ACCURACY),
+            accuracy_pilots: Some(1),
+            label: "glissade demo: to an accuracy".into(),
+            ..Default::default()
+        })
+        .await
+        .map_err(|s| refused("submitting the demo's study to an accuracy", s))?
+        .into_inner();
+    let id = reply.study_id;
+    outln!("study {id}: its pilot's levels first, then its {} points at the level chosen", reply.points);
+    let outcome = watch(client, id).await?;
+    if !matches!(outcome, Outcome::Success) {
+        return Ok(outcome);
+    }
+    let check = get_study(client, "demo", id, false, false).await?.to_accuracy.map_or(0, |t| t.held_out_study_id);
+    if check != 0 {
+        outln!("\nthe study's held-out check (study {check}): a point between the pilots re-solved one level finer");
+        watch(client, check).await?;
+    }
+    if let Some(t) = get_study(client, "demo", id, false, false).await?.to_accuracy {
+        for line in to_accuracy_lines(&t) {
+            outln!("{line}");
         }
     }
     Ok(outcome)

@@ -16,7 +16,7 @@ use tracing_subscriber::EnvFilter;
 
 use commands::convergence::{ConvergenceArgs, convergence};
 use commands::health::health;
-use commands::show::{accuracy_line, discretisation_line, show, surface_accuracy_line};
+use commands::show::{accuracy_line, discretisation_line, show, surface_accuracy_line, to_accuracy_lines};
 use commands::studies::{cancel, purge_pool, retry, studies};
 use commands::submit::{SubmitArgs, submit};
 use commands::surface::{SurfaceArgs, surface};

@@ -62,6 +62,9 @@ pub struct WatchState {
     /// Finished points seen live (not replayed): the rate behind the ETA.
     pub finished_live: u32,
     failures: HashMap<u64, String>,
+    /// The last snapshot's line: a study to an accuracy is snapshotted as each pilot level moves,
+    /// its own counts unchanged, and a log wants that line once.
+    last_snapshot: Option<String>,
 }
 
 impl WatchState {
@@ -81,7 +84,14 @@ impl WatchState {
         let id = point.map_or(0, |p| p.point_id);
         let what = point.map(|p| describe_parameters(&p.parameters)).unwrap_or_default();
         let line = match (kind, point) {
-            (v1::EventKind::Snapshot, _) => Some(format!("study {}: {}", self.study_id, self.counts())),
+            (v1::EventKind::Snapshot, _) => {
+                let line = format!("study {}: {}", self.study_id, self.counts());
+                if self.last_snapshot.as_ref() == Some(&line) {
+                    return None;
+                }
+                self.last_snapshot = Some(line.clone());
+                Some(line)
+            }
             (v1::EventKind::PointStarted, Some(p)) => {
                 self.running.insert(
                     id,
@@ -287,6 +297,16 @@ mod tests {
         // warm points that cost more are said to
         w.apply(&event(v1::EventKind::PointFinished, Some(point(2, 400, true)), progress(3, 0, 0)));
         assert!(w.summary(Duration::from_secs(10)).contains("warm starts cost 2.1x MORE work than cold ones"));
+    }
+
+    #[test]
+    fn a_snapshot_that_says_nothing_new_is_not_repeated() {
+        let mut w = WatchState::new(7);
+        let first = w.apply(&event(v1::EventKind::Snapshot, None, progress(0, 0, 3)));
+        assert_eq!(first.as_deref(), Some("study 7: 0/3 done, 0 running, 3 pending"));
+        assert_eq!(w.apply(&event(v1::EventKind::Snapshot, None, progress(0, 0, 3))), None);
+        let moved = w.apply(&event(v1::EventKind::Snapshot, None, progress(1, 0, 2)));
+        assert_eq!(moved.as_deref(), Some("study 7: 1/3 done, 0 running, 2 pending"));
     }
 
     #[test]

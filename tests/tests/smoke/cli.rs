@@ -38,6 +38,15 @@ fn cli_demo_runs_a_study_and_draws_its_pictures() -> anyhow::Result<()> {
     let csv = std::fs::read_to_string(out_dir.join("surface.csv"))?;
     assert_eq!(csv.lines().next(), Some("f1,f2,middle_ux,slip_A,slip_B,iterations,eta,state"));
     assert_eq!(csv.lines().filter(|l| l.ends_with(",done")).count(), 9, "{csv}");
+    // then sliding-block-2d asked for 5 %: the level its pilot chose, confirmed one level finer,
+    // and per QoI the estimate read where dt and h were halved together
+    assert!(stdout.contains("asked for an accuracy instead of a tolerance: sliding-block-2d"), "{stdout}");
+    assert!(stdout.contains("  level     REACHED at dt / "), "{stdout}");
+    assert!(stdout.contains("CONFIRMED: every difference within half the accuracy"), "{stdout}");
+    for q in ["friction_force", "normal_force", "slip_centre"] {
+        let line = stdout.lines().find(|l| l.trim_start().starts_with(&format!("{q}: "))).expect(q);
+        assert!(line.contains("(dt and h together ") && !line.contains("ABOVE"), "{line}");
+    }
     Ok(())
 }
 
