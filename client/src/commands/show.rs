@@ -772,6 +772,34 @@ mod tests {
         );
     }
 
+    /// A QoI read where dt and h were halved together says so: its total is that estimate and
+    /// the iterations', the ladders apart shown beside, not added.
+    #[test]
+    fn an_estimate_read_on_the_diagonal_says_so() {
+        let q = |joint: Option<f64>| v1::QoiToAccuracy {
+            total: 0.0155,
+            time: 0.0224,
+            mesh: 0.013,
+            joint,
+            iteration: 0.005,
+            within: true,
+        };
+        let t = v1::StudyToAccuracy {
+            accuracy: 0.05,
+            qoi: [("friction_force".to_owned(), q(Some(0.0105))), ("slip".to_owned(), q(None))].into(),
+            ..Default::default()
+        };
+        let lines = to_accuracy_lines(&t);
+        let line = |name: &str| lines.iter().find(|l| l.trim_start().starts_with(name)).cloned().unwrap_or_default();
+        assert_eq!(
+            line("friction_force").trim_start(),
+            "friction_force: 1.55 % (dt and h together 1.05 %, iterations 0.500 %; apart: time step 2.24 %, mesh 1.30 %)"
+        );
+        assert_eq!(line("slip").trim_start(), "slip: 1.55 % (time step 2.24 %, mesh 1.30 %, iterations 0.500 %)");
+        assert_eq!(to_accuracy_json(&t)["qoi"]["friction_force"]["joint"], serde_json::json!(0.0105));
+        assert_eq!(to_accuracy_json(&t)["qoi"]["slip"]["joint"], serde_json::Value::Null);
+    }
+
     #[test]
     fn a_study_says_its_audits_are_running() {
         let audit = |id: u64, what: &str, state: v1::StudyState, done: u32, cancelled: u32, why: &str| v1::StudyAudit {
