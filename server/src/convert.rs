@@ -419,7 +419,7 @@ pub fn progress(p: Progress) -> v1::StudyProgress {
 
 pub fn origin(o: &SolutionOrigin) -> v1::SolutionRef {
     v1::SolutionRef {
-        scene_hash: o.scene_hash.clone(),
+        scene_hash: o.scene_hash.to_string(),
         parameters: o.parameters.clone().into(),
         study_id: o.study.map_or(0, |s| s.0),
         point_id: o.point.map_or(0, |p| p.0),
@@ -427,12 +427,12 @@ pub fn origin(o: &SolutionOrigin) -> v1::SolutionRef {
 }
 
 pub fn point(p: &PointRecord) -> v1::PointStatus {
-    let r = p.result.as_ref();
+    let r = p.result.as_deref();
     let (pool, deadline, leased_from) = match &p.state {
-        PointState::Leased { pool, deadline_unix_ms, init, .. } => (pool.clone(), *deadline_unix_ms, init.as_ref()),
+        PointState::Leased { pool, deadline_unix_ms, init, .. } => (pool.clone(), *deadline_unix_ms, init.as_deref()),
         _ => (r.map(|r| r.pool.clone()).unwrap_or_default(), 0, None),
     };
-    let started_from = r.and_then(|r| r.started_from.as_ref()).or(leased_from);
+    let started_from = r.and_then(|r| r.started_from.as_deref()).or(leased_from);
     v1::PointStatus {
         study_id: p.study.0,
         point_id: p.id.0,

@@ -12,7 +12,8 @@
 //!
 //! Big-endian ids make sled's key order the numeric order, so scans come sorted.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
+use std::sync::{Arc, LazyLock, Mutex, PoisonError};
 
 use glissade_core::contact::ContactActivity;
 use glissade_core::point::DesignPoint;
@@ -71,6 +72,57 @@ impl SolutionKey {
     pub fn as_bytes(&self) -> &[u8] {
         &self.0
     }
+
+    /// The bytes after the hash (the parameters'), if the key is of `scene_hash`'s scene.
+    pub fn point_bytes(&self, scene_hash: &str) -> Option<&[u8]> {
+        self.0.strip_prefix(scene_hash.as_bytes())
+    }
+}
+
+/// The one copy of `text` that every record read or made with it shares: a scene's hash is in
+/// each of its solutions' records and origins, 64 bytes apiece before (docs/performance.md,
+/// "Memory per design point"). A text no record holds any more is forgotten as the set doubles.
+pub fn shared(text: &str) -> Arc<str> {
+    struct Texts {
+        set: HashSet<Arc<str>>,
+        /// the size at which the unheld texts are dropped next
+        prune_at: usize,
+    }
+    static TEXTS: LazyLock<Mutex<Texts>> = LazyLock::new(|| Mutex::new(Texts { set: HashSet::new(), prune_at: 64 }));
+    let mut texts = TEXTS.lock().unwrap_or_else(PoisonError::into_inner);
+    if let Some(t) = texts.set.get(text) {
+        return t.clone();
+    }
+    if texts.set.len() >= texts.prune_at {
+        texts.set.retain(|t| Arc::strong_count(t) > 1);
+        texts.prune_at = (2 * texts.set.len()).max(64);
+    }
+    let t: Arc<str> = Arc::from(text);
+    texts.set.insert(t.clone());
+    t
+}
+
+/// (De)serialises a [`shared`] text as the plain string it replaced.
+mod shared_text {
+    use std::sync::Arc;
+
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(text: &Arc<str>, serializer: S) -> Result<S::Ok, S::Error> {
+        serializer.serialize_str(text)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(deserializer: D) -> Result<Arc<str>, D::Error> {
+        Ok(super::shared(&std::borrow::Cow::<str>::deserialize(deserializer)?))
+    }
+}
+
+/// Reads a vector kept for good at its length: serde grows one by doubling as it reads (a
+/// 100-value eta history held 1,024 bytes for its 800, a contact report 320 for 80).
+fn shrunk<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(deserializer: D) -> Result<Vec<T>, D::Error> {
+    let mut v = Vec::deserialize(deserializer)?;
+    v.shrink_to_fit();
+    Ok(v)
 }
 
 /// A study as submitted.
@@ -351,7 +403,7 @@ pub enum PointState {
         lease_id: u64,
         deadline_unix_ms: i64,
         /// The stored solution its warm start came from.
-        init: Option<SolutionOrigin>,
+        init: Option<Box<SolutionOrigin>>,
         /// An audit's lease: the iterations left of its cost cap, where fewer than the study's
         /// limit (a solve stopped there was cut short by the cap, not by the solver)
         #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -366,7 +418,8 @@ pub enum PointState {
 /// ("parent").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SolutionOrigin {
-    pub scene_hash: String,
+    #[serde(with = "shared_text")]
+    pub scene_hash: Arc<str>,
     /// Every parameter of the solution.
     pub parameters: DesignPoint,
     pub study: Option<StudyId>,
@@ -382,18 +435,18 @@ pub struct PointResult {
     pub error_indicator: f64,
     pub qoi: QoiMap,
     pub wall_seconds: f64,
-    pub started_from: Option<SolutionOrigin>,
+    pub started_from: Option<Box<SolutionOrigin>>,
     /// Answered from a stored solution without iterations.
     pub answered: bool,
     /// eta after each dynamic-stage iteration (absent in records written before it existed).
-    #[serde(default)]
+    #[serde(default, deserialize_with = "shrunk")]
     pub eta_history: Vec<f64>,
     /// Dynamic iterations + static iterations / steps (0 in records written before it existed).
     #[serde(default)]
     pub work: f64,
     /// What each frictional interface's contact did while it slid (none in records written
     /// before it existed).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "shrunk")]
     pub contact: Vec<ContactActivity>,
     /// The largest magnitude of each QoI's history (none from older pools and records).
     #[serde(default, skip_serializing_if = "QoiMap::is_empty")]
@@ -412,7 +465,7 @@ pub struct PointRecord {
     /// Leases granted since submission or the last RetryFailed.
     pub attempts: u32,
     /// The last solve's result (also for a non-converged FAILED point).
-    pub result: Option<PointResult>,
+    pub result: Option<Box<PointResult>>,
     /// Why the point failed, or why its last attempt did.
     pub error: Option<String>,
     /// Completion order among all points (for the `previous` strategy); None until done.
@@ -443,7 +496,8 @@ impl PointRecord {
 /// Metadata of a stored solution; its fields are in `solution_fields` under the same key.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SolutionRecord {
-    pub scene_hash: String,
+    #[serde(with = "shared_text")]
+    pub scene_hash: Arc<str>,
     /// Every parameter of the scene at this solution.
     pub parameters: DesignPoint,
     /// Version of the solver that computed it: it answers a request only of the same version.
@@ -455,7 +509,7 @@ pub struct SolutionRecord {
     pub wall_seconds: f64,
     pub qoi: QoiMap,
     /// The solution its iterations started from.
-    pub parent: Option<SolutionOrigin>,
+    pub parent: Option<Box<SolutionOrigin>>,
     /// The study point whose solve stored it.
     pub study: Option<StudyId>,
     pub point: Option<PointId>,
@@ -465,7 +519,7 @@ pub struct SolutionRecord {
     pub stored_bytes: u64,
     /// What each frictional interface's contact did while it slid: a point this solution
     /// answers carries it (none in records written before it existed).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty", deserialize_with = "shrunk")]
     pub contact: Vec<ContactActivity>,
     /// The largest magnitude of each QoI's history (none from older pools and records).
     #[serde(default, skip_serializing_if = "QoiMap::is_empty")]
@@ -563,6 +617,43 @@ mod tests {
         // a name boundary cannot be shifted: ("ab", x) differs from ("a", ...) ("b", ...)
         assert_ne!(SolutionKey::new(&h, &pv(&[("ab", 1.0)])), SolutionKey::new(&h, &pv(&[("a", 1.0), ("b", 1.0)])));
         assert_eq!(SolutionKey::new(&h, &pv(&[("v", -0.0)])), SolutionKey::new(&h, &pv(&[("v", 0.0)])));
+    }
+
+    /// Records hold scene hashes shared, origins boxed and vectors at their length (issue 48):
+    /// what they store is the JSON they stored before, read back equal.
+    #[test]
+    fn compact_records_store_the_json_they_stored_before() {
+        let h = "cd".repeat(32);
+        let origin = SolutionOrigin {
+            scene_hash: shared(&h),
+            parameters: pv(&[("f1", 0.1)]),
+            study: Some(StudyId(1)),
+            point: Some(PointId(2)),
+        };
+        let result = PointResult {
+            pool: "p".into(),
+            converged: true,
+            iterations: 3,
+            error_indicator: 1e-4,
+            qoi: [("slip_A".to_owned(), 1.2e-6)].into(),
+            wall_seconds: 0.5,
+            started_from: Some(Box::new(origin.clone())),
+            answered: false,
+            eta_history: (0..100).map(|k| 0.9f64.powi(k)).collect(),
+            work: 3.0,
+            contact: vec![],
+            qoi_largest: QoiMap::default(),
+        };
+        let json = String::from_utf8(encode(&result)).unwrap();
+        let hash = format!(r#""started_from":{{"scene_hash":"{h}","parameters":{{"f1":0.1}},"study":1,"point":2}}"#);
+        assert!(json.contains(&hash), "{json}");
+        let back: PointResult = decode("points", b"k", json.as_bytes()).unwrap();
+        assert_eq!((&back, encode(&back)), (&result, json.into_bytes()));
+        assert_eq!(back.eta_history.capacity(), 100);
+        // one copy of a hash however many records name it
+        let back = back.started_from.unwrap();
+        assert!(Arc::ptr_eq(&back.scene_hash, &origin.scene_hash));
+        assert_eq!(serde_json::from_str::<SolutionOrigin>(&serde_json::to_string(&origin).unwrap()).unwrap(), origin);
     }
 
     #[test]

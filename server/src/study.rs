@@ -29,8 +29,6 @@ use crate::store::{Store, Tree};
 pub struct StudyPlan {
     pub engine: StudyEngine,
     policy: Box<dyn OrderingPolicy>,
-    /// Every parameter at each point, by point id.
-    pub full: Vec<DesignPoint>,
     /// Stored points are answered though the study's solves start cold (a discretisation
     /// audit's level, a level of a study's pilots: its cold solves measure the step, a stored
     /// solve of its scene does too).
@@ -51,14 +49,23 @@ impl StudyPlan {
     pub fn new(scene: &Scene, record: &StudyRecord, points: &[PointRecord]) -> Result<Self, SceneError> {
         let tolerance = Tolerance::new("the study's tolerance", record.tolerance)?;
         let engine = StudyEngine::new(scene, record.strategy, Some(tolerance));
-        let full = points.iter().map(|p| engine.space().complete(&p.parameters)).collect::<Result<_, _>>();
-        let full = full.map_err(|e| invalid("the study's points", e.to_string()))?;
+        for p in points {
+            engine.space().complete(&p.parameters).map_err(|e| invalid("the study's points", e.to_string()))?;
+        }
         let answers_stored = record.refines.is_some() || record.pilot_of.is_some();
-        Ok(Self { policy: record.order.policy(engine.space()), engine, full, answers_stored })
+        Ok(Self { policy: record.order.policy(engine.space()), engine, answers_stored })
     }
 
     pub fn space(&self) -> &ParameterSpace {
         self.engine.space()
+    }
+
+    /// Every parameter at `point`: the scene's defaults overridden by its swept values. Made
+    /// when asked rather than kept (a point's parameters were held twice, 140 bytes a point:
+    /// docs/performance.md, "Memory per design point"); every point's parameters were checked
+    /// against the space where it entered the study (here, or as it was added).
+    pub fn full(&self, point: &PointRecord) -> DesignPoint {
+        self.space().complete(&point.parameters).expect("a point's parameters are checked where it enters its study")
     }
 
     /// The point to lease next among the pending ones, by the study's ordering policy (which sees
@@ -70,10 +77,10 @@ impl StudyPlan {
             match p.state {
                 PointState::Pending => {
                     pending.0.push(i);
-                    pending.1.push(self.full[i].clone());
+                    pending.1.push(self.full(p));
                 }
-                PointState::Leased { .. } => in_flight.push(self.full[i].clone()),
-                PointState::Done | PointState::Failed => done.push(self.full[i].clone()),
+                PointState::Leased { .. } => in_flight.push(self.full(p)),
+                PointState::Done | PointState::Failed => done.push(self.full(p)),
                 PointState::Cancelled => {}
             }
         }
@@ -81,38 +88,44 @@ impl StudyPlan {
         pending.0.get(choice).copied()
     }
 
-    /// The stored solution that answers point `i` as it is for a pool of `solver_version`, if
+    /// The stored solution that answers `point` as it is for a pool of `solver_version`, if
     /// any (what [`Self::start`] would answer with, without preparing a warm start). A damaged
     /// store answers nothing: the point is then leased as usual.
-    pub fn answer(&self, i: usize, solutions: Option<&SceneSolutions>, solver_version: &str) -> Option<SolutionKey> {
+    pub fn answer(
+        &self,
+        point: &PointRecord,
+        solutions: Option<&SceneSolutions>,
+        solver_version: &str,
+    ) -> Option<SolutionKey> {
         let solutions = solutions?;
+        let full = self.full(point);
         let info = if self.answers_stored {
-            self.engine.stored_answer(solutions, &self.full[i], solver_version)
+            self.engine.stored_answer(solutions, &full, solver_version)
         } else {
-            self.engine.answer(solutions, &self.full[i], solver_version)
+            self.engine.answer(solutions, &full, solver_version)
         };
         solutions.key_of(info.ok()??.id)
     }
 
-    /// How point `i` begins on a pool of `solver_version`, by the study engine, from `solutions`
+    /// How `point` begins on a pool of `solver_version`, by the study engine, from `solutions`
     /// (this scene's; None: the scene has no index, so its studies are cold); `previous` is the
     /// solution of the study's point finished last. A store failure (a damaged stored solution)
     /// gives a cold start rather than no start.
     pub fn start(
         &self,
         study: &StudyRecord,
-        i: usize,
+        point: &PointRecord,
         solutions: Option<&SceneSolutions>,
         previous: Option<&SolutionKey>,
         solver_version: &str,
     ) -> PointStart {
         let Some(solutions) = solutions else { return PointStart::Solve(None) };
         if self.answers_stored
-            && let Some(key) = self.answer(i, Some(solutions), solver_version)
+            && let Some(key) = self.answer(point, Some(solutions), solver_version)
         {
             return PointStart::Answer(key);
         }
-        let point = &self.full[i];
+        let (i, point) = (point.id.0, &self.full(point));
         let previous = previous.and_then(|k| solutions.id_of(k));
         match self.engine.start(solutions, point, previous, solver_version) {
             Ok(Start::Answer(info)) => match solutions.key_of(info.id) {
@@ -172,10 +185,14 @@ struct Loaded {
 /// The converged solutions of one scene: the library's kd-tree over their design points, their
 /// records, and the database their fields are read from.
 pub struct SceneSolutions {
-    /// Descriptions and neighbours; the fields stay in the database.
+    /// Neighbours: each solution's coordinates (and point); the descriptions the engine reads
+    /// are made from `records` when asked, not kept twice (the index's own copy of a record's
+    /// QoIs, version and contact report took 380 bytes a bare point, 480 a real one:
+    /// docs/performance.md, "Memory per design point"), and the fields stay in the database.
     index: PointIndex,
     scene_hash: String,
-    ids: HashMap<SolutionKey, SolutionId>,
+    /// Keyed by a key's parameter bytes: the scene hash before them is this index's own.
+    ids: HashMap<Box<[u8]>, SolutionId>,
     /// (shared with the coordinator's map of every stored solution: one copy of each)
     records: Vec<Arc<SolutionRecord>>,
     store: Arc<dyn Store>,
@@ -205,8 +222,39 @@ impl SceneSolutions {
     /// Makes a stored solution (already committed to the database) findable; a better solution
     /// at a key already indexed only replaces the record.
     pub fn index(&mut self, key: SolutionKey, record: &Arc<SolutionRecord>) -> Result<(), StoreError> {
-        let info = SolutionInfo {
+        let Some(point) = key.point_bytes(&self.scene_hash) else {
+            return Err(StoreError::Backend(format!("solution at {} is of another scene", record.parameters)));
+        };
+        if let Some(&id) = self.ids.get(point) {
+            // what the engine reads to decide on reuse must be the better solution's (read from
+            // `records`; the index's point and coordinates are the same)
+            self.records[id as usize] = record.clone();
+            self.recent.lock().unwrap_or_else(PoisonError::into_inner).retain(|l| l.id != id);
+            return Ok(());
+        }
+        // the index needs the point alone: the rest of the description is `info`'s to make
+        let id = self.index.insert(SolutionInfo {
             id: 0,
+            point: record.parameters.clone(),
+            eta: record.error_indicator,
+            tolerance: record.tolerance,
+            converged: record.converged,
+            iterations: record.iterations as usize,
+            parent: None,
+            qoi: Default::default(),
+            solver_version: String::new(),
+            contact: Vec::new(),
+        })?;
+        self.ids.insert(point.into(), id);
+        self.records.push(record.clone());
+        Ok(())
+    }
+
+    /// What the engine reads of solution `id`: its record's description.
+    fn info_of(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {
+        let record = self.records.get(id as usize).ok_or(StoreError::UnknownId(id))?;
+        Ok(SolutionInfo {
+            id,
             point: record.parameters.clone(),
             eta: record.error_indicator,
             tolerance: record.tolerance,
@@ -216,18 +264,7 @@ impl SceneSolutions {
             qoi: record.qoi.clone().into(),
             solver_version: record.solver_version.clone(),
             contact: record.contact.clone(),
-        };
-        if let Some(&id) = self.ids.get(&key) {
-            // what the engine reads to decide on reuse must be the better solution's
-            self.index.update(id, info)?;
-            self.records[id as usize] = record.clone();
-            self.recent.lock().unwrap_or_else(PoisonError::into_inner).retain(|l| l.id != id);
-            return Ok(());
-        }
-        let id = self.index.insert(info)?;
-        self.ids.insert(key, id);
-        self.records.push(record.clone());
-        Ok(())
+        })
     }
 
     /// Keeps a solution just indexed decoded: the next point's warm start is likely it.
@@ -249,7 +286,7 @@ impl SceneSolutions {
     }
 
     pub fn id_of(&self, key: &SolutionKey) -> Option<SolutionId> {
-        self.ids.get(key).copied()
+        self.ids.get(key.point_bytes(&self.scene_hash)?).copied()
     }
 
     fn load(&self, id: SolutionId) -> Result<Arc<Loaded>, StoreError> {
@@ -326,7 +363,7 @@ impl SolutionStore for SceneSolutions {
         let record: SolutionRecord = crate::records::decode("solutions", key.as_bytes(), &bytes)
             .map_err(|e| StoreError::Backend(e.to_string()))?;
         self.index(key.clone(), &Arc::new(record))?;
-        Ok(self.ids[&key])
+        self.id_of(&key).ok_or_else(|| StoreError::Backend(format!("solution at {parameters} is of another scene")))
     }
 
     fn nearest(&self, point: &DesignPoint, k: usize) -> Result<Vec<(f64, SolutionId)>, StoreError> {
@@ -334,12 +371,12 @@ impl SolutionStore for SceneSolutions {
     }
 
     fn get(&self, id: SolutionId) -> Result<StoredSolution, StoreError> {
-        let info = self.index.info(id)?;
+        let info = self.info_of(id)?;
         Ok(StoredSolution::from_info(info, self.load(id)?.solution.clone()))
     }
 
     fn info(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {
-        self.index.info(id)
+        self.info_of(id)
     }
 
     fn len(&self) -> usize {

@@ -258,7 +258,7 @@ type Ladder<'a> = Vec<&'a QoiMap>;
 fn ladders<'a>(study: &'a StudyEntry, levels: &[&'a StudyEntry]) -> (Vec<Ladder<'a>>, usize) {
     fn result<'a>(e: &'a StudyEntry, at: &DesignPoint) -> Option<&'a PointResult> {
         let p = e.points.iter().find(|p| p.state == PointState::Done && &p.parameters == at)?;
-        p.result.as_ref()
+        p.result.as_deref()
     }
     let Some(first) = levels.first() else { return (Vec::new(), 0) };
     let ladders = first

@@ -91,7 +91,7 @@ impl StudyEntry {
 
     /// Every scene parameter at point `i`: the scene's defaults overridden by the point's values.
     fn full_parameters(&self, i: usize) -> DesignPoint {
-        self.plan.full[i].clone()
+        self.plan.full(&self.points[i])
     }
 
     /// The stored solution of the point of this study finished last (for `previous`).
@@ -252,7 +252,7 @@ impl Coordinator {
         let State { solutions, by_scene, .. } = &mut state;
         for key in in_key_order {
             let record = &solutions[&key];
-            if let (true, Some(index)) = (record.converged, by_scene.get_mut(&record.scene_hash)) {
+            if let (true, Some(index)) = (record.converged, by_scene.get_mut(&*record.scene_hash)) {
                 index.index(key, record)?;
             }
         }
@@ -595,7 +595,7 @@ impl Coordinator {
         // (stored meshes are attached to a lease, not here: only the per-point check runs)
         let scene = Arc::clone(&entry.scene);
         let bad_input = |i: usize| -> Option<String> {
-            let values = scene.parameter_values(&entry.plan.full[i]);
+            let values = scene.parameter_values(&entry.full_parameters(i));
             values
                 .and_then(|v| scene.check_point(&v))
                 .err()
@@ -723,7 +723,7 @@ impl Coordinator {
                 let Some(i) = entry.plan.next(&entry.points) else { break };
                 let start = entry.plan.start(
                     &entry.record,
-                    i,
+                    &entry.points[i],
                     by_scene.get(&entry.record.scene_hash),
                     entry.previous().as_ref(),
                     &version,
@@ -753,7 +753,7 @@ impl Coordinator {
                     pool: pool.to_owned(),
                     lease_id,
                     deadline_unix_ms: deadline,
-                    init: init.as_ref().map(|w| w.origin.clone()),
+                    init: init.as_ref().map(|w| Box::new(w.origin.clone())),
                     cap: (max_iterations < entry.record.max_iterations).then_some(max_iterations),
                 };
                 let point = apply(&entry.points[i], lease)?;
@@ -878,13 +878,12 @@ impl Coordinator {
             AdaptiveChoice::None => Ok(()),
             AdaptiveChoice::End(spec) => self.end_adaptive_choice(entry, spec),
             AdaptiveChoice::Outcome(record) => self.commit(entry, Vec::new(), Some(*record), Batch::new()),
-            AdaptiveChoice::Point(next, full) => {
+            AdaptiveChoice::Point(next) => {
                 let point = PointRecord::pending(entry.record.id, PointId(entry.points.len() as u64), next);
                 let mut batch = Batch::new();
                 batch.put(Tree::Points, point_key(point.study, point.id), encode(&point));
                 self.store.commit(batch)?;
                 tracing::info!(study = %entry.record.id, point = point.id.0, at = %point.parameters, "adaptive point chosen");
-                entry.plan.full.push(full);
                 entry.points.push(point);
                 Ok(())
             }
@@ -913,7 +912,7 @@ impl Coordinator {
             .iter()
             .enumerate()
             .filter(|(_, p)| p.state == PointState::Pending)
-            .filter_map(|(i, _)| Some((i, entry.plan.answer(i, solutions, &self.config.solver_version)?)))
+            .filter_map(|(i, p)| Some((i, entry.plan.answer(p, solutions, &self.config.solver_version)?)))
             .collect();
         for (i, key) in answers {
             let answer = state.solutions.get(&key).expect("indexed solutions have records").clone();
@@ -933,7 +932,7 @@ impl Coordinator {
             error_indicator: answer.error_indicator,
             qoi: answer.qoi.clone(),
             wall_seconds: 0.0,
-            started_from: Some(answer.origin()),
+            started_from: Some(Box::new(answer.origin())),
             answered: true,
             eta_history: Vec::new(),
             work: 0.0,
@@ -1086,7 +1085,7 @@ impl Coordinator {
         state.lease_progress.remove(&c.lease_id);
         if keep {
             let record = Arc::new(record);
-            let index = state.by_scene.get_mut(&record.scene_hash).filter(|_| record.converged);
+            let index = state.by_scene.get_mut(&*record.scene_hash).filter(|_| record.converged);
             if let Some(index) = index {
                 // The next point's warm start is likely this one: keep it decoded.
                 index.index(key.clone(), &record)?;
@@ -1114,12 +1113,12 @@ impl Coordinator {
         }
         self.store.commit(batch)?;
         let scenes: std::collections::BTreeSet<String> =
-            keys.iter().filter_map(|k| state.solutions.remove(k)).map(|r| r.scene_hash.clone()).collect();
+            keys.iter().filter_map(|k| state.solutions.remove(k)).map(|r| r.scene_hash.to_string()).collect();
         // each scene's index again, from what is left
         for hash in scenes {
             let Some(old) = state.by_scene.remove(&hash) else { continue };
             let mut index = SceneSolutions::new(hash.clone(), old.space().clone(), self.store.clone())?;
-            for (key, record) in state.solutions.iter().filter(|(_, r)| r.scene_hash == hash && r.converged) {
+            for (key, record) in state.solutions.iter().filter(|(_, r)| *r.scene_hash == *hash && r.converged) {
                 index.index(key.clone(), record)?;
             }
             state.by_scene.insert(hash, index);
@@ -1299,8 +1298,8 @@ enum AdaptiveChoice {
     End(AdaptiveSpec),
     /// record the target's outcome (no point is chosen after)
     Outcome(Box<StudyRecord>),
-    /// add this point (its swept values, then every parameter)
-    Point(DesignPoint, DesignPoint),
+    /// add this point (its swept values, checked against the study's space)
+    Point(DesignPoint),
 }
 
 /// The next point of an adaptive study that has none pending, if its budget allows: where the
@@ -1331,9 +1330,9 @@ fn adaptive_choice(entry: &StudyEntry) -> Result<AdaptiveChoice, CoordError> {
     }
     Ok(match next {
         Some(next) => {
-            // every parameter of the point, for the plan: refused before anything is stored
-            let full = entry.plan.space().complete(&next).map_err(|e| CoordError::Invalid(e.to_string()))?;
-            AdaptiveChoice::Point(next, full)
+            // (a point the plan cannot complete is refused before anything is stored)
+            entry.plan.space().complete(&next).map_err(|e| CoordError::Invalid(e.to_string()))?;
+            AdaptiveChoice::Point(next)
         }
         None => {
             tracing::warn!(study = %entry.record.id, points = entry.points.len(), "adaptive study: no room left in the box");
@@ -1478,12 +1477,12 @@ fn completion_records(
     meta: &SolutionMeta,
     scene_hash: &str,
     full: &DesignPoint,
-    started_from: Option<SolutionOrigin>,
+    started_from: Option<Box<SolutionOrigin>>,
     sizes: (u64, u64),
     tolerance: f64,
 ) -> (SolutionRecord, PointResult) {
     let record = SolutionRecord {
-        scene_hash: scene_hash.to_owned(),
+        scene_hash: records::shared(scene_hash),
         parameters: full.clone(),
         solver_version: meta.solver_version.clone(),
         converged: meta.converged,
@@ -1521,7 +1520,7 @@ fn completion_records(
 }
 
 /// The solution a leased point's warm start came from.
-fn leased_from(point: &PointRecord) -> Option<SolutionOrigin> {
+fn leased_from(point: &PointRecord) -> Option<Box<SolutionOrigin>> {
     match &point.state {
         PointState::Leased { init, .. } => init.clone(),
         _ => None,

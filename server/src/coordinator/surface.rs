@@ -87,7 +87,7 @@ impl Coordinator {
                 let rows = state
                     .solutions
                     .values()
-                    .filter(|s| &s.scene_hash == hash)
+                    .filter(|s| *s.scene_hash == **hash)
                     .map(|s| SurfaceRow {
                         parameters: s.parameters.clone(),
                         qoi: s.qoi.clone().into(),

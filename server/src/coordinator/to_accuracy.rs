@@ -243,7 +243,7 @@ impl Coordinator {
     ) -> Result<(), CoordError> {
         let mut batch = Batch::new();
         let mut opened: Vec<NewLevel> = Vec::new();
-        let mut added: Vec<(StudyId, PointRecord, DesignPoint)> = Vec::new();
+        let mut added: Vec<(StudyId, PointRecord)> = Vec::new();
         let study = state.studies[&id].record.clone();
         let mut next_id = state.next_study;
         for (p, k, m) in wanted {
@@ -260,10 +260,11 @@ impl Coordinator {
                 Some(sid) => {
                     let level = &state.studies[&sid];
                     let n = level.points.len() + added.iter().filter(|(s, ..)| *s == sid).count();
-                    let full = level.plan.space().complete(&at).map_err(|e| CoordError::Invalid(e.to_string()))?;
+                    // (a point the plan cannot complete is refused before anything is stored)
+                    level.plan.space().complete(&at).map_err(|e| CoordError::Invalid(e.to_string()))?;
                     let point = PointRecord::pending(sid, PointId(n as u64), at);
                     batch.put(Tree::Points, point_key(sid, point.id), encode(&point));
-                    added.push((sid, point, full));
+                    added.push((sid, point));
                 }
                 None => {
                     let sid = StudyId(next_id);
@@ -286,9 +287,8 @@ impl Coordinator {
         entry.record = record;
         // its watchers hear of each step of its pilots (its own points wait)
         self.emit(super::EventKind::Snapshot, entry, None);
-        for (sid, point, full) in added {
+        for (sid, point) in added {
             let level = state.studies.get_mut(&sid).expect("an open level");
-            level.plan.full.push(full);
             level.points.push(point);
         }
         for level in opened {

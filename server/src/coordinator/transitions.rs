@@ -22,7 +22,7 @@ use super::point_state_word;
 #[derive(Debug, Clone)]
 pub enum Transition {
     /// PENDING -> LEASED to `pool`; counts an attempt. `cap`: an audit's iterations left.
-    Lease { pool: String, lease_id: u64, deadline_unix_ms: i64, init: Option<SolutionOrigin>, cap: Option<u32> },
+    Lease { pool: String, lease_id: u64, deadline_unix_ms: i64, init: Option<Box<SolutionOrigin>>, cap: Option<u32> },
     /// PENDING -> DONE: a stored solution answers it.
     Answer { result: PointResult, finished_seq: u64 },
     /// LEASED -> DONE when `result.converged`, else FAILED (retryable, the result kept), with
@@ -92,7 +92,7 @@ pub fn apply(point: &PointRecord, transition: Transition) -> Result<PointRecord,
             p.state = PointState::Done;
             p.error = None;
             p.finished_seq = Some(finished_seq);
-            p.result = Some(result);
+            p.result = Some(Box::new(result));
         }
         (PointState::Leased { cap, .. }, Transition::Complete { result, finished_seq, tolerance }) => {
             if result.converged {
@@ -113,12 +113,12 @@ pub fn apply(point: &PointRecord, transition: Transition) -> Result<PointRecord,
                     result.error_indicator, result.iterations
                 ));
             }
-            p.result = Some(result);
+            p.result = Some(Box::new(result));
         }
         (PointState::Leased { .. }, Transition::Fail { result, error }) => {
             p.state = PointState::Failed;
             p.error = Some(error);
-            p.result = Some(result);
+            p.result = Some(Box::new(result));
         }
         (PointState::Leased { .. }, Transition::Release { study_cancelled }) => {
             p.state = if study_cancelled { PointState::Cancelled } else { PointState::Pending };
