@@ -582,7 +582,7 @@ pub fn study(v: &StudyView) -> v1::Study {
             Some(v1::StudyTarget {
                 surface_accuracy: a.target?,
                 budget: a.budget,
-                outcome: outcome.map_or("", |o| if o.reached { "reached" } else { "budget" }).into(),
+                outcome: outcome.map_or("", target_outcome).into(),
                 points: outcome.map_or(0, |o| o.validation.points as u32),
                 qoi: outcome.map(|o| surface_errors(&o.validation.qoi)).unwrap_or_default(),
                 refused: outcome.map(|o| o.validation.refused.clone().into_iter().collect()).unwrap_or_default(),
@@ -626,6 +626,17 @@ fn discretisation(d: &Discretisation) -> v1::StudyDiscretisation {
         mesh_factor: d.mesh.as_ref().map_or(0, |m| m.factor),
         mesh_audited: d.mesh.as_ref().map_or(0, |m| m.audited),
         mesh_work_seconds: d.mesh.as_ref().map_or(0.0, |m| m.work_seconds),
+    }
+}
+
+/// How a study with a target ended, as `StudyTarget.outcome` says it.
+pub(crate) fn target_outcome(o: &glissade_core::study::adaptive::TargetOutcome) -> &'static str {
+    if o.reached {
+        "reached"
+    } else if o.validation.only_set_aside() {
+        "set_aside"
+    } else {
+        "budget"
     }
 }
 

@@ -328,7 +328,7 @@ fn study_json(v: &StudyView) -> serde_json::Value {
         "target": r.adaptive.as_ref().and_then(|a| Some(json!({
             "surface_accuracy": a.target?, "budget": a.budget,
             "work_budget": a.work_budget, "work": crate::records::work_of(&v.points),
-            "outcome": a.outcome.as_ref().map(|o| if o.reached { "reached" } else { "budget" }),
+            "outcome": a.outcome.as_ref().map(crate::convert::target_outcome),
             "points": a.outcome.as_ref().map(|o| o.validation.points),
             "qoi": a.outcome.as_ref().map(|o| o.validation.qoi.iter().map(|(q, e)| (q.clone(), json!({
                 "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
@@ -1090,6 +1090,10 @@ fn target_paragraph(v: &StudyView) -> Markup {
                 None => (format!("not decided yet (budget {} points)", a.budget)),
                 Some(o) => {
                     @if o.reached { (format!("reached at {} points (budget {}): ", o.validation.points, a.budget)) }
+                    @else if o.validation.only_set_aside() {
+                        (format!("NOT reached: {} set aside as no surface (below); the others within it at {} points (budget {}): ",
+                            o.validation.set_aside.iter().cloned().collect::<Vec<_>>().join(", "), o.validation.points, a.budget))
+                    }
                     // (a work budget stopped it where its points are fewer than their budget: as
                     // `glissade show` reads the API's target)
                     @else if a.work_budget.is_some() && (o.validation.points as u32) < a.budget {
@@ -1101,6 +1105,9 @@ fn target_paragraph(v: &StudyView) -> Markup {
                         @if k > 0 { ", " }
                         (q) (format!(" largest in the box {} (at the points {}, mean {})",
                             percent(e.box_largest.unwrap_or(e.largest)), percent(e.largest), percent(e.mean)))
+                    }
+                    @for (q, why) in &o.validation.refused {
+                        "; " (q) " not fitted: " (why)
                     }
                 }
             }

@@ -630,6 +630,11 @@ pub(crate) fn target_line(t: &v1::StudyTarget, held: Option<&v1::StudySurfaceAcc
             t.work_budget, t.work, t.points
         ),
         "budget" => format!("NOT REACHED: the budget of {} points was spent; at {} points", t.budget, t.points),
+        "set_aside" => format!(
+            "NOT REACHED: {} set aside as no surface (below); the others within it at {} points (budget {budget})",
+            t.refused.keys().cloned().collect::<Vec<_>>().join(", "),
+            t.points
+        ),
         _ => format!("not decided yet (budget {budget})"),
     };
     let mut line = format!(
@@ -748,6 +753,19 @@ mod tests {
         assert!(line.contains("NOT REACHED: the budget of 60 points was spent; at 60 points"), "{line}");
         let line = target_line(&v1::StudyTarget { outcome: String::new(), ..target(0, 100.0) }, None);
         assert!(line.contains("not decided yet (budget 60 points or work 100)"), "{line}");
+        // stopped with a force set aside: NOT REACHED, the others within, the reason beside
+        let set_aside = v1::StudyTarget {
+            outcome: "set_aside".into(),
+            refused: [("normal_force".to_owned(), "set aside: interface 'floor' chatters".to_owned())].into(),
+            ..target(31, 0.0)
+        };
+        let line = target_line(&set_aside, None);
+        assert!(
+            line.contains(
+                "NOT REACHED: normal_force set aside as no surface (below); the others within it at 31 points"
+            ) && line.contains("normal_force not fitted: set aside: interface 'floor' chatters"),
+            "{line}"
+        );
     }
 
     /// A study whose points have ended says that its audits still run, and each audit's line

@@ -18,7 +18,8 @@ use std::collections::BTreeMap;
 use super::holdout::{self, SurfaceErrors};
 use super::space::ParameterSpace;
 use super::surrogate::QoiSurface;
-use crate::scene::{MIN_TOLERANCE, Scene};
+use crate::contact::ContactActivity;
+use crate::scene::{MIN_TOLERANCE, QoiKind, Scene};
 
 /// Candidates scored per choice.
 const CANDIDATES: usize = 1024;
@@ -64,7 +65,23 @@ pub fn point_tolerance(target: f64) -> f64 {
 pub struct QoiReadings {
     /// norm -> its components (empty: none reported)
     norms: BTreeMap<String, Vec<String>>,
+    /// force QoI -> its interface
+    forces: BTreeMap<String, String>,
+    /// interface -> how many of the done points it chattered at ([`ContactActivity::chatters`]),
+    /// and the done points
+    chatter: (BTreeMap<String, usize>, usize),
 }
+
+/// The share of the done points at which an interface chatters from which its forces are set
+/// aside (at least [`CHATTER_POINTS`] of them): a force read at the last step of a contact that
+/// lifts off and lands while it slides is a snapshot of that ringing, not a function of the
+/// parameters. Measured on sliding-block-2d over f 0.05..0.6 x push 2..30 MPa (21 x 21 points
+/// at 1e-6): the floor chatters at 65 of them (15 %), and there the final normal force jumps
+/// from 0 to 640 kN/m between neighbours; the slip beside it stays smooth
+/// (docs/notebook/2026-11-29.md, "Forces set aside where the contact chatters").
+pub const CHATTER_SHARE: f64 = 0.1;
+/// The fewest chattering points that set a force aside.
+pub const CHATTER_POINTS: usize = 3;
 
 impl QoiReadings {
     pub fn of(scene: &Scene) -> Self {
@@ -74,7 +91,40 @@ impl QoiReadings {
             .filter(|q| scene.qoi_is_norm(&q.name))
             .map(|q| (q.name.clone(), scene.components_of(&q.name).into_iter().map(String::from).collect()))
             .collect();
-        Self { norms }
+        let forces = scene
+            .qoi
+            .iter()
+            .filter(|q| q.kind == QoiKind::Force)
+            .filter_map(|q| Some((q.name.clone(), q.interface.clone()?)))
+            .collect();
+        Self { norms, forces, chatter: (BTreeMap::new(), 0) }
+    }
+
+    /// The same, with what the contacts did at the done points (each point's reports).
+    pub fn with_contacts<'a>(mut self, done: impl IntoIterator<Item = &'a [ContactActivity]>) -> Self {
+        let (counts, points) = &mut self.chatter;
+        for reports in done {
+            *points += 1;
+            for r in reports.iter().filter(|r| r.chatters()) {
+                *counts.entry(r.interface.clone()).or_insert(0) += 1;
+            }
+        }
+        self
+    }
+
+    /// Why `qoi` is no surface over this box, if it is not: a force of an interface that
+    /// chatters at [`CHATTER_SHARE`] of the done points or more.
+    fn set_aside(&self, qoi: &str) -> Option<String> {
+        let interface = self.forces.get(qoi)?;
+        let (counts, points) = &self.chatter;
+        let chattering = counts.get(interface).copied().unwrap_or(0);
+        (chattering >= CHATTER_POINTS && chattering as f64 >= CHATTER_SHARE * *points as f64).then(|| {
+            format!(
+                "set aside: interface '{interface}' chatters (lifts off and lands while it slides) at {chattering} of \
+                 {points} points, and a force read at the last step of a chattering contact is a snapshot of its \
+                 ringing, not a surface; read a slip, or damp the chatter with `prakash_clifton` (docs/scenes.md)"
+            )
+        })
     }
 
     fn is_component(&self, qoi: &str) -> bool {
@@ -94,6 +144,8 @@ pub struct Surfaces {
     misfit: Vec<Vec<(Vec<f64>, f64, f64)>>,
     /// QoIs whose surface could not be fitted, and why
     pub refused: BTreeMap<String, String>,
+    /// those of `refused` set aside as no surface at all ([`QoiReadings::set_aside`])
+    pub set_aside: std::collections::BTreeSet<String>,
     /// done points the surfaces were fitted to
     pub points: usize,
 }
@@ -107,6 +159,17 @@ pub struct CrossValidation {
     /// QoIs whose surface could not be fitted, and why
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub refused: BTreeMap<String, String>,
+    /// those of `refused` set aside as no surface at all: the study stops when the others are
+    /// within its target, and says NOT REACHED
+    #[serde(default, skip_serializing_if = "std::collections::BTreeSet::is_empty")]
+    pub set_aside: std::collections::BTreeSet<String>,
+}
+
+impl CrossValidation {
+    /// Some QoIs were refused, and every one of them was set aside as no surface.
+    pub fn only_set_aside(&self) -> bool {
+        !self.set_aside.is_empty() && self.refused.keys().all(|q| self.set_aside.contains(q))
+    }
 }
 
 /// How a study with a target ended, and the errors it was judged on.
@@ -135,7 +198,7 @@ impl Surfaces {
                 (q.clone(), errors)
             })
             .collect();
-        CrossValidation { points: self.points, qoi, refused: self.refused.clone() }
+        CrossValidation { points: self.points, qoi, refused: self.refused.clone(), set_aside: self.set_aside.clone() }
     }
 
     /// How wrong fitted QoI `k`'s surface may be at `c` (scaled coordinates), relative to its
@@ -264,21 +327,29 @@ impl AdaptiveDesign {
     /// Whether `cv` meets the target: enough points, every QoI fitted, each one's mean error
     /// within the target. False without a target.
     pub fn target_reached(&self, cv: &CrossValidation) -> bool {
+        cv.refused.is_empty() && self.fitted_within(cv)
+    }
+
+    /// Whether every QoI fitted is within the target, with enough points: the study stops there
+    /// (REACHED when no QoI was refused; with QoIs set aside, NOT REACHED, and they say why).
+    fn fitted_within(&self, cv: &CrossValidation) -> bool {
         self.target.is_some_and(|t| {
             cv.points >= self.validated_after()
-                && cv.refused.is_empty()
                 && !cv.qoi.is_empty()
                 && cv.qoi.values().all(|e| e.box_largest.unwrap_or(e.largest) <= t)
         })
     }
 
-    /// The outcome of a study with a target, once decided: reached, or `spent` (its budget
-    /// chosen and nothing left to solve) with the error it got. None without a target.
+    /// The outcome of a study with a target, once decided: reached; or every QoI fitted within
+    /// the target and the others set aside (not reached: they are no surface, and more points
+    /// would not make them one); or `spent` (its budget chosen and nothing left to solve) with
+    /// the error it got. None without a target.
     pub fn outcome(&self, surfaces: &Surfaces, spent: bool) -> Option<TargetOutcome> {
         self.target?;
         let validation = surfaces.cross_validate();
         let reached = self.target_reached(&validation);
-        (reached || spent).then_some(TargetOutcome { reached, validation })
+        let settled = validation.only_set_aside() && self.fitted_within(&validation);
+        (reached || settled || spent).then_some(TargetOutcome { reached, validation })
     }
 
     /// The surfaces of the done points among `chosen` (none before the initial points are chosen
@@ -300,6 +371,11 @@ impl AdaptiveDesign {
         }
         let qois: std::collections::BTreeSet<&String> = rows.iter().flat_map(|(_, q)| q.keys()).collect();
         for q in qois.into_iter().filter(|q| !readings.is_component(q)) {
+            if let Some(why) = readings.set_aside(q) {
+                surfaces.set_aside.insert(q.clone());
+                surfaces.refused.insert(q.clone(), why);
+                continue;
+            }
             let components: Vec<&str> =
                 readings.norms.get(q.as_str()).map(|c| c.iter().map(String::as_str).collect()).unwrap_or_default();
             let norm = readings.norms.contains_key(q.as_str());
@@ -626,6 +702,76 @@ mod tests {
         assert!(!design(40).target_reached(&cv), "no target, never reached");
     }
 
+    /// A force of an interface that chatters over part of the box is no surface there (its last
+    /// step samples the contact's ringing): it is set aside with the evidence, the design follows
+    /// the other QoIs only, and the study stops once they are within the target, NOT REACHED. A
+    /// contact that chatters at fewer than a tenth of the points sets nothing aside.
+    #[test]
+    fn a_force_of_a_chattering_contact_is_set_aside_and_the_others_decide() {
+        let space = space();
+        let scene = Scene::parse(
+            "dimension = 2\n[time]\nduration = 1e-4\nsteps = 10\n[parameters]\nf1 = { default = 0.1, min = 0.1, max = 0.2 }\n\
+             f2 = { default = 0.1, min = 0.1, max = 0.2 }\n[materials.m]\nE = 1e9\nrho = 1000\n\
+             [[bodies]]\nname = \"b\"\nmaterial = \"m\"\nsize = [1.0, 0.5]\nelements = [2, 1]\n\
+             [[interfaces]]\nname = \"floor\"\na = \"b.y-\"\nb = \"wall\"\nlaw = \"friction\"\nfriction = \"f1\"\n\
+             [[qoi]]\nname = \"force\"\nkind = \"force\"\ninterface = \"floor\"\ncomponent = \"y\"\n",
+        )
+        .unwrap();
+        // where f1 + f2 > 0.3 the contact chatters and its last-step force is any value
+        let chatters = |p: &DesignPoint| p.get("f1").unwrap() + p.get("f2").unwrap() > 0.3;
+        let law = |p: &DesignPoint| -> BTreeMap<String, f64> {
+            let (x, y) = ((p.get("f1").unwrap() - 0.1) / 0.1, (p.get("f2").unwrap() - 0.1) / 0.1);
+            let ringing = ((x * 997.0 + y * 131.0).sin() * 4e4).fract();
+            let force = if chatters(p) { 640.0 * ringing.abs() } else { 200.0 + 3.0 * x };
+            [("smooth".to_string(), x + 0.5 * y), ("force".to_string(), force)].into()
+        };
+        let report = |p: &DesignPoint| ContactActivity {
+            interface: "floor".into(),
+            friction: 0.3,
+            rigid_wall: true,
+            contact_nodes: 9,
+            first_slip_time: Some(1e-5),
+            landings_while_sliding: if chatters(p) { 19 } else { 0 },
+            peak_normal_force_ratio: 2.6,
+            ill_posed: false,
+        };
+        let d = AdaptiveDesign { target: Some(0.05), ..design(60) };
+        let (mut chosen, mut values, mut contacts) = (Vec::new(), Vec::new(), Vec::<Vec<ContactActivity>>::new());
+        let outcome = loop {
+            let with: Vec<_> = chosen.iter().cloned().zip(values.iter().map(Some)).collect();
+            let readings = QoiReadings::of(&scene).with_contacts(contacts.iter().map(Vec::as_slice));
+            let surfaces = d.surfaces(&space, &readings, &with);
+            if let Some(o) = d.outcome(&surfaces, false) {
+                break o;
+            }
+            let p = d.next(&with, &surfaces).expect("room in the box");
+            values.push(law(&p));
+            contacts.push(vec![report(&p)]);
+            chosen.push(p);
+            assert!(chosen.len() < 60, "the smooth QoI decides well before the budget");
+        };
+        let cv = &outcome.validation;
+        assert!(!outcome.reached, "{cv:?}");
+        assert_eq!(cv.set_aside.iter().collect::<Vec<_>>(), ["force"]);
+        assert!(cv.refused["force"].starts_with("set aside: interface 'floor' chatters"), "{cv:?}");
+        assert_eq!(cv.qoi.keys().collect::<Vec<_>>(), ["smooth"], "judged on the others");
+        assert!(cv.qoi["smooth"].box_largest <= Some(0.05) && cv.points >= d.validated_after(), "{cv:?}");
+        // the same box where it chatters nowhere: the force is a surface like any other
+        let quiet: Vec<Vec<ContactActivity>> =
+            chosen.iter().map(|p| vec![ContactActivity { landings_while_sliding: 0, ..report(p) }]).collect();
+        let readings = QoiReadings::of(&scene).with_contacts(quiet.iter().map(Vec::as_slice));
+        let with: Vec<_> = chosen.iter().cloned().zip(values.iter().map(Some)).collect();
+        let cv = d.surfaces(&space, &readings, &with).cross_validate();
+        assert!(cv.set_aside.is_empty() && cv.qoi.contains_key("force"), "{cv:?}");
+        // chattering at 2 points of many: too few to set it aside
+        let mut few = quiet.clone();
+        for c in few.iter_mut().take(2) {
+            c[0].landings_while_sliding = 19;
+        }
+        let readings = QoiReadings::of(&scene).with_contacts(few.iter().map(Vec::as_slice));
+        assert!(d.surfaces(&space, &readings, &with).set_aside.is_empty());
+    }
+
     /// The target's meaning: every point of the box within it. A slip with a curved stick /
     /// slip edge (a norm: zero beyond the edge, a kink on it) and a bent smooth QoI, to a target
     /// of 2 %: once the study says it is reached, the largest error of each surface over a
@@ -639,7 +785,7 @@ mod tests {
         let slip = |a: f64, b: f64| (0.3 - a - b + 40.0 * (a - 0.15).powi(2)).max(0.0);
         let bent = |a: f64, b: f64| ((a - 0.1) * 30.0).sin() * ((b - 0.1) * 20.0).cos();
         let d = AdaptiveDesign { target: Some(0.02), ..design(150) };
-        let readings = QoiReadings { norms: [("slip".to_string(), vec![])].into() };
+        let readings = QoiReadings { norms: [("slip".to_string(), vec![])].into(), ..QoiReadings::default() };
         let mut chosen: Vec<(DesignPoint, BTreeMap<String, f64>)> = Vec::new();
         let (surfaces, cv) = loop {
             let with: Vec<_> = chosen.iter().map(|(p, q)| (p.clone(), Some(q))).collect();

@@ -1359,7 +1359,9 @@ fn adaptive_step(
         .collect();
     let chosen: Vec<(DesignPoint, Option<&BTreeMap<String, f64>>)> =
         points.iter().zip(&done).map(|(p, d)| (p.parameters.clone(), d.as_ref())).collect();
-    let readings = QoiReadings::of(&entry.scene);
+    // (what each done point's contacts did: a force of one that chatters is no surface)
+    let contacts = points.iter().filter(|p| p.state == PointState::Done).filter_map(|p| p.result.as_ref());
+    let readings = QoiReadings::of(&entry.scene).with_contacts(contacts.map(|r| r.contact.as_slice()));
     let surfaces = design.surfaces(entry.plan.space(), &readings, &chosen);
     let in_flight = points.iter().any(|p| matches!(p.state, PointState::Pending | PointState::Leased { .. }));
     let spent = (points.len() >= spec.budget as usize || spec.work_spent(points)) && !in_flight;
