@@ -95,27 +95,43 @@ impl AccuracyLimits {
         Ok(AccuracyLimits { max_time_factor, max_mesh_factor })
     }
 
-    /// [`AccuracyLimits::new`] where the mesh's limit may be left to [`AccuracyLimits::for_dimension`].
-    pub fn asked(max_time_factor: usize, max_mesh_factor: Option<usize>, dimension: usize) -> Result<Self, LimitError> {
-        Self::new(max_time_factor, max_mesh_factor.unwrap_or(Self::for_dimension(dimension).max_mesh_factor))
+    /// [`AccuracyLimits::new`] where the mesh's limit may be left to [`AccuracyLimits::for_scene`].
+    pub fn asked(max_time_factor: usize, max_mesh_factor: Option<usize>, scene: &Scene) -> Result<Self, LimitError> {
+        Self::new(max_time_factor, max_mesh_factor.unwrap_or(Self::for_scene(scene).max_mesh_factor))
     }
 }
 
 impl AccuracyLimits {
-    /// The limits a solve takes where it is not given any: dt / 16, and a mesh whose element
-    /// count grows at most 64-fold (h / 16 in 1D, h / 8 in 2D, h / 4 in 3D), so that the
+    /// The limits a solve of `scene` takes where it is not given any: dt / 16, and a mesh whose
+    /// element count grows at most 64-fold (h / 16 in 1D, h / 8 in 2D, h / 4 in 3D), or further,
+    /// to h / 16, while the finest mesh keeps within [`SMALL_MESH_ELEMENTS`]; so that the
     /// diagonal (dt and h halved together) can take a third and a fourth level where one costs
     /// little: a copper bar of our own reaches 5 % at dt / 16, h / 16 in 0.5 s, and
     /// sliding-block-2d 1 % at dt / 8, h / 8 in 28 s; both stop short at h / 4.
-    pub fn for_dimension(dimension: usize) -> Self {
-        let max_mesh_factor = match dimension {
+    pub fn for_scene(scene: &Scene) -> Self {
+        let d = scene.dimension as u32;
+        let mut max_mesh_factor = match d {
             1 => 16,
             2 => 8,
             _ => 4,
         };
+        let elements: usize =
+            scene.bodies.iter().filter_map(|b| b.elements.as_ref()).map(|e| e.iter().product::<usize>()).sum();
+        while max_mesh_factor < MAX_DEFAULT_MESH_FACTOR
+            && elements.saturating_mul((max_mesh_factor * RATIO).pow(d)) <= SMALL_MESH_ELEMENTS
+        {
+            max_mesh_factor *= RATIO;
+        }
         AccuracyLimits { max_time_factor: DEFAULT_MAX_TIME_FACTOR, max_mesh_factor }
     }
 }
+
+/// A mesh of this many elements or fewer, refined, costs little enough that the default limit on
+/// h goes past the dimension's 64-fold growth (a 2D block of 4 x 4 elements to h / 16: 4,096; a
+/// 2D mesh of 16,384 quads and dt / 16 is minutes).
+pub const SMALL_MESH_ELEMENTS: usize = 16_384;
+/// The finest mesh a default limit allows: h / 16.
+pub const MAX_DEFAULT_MESH_FACTOR: usize = 16;
 
 /// The finest time step a solve to accuracy takes where it is not given a limit: dt / 16.
 pub const DEFAULT_MAX_TIME_FACTOR: usize = 16;
@@ -956,6 +972,31 @@ mod tests {
         let earlier = [level(Time, 1, 1), level(Time, 2, 1), level(Time, 4, 1), level(Mesh, 2, 2)];
         let next = next_step(&scene, accuracy, AccuracyLimits::new(16, 4).unwrap(), &earlier);
         assert_eq!(next, Step::Solve { refinement: Mesh, time_factor: 4, mesh_factor: 2 });
+    }
+
+    /// The default limits: the dimension's 64-fold growth of the element count, further for a
+    /// mesh that stays small, never past h / 16.
+    #[test]
+    fn the_default_mesh_limit_follows_the_dimension_and_the_mesh_size() {
+        let scene = |dimension: usize, elements: &str| {
+            let (size, box_elements) = match dimension {
+                1 => ("[1.0]".to_string(), format!("[{elements}]")),
+                2 => ("[1.0, 1.0]".to_string(), format!("[{elements}, {elements}]")),
+                _ => ("[1.0, 1.0, 1.0]".to_string(), format!("[{elements}, {elements}, {elements}]")),
+            };
+            Scene::parse(&format!(
+                "dimension = {dimension}\n[time]\nduration = 1e-4\nsteps = 10\n[materials.m]\nE = 1e9\nrho = 1000\n\
+                 [[bodies]]\nname = \"b\"\nmaterial = \"m\"\nsize = {size}\nelements = {box_elements}\n"
+            ))
+            .unwrap()
+        };
+        let limit = |d: usize, n: &str| AccuracyLimits::for_scene(&scene(d, n)).max_mesh_factor;
+        // 1D: h / 16 always; 2D: h / 8, h / 16 for a mesh of 32 x 32 or fewer (16,384 at h / 4 x 4)
+        assert_eq!((limit(1, "25"), limit(1, "2000")), (16, 16));
+        assert_eq!((limit(2, "4"), limit(2, "8"), limit(2, "9"), limit(2, "100")), (16, 16, 8, 8));
+        // 3D: h / 4; h / 8 up to 3 x 3 x 3 elements (13,824 at h / 8), h / 16 for one (4,096)
+        assert_eq!((limit(3, "1"), limit(3, "2"), limit(3, "3"), limit(3, "4")), (16, 8, 8, 4));
+        assert_eq!(AccuracyLimits::for_scene(&scene(2, "4")).max_time_factor, 16);
     }
 
     #[test]

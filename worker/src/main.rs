@@ -481,7 +481,8 @@ struct AccuracyArgs {
     max_dt_factor: usize,
     /// With --accuracy: the finest mesh it may take, h / N along each axis (a power of 2; 1: the
     /// mesh is kept)
-    /// (default: 16 in 1D, 8 in 2D, 4 in 3D: the element count grows at most 64-fold)
+    /// (default: 16 in 1D, 8 in 2D, 4 in 3D: the element count grows at most 64-fold; up to 16
+    /// while the finest mesh keeps within 16,384 elements)
     #[arg(long, value_name = "N", requires = "accuracy")]
     max_h_factor: Option<usize>,
 }
@@ -803,7 +804,7 @@ fn solve_accurately(
     scene_path: &Path,
 ) -> Result<(Scene, glissade_solver::run::SolveOutcome, AccuracyReport)> {
     let accuracy = glissade_core::refine::Accuracy::new("--accuracy", accuracy)?;
-    let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, scene.dimension)?;
+    let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, &scene)?;
     let root = comm.rank() == 0;
     if root {
         eprintln!(

@@ -90,7 +90,8 @@ pub struct StudyArgs {
     #[arg(long, value_name = "N", default_value_t = glissade_core::accuracy::DEFAULT_MAX_TIME_FACTOR, requires = "accuracy")]
     max_dt_factor: usize,
     /// With --accuracy: the finest mesh a pilot may take, h / N (a power of 2; 1: kept)
-    /// (default: 16 in 1D, 8 in 2D, 4 in 3D: the element count grows at most 64-fold)
+    /// (default: 16 in 1D, 8 in 2D, 4 in 3D: the element count grows at most 64-fold; up to 16
+    /// while the finest mesh keeps within 16,384 elements)
     #[arg(long, value_name = "N", requires = "accuracy")]
     max_h_factor: Option<usize>,
 }
@@ -214,7 +215,7 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
     if let Some(a) = accuracy.as_mut() {
         held_out(&args, &given, &points, &space, &result, a)?;
         // ABOVE: the grid solved again at the check's level, and checked one level finer
-        let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, given.dimension)?;
+        let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, &given)?;
         let refine_mesh = a.pilots.iter().any(|p| p.report.mesh_refined);
         while let Some((k, m)) =
             above(a).then(|| level_after_above((a.time_factor, a.mesh_factor), refine_mesh, limits)).flatten()
@@ -316,7 +317,7 @@ fn pilots(
     space: &ParameterSpace,
     accuracy: Accuracy,
 ) -> Result<StudyAccuracy> {
-    let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, scene.dimension)?;
+    let limits = AccuracyLimits::asked(args.max_dt_factor, args.max_h_factor, scene)?;
     if args.pilots == 0 || args.pilots > 16 || args.held_out > 16 {
         bail!("--pilots {} --held-out {}: from 1 to 16 pilots, at most 16 held-out points", args.pilots, args.held_out);
     }

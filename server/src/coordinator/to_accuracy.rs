@@ -77,7 +77,7 @@ pub(super) fn admit(
     let held_out_points: Vec<u64> = order.iter().skip(n).map(|&i| i as u64).collect();
     let spec = ToAccuracy {
         accuracy: asked,
-        limits: AccuracyLimits::for_dimension(scene.dimension),
+        limits: AccuracyLimits::for_scene(scene),
         asked: vec![Vec::new(); pilots.len()],
         reports: vec![None; pilots.len()],
         pilots,
