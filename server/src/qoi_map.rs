@@ -3,20 +3,22 @@
 //! stored solution, the finals and the histories' largest magnitudes), and a `BTreeMap` of three
 //! entries takes a node of eleven, about 370 bytes against 96 (as `DesignPoint` does;
 //! docs/performance.md, "Memory per design point"). Stored and sent as the JSON map
-//! `{"slip_A": 1.2e-6}`, as the maps were.
+//! `{"slip_A": 1.2e-6}`, as the maps were. The names are shared (`records::shared`): a study's
+//! points hold one copy of each.
 
 use std::collections::BTreeMap;
 use std::fmt;
+use std::sync::Arc;
 
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Default, PartialEq, Deserialize)]
 #[serde(from = "BTreeMap<String, f64>")]
-pub struct QoiMap(Vec<(String, f64)>);
+pub struct QoiMap(Vec<(Arc<str>, f64)>);
 
 impl QoiMap {
     fn find(&self, name: &str) -> Result<usize, usize> {
-        self.0.binary_search_by(|(n, _)| n.as_str().cmp(name))
+        self.0.binary_search_by(|(n, _)| (**n).cmp(name))
     }
 
     pub fn get(&self, name: &str) -> Option<&f64> {
@@ -32,19 +34,19 @@ impl QoiMap {
         match self.find(&name) {
             Ok(i) => Some(std::mem::replace(&mut self.0[i].1, value)),
             Err(i) => {
-                self.0.insert(i, (name, value));
+                self.0.insert(i, (crate::records::shared(&name), value));
                 None
             }
         }
     }
 
     /// In name order.
-    pub fn iter(&self) -> impl Iterator<Item = (&String, &f64)> {
-        self.0.iter().map(|(n, v)| (n, v))
+    pub fn iter(&self) -> impl Iterator<Item = (&str, &f64)> {
+        self.0.iter().map(|(n, v)| (&**n, v))
     }
 
-    pub fn keys(&self) -> impl Iterator<Item = &String> {
-        self.0.iter().map(|(n, _)| n)
+    pub fn keys(&self) -> impl Iterator<Item = &str> {
+        self.0.iter().map(|(n, _)| &**n)
     }
 
     pub fn values(&self) -> impl Iterator<Item = &f64> {
@@ -62,13 +64,14 @@ impl QoiMap {
 
 impl From<BTreeMap<String, f64>> for QoiMap {
     fn from(map: BTreeMap<String, f64>) -> Self {
-        QoiMap(map.into_iter().collect())
+        // (one copy of each name for every record that holds it: a study's points share theirs)
+        QoiMap(map.into_iter().map(|(n, v)| (crate::records::shared(&n), v)).collect())
     }
 }
 
 impl From<QoiMap> for BTreeMap<String, f64> {
     fn from(map: QoiMap) -> Self {
-        map.0.into_iter().collect()
+        map.0.into_iter().map(|(n, v)| (n.to_string(), v)).collect()
     }
 }
 
@@ -86,20 +89,21 @@ impl<const N: usize> From<[(String, f64); N]> for QoiMap {
 }
 
 impl<'a> IntoIterator for &'a QoiMap {
-    type Item = (&'a String, &'a f64);
-    type IntoIter = std::iter::Map<std::slice::Iter<'a, (String, f64)>, fn(&'a (String, f64)) -> (&'a String, &'a f64)>;
+    type Item = (&'a str, &'a f64);
+    type IntoIter =
+        std::iter::Map<std::slice::Iter<'a, (Arc<str>, f64)>, fn(&'a (Arc<str>, f64)) -> (&'a str, &'a f64)>;
 
     fn into_iter(self) -> Self::IntoIter {
-        self.0.iter().map(|(n, v)| (n, v))
+        self.0.iter().map(|(n, v)| (&**n, v))
     }
 }
 
 impl IntoIterator for QoiMap {
     type Item = (String, f64);
-    type IntoIter = std::vec::IntoIter<(String, f64)>;
+    type IntoIter = std::iter::Map<std::vec::IntoIter<(Arc<str>, f64)>, fn((Arc<str>, f64)) -> (String, f64)>;
 
     fn into_iter(self) -> Self::IntoIter {
-        self.0.into_iter()
+        self.0.into_iter().map(|(n, v)| (n.to_string(), v))
     }
 }
 

@@ -166,7 +166,7 @@ pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisat
     let noise = NOISE_PER_TOLERANCE * study.record.tolerance;
     let (time_ladders, planned) = ladders(study, &time);
     let mesh_ladders = mesh.map(|m| ladders(study, &[m]).0);
-    let names: BTreeSet<&String> =
+    let names: BTreeSet<&str> =
         time_ladders.iter().chain(mesh_ladders.iter().flatten()).flat_map(|l| l[0].keys()).collect();
     let mut qoi = BTreeMap::new();
     for name in names {
@@ -175,7 +175,7 @@ pub(super) fn measure(study: &StudyEntry, levels: &[&StudyEntry]) -> Discretisat
         // the mean over the points that observed one (not erratic, not within the noise)
         orders.retain(|o| o.is_finite());
         qoi.insert(
-            name.clone(),
+            name.to_owned(),
             QoiDiscretisation {
                 change: t.change,
                 error: t.error,

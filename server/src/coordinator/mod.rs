@@ -1452,14 +1452,14 @@ fn accuracy(study: &StudyEntry, audit: &StudyEntry) -> Accuracy {
         }
     }
     let mut qoi = BTreeMap::new();
-    let names: std::collections::BTreeSet<&String> = pairs.iter().flat_map(|(_, a)| a.keys()).collect();
+    let names: std::collections::BTreeSet<&str> = pairs.iter().flat_map(|(_, a)| a.keys()).collect();
     for name in names {
         let both: Vec<(f64, f64)> = pairs.iter().filter_map(|(s, a)| Some((*s.get(name)?, *a.get(name)?))).collect();
         let scale = both.iter().map(|(_, a)| a.abs()).fold(0.0f64, f64::max);
         let scale = if scale > 0.0 { scale } else { 1.0 };
         let errors: Vec<f64> = both.iter().map(|(s, a)| (s - a).abs() / scale).collect();
         let largest = errors.iter().cloned().fold(0.0f64, f64::max);
-        qoi.insert(name.clone(), (largest, errors.iter().sum::<f64>() / errors.len().max(1) as f64));
+        qoi.insert(name.to_owned(), (largest, errors.iter().sum::<f64>() / errors.len().max(1) as f64));
     }
     Accuracy {
         audit_study: audit.record.id,

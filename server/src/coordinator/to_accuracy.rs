@@ -430,7 +430,7 @@ fn level_point<'a>(
 /// A level's point as the rule reads it. Where the pool did not send the QoIs' largest
 /// magnitudes (an older pool, a stored answer from before), the finals stand for them.
 fn level_solved(given: &Scene, refinement: Refinement, k: usize, m: usize, r: &PointResult) -> LevelSolved {
-    let largest = r.qoi.iter().map(|(n, v)| (n.clone(), r.qoi_largest.get(n).copied().unwrap_or(v.abs()))).collect();
+    let largest = r.qoi.iter().map(|(n, v)| (n.to_owned(), r.qoi_largest.get(n).copied().unwrap_or(v.abs()))).collect();
     LevelSolved {
         level: AccuracyLevel {
             refinement,
@@ -524,7 +524,7 @@ pub(super) fn held_out_check(study: &StudyEntry, check: &StudyEntry) -> super::H
                 for (name, &f) in &finer.qoi {
                     let Some(&s) = own.qoi.get(name) else { continue };
                     let d = if scales[name] > 0.0 { (s - f).abs() / scales[name] } else { 0.0 };
-                    let kept = difference.entry(name.clone()).or_insert(0.0);
+                    let kept = difference.entry(name.to_owned()).or_insert(0.0);
                     *kept = kept.max(d);
                 }
             }
