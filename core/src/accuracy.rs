@@ -115,8 +115,13 @@ impl AccuracyLimits {
             2 => 8,
             _ => 4,
         };
-        let elements: usize =
-            scene.bodies.iter().filter_map(|b| b.elements.as_ref()).map(|e| e.iter().product::<usize>()).sum();
+        // (saturating: a scene's counts are bounded where it is read, not here)
+        let elements = scene
+            .bodies
+            .iter()
+            .filter_map(|b| b.elements.as_ref())
+            .map(|e| e.iter().fold(1usize, |n, &m| n.saturating_mul(m)))
+            .fold(0usize, usize::saturating_add);
         while max_mesh_factor < MAX_DEFAULT_MESH_FACTOR
             && elements.saturating_mul((max_mesh_factor * RATIO).pow(d)) <= SMALL_MESH_ELEMENTS
         {
