@@ -233,18 +233,7 @@ impl SceneSolutions {
             return Ok(());
         }
         // the index needs the point alone: the rest of the description is `info`'s to make
-        let id = self.index.insert(SolutionInfo {
-            id: 0,
-            point: record.parameters.clone(),
-            eta: record.error_indicator,
-            tolerance: record.tolerance,
-            converged: record.converged,
-            iterations: record.iterations as usize,
-            parent: None,
-            qoi: Default::default(),
-            solver_version: String::new(),
-            contact: Vec::new(),
-        })?;
+        let id = self.index.insert(bare_info(0, record))?;
         self.ids.insert(point.into(), id);
         self.records.push(record.clone());
         Ok(())
@@ -254,16 +243,10 @@ impl SceneSolutions {
     fn info_of(&self, id: SolutionId) -> Result<SolutionInfo, StoreError> {
         let record = self.records.get(id as usize).ok_or(StoreError::UnknownId(id))?;
         Ok(SolutionInfo {
-            id,
-            point: record.parameters.clone(),
-            eta: record.error_indicator,
-            tolerance: record.tolerance,
-            converged: record.converged,
-            iterations: record.iterations as usize,
-            parent: None,
             qoi: record.qoi.clone().into(),
             solver_version: record.solver_version.clone(),
             contact: record.contact.clone(),
+            ..bare_info(id, record)
         })
     }
 
@@ -381,5 +364,22 @@ impl SolutionStore for SceneSolutions {
 
     fn len(&self) -> usize {
         self.index.len()
+    }
+}
+
+/// What the warm-start index keeps of a solution: its point and how it converged; the QoIs,
+/// version and contact report stay in the record (`info_of` adds them when asked).
+fn bare_info(id: SolutionId, record: &SolutionRecord) -> SolutionInfo {
+    SolutionInfo {
+        id,
+        point: record.parameters.clone(),
+        eta: record.error_indicator,
+        tolerance: record.tolerance,
+        converged: record.converged,
+        iterations: record.iterations as usize,
+        parent: None,
+        qoi: Default::default(),
+        solver_version: String::new(),
+        contact: Vec::new(),
     }
 }

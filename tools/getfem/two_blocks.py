@@ -45,8 +45,12 @@ Python, /usr/bin/python3. Without it the script says so and exits 3.
 
 import argparse
 import json
+import os
 import sys
 import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from sliding_block import have_getfem  # noqa: E402  (one check for both models)
 
 # The case, SI. Lower block [0, 40] x [0, 10] mm, upper block [10, 30] x [10, 20] mm.
 STEEL = dict(E=200e9, nu=0.3, rho=7800.0)
@@ -215,13 +219,6 @@ def solve(steps, beta=0.25, gamma=0.5, f=FRICTION, r_factor=1.0, residual=1e-10,
                 rigid_estimate=rigid_estimate(f), newton_iterations=iterations,
                 cpu_s=time.process_time() - cpu)
 
-
-def have_getfem():
-    try:
-        import getfem  # noqa: F401
-        return True
-    except ImportError:
-        return False
 
 
 def summary(r):
