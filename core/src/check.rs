@@ -7,7 +7,7 @@
 //! its coordinates and elements. The messages are the model's (`glissade-worker`'s
 //! `Model::build`), which runs the same rules while it builds.
 
-use crate::contact::PrakashClifton;
+use crate::contact::{InterfaceLaw, PrakashClifton};
 use crate::gmsh::Msh;
 use crate::point::DesignPoint;
 use crate::scene::{BodySpec, InterfaceSpec, LawSpec, Resolver, Scalar, Scene, SceneError, Substructures, invalid};
@@ -24,20 +24,9 @@ pub const MAX_YOUNG: f64 = 1e13;
 pub const MAX_DENSITY: f64 = 1e6;
 pub const MAX_EXTENT: f64 = 1e4;
 
-/// An interface law with its numbers at a design point.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum LawValues {
-    Perfect,
-    Contact,
-    /// the friction coefficient (>= 0), and the Prakash-Clifton regularisation if asked
-    Friction(f64, Option<PrakashClifton>),
-    /// the shortening (m)
-    Prestress(f64),
-}
-
 /// The law of interface `spec` (at `key`) with its numbers, checked: the one rule the submit
 /// check and the model's build both follow.
-pub fn law_values(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<LawValues, SceneError> {
+pub fn interface_law(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<InterfaceLaw, SceneError> {
     if spec.prestress.is_some() && spec.law != LawSpec::Prestress {
         return Err(invalid(format!("{key}.prestress"), "only law 'prestress' takes a prestress"));
     }
@@ -45,8 +34,8 @@ pub fn law_values(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<LawVa
         return Err(invalid(format!("{key}.prakash_clifton"), "only law 'friction' takes a regularisation"));
     }
     Ok(match spec.law {
-        LawSpec::Perfect => LawValues::Perfect,
-        LawSpec::Contact => LawValues::Contact,
+        LawSpec::Perfect => InterfaceLaw::Perfect,
+        LawSpec::Contact => InterfaceLaw::Contact,
         LawSpec::Friction => {
             let f = spec
                 .friction
@@ -70,14 +59,14 @@ pub fn law_values(r: &Resolver, key: &str, spec: &InterfaceSpec) -> Result<LawVa
                 }
                 None => None,
             };
-            LawValues::Friction(f, regularisation)
+            InterfaceLaw::Friction { coefficient: f, regularisation }
         }
         LawSpec::Prestress => {
             let s = spec
                 .prestress
                 .as_ref()
                 .ok_or_else(|| invalid(format!("{key}.prestress"), "law 'prestress' needs a shortening (m)"))?;
-            LawValues::Prestress(r.get(&format!("{key}.prestress"), s)?)
+            InterfaceLaw::Prestress { shortening: r.get(&format!("{key}.prestress"), s)? }
         }
     })
 }
@@ -158,7 +147,7 @@ impl Scene {
             if self.interfaces[..ii].iter().any(|o| o.name == spec.name) {
                 return Err(invalid(format!("{key}.name"), format!("duplicate interface name '{}'", spec.name)));
             }
-            law_values(&r, &key, spec)?;
+            interface_law(&r, &key, spec)?;
             // (a gap is read for a wall only)
             if spec.b == "wall"
                 && let Some(g) = &spec.gap
@@ -408,9 +397,18 @@ mod tests {
             |pc: &str| TINY.replacen("friction = \"f1\"", &format!("friction = \"f1\"\nprakash_clifton = {pc}"), 1);
         let scene = Scene::parse(&with("{ length = 3e-5, velocity = 1.0 }")).unwrap();
         let r = Resolver { values: &defaults(&scene) };
-        let law = law_values(&r, "interfaces[0]", &scene.interfaces[0]).unwrap();
-        assert_eq!(law, LawValues::Friction(0.1, Some(PrakashClifton { length: 3e-5, velocity: 1.0 })));
-        assert_eq!(law_values(&r, "interfaces[1]", &scene.interfaces[1]).unwrap(), LawValues::Friction(0.1, None));
+        let law = interface_law(&r, "interfaces[0]", &scene.interfaces[0]).unwrap();
+        assert_eq!(
+            law,
+            InterfaceLaw::Friction {
+                coefficient: 0.1,
+                regularisation: Some(PrakashClifton { length: 3e-5, velocity: 1.0 })
+            }
+        );
+        assert_eq!(
+            interface_law(&r, "interfaces[1]", &scene.interfaces[1]).unwrap(),
+            InterfaceLaw::Friction { coefficient: 0.1, regularisation: None }
+        );
         for (pc, message) in [
             ("{ length = 0, velocity = 1.0 }", "interfaces[0].prakash_clifton.length: must be > 0, got 0"),
             ("{ length = 1e-5, velocity = -1 }", "interfaces[0].prakash_clifton.velocity: must be > 0, got -1"),

@@ -30,6 +30,36 @@ pub struct PrakashClifton {
     pub velocity: f64,
 }
 
+/// An interface's law with its numbers at a design point (docs/method.md 1): what the checks
+/// of a submission accept and what the solver's local stage applies, node by node. Made by
+/// [`crate::check::interface_law`], the one place its rules live.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum InterfaceLaw {
+    Perfect,
+    Contact,
+    Friction {
+        /// >= 0
+        coefficient: f64,
+        /// the friction follows the normal force with a lag (`None`: Coulomb's, at once)
+        regularisation: Option<PrakashClifton>,
+    },
+    /// glued, side 2 displaced by `-shortening` (m) along the normal in the static stage (a bolt
+    /// shortened by its prestress), the jump then held: perfect in the dynamics
+    Prestress {
+        shortening: f64,
+    },
+}
+
+impl InterfaceLaw {
+    /// The law of the dynamic stage (velocities): a prestress's jump is held.
+    pub fn in_dynamics(self) -> Self {
+        match self {
+            InterfaceLaw::Prestress { .. } => InterfaceLaw::Perfect,
+            law => law,
+        }
+    }
+}
+
 /// The lagged normal force draws the friction bound at most this many times the contact's own:
 /// the friction must vanish with the normal force. Uncapped, a node whose normal force collapses
 /// (a corner that high friction unloads) keeps a pull of f N* that no step can hold: closed, it

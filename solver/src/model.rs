@@ -8,39 +8,14 @@ use crate::element::{ElementKind, Material, face_area_and_normal};
 use crate::mesh::{Face, Mesh};
 use crate::search_direction::{SearchDirection, dynamic_search_direction, static_search_direction};
 use crate::sparse::CsrMatrix;
-use glissade_core::contact::PrakashClifton;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{
     BodySpec, History, MassMatrix, QoiKind, Resolver, Scale, Scene, SceneError, Substructures, component_index, invalid,
 };
 
 /// Interface behaviour (docs/method.md 1), applied node by node in the local stage
-/// (`latin::local_stage::apply_law`: perfect, contact, Coulomb friction).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum InterfaceLaw {
-    Perfect,
-    Contact,
-    Friction {
-        coefficient: f64,
-        /// the friction follows the normal force with a lag (`None`: Coulomb's, at once)
-        regularisation: Option<PrakashClifton>,
-    },
-    /// glued, side 2 displaced by `-shortening` along the normal in the static stage (a bolt
-    /// shortened by its prestress), the jump then held: perfect in the dynamics
-    Prestress {
-        shortening: f64,
-    },
-}
-
-impl InterfaceLaw {
-    /// The law of the dynamic stage (velocities): a prestress's jump is held.
-    pub fn in_dynamics(self) -> Self {
-        match self {
-            InterfaceLaw::Prestress { .. } => InterfaceLaw::Perfect,
-            law => law,
-        }
-    }
-}
+/// (`latin::local_stage::apply_law`): core's, made where the scene is checked.
+pub use glissade_core::contact::InterfaceLaw;
 
 /// One side of an interface: a substructure and its nodes on the interface (same order on both
 /// sides, node `j` of side 1 faces node `j` of side 2).
@@ -395,7 +370,7 @@ impl<const D: usize> Model<D> {
     pub fn update_interface_laws(&mut self, scene: &Scene, values: &DesignPoint) -> Result<(), SceneError> {
         let r = Resolver { values };
         for (ii, spec) in scene.interfaces.iter().enumerate() {
-            let law = resolve_law(&r, &format!("interfaces[{ii}]"), spec)?;
+            let law = glissade_core::check::interface_law(&r, &format!("interfaces[{ii}]"), spec)?;
             for itf in self.interfaces.iter_mut().filter(|itf| itf.name == spec.name) {
                 itf.law = law;
             }
@@ -658,7 +633,7 @@ fn declared_interfaces<const D: usize>(
         if interface_index.contains_key(&spec.name) {
             return Err(invalid(format!("{key}.name"), format!("duplicate interface name '{}'", spec.name)));
         }
-        let law = resolve_law(r, &key, spec)?;
+        let law = glissade_core::check::interface_law(r, &key, spec)?;
         let (ba, faces_a) = find_face_set(bodies, &format!("{key}.a"), &spec.a)?;
         let first = interfaces.len();
         let new = Sides { spec, key: &key, law, bodies, local_of, a: (ba, faces_a) };
@@ -1210,21 +1185,6 @@ fn body_mesh<const D: usize>(
         }
     }
     Ok((Mesh::structured_box(origin, size, counts), Mesh::<D>::box_partition(counts, parts)))
-}
-
-/// The interface law at the design point (`glissade_core::check::law_values` holds the rules).
-fn resolve_law(
-    r: &Resolver,
-    key: &str,
-    spec: &glissade_core::scene::InterfaceSpec,
-) -> Result<InterfaceLaw, SceneError> {
-    use glissade_core::check::{LawValues, law_values};
-    Ok(match law_values(r, key, spec)? {
-        LawValues::Perfect => InterfaceLaw::Perfect,
-        LawValues::Contact => InterfaceLaw::Contact,
-        LawValues::Friction(coefficient, regularisation) => InterfaceLaw::Friction { coefficient, regularisation },
-        LawValues::Prestress(shortening) => InterfaceLaw::Prestress { shortening },
-    })
 }
 
 fn usize_vector<const D: usize>(key: &str, v: &[usize]) -> Result<[usize; D], SceneError> {
