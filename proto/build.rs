@@ -5,6 +5,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .btree_map(".")
         // the encoded descriptors, for server reflection (`grpcurl list`)
         .file_descriptor_set_path(out_dir.join("glissade_descriptor.bin"))
-        .compile_protos(&["proto/glissade.proto"], &["proto"])?;
+        .compile_protos(&["proto/glissade.proto", "proto/ranks.proto"], &["proto"])?;
     Ok(())
 }

@@ -9,7 +9,8 @@ pub use chunks::{Assembler, CHUNK_BYTES, ChunkError, chunks};
 pub use domain::{IdParseError, PointId, StudyId, now_unix_ms};
 use glissade_core::point::{DesignPoint, ParameterError};
 
-/// Generated code of package `glissade.v1`.
+/// Generated code of package `glissade.v1`: the API (`glissade.proto`) and the message rank 0
+/// of a pool sends its other ranks (`ranks.proto`).
 pub mod v1 {
     tonic::include_proto!("glissade.v1");
 }

@@ -4,6 +4,7 @@
 //! would multiply link time), in one module per topic. Binaries of other packages come from
 //! `cargo build --workspace`.
 
+mod architecture;
 mod browser;
 mod calculix;
 mod cli;

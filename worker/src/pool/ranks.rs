@@ -17,6 +17,7 @@ use crate::mpi_comm::Mpi;
 use glissade_core::io::solution_file;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{Scale, Scene, Tolerance};
+use glissade_proto::v1::{MeshFile, ParameterVector, RankJob, RankMessage, rank_message};
 use glissade_solver::comm::Communicator;
 use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 
@@ -126,95 +127,27 @@ fn ignore_termination_signals() {
     }
 }
 
-// The job message on the wire: protobuf (prost), so the framing, the bounds checks of a
-// truncated message and the float bits (fixed64: every rank must solve the same numbers) are
-// prost's. `encode` takes the request apart field by field, so a new field of `SolveRequest` does
-// not compile until it travels too.
-
-/// A message from rank 0. The kind is never implied by an absence: an empty or cut message is an
-/// error, not a stop.
-#[derive(Clone, PartialEq, prost::Message)]
-struct Wire {
-    #[prost(oneof = "WireKind", tags = "1, 2")]
-    kind: Option<WireKind>,
-}
-
-#[derive(Clone, PartialEq, prost::Oneof)]
-enum WireKind {
-    #[prost(message, tag = "1")]
-    Job(WireJob),
-    #[prost(bool, tag = "2")]
-    Stop(bool),
-}
-
-#[derive(Clone, PartialEq, prost::Message)]
-struct WireJob {
-    #[prost(string, tag = "1")]
-    scene_text: String,
-    #[prost(message, repeated, tag = "2")]
-    meshes: Vec<WireMesh>,
-    /// the design point, in name order
-    #[prost(message, repeated, tag = "3")]
-    set: Vec<WireParameter>,
-    #[prost(double, optional, tag = "4")]
-    tolerance: Option<f64>,
-    #[prost(uint64, optional, tag = "5")]
-    max_iterations: Option<u64>,
-    /// 0: the scene's, 1: single, 2: multi
-    #[prost(uint32, tag = "6")]
-    scale: u32,
-    #[prost(bool, tag = "7")]
-    record_fields: bool,
-    /// every rank must stop at the same tolerance, which depends on where the init is from
-    #[prost(message, optional, tag = "8")]
-    init_parameters: Option<WireParameters>,
-    /// the warm start's solution file (empty: cold)
-    #[prost(bytes = "vec", tag = "9")]
-    init_bytes: Vec<u8>,
-}
-
-#[derive(Clone, PartialEq, prost::Message)]
-struct WireMesh {
-    #[prost(string, tag = "1")]
-    file: String,
-    #[prost(bytes = "vec", tag = "2")]
-    bytes: Vec<u8>,
-}
-
-#[derive(Clone, PartialEq, prost::Message)]
-struct WireParameter {
-    #[prost(string, tag = "1")]
-    name: String,
-    #[prost(double, tag = "2")]
-    value: f64,
-}
-
-/// A present but possibly empty list (None and no parameters differ).
-#[derive(Clone, PartialEq, prost::Message)]
-struct WireParameters {
-    #[prost(message, repeated, tag = "1")]
-    values: Vec<WireParameter>,
-}
-
-fn wire_parameters(point: &DesignPoint) -> Vec<WireParameter> {
-    point.iter().map(|(name, value)| WireParameter { name: name.to_owned(), value }).collect()
-}
+// The job message on the wire: `RankMessage` of proto/proto/ranks.proto, so the framing, the
+// bounds checks of a truncated message and the float bits (fixed64: every rank must solve the
+// same numbers) are protobuf's, and the design point is the API's `ParameterVector`, converted
+// by the proto crate's impls. `encode` takes the request apart field by field, so a new field
+// of `SolveRequest` does not compile until it travels too.
 
 fn encode(message: &Message) -> Vec<u8> {
     use prost::Message as _;
     let kind = match message {
-        Message::Stop => WireKind::Stop(true),
+        Message::Stop => rank_message::Kind::Stop(true),
         Message::Job { scene_text, meshes, request, init_bytes } => {
             // progress is counted on each rank for itself
             let SolveRequest { point, tolerance, max_iterations, scale, record_fields, progress: _, init_parameters } =
                 request;
-            WireKind::Job(WireJob {
+            rank_message::Kind::Job(RankJob {
                 scene_text: scene_text.clone(),
                 meshes: meshes
                     .iter()
-                    .map(|(file, bytes)| WireMesh { file: file.clone(), bytes: bytes.clone() })
+                    .map(|(file, bytes)| MeshFile { file: file.clone(), data: bytes.clone(), sha256: String::new() })
                     .collect(),
-                set: wire_parameters(point),
+                point: Some(point.clone().into()),
                 tolerance: tolerance.map(Tolerance::get),
                 max_iterations: max_iterations.map(|n| n as u64),
                 scale: match scale {
@@ -223,29 +156,26 @@ fn encode(message: &Message) -> Vec<u8> {
                     Some(Scale::Multi) => 2,
                 },
                 record_fields: *record_fields,
-                init_parameters: init_parameters.as_ref().map(|v| WireParameters { values: wire_parameters(v) }),
+                init_parameters: init_parameters.clone().map(ParameterVector::from),
                 init_bytes: init_bytes.clone(),
             })
         }
     };
-    Wire { kind: Some(kind) }.encode_to_vec()
+    RankMessage { kind: Some(kind) }.encode_to_vec()
 }
 
 fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
     use prost::Message as _;
-    let job = match Wire::decode(bytes)?.kind {
-        Some(WireKind::Job(job)) => job,
-        Some(WireKind::Stop(true)) => return Ok(Message::Stop),
-        Some(WireKind::Stop(false)) | None => return Err(RanksError::Malformed("neither a job nor a stop")),
+    let job = match RankMessage::decode(bytes)?.kind {
+        Some(rank_message::Kind::Job(job)) => job,
+        Some(rank_message::Kind::Stop(true)) => return Ok(Message::Stop),
+        Some(rank_message::Kind::Stop(false)) | None => return Err(RanksError::Malformed("neither a job nor a stop")),
     };
     if job.meshes.len() > glissade_core::scene::MAX_MESH_FILES {
         return Err(RanksError::Malformed("too many mesh files"));
     }
     // (rank 0 sent design points: a failure here is a damaged message)
-    let point = |values: Vec<WireParameter>| {
-        DesignPoint::from_pairs(values.into_iter().map(|p| (p.name, p.value)))
-            .map_err(|_| RanksError::Malformed("bad design point"))
-    };
+    let point = |p: ParameterVector| DesignPoint::try_from(p).map_err(|_| RanksError::Malformed("bad design point"));
     let tolerance = match job.tolerance.map(|t| Tolerance::new("the job's tolerance", t)) {
         None => None,
         Some(Ok(t)) => Some(t),
@@ -263,17 +193,17 @@ fn decode(bytes: &[u8]) -> Result<Message, RanksError> {
         Some(Err(_)) => return Err(RanksError::Malformed("iteration limit out of range")),
     };
     let request = SolveRequest {
-        point: point(job.set)?,
+        point: point(job.point.ok_or(RanksError::Malformed("no design point"))?)?,
         tolerance,
         max_iterations,
         scale,
         record_fields: job.record_fields,
         progress: None,
-        init_parameters: job.init_parameters.map(|p| point(p.values)).transpose()?,
+        init_parameters: job.init_parameters.map(point).transpose()?,
     };
     Ok(Message::Job {
         scene_text: job.scene_text,
-        meshes: job.meshes.into_iter().map(|m| (m.file, m.bytes)).collect(),
+        meshes: job.meshes.into_iter().map(|m| (m.file, m.data)).collect(),
         request,
         init_bytes: job.init_bytes,
     })
