@@ -448,7 +448,7 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
         wall_seconds: r.map_or(0.0, |r| r.wall_seconds),
         error: p.error.clone().unwrap_or_default(),
         lease_deadline_unix_ms: deadline,
-        eta_history: r.map(|r| r.eta_history.clone()).unwrap_or_default(),
+        eta_history: r.map(|r| r.eta_history.values().to_vec()).unwrap_or_default(),
         work: r.map_or(0.0, |r| r.work),
         contact: r.map(|r| r.contact.iter().map(Into::into).collect()).unwrap_or_default(),
     }

@@ -48,16 +48,21 @@ pub fn decode_u64(bytes: &[u8]) -> Option<u64> {
 
 /// Identity of a stored solution: the scene's content hash and every parameter's value.
 ///
-/// Bytes: the 64 hex characters of the hash, then per parameter in name order its name's length
-/// (u16 BE), its name, and its value's IEEE bits (u64 BE; -0 stored as +0). The hash first lets a
-/// prefix scan list a scene's solutions.
+/// Bytes in the store: the 64 hex characters of the hash, then per parameter in name order its
+/// name's length (u16 BE), its name, and its value's IEEE bits (u64 BE; -0 stored as +0). The
+/// hash first lets a prefix scan list a scene's solutions. In memory the hash is [`shared`]: the
+/// coordinator holds a key for every stored solution (64 bytes each, issue 48).
 #[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct SolutionKey(Vec<u8>);
+pub struct SolutionKey {
+    scene: Arc<str>,
+    /// the bytes after the hash's
+    point: Box<[u8]>,
+}
 
 impl SolutionKey {
     /// The key of `scene_hash` at `parameters`.
     pub fn new(scene_hash: &str, parameters: &DesignPoint) -> Self {
-        let mut bytes = scene_hash.as_bytes().to_vec();
+        let mut bytes = Vec::new();
         for (name, value) in parameters.iter() {
             let len = u16::try_from(name.len()).expect("parameter names are validated to be short");
             bytes.extend_from_slice(&len.to_be_bytes());
@@ -65,17 +70,18 @@ impl SolutionKey {
             let value = if value == 0.0 { 0.0 } else { value };
             bytes.extend_from_slice(&value.to_bits().to_be_bytes());
         }
-        Self(bytes)
+        // (at its length: a vector keeps up to twice it)
+        Self { scene: shared(scene_hash), point: bytes.into_boxed_slice() }
     }
 
-    /// The key's bytes.
-    pub fn as_bytes(&self) -> &[u8] {
-        &self.0
+    /// The key's bytes in the store.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        [self.scene.as_bytes(), &self.point].concat()
     }
 
     /// The bytes after the hash (the parameters'), if the key is of `scene_hash`'s scene.
     pub fn point_bytes(&self, scene_hash: &str) -> Option<&[u8]> {
-        self.0.strip_prefix(scene_hash.as_bytes())
+        (*self.scene == *scene_hash).then_some(&self.point)
     }
 }
 
@@ -118,7 +124,7 @@ mod shared_text {
 }
 
 /// Reads a vector kept for good at its length: serde grows one by doubling as it reads (a
-/// 100-value eta history held 1,024 bytes for its 800, a contact report 320 for 80).
+/// contact report held 320 bytes for its 80).
 fn shrunk<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(deserializer: D) -> Result<Vec<T>, D::Error> {
     let mut v = Vec::deserialize(deserializer)?;
     v.shrink_to_fit();
@@ -438,9 +444,10 @@ pub struct PointResult {
     pub started_from: Option<Box<SolutionOrigin>>,
     /// Answered from a stored solution without iterations.
     pub answered: bool,
-    /// eta after each dynamic-stage iteration (absent in records written before it existed).
-    #[serde(default, deserialize_with = "shrunk")]
-    pub eta_history: Vec<f64>,
+    /// eta after each dynamic-stage iteration (absent in records written before it existed);
+    /// in the coordinator's memory its length only (the points tree keeps the values).
+    #[serde(default)]
+    pub eta_history: EtaHistory,
     /// Dynamic iterations + static iterations / steps (0 in records written before it existed).
     #[serde(default)]
     pub work: f64,
@@ -451,6 +458,100 @@ pub struct PointResult {
     /// The largest magnitude of each QoI's history (none from older pools and records).
     #[serde(default, skip_serializing_if = "QoiMap::is_empty")]
     pub qoi_largest: QoiMap,
+}
+
+/// A point's eta history: 800 bytes of a real point's 2.9 kB in the coordinator's memory, where
+/// only its page and GetStudy read it (issue 48). A point record holds the values while it is
+/// written or shown ([`EtaHistory::Held`]), and once in memory their number only
+/// ([`EtaHistory::Stored`]): its stored record (JSON, as before) keeps them, and a reader reads
+/// them back from there.
+#[derive(Debug, Clone, PartialEq)]
+pub enum EtaHistory {
+    Held(Box<[f64]>),
+    /// In the point's stored record only: this many values (never 0: an empty history is held).
+    Stored(u32),
+}
+
+impl Default for EtaHistory {
+    fn default() -> Self {
+        EtaHistory::Held(Box::default())
+    }
+}
+
+impl From<Vec<f64>> for EtaHistory {
+    fn from(values: Vec<f64>) -> Self {
+        EtaHistory::Held(values.into_boxed_slice())
+    }
+}
+
+impl EtaHistory {
+    /// How many values (eta after each dynamic-stage iteration).
+    pub fn len(&self) -> usize {
+        match self {
+            EtaHistory::Held(values) => values.len(),
+            EtaHistory::Stored(n) => *n as usize,
+        }
+    }
+
+    /// The values, once held: a history left in the store reads as none (its readers take
+    /// [`Self::Held`] ones: `Coordinator::read_histories`).
+    pub fn values(&self) -> &[f64] {
+        match self {
+            EtaHistory::Held(values) => values,
+            EtaHistory::Stored(_) => {
+                if cfg!(debug_assertions) {
+                    panic!("an eta history shown without being read from the store");
+                }
+                &[]
+            }
+        }
+    }
+
+    /// Leaves the values to the store, keeping their number; returns them (none if empty or
+    /// stored already).
+    pub fn leave_stored(&mut self) -> Option<Box<[f64]>> {
+        let n = match self {
+            EtaHistory::Held(values) if !values.is_empty() => u32::try_from(values.len()).ok()?,
+            _ => return None,
+        };
+        match std::mem::replace(self, EtaHistory::Stored(n)) {
+            EtaHistory::Held(values) => Some(values),
+            EtaHistory::Stored(_) => None,
+        }
+    }
+}
+
+impl Serialize for EtaHistory {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        match self {
+            EtaHistory::Held(values) => values.serialize(serializer),
+            // written without its values, a record would lose them for good
+            EtaHistory::Stored(_) => Err(serde::ser::Error::custom("an eta history written before it was read back")),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for EtaHistory {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        // (a boxed slice: at its length, where a vector would keep serde's doubled capacity)
+        Box::<[f64]>::deserialize(deserializer).map(EtaHistory::Held)
+    }
+}
+
+/// The eta history in a point's stored record (none when it holds no result), read without
+/// the rest of the record.
+pub fn decode_eta_history(key: &[u8], bytes: &[u8]) -> Result<Box<[f64]>, DecodeError> {
+    #[derive(Deserialize)]
+    struct Point {
+        result: Option<Solved>,
+    }
+    #[derive(Deserialize)]
+    struct Solved {
+        #[serde(default)]
+        eta_history: Box<[f64]>,
+    }
+    let point: Point = decode("points", key, bytes)?;
+    Ok(point.result.map(|r| r.eta_history).unwrap_or_default())
 }
 
 /// One design point of a study.
@@ -610,7 +711,9 @@ mod tests {
     fn solution_keys_are_prefixed_by_the_scene_and_exact_in_values() {
         let h = "ab".repeat(32);
         let a = SolutionKey::new(&h, &pv(&[("f1", 0.1), ("f2", 0.2)]));
-        assert!(a.as_bytes().starts_with(h.as_bytes()));
+        assert!(a.to_bytes().starts_with(h.as_bytes()));
+        assert_eq!(a.point_bytes(&h), Some(&a.to_bytes()[64..]));
+        assert_eq!(a.point_bytes(&"cd".repeat(32)), None);
         assert_eq!(a, SolutionKey::new(&h, &pv(&[("f2", 0.2), ("f1", 0.1)])));
         assert_ne!(a, SolutionKey::new(&h, &pv(&[("f1", 0.1), ("f2", 0.2 + 1e-16)])));
         assert_ne!(a, SolutionKey::new(&"cd".repeat(32), &pv(&[("f1", 0.1), ("f2", 0.2)])));
@@ -639,7 +742,7 @@ mod tests {
             wall_seconds: 0.5,
             started_from: Some(Box::new(origin.clone())),
             answered: false,
-            eta_history: (0..100).map(|k| 0.9f64.powi(k)).collect(),
+            eta_history: (0..100).map(|k| 0.9f64.powi(k)).collect::<Vec<_>>().into(),
             work: 3.0,
             contact: vec![],
             qoi_largest: QoiMap::default(),
@@ -649,7 +752,24 @@ mod tests {
         assert!(json.contains(&hash), "{json}");
         let back: PointResult = decode("points", b"k", json.as_bytes()).unwrap();
         assert_eq!((&back, encode(&back)), (&result, json.into_bytes()));
-        assert_eq!(back.eta_history.capacity(), 100);
+        assert_eq!(back.eta_history.len(), 100);
+        // a point's record: its history read alone; left to the store, it is not written again
+        // without its values
+        let mut point = PointRecord::pending(StudyId(1), PointId(2), pv(&[("f1", 0.1)]));
+        point.result = Some(Box::new(back.clone()));
+        let stored = encode(&point);
+        assert_eq!(decode_eta_history(b"k", &stored).unwrap(), result.eta_history.values().into());
+        let values = point.result.as_mut().unwrap().eta_history.leave_stored();
+        assert_eq!(
+            (values.map(|v| v.len()), &point.result.as_ref().unwrap().eta_history),
+            (Some(100), &EtaHistory::Stored(100))
+        );
+        assert!(serde_json::to_vec(&point).is_err());
+        assert!(
+            decode_eta_history(b"k", &encode(&PointRecord::pending(StudyId(1), PointId(2), pv(&[]))))
+                .unwrap()
+                .is_empty()
+        );
         // one copy of a hash however many records name it
         let back = back.started_from.unwrap();
         assert!(Arc::ptr_eq(&back.scene_hash, &origin.scene_hash));

@@ -279,7 +279,7 @@ impl SceneSolutions {
         let key = self.key_of(id).ok_or(StoreError::UnknownId(id))?;
         let compressed = self
             .store
-            .get(Tree::SolutionFields, key.as_bytes())
+            .get(Tree::SolutionFields, &key.to_bytes())
             .map_err(|e| StoreError::Backend(e.to_string()))?
             .ok_or_else(|| StoreError::Backend(format!("solution {id}: fields missing from the database")))?;
         let bytes = crate::records::decode_fields(&compressed)
@@ -338,13 +338,14 @@ impl SolutionStore for SceneSolutions {
     fn insert(&mut self, solution: StoredSolution) -> Result<SolutionId, StoreError> {
         let parameters = &solution.point;
         let key = SolutionKey::new(&self.scene_hash, parameters);
+        let stored = key.to_bytes();
         let bytes = self
             .store
-            .get(Tree::Solutions, key.as_bytes())
+            .get(Tree::Solutions, &stored)
             .map_err(|e| StoreError::Backend(e.to_string()))?
             .ok_or_else(|| StoreError::Backend(format!("no solution record at {parameters} in the database")))?;
-        let record: SolutionRecord = crate::records::decode("solutions", key.as_bytes(), &bytes)
-            .map_err(|e| StoreError::Backend(e.to_string()))?;
+        let record: SolutionRecord =
+            crate::records::decode("solutions", &stored, &bytes).map_err(|e| StoreError::Backend(e.to_string()))?;
         self.index(key.clone(), &Arc::new(record))?;
         self.id_of(&key).ok_or_else(|| StoreError::Backend(format!("solution at {parameters} is of another scene")))
     }

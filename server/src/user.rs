@@ -65,7 +65,9 @@ impl User for UserService {
         request: Request<v1::WatchStudyRequest>,
     ) -> Result<Response<Self::WatchStudyStream>, Status> {
         let id = StudyId(request.into_inner().study_id);
-        let (replay, receiver) = self.coordinator.watch(id)?;
+        // (the replay's eta histories are read from the store)
+        let c = self.coordinator.clone();
+        let (replay, receiver) = blocking(move || c.watch(id)).await?;
         let (tx, rx) = mpsc::channel(256);
         let coordinator = self.coordinator.clone();
         tokio::spawn(forward_events(coordinator, id, replay, receiver, tx));
@@ -74,7 +76,9 @@ impl User for UserService {
 
     async fn get_study(&self, request: Request<v1::GetStudyRequest>) -> Result<Response<v1::Study>, Status> {
         let r = request.into_inner();
-        let view = self.coordinator.study(StudyId(r.study_id), r.points)?;
+        let (id, c) = (StudyId(r.study_id), self.coordinator.clone());
+        // (its points' eta histories are read from the store)
+        let view = if r.points { blocking(move || c.study_with_histories(id)).await? } else { c.study(id, false)? };
         let mut study = convert::study(&view);
         if r.scene {
             study.scene = view.record.scene.clone();
@@ -178,13 +182,14 @@ async fn forward_events(
             Ok(_) => {}
             Err(broadcast::error::RecvError::Lagged(missed)) => {
                 tracing::debug!(study = %id, missed, "watcher lagged; replaying");
-                match coordinator.watch(id) {
+                let c = coordinator.clone();
+                match blocking(move || c.watch(id)).await {
                     Ok((again, fresh)) => {
                         replay = again;
                         receiver = fresh;
                     }
-                    Err(e) => {
-                        let _ = tx.send(Err(convert::status(e))).await;
+                    Err(status) => {
+                        let _ = tx.send(Err(status)).await;
                         return;
                     }
                 }

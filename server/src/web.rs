@@ -965,7 +965,8 @@ struct StudyShown {
 
 impl StudyShown {
     fn read(web: &Web, id: &str, q: &HashMap<String, String>) -> Result<Self, Refusal> {
-        let v = study(web, id, true)?;
+        // (the points' eta histories read back from the store for the convergence plot)
+        let v = web.coordinator.study_with_histories(study_id(id)?).map_err(failed)?;
         let s = Arc::new(surface(web, id)?);
         let r = &v.record;
         // (parsed once, when the study entered)
@@ -990,7 +991,7 @@ impl StudyShown {
             .points
             .iter()
             .filter_map(|p| {
-                let history = p.result.as_ref()?.eta_history.clone();
+                let history = p.result.as_ref()?.eta_history.values().to_vec();
                 Some(glissade_plot::ConvergenceSeries { label: format!("#{}", p.id.0), history })
             })
             .collect();

@@ -25,8 +25,8 @@ use glissade_core::study::order::OrderKind;
 use glissade_core::study::strategy::InitStrategy;
 
 use crate::records::{
-    self, AdaptiveSpec, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, QoiMap, SolutionKey, SolutionOrigin,
-    SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
+    self, AdaptiveSpec, EtaHistory, NEXT_STUDY_KEY, PointRecord, PointResult, PointState, QoiMap, SolutionKey,
+    SolutionOrigin, SolutionRecord, StudyRecord, decode, encode, point_key, study_key,
 };
 use crate::store::{Batch, Store, Tree};
 use glissade_core::study::adaptive::{QoiReadings, TargetOutcome};
@@ -229,6 +229,10 @@ impl Coordinator {
                     state.lease_since.insert(*lease_id, Instant::now());
                     batch.put(Tree::Points, pkey.clone(), encode(&point));
                 }
+                // (its record keeps the history: read back when shown)
+                if let Some(r) = point.result.as_mut() {
+                    r.eta_history.leave_stored();
+                }
                 if let Some(seq) = point.finished_seq {
                     state.next_finish_seq = state.next_finish_seq.max(seq + 1);
                 }
@@ -308,21 +312,16 @@ impl Coordinator {
         }
     }
 
-    fn emit(&self, kind: EventKind, entry: &StudyEntry, point: Option<&PointRecord>) {
+    /// Announces a change; `point` as it was stored (its eta history held).
+    fn emit(&self, kind: EventKind, entry: &StudyEntry, point: Option<PointRecord>) {
         self.send_event(kind, entry, point, None);
     }
 
-    fn send_event(
-        &self,
-        kind: EventKind,
-        entry: &StudyEntry,
-        point: Option<&PointRecord>,
-        solving: Option<(u64, f64)>,
-    ) {
+    fn send_event(&self, kind: EventKind, entry: &StudyEntry, point: Option<PointRecord>, solving: Option<(u64, f64)>) {
         let _ = self.events.send(Event {
             kind,
             study: entry.record.id,
-            point: point.cloned(),
+            point,
             progress: entry.progress(),
             state: entry.state(),
             replay: false,
@@ -360,6 +359,8 @@ impl Coordinator {
         for (p, _) in &mut changes {
             let ended = matches!(p.state, PointState::Done | PointState::Failed | PointState::Cancelled);
             p.finished_unix_ms = ended.then(|| p.finished_unix_ms.unwrap_or(now));
+            // a point written again keeps its result's history (a failed point retried)
+            self.with_history(p)?;
         }
         for (p, _) in &changes {
             batch.put(Tree::Points, point_key(p.study, p.id), encode(p));
@@ -368,15 +369,72 @@ impl Coordinator {
         if let Some(record) = record {
             entry.record = record;
         }
-        for (p, kind) in changes {
+        for (mut p, kind) in changes {
             let i = p.id.0 as usize;
-            entry.points[i] = p;
-            if let Some(kind) = kind {
-                self.emit(kind, entry, Some(&entry.points[i]));
+            // memory keeps the history's length; its event carries the values, as stored
+            let history = p.result.as_mut().and_then(|r| r.eta_history.leave_stored());
+            let Some(kind) = kind else {
+                entry.points[i] = p;
+                continue;
+            };
+            entry.points[i] = p.clone();
+            if let (Some(r), Some(values)) = (p.result.as_mut(), history) {
+                r.eta_history = EtaHistory::Held(values);
             }
+            self.emit(kind, entry, Some(p));
         }
         self.emit_if_ended(entry, was);
         Ok(())
+    }
+
+    /// The eta history in the stored record of point `id` of `study` (none if it holds none).
+    fn stored_history(&self, study: StudyId, id: PointId) -> Result<Box<[f64]>, CoordError> {
+        let key = point_key(study, id);
+        match self.store.get(Tree::Points, &key)? {
+            Some(bytes) => Ok(records::decode_eta_history(&key, &bytes)?),
+            None => Ok(Box::default()),
+        }
+    }
+
+    /// Gives `point` (about to be written) its result's eta history, read back from its stored
+    /// record where memory holds the length only; under the lock, so the record is the one
+    /// memory describes.
+    fn with_history(&self, point: &mut PointRecord) -> Result<(), CoordError> {
+        let Some(EtaHistory::Stored(n)) = point.result.as_ref().map(|r| &r.eta_history) else { return Ok(()) };
+        let n = *n as usize;
+        let values = self.stored_history(point.study, point.id)?;
+        if values.len() != n {
+            return Err(records::DecodeError {
+                tree: "points",
+                key: point_key(point.study, point.id).iter().map(|b| format!("{b:02x}")).collect(),
+                message: format!("an eta history of {} values where {n} were written", values.len()),
+            }
+            .into());
+        }
+        if let Some(r) = point.result.as_mut() {
+            r.eta_history = EtaHistory::Held(values);
+        }
+        Ok(())
+    }
+
+    /// Reads back from the store the eta histories that `points` (a view's, read under the
+    /// lock) hold the length of only: one read a point, outside the lock (the study's page is
+    /// built once a version of the study). A point solved again since its view was read shows
+    /// the history stored now.
+    pub fn read_histories<'a>(&self, points: impl IntoIterator<Item = &'a mut PointRecord>) -> Result<(), CoordError> {
+        for p in points {
+            if let Some(r) = p.result.as_mut().filter(|r| matches!(r.eta_history, EtaHistory::Stored(_))) {
+                r.eta_history = EtaHistory::Held(self.stored_history(p.study, p.id)?);
+            }
+        }
+        Ok(())
+    }
+
+    /// The study's view with its points and their eta histories (GetStudy's, the study page's).
+    pub fn study_with_histories(&self, id: StudyId) -> Result<StudyView, CoordError> {
+        let mut view = self.study(id, true)?;
+        self.read_histories(&mut view.points)?;
+        Ok(view)
     }
 
     // ---- users ----
@@ -539,6 +597,8 @@ impl Coordinator {
         if study_state != StudyState::Active {
             replay.push(event(EventKind::StudyEnded, None));
         }
+        drop(state);
+        self.read_histories(replay.iter_mut().filter_map(|e| e.point.as_mut()))?;
         Ok((replay, receiver))
     }
 
@@ -934,7 +994,7 @@ impl Coordinator {
             wall_seconds: 0.0,
             started_from: Some(Box::new(answer.origin())),
             answered: true,
-            eta_history: Vec::new(),
+            eta_history: EtaHistory::default(),
             work: 0.0,
             contact: answer.contact.clone(),
             qoi_largest: answer.qoi_largest.clone(),
@@ -1052,8 +1112,8 @@ impl Coordinator {
         let mut batch = Batch::new();
         let keep = old.as_ref().is_none_or(|old| record.replaces(old, &current_version));
         if keep {
-            batch.put(Tree::Solutions, key.as_bytes(), encode(&record));
-            batch.put(Tree::SolutionFields, key.as_bytes(), compressed);
+            batch.put(Tree::Solutions, key.to_bytes(), encode(&record));
+            batch.put(Tree::SolutionFields, key.to_bytes(), compressed);
         }
         // (a point cut short by its audit's cap is cancelled, as the cap's other points are)
         let kind = match point.state {
@@ -1109,7 +1169,7 @@ impl Coordinator {
         }
         let mut batch = Batch::new();
         for key in &keys {
-            batch.delete(Tree::Solutions, key.as_bytes()).delete(Tree::SolutionFields, key.as_bytes());
+            batch.delete(Tree::Solutions, key.to_bytes()).delete(Tree::SolutionFields, key.to_bytes());
         }
         self.store.commit(batch)?;
         let scenes: std::collections::BTreeSet<String> =
@@ -1140,7 +1200,7 @@ impl Coordinator {
             wall_seconds: 0.0,
             started_from: leased_from(&entry.points[i]),
             answered: false,
-            eta_history: Vec::new(),
+            eta_history: EtaHistory::default(),
             work: 0.0,
             contact: Vec::new(),
             qoi_largest: QoiMap::default(),
@@ -1165,7 +1225,9 @@ impl Coordinator {
     ) -> Result<PointRecord, CoordError> {
         let mut state = self.lock();
         let (entry, i) = Self::held(&mut state, pool, lease_id, study, point)?;
-        let p = apply(&entry.points[i], Transition::Release { study_cancelled: entry.record.cancelled })?;
+        let mut p = apply(&entry.points[i], Transition::Release { study_cancelled: entry.record.cancelled })?;
+        // (answered with the result it keeps, its history too)
+        self.with_history(&mut p)?;
         self.commit(entry, vec![(p.clone(), Some(EventKind::Requeued))], None, Batch::new())?;
         tracing::info!(study = %study, point = i, pool, "released");
         state.leases.remove(&lease_id);
@@ -1213,7 +1275,15 @@ impl Coordinator {
             }
             let (study, point) = leases[&lease_id];
             let entry = &studies[&study];
-            self.send_event(EventKind::Progress, entry, Some(&entry.points[point.0 as usize]), Some((iterations, eta)));
+            // (a point solved again after a retry shows its last result, its history with it)
+            let mut shown = entry.points[point.0 as usize].clone();
+            if let Err(e) = self.with_history(&mut shown) {
+                tracing::error!(%study, %point, error = %e, "an eta history could not be read back");
+                if let Some(r) = shown.result.as_mut() {
+                    r.eta_history = EtaHistory::default();
+                }
+            }
+            self.send_event(EventKind::Progress, entry, Some(shown), Some((iterations, eta)));
         }
         deadlines
     }
@@ -1513,7 +1583,7 @@ fn completion_records(
         wall_seconds: c.wall_seconds,
         started_from,
         answered: false,
-        eta_history: c.eta_history.clone(),
+        eta_history: c.eta_history.clone().into(),
         work: c.work,
         contact: c.contact.clone(),
         qoi_largest: c.qoi_largest.clone().into(),

@@ -207,7 +207,7 @@ impl Coordinator {
         };
         let compressed = self
             .store
-            .get(Tree::SolutionFields, key.as_bytes())?
+            .get(Tree::SolutionFields, &key.to_bytes())?
             .ok_or_else(|| CoordError::UnknownSolution(describe()))?;
         records::decode_fields(&compressed)
             .map_err(|e| CoordError::Corrupt(format!("stored solution {} does not decompress: {e}", describe())))

@@ -200,7 +200,7 @@ mod tests {
             wall_seconds: 1.0,
             started_from: None,
             answered: false,
-            eta_history: Vec::new(),
+            eta_history: Default::default(),
             work: 12.0,
             contact: Vec::new(),
             qoi_largest: Default::default(),

@@ -161,6 +161,7 @@ pub struct StudyView {
     pub record: StudyRecord,
     pub state: StudyState,
     pub progress: Progress,
+    /// (their eta histories' lengths only: `Coordinator::study_with_histories` reads the values)
     pub points: Vec<PointRecord>,
     pub accuracy: Option<Accuracy>,
     /// What its discretisation audit measured (None: it has none).
