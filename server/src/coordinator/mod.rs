@@ -1112,8 +1112,9 @@ impl Coordinator {
         let mut batch = Batch::new();
         let keep = old.as_ref().is_none_or(|old| record.replaces(old, &current_version));
         if keep {
-            batch.put(Tree::Solutions, key.to_bytes(), encode(&record));
-            batch.put(Tree::SolutionFields, key.to_bytes(), compressed);
+            let bytes = key.to_bytes();
+            batch.put(Tree::Solutions, bytes.clone(), encode(&record));
+            batch.put(Tree::SolutionFields, bytes, compressed);
         }
         // (a point cut short by its audit's cap is cancelled, as the cap's other points are)
         let kind = match point.state {
@@ -1169,7 +1170,8 @@ impl Coordinator {
         }
         let mut batch = Batch::new();
         for key in &keys {
-            batch.delete(Tree::Solutions, key.to_bytes()).delete(Tree::SolutionFields, key.to_bytes());
+            let bytes = key.to_bytes();
+            batch.delete(Tree::Solutions, bytes.clone()).delete(Tree::SolutionFields, bytes);
         }
         self.store.commit(batch)?;
         let scenes: std::collections::BTreeSet<String> =
