@@ -46,7 +46,7 @@ impl Delivery {
         if !s.error_indicator.is_finite() || qoi.values().any(|v| !v.is_finite()) {
             return fail("the solve diverged: eta or a QoI is not finite".into(), None, s.iterations as u64);
         }
-        let meta = solution_meta(scene, outcome);
+        let meta = solution_meta(&scene.scene, outcome);
         let mut bytes = Vec::new();
         if let Err(e) = solution_file::write_to(&mut bytes, &outcome.solution, &meta) {
             return fail(format!("writing the solution: {e}"), Some(s.error_indicator), s.iterations as u64);

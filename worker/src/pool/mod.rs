@@ -9,6 +9,9 @@
 //! (waiting in [`ranks::follow_root`]) and solves it with them; only rank 0 talks to the
 //! coordinator.
 //!
+//! The last lease's scene is kept, parsed and checked, for the next ([`scenes::SceneCache`]):
+//! a study's points share one scene, parsed and its mesh files fetched once per pool.
+//!
 //! SIGTERM or SIGINT: a pool waiting for work stops at once; a pool solving finishes the point,
 //! delivers it, then stops (a point it holds but has not started is released). A second signal
 //! stops the solve at its next iteration, gives the point back and stops; a pool still busy 5 s
@@ -17,6 +20,7 @@
 
 use glissade_core::text::one_line;
 use glissade_proto::auth::{Token, WithToken};
+use std::sync::Arc;
 use std::sync::mpsc as std_mpsc;
 use std::time::{Duration, Instant};
 use tonic::service::interceptor::InterceptedService;
@@ -32,9 +36,7 @@ use tonic::{Code, Status};
 use glissade_core::field::InterfaceSolution;
 use glissade_core::io::solution_file::{self, SolutionMeta};
 use glissade_core::point::DesignPoint;
-use glissade_core::scene::{
-    MAX_MESH_FILE_BYTES, MAX_MESH_FILES, MeshFileError, Scene, Tolerance, check_max_iterations, mesh_digest,
-};
+use glissade_core::scene::{MAX_MESH_FILE_BYTES, MAX_MESH_FILES, Scene, Tolerance, check_max_iterations};
 use glissade_core::study::engine::solve_or_retry_cold;
 use glissade_solver::comm::Serial;
 use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
@@ -42,8 +44,10 @@ use glissade_solver::run::{PointSolver, RunError, SolveOutcome, SolveRequest};
 pub mod delivery;
 #[cfg(feature = "mpi")]
 pub mod ranks;
+pub mod scenes;
 
 use delivery::{Delivery, Spool};
+use scenes::{LeasedScene, PreparedScene, SceneCache, SceneKey};
 
 /// Largest warm-start solution accepted from the coordinator (a paper-size scene's is ~100 MB).
 const MAX_INIT_BYTES: u64 = 4 << 30;
@@ -114,11 +118,11 @@ pub fn host_name() -> String {
 }
 
 /// One design point to solve, with what a wrapper needs to send it to other ranks: the scene's
-/// text and the warm start's file bytes beside their parsed forms.
+/// key and text and the warm start's file bytes beside their parsed forms.
 #[derive(Debug, Clone)]
 pub struct PointJob {
-    pub scene_text: String,
-    pub scene: Scene,
+    /// shared with the pool's kept scene and the jobs of its other points
+    pub scene: Arc<PreparedScene>,
     /// The lease's design point, the tolerance and the iteration limit.
     pub request: SolveRequest,
     /// The warm start as a solution file (empty: cold start).
@@ -134,7 +138,6 @@ impl PointJob {
         let mut request = self.request.clone();
         request.init_parameters = None;
         PointJob {
-            scene_text: self.scene_text.clone(),
             scene: self.scene.clone(),
             request,
             init_bytes: Vec::new(),
@@ -158,7 +161,7 @@ pub struct SerialPoolSolver {
 
 impl PoolSolver for SerialPoolSolver {
     fn solve(&mut self, job: &PointJob) -> Result<SolveOutcome, RunError> {
-        self.solver.solve(&Serial, &job.scene, &job.request, job.init.as_ref())
+        self.solver.solve(&Serial, &job.scene.scene, &job.request, job.init.as_ref())
     }
 }
 
@@ -243,7 +246,7 @@ pub struct Report {
     pub lease: v1::Lease,
     /// The scene solved, the outcome and whether it was solved from cold in spite of a warm
     /// start; or why there is no outcome (one line).
-    pub outcome: Result<(Scene, SolveOutcome, bool), String>,
+    pub outcome: Result<(Arc<PreparedScene>, SolveOutcome, bool), String>,
 }
 
 /// Why the conversation with the coordinator broke off.
@@ -263,8 +266,16 @@ struct Session {
     heartbeat: Duration,
 }
 
+/// Where the conversation sends jobs, and the scene it keeps for them, across leases and
+/// reconnections.
+struct Solving {
+    work: std_mpsc::Sender<Work>,
+    scenes: SceneCache,
+}
+
 async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: watch::Receiver<bool>) -> Result<()> {
     let mut pool_id = options.pool_id.clone();
+    let mut solving = Solving { work, scenes: SceneCache::default() };
     let mut pending: Option<Delivery> = None;
     let mut backoff = options.backoff.0;
     let mut idle_since = Instant::now();
@@ -305,7 +316,7 @@ async fn converse(options: PoolOptions, work: std_mpsc::Sender<Work>, mut stop: 
         pool_id = Some(session.pool_id.clone());
         deliver_spooled(&options, &mut session.client).await;
         let mut progressed = false;
-        match serve(&options, session, &work, &mut stop, &mut pending, &mut idle_since, &mut progressed).await {
+        match serve(&options, session, &mut solving, &mut stop, &mut pending, &mut idle_since, &mut progressed).await {
             Break::Stop => return Ok(()),
             Break::Reconnect(why) => {
                 // A coordinator that answers but cannot take the result (a full disk) must not
@@ -409,7 +420,7 @@ fn is_transient(status: &Status) -> bool {
 async fn serve(
     options: &PoolOptions,
     mut session: Session,
-    work: &std_mpsc::Sender<Work>,
+    solving: &mut Solving,
     stop: &mut watch::Receiver<bool>,
     pending: &mut Option<Delivery>,
     idle_since: &mut Instant,
@@ -438,10 +449,10 @@ async fn serve(
         let request = v1::LeasePointRequest { pool_id: session.pool_id.clone(), wait_ms: wait.as_millis() as u64 };
         let asked = Instant::now();
         let leased = tokio::select! {
-            r = receive_lease(&mut session.client, request) => r,
+            r = receive_lease(&mut session.client, request, &solving.scenes) => r,
             _ = stop.changed() => return Break::Stop,
         };
-        let (lease, init_bytes, meshes) = match leased {
+        let (lease, init_bytes, scene) = match leased {
             Ok(Some(l)) => {
                 *progressed = true;
                 l
@@ -473,7 +484,8 @@ async fn serve(
             release(&mut session, &lease).await;
             return Break::Stop;
         }
-        let job = match prepare(&lease, init_bytes, meshes, options.memory_budget.or_else(available_memory)) {
+        let memory = options.memory_budget.or_else(available_memory);
+        let job = match prepare(&lease, scene, init_bytes, memory, &mut solving.scenes) {
             Ok(job) => job,
             Err(e) => {
                 *pending =
@@ -485,7 +497,7 @@ async fn serve(
         let progress = job.request.progress.clone();
         let (reply_tx, mut reply_rx) = oneshot::channel();
         let solve_started = Instant::now();
-        if work.send((job, reply_tx)).is_err() {
+        if solving.work.send((job, reply_tx)).is_err() {
             return Break::Stop;
         }
         let Some(outcome) = solved(&mut session, lease.lease_id, progress.as_ref(), &mut reply_rx, stop).await else {
@@ -578,12 +590,16 @@ async fn solved<T>(
     }
 }
 
-/// A lease, its warm start's bytes and its scene's mesh files (name, bytes).
-type Leased = (v1::Lease, Vec<u8>, Vec<(String, Vec<u8>)>);
+/// A lease, its warm start's bytes and its scene.
+type Leased = (v1::Lease, Vec<u8>, LeasedScene);
 
-/// LeasePoint: the lease, then the warm start's chunks; then each mesh file the lease names
-/// (FetchMesh; the pool keeps none between leases). None when there was no work.
-async fn receive_lease(client: &mut Pool, request: v1::LeasePointRequest) -> Result<Option<Leased>, Status> {
+/// LeasePoint: the lease, then the warm start's chunks; then, unless its scene is the one kept
+/// in `scenes`, each mesh file the lease names (FetchMesh). None when there was no work.
+async fn receive_lease(
+    client: &mut Pool,
+    request: v1::LeasePointRequest,
+    scenes: &SceneCache,
+) -> Result<Option<Leased>, Status> {
     let mut stream = client.lease_point(request).await?.into_inner();
     let lease = match stream.message().await? {
         Some(v1::LeaseMessage { body: Some(lease_message::Body::Lease(lease)) }) => lease,
@@ -601,6 +617,10 @@ async fn receive_lease(client: &mut Pool, request: v1::LeasePointRequest) -> Res
         }
     }
     let bytes = assembler.finish().map_err(|e| Status::internal(format!("warm start: {e}")))?;
+    let key = SceneKey::of_lease(&lease);
+    if let Some(kept) = scenes.get(&key, &lease.scene_hash) {
+        return Ok(Some((lease, bytes, LeasedScene::Kept(kept))));
+    }
     if lease.meshes.len() > MAX_MESH_FILES {
         return Err(Status::internal(format!(
             "the lease names {} mesh files, more than {MAX_MESH_FILES}",
@@ -617,7 +637,7 @@ async fn receive_lease(client: &mut Pool, request: v1::LeasePointRequest) -> Res
         }
         meshes.push((mesh.file.clone(), assembler.finish().map_err(|e| what(&e))?));
     }
-    Ok(Some((lease, bytes, meshes)))
+    Ok(Some((lease, bytes, LeasedScene::New { key, meshes })))
 }
 
 /// Bytes the system can give a new process now (`MemAvailable` of /proc/meminfo), if known.
@@ -664,31 +684,24 @@ impl Asked {
     }
 }
 
-/// The job of a lease: the scene parsed and its size checked against `memory` (bytes), the
-/// request built, the warm start read and checked.
+/// The job of a lease: its scene, the kept one or parsed and kept in `scenes`, with the checks of
+/// the scene alone; then at every lease the point's checks, the scene's size against `memory`
+/// (bytes), the request built, the warm start read and checked.
 fn prepare(
     lease: &v1::Lease,
+    scene: LeasedScene,
     init_bytes: Vec<u8>,
-    meshes: Vec<(String, Vec<u8>)>,
     memory: Option<u64>,
+    scenes: &mut SceneCache,
 ) -> Result<PointJob> {
-    let mut scene = Scene::parse(&lease.scene).context("scene")?;
-    for ((file, bytes), announced) in meshes.iter().zip(&lease.meshes) {
-        let actual = mesh_digest(bytes);
-        if actual != announced.sha256 {
-            bail!(MeshFileError::DigestMismatch { file: file.clone(), expected: announced.sha256.clone(), actual });
-        }
-    }
-    scene.attach_mesh_bytes(meshes).context("meshes")?;
-    if scene.content_hash() != lease.scene_hash {
-        bail!("the lease's scene has hash {}, the lease says {}", scene.content_hash(), lease.scene_hash);
-    }
+    let prepared = scenes.scene_of(lease, scene)?;
+    let scene = &prepared.scene;
     // the coordinator's checks at submit (core::check), again: a scene from an older
     // coordinator, or one whose rules changed since
     let asked = Asked::try_from(lease)?;
     let request = asked.request(None);
-    scene.check_meshes().and_then(|()| scene.check_point(&scene.parameter_values(&request.point)?)).context("scene")?;
-    let size = scene.size().context("scene")?;
+    scene.parameter_values(&request.point).and_then(|values| scene.check_point(&values)).context("scene")?;
+    let size = prepared.size;
     if let Some(memory) = memory
         && size.bytes() > memory
     {
@@ -706,7 +719,7 @@ fn prepare(
     } else {
         // A warm start that does not fit is not worth failing the point over: start cold.
         match solution_file::read_from(&init_bytes[..]).map_err(anyhow::Error::from).and_then(|(meta, solution)| {
-            meta.check_fits(&scene)?;
+            meta.check_fits(scene)?;
             Ok((meta, solution))
         }) {
             Ok((meta, solution)) => {
@@ -722,7 +735,7 @@ fn prepare(
     };
     let request = SolveRequest { init_parameters, ..request };
     let init_bytes = if init.is_some() { init_bytes } else { Vec::new() };
-    Ok(PointJob { scene_text: lease.scene.clone(), scene, request, init_bytes, init, warm_start_dropped })
+    Ok(PointJob { scene: prepared, request, init_bytes, init, warm_start_dropped })
 }
 
 /// Extends the lease, reporting how far its solve got: (iterations, eta). False when the solve
@@ -789,6 +802,7 @@ pub fn solution_meta(scene: &Scene, outcome: &SolveOutcome) -> SolutionMeta {
 
 #[cfg(test)]
 mod tests {
+    use super::scenes::testing::{fetched, lease as scene_lease};
     use super::*;
 
     fn lease(parameters: &[(&str, f64)], tolerance: f64, max_iterations: u32) -> v1::Lease {
@@ -818,5 +832,40 @@ mod tests {
             let e = format!("{:#}", Asked::try_from(&bad).unwrap_err());
             assert!(e.contains(needle), "{e}");
         }
+    }
+
+    #[test]
+    fn a_lease_of_the_kept_scene_is_not_parsed_again_and_its_point_is_still_checked() {
+        let (joint, meshes) = scene_lease("bolted-joint-tiny.toml");
+        let mut scenes = SceneCache::default();
+        let first = prepare(&joint, fetched(&joint, &meshes), Vec::new(), None, &mut scenes).unwrap();
+        // what receive_lease finds for the next lease of the scene, which fetches no mesh file
+        let kept = |lease: &v1::Lease, scenes: &SceneCache| {
+            LeasedScene::Kept(scenes.get(&SceneKey::of_lease(lease), &lease.scene_hash).expect("the kept scene"))
+        };
+        let mut second = joint.clone();
+        second.parameters.insert("f".into(), 0.35);
+        let job = prepare(&second, kept(&second, &scenes), Vec::new(), None, &mut scenes).unwrap();
+        assert!(Arc::ptr_eq(&job.scene, &first.scene));
+        assert_eq!((scenes.parsed(), job.request.point.get("f")), (1, Some(0.35)));
+        // the point's checks and the memory's run at every lease
+        for (parameters, memory, needle) in [
+            (vec![("f", -0.5)], None, "must be >= 0"),
+            (vec![("g", 0.3)], None, "g"),
+            (vec![], Some(1 << 20), "more than the 1 MiB this pool has"),
+        ] {
+            let mut bad = joint.clone();
+            bad.parameters = parameters.into_iter().map(|(k, v)| (k.to_owned(), v)).collect();
+            let e = prepare(&bad, kept(&bad, &scenes), Vec::new(), memory, &mut scenes).unwrap_err();
+            assert!(format!("{e:#}").contains(needle), "{e:#}");
+        }
+        assert_eq!(scenes.parsed(), 1);
+        // another scene is parsed anew and kept in the first one's place
+        let (blocks, none) = scene_lease("three-blocks-tiny.toml");
+        assert!(scenes.get(&SceneKey::of_lease(&blocks), &blocks.scene_hash).is_none());
+        let job = prepare(&blocks, fetched(&blocks, &none), Vec::new(), None, &mut scenes).unwrap();
+        assert!(!Arc::ptr_eq(&job.scene, &first.scene));
+        assert_eq!((scenes.parsed(), job.scene.text.as_str()), (2, blocks.scene.as_str()));
+        assert!(scenes.get(&SceneKey::of_lease(&joint), &joint.scene_hash).is_none());
     }
 }
