@@ -15,6 +15,7 @@ mod low_priority;
 mod metrics;
 mod pool;
 mod qoi_map;
+mod read_budget;
 mod records;
 mod renderings;
 mod store;
@@ -75,7 +76,13 @@ pub struct ServerOptions {
     pub open: bool,
     /// PEM certificate chain and private key: serve TLS (clients use https:// URLs).
     pub tls: Option<(Vec<u8>, Vec<u8>)>,
+    /// Web requests (page, JSON API, /metrics) a second from one client address, on average;
+    /// more get 429 (read_budget.rs).
+    pub web_reads_per_second: f64,
 }
+
+/// Default of `--web-reads-per-second`: a person's browser makes a request or two a second.
+pub const DEFAULT_WEB_READS_PER_SECOND: f64 = read_budget::DEFAULT_RATE;
 
 /// Default of `--max-scene-mib`: 64 GiB, the memory of a large compute node (the paper's
 /// bolted joint, 450,000 dofs, is estimated at about 4.5 GB).
@@ -113,6 +120,7 @@ impl ServerOptions {
             tokens: None,
             open: false,
             tls: None,
+            web_reads_per_second: DEFAULT_WEB_READS_PER_SECOND,
         }
     }
 }
@@ -144,6 +152,7 @@ pub async fn bind(
             .register_encoded_file_descriptor_set(glissade_proto::FILE_DESCRIPTOR_SET)
     };
     let heavy = Arc::new(low_priority::LowPriority::for_this_machine().context("starting the web's threads")?);
+    let budget = Arc::new(read_budget::ReadBudget::new(options.web_reads_per_second));
     let reflection_v1 = reflection().build_v1().context("building the reflection service")?;
     let reflection_v1alpha = reflection().build_v1alpha().context("building the reflection service")?;
     let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("binding {listen}"))?;
@@ -179,7 +188,7 @@ pub async fn bind(
         let (stopping_tx, stopping_rx) = tokio::sync::oneshot::channel();
         let standard =
             tonic::service::Routes::new(standard_health).add_service(reflection_v1).add_service(reflection_v1alpha);
-        let routes = routes(standard, &coordinator, &metrics, tokens.as_ref(), tls, heavy);
+        let routes = routes(standard, &coordinator, &metrics, tokens.as_ref(), tls, heavy, budget);
         let serve = builder.accept_http1(true).add_routes(routes).serve_with_incoming_shutdown(
             conn::Incoming::new(listener, limits),
             {
@@ -241,6 +250,10 @@ fn check_options(options: &ServerOptions, listen: SocketAddr) -> Result<()> {
             anyhow::bail!("{name} 0: give at least 1");
         }
     }
+    let rate = options.web_reads_per_second;
+    if !(rate.is_finite() && (0.1..=1e6).contains(&rate)) {
+        anyhow::bail!("--web-reads-per-second {rate}: give 0.1 to 1e6");
+    }
     if options.tokens.is_none() && !listen.ip().is_loopback() && !options.open {
         anyhow::bail!(
             "listening on {listen} without tokens would let anyone who reaches it submit, cancel or falsify results: give --user-token-file and --pool-token-file (README, Service), listen on 127.0.0.1, or pass --open on a network where every host is trusted"
@@ -275,6 +288,7 @@ fn routes(
     tokens: Option<&auth::Tokens>,
     tls: bool,
     heavy: Arc<low_priority::LowPriority>,
+    budget: Arc<read_budget::ReadBudget>,
 ) -> tonic::service::Routes {
     routes = routes
         .add_service(HealthServer::new(health::HealthService { coordinator: coordinator.clone() }))
@@ -298,7 +312,7 @@ fn routes(
         std::mem::take(routes.axum_router_mut()).fallback(web::not_found).layer(axum::middleware::from_fn(grpc_only));
     // every request, gRPC or HTTP, counted by method and status for /metrics
     *routes.axum_router_mut() = grpc
-        .merge(web::router(coordinator.clone(), metrics.clone(), tokens, tls, heavy))
+        .merge(web::router(coordinator.clone(), metrics.clone(), tokens, tls, heavy, budget))
         .layer(axum::middleware::from_fn_with_state(metrics.clone(), metrics::count_requests))
         .layer(axum::middleware::from_fn_with_state(tokens.cloned(), trust_tokens));
     routes

@@ -56,6 +56,12 @@ struct Args {
     /// keepalive pings sent every quarter of it, so open streams and long polls stay up).
     #[arg(long, value_name = "SECONDS", default_value_t = 60.0, env = "GLISSADE_IDLE_SECONDS")]
     idle_seconds: f64,
+    /// Web requests (the page, the JSON API, /metrics; not its static files) a second from one
+    /// client address, on average, two seconds' worth at once: more get 429 with Retry-After,
+    /// so a client reading as fast as it is answered cannot take the cores the studies need.
+    /// gRPC calls are not counted.
+    #[arg(long, value_name = "N", default_value_t = glissade_server::DEFAULT_WEB_READS_PER_SECOND, env = "GLISSADE_WEB_READS_PER_SECOND")]
+    web_reads_per_second: f64,
     /// Where there are tokens: a connection that has not presented a valid one within this long
     /// is closed, and at the connection limit a new connection displaces the oldest such
     /// connection (strangers cannot hold the slots that clients with a token need).
@@ -131,6 +137,7 @@ async fn run(args: Args) -> Result<()> {
         idle: seconds("--idle-seconds", args.idle_seconds, 0.1)?,
         probation: seconds("--probation-seconds", args.probation_seconds, 0.1)?,
         max_connections: args.max_connections,
+        web_reads_per_second: args.web_reads_per_second,
         max_connections_per_client: args.max_connections_per_client,
         max_pending: args.max_pending,
         data: args.data,

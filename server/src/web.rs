@@ -40,6 +40,7 @@ use crate::coordinator::{
 use crate::figures::{self, FigureCache};
 use crate::low_priority::{LowPriority, NotBuilt};
 use crate::metrics::{self, Metrics};
+use crate::read_budget::{Admission, MAX_WAIT, REFUSAL_DELAY, ReadBudget};
 use crate::records::{PointRecord, PointState};
 use crate::renderings::{Answer, NotRendered, Rendered, Renderings};
 use axum::body::Bytes;
@@ -76,11 +77,48 @@ pub fn router(
     tokens: Option<&Tokens>,
     secure_cookie: bool,
     heavy: Arc<LowPriority>,
+    budget: Arc<ReadBudget>,
 ) -> axum::Router {
     let token = tokens.map(|t| t.user.clone());
     let web =
         Web { coordinator, metrics, token, secure_cookie, figures: Arc::default(), heavy, renderings: Arc::default() };
-    routes(web)
+    routes(web).route_layer(axum::middleware::from_fn_with_state(budget, within_budget))
+}
+
+/// Every request but the page's static files takes its turn from its address's budget
+/// (read_budget.rs): at once, after a wait, or, past the longest wait, 429 with `Retry-After`
+/// after a delay. A request without a connection (only in-process tests make one) is not counted.
+async fn within_budget(
+    State(budget): State<Arc<ReadBudget>>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    let ip = crate::conn::conn_of(request.extensions()).and_then(|c| c.tcp.remote_addr()).map(|a| a.ip());
+    let admission = match ip {
+        Some(ip) if !request.uri().path().starts_with("/static/") => budget.take(ip, std::time::Instant::now()),
+        _ => Admission::Now,
+    };
+    match admission {
+        Admission::Now => {}
+        Admission::After(wait) => tokio::time::sleep(wait).await,
+        Admission::Refused { retry_after } => {
+            tokio::time::sleep(REFUSAL_DELAY).await;
+            let seconds = retry_after.as_secs_f64().ceil().max(1.0);
+            let mut refused = refuse(
+                StatusCode::TOO_MANY_REQUESTS,
+                &format!(
+                    "too many requests from this address: at most {} a second (the coordinator's \
+                     --web-reads-per-second), and those of the next {} s are taken; try again in {seconds} s",
+                    budget.rate(),
+                    MAX_WAIT.as_secs()
+                ),
+            )
+            .into_response();
+            refused.headers_mut().insert(header::RETRY_AFTER, HeaderValue::from(seconds as u64));
+            return refused;
+        }
+    }
+    next.run(request).await
 }
 
 fn routes(web: Web) -> axum::Router {

@@ -1,7 +1,7 @@
 //! An honest user's study beside hostile clients (issue 48's goal): points dispatched per second
 //! and the Health check's latency, quiet and under attack, in one run.
 //!
-//!   load-bench SERVER_BIN SCENE.toml HOSTILE READERS POOLS GRID...
+//!   load-bench SERVER_BIN SCENE.toml HOSTILE READERS POOLS GRID... [-- SERVER_ARGS...]
 //!   load-bench target/release/glissade-server scenes/three-blocks-tiny.toml 1000 8 4 f1=0.1:0.2:40 f2=0.1:0.2:25
 //!
 //! It starts SERVER_BIN with tokens on loopback in a temporary directory, has POOLS fake pools
@@ -12,8 +12,16 @@
 //! - HOSTILE connections without a token, from 127.0.0.2-9, each kept open for as long as the
 //!   coordinator allows and opened again when closed: half send HTTP/2's preface and a PING every
 //!   second, half a login body a byte every 2 s;
-//! - READERS clients with the user token, each fetching in turn the first study's whole JSON, its
-//!   page and the list of studies, as fast as they are answered, taking gzip as a browser does.
+//! - READERS clients with the user token, each from its own address (127.0.0.10 on), each
+//!   fetching in turn the first study's whole JSON, its page and the list of studies, as fast as
+//!   they are answered, taking gzip as a browser does; a 429 (the coordinator's
+//!   `--web-reads-per-second`) is counted and the reader asks again at once, ignoring
+//!   `Retry-After` as a hostile one would (with `LOAD_BENCH_RETRY_AFTER=1`, it waits as told, as
+//!   a browser or a client library does).
+//!
+//! The attack runs on a runtime (threads) of its own, the honest study's pools and the checker
+//! on the bench's main one, as they would on different hosts; all share the machine's cores
+//! with the coordinator.
 //!
 //! Meanwhile a checker opens a new connection every 100 ms and asks Health with the user token
 //! (what a CLI call or a pool's first call does). Prints one JSON object: per phase the points per
@@ -42,6 +50,8 @@ struct Args {
     readers: usize,
     pools: usize,
     grid: Vec<String>,
+    /// given to the server after its own arguments (after `--`)
+    server_args: Vec<String>,
 }
 
 const USER_TOKEN: &str = "load-bench-user-token-0123456789abcdef";
@@ -49,8 +59,12 @@ const POOL_TOKEN: &str = "load-bench-pool-token-0123456789abcdef";
 
 fn parse_args() -> Result<Args, Error> {
     let a: Vec<String> = std::env::args().skip(1).collect();
+    let (a, server_args) = match a.iter().position(|x| x == "--") {
+        Some(at) => (a[..at].to_vec(), a[at + 1..].to_vec()),
+        None => (a, Vec::new()),
+    };
     if a.len() < 6 {
-        return Err("usage: load-bench SERVER_BIN SCENE.toml HOSTILE READERS POOLS GRID...".into());
+        return Err("usage: load-bench SERVER_BIN SCENE.toml HOSTILE READERS POOLS GRID... [-- SERVER_ARGS...]".into());
     }
     Ok(Args {
         server: a[0].clone(),
@@ -59,6 +73,7 @@ fn parse_args() -> Result<Args, Error> {
         readers: a[3].parse()?,
         pools: a[4].parse()?,
         grid: a[5..].to_vec(),
+        server_args,
     })
 }
 
@@ -72,7 +87,7 @@ impl Drop for Server {
     }
 }
 
-fn start_server(bin: &str, dir: &std::path::Path) -> Result<(Server, String), Error> {
+fn start_server(bin: &str, extra: &[String], dir: &std::path::Path) -> Result<(Server, String), Error> {
     use std::io::BufRead;
     std::fs::write(dir.join("user.token"), USER_TOKEN)?;
     std::fs::write(dir.join("pool.token"), POOL_TOKEN)?;
@@ -84,6 +99,7 @@ fn start_server(bin: &str, dir: &std::path::Path) -> Result<(Server, String), Er
         .arg("--pool-token-file")
         .arg(dir.join("pool.token"))
         .args(["--max-points", "1000000", "--max-pending", "1000000"])
+        .args(extra)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(std::fs::File::create(dir.join("server.log"))?)
@@ -183,6 +199,8 @@ struct Attack {
     reads: AtomicU64,
     read_bytes: AtomicU64,
     read_failures: AtomicU64,
+    /// answered 429: over the address's budget of web requests
+    refused: AtomicU64,
 }
 
 /// One hostile client without a token: open, send, reopen when closed, until `stop`.
@@ -222,9 +240,11 @@ async fn hostile(addr: std::net::SocketAddr, k: usize, attack: Arc<Attack>, stop
     }
 }
 
-/// GET `path` with the user token: the whole answer.
-async fn get(addr: std::net::SocketAddr, path: &str) -> std::io::Result<Vec<u8>> {
-    let mut s = tokio::net::TcpStream::connect(addr).await?;
+/// GET `path` from the address `from` with the user token: the whole answer.
+async fn get(from: std::net::IpAddr, addr: std::net::SocketAddr, path: &str) -> std::io::Result<Vec<u8>> {
+    let socket = tokio::net::TcpSocket::new_v4()?;
+    socket.bind((from, 0).into())?;
+    let mut s = socket.connect(addr).await?;
     let head = format!(
         "GET {path} HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {USER_TOKEN}\r\nAccept-Encoding: gzip\r\n\
          Connection: close\r\n\r\n"
@@ -235,17 +255,34 @@ async fn get(addr: std::net::SocketAddr, path: &str) -> std::io::Result<Vec<u8>>
     Ok(answer)
 }
 
+/// How long a 429 said to wait, where the bench is asked to honour it.
+fn retry_after(answer: &[u8]) -> Option<Duration> {
+    if std::env::var_os("LOAD_BENCH_RETRY_AFTER").is_none_or(|v| v != "1") {
+        return None;
+    }
+    let head = String::from_utf8_lossy(&answer[..answer.len().min(4096)]).to_ascii_lowercase();
+    let seconds = head.lines().find_map(|l| l.strip_prefix("retry-after:"))?.trim().parse().ok()?;
+    Some(Duration::from_secs(seconds))
+}
+
 /// One heavy reader with the user token: the first study's JSON, its page, the list, in turn.
-async fn reader(addr: std::net::SocketAddr, study: u64, attack: Arc<Attack>, stop: Arc<AtomicBool>) {
+async fn reader(k: usize, addr: std::net::SocketAddr, study: u64, attack: Arc<Attack>, stop: Arc<AtomicBool>) {
+    let from = std::net::IpAddr::from([127, 0, 0, 10 + (k % 240) as u8]);
     let paths = [format!("/api/studies/{study}"), format!("/studies/{study}"), "/".to_owned()];
     let mut i = 0;
     while !stop.load(Ordering::Relaxed) {
         let path = &paths[i % paths.len()];
         i += 1;
-        match tokio::time::timeout(Duration::from_secs(60), get(addr, path)).await {
+        match tokio::time::timeout(Duration::from_secs(60), get(from, addr, path)).await {
             Ok(Ok(a)) if a.starts_with(b"HTTP/1.1 200") => {
                 attack.reads.fetch_add(1, Ordering::Relaxed);
                 attack.read_bytes.fetch_add(a.len() as u64, Ordering::Relaxed);
+            }
+            Ok(Ok(a)) if a.starts_with(b"HTTP/1.1 429") => {
+                attack.refused.fetch_add(1, Ordering::Relaxed);
+                if let Some(wait) = retry_after(&a) {
+                    tokio::time::sleep(wait).await;
+                }
             }
             _ => {
                 attack.read_failures.fetch_add(1, Ordering::Relaxed);
@@ -278,12 +315,12 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
     let scene = Scene::parse(&args.scene_text)?;
     let dir = std::env::temp_dir().join(format!("load-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
-    let (server, url) = start_server(&args.server, &dir)?;
+    let (server, url) = start_server(&args.server, &args.server_args, &dir)?;
     let addr: std::net::SocketAddr = url.trim_start_matches("http://").parse()?;
     let (first, _) = solve_study(&url, &args, &scene).await?;
     // its page once, quiet: the pictures drawn and kept, as for a study someone has looked at
     let drawn = Instant::now();
-    let page = get(addr, &format!("/studies/{first}")).await?;
+    let page = get([127, 0, 0, 1].into(), addr, &format!("/studies/{first}")).await?;
     if !page.starts_with(b"HTTP/1.1 200") {
         return Err(format!("the first study's page: {}", String::from_utf8_lossy(&page[..page.len().min(200)])).into());
     }
@@ -293,9 +330,12 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
     let quiet = phase(&url, &args, &scene).await?;
     let attack = Arc::new(Attack::default());
     let stop = Arc::new(AtomicBool::new(false));
+    // the attack on threads of its own, as it would be on hosts of its own: on the honest side's
+    // runtime its thousand tasks queued the pools' and the checker's behind them
+    let attackers = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build()?;
     let mut tasks: Vec<_> =
-        (0..args.hostile).map(|k| tokio::spawn(hostile(addr, k, attack.clone(), stop.clone()))).collect();
-    tasks.extend((0..args.readers).map(|_| tokio::spawn(reader(addr, first, attack.clone(), stop.clone()))));
+        (0..args.hostile).map(|k| attackers.spawn(hostile(addr, k, attack.clone(), stop.clone()))).collect();
+    tasks.extend((0..args.readers).map(|k| attackers.spawn(reader(k, addr, first, attack.clone(), stop.clone()))));
     // the attack in place (every slot taken) before the honest study starts
     tokio::time::sleep(Duration::from_secs(3)).await;
     let attacked = phase(&url, &args, &scene).await;
@@ -303,6 +343,7 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
     for t in tasks {
         t.abort();
     }
+    attackers.shutdown_background();
     let attacked = attacked?;
     let quiet_again = phase(&url, &args, &scene).await?;
     let rss_after = rss_mib(&server);
@@ -316,6 +357,7 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
         "pools": args.pools,
         "hostile": args.hostile,
         "readers": args.readers,
+        "server_args": args.server_args,
         "quiet": quiet,
         "attacked": attacked,
         "quiet_again": quiet_again,
@@ -325,6 +367,7 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
             "reads": attack.reads.load(Ordering::Relaxed),
             "read_mib": attack.read_bytes.load(Ordering::Relaxed) as f64 / (1u64 << 20) as f64,
             "read_failures": attack.read_failures.load(Ordering::Relaxed),
+            "refused": attack.refused.load(Ordering::Relaxed),
         },
         "first_page_seconds": first_page_seconds,
         "rss_mib": {"after_first_study": rss_before, "end": rss_after},

@@ -493,3 +493,78 @@ fn the_lists_of_studies_come_in_pages() -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// A client address that reads the web page or its API faster than `--web-reads-per-second`
+/// waits its turn once its two seconds' worth is spent, and past five seconds of turns gets 429
+/// with `Retry-After`, after a delay (issue 48: eight readers as fast as answered took the cores
+/// an honest study's dispatch needed; refused at once, they asked three times as often), while
+/// another address, the page's static files and gRPC calls are answered at once.
+#[test]
+fn a_client_that_reads_the_web_too_fast_waits_and_others_do_not() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let args = ["--web-reads-per-second", "2"];
+    let (_server, addr) =
+        start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &args);
+    let rt = runtime();
+    let connect = |ip: &str| -> anyhow::Result<std::net::TcpStream> {
+        rt.block_on(async {
+            let socket = tokio::net::TcpSocket::new_v4()?;
+            socket.bind(format!("{ip}:0").parse()?)?;
+            let stream = socket.connect(addr).await?.into_std()?;
+            stream.set_nonblocking(false)?;
+            anyhow::Ok(stream)
+        })
+    };
+    let send = |stream: &mut std::net::TcpStream, path: &str| -> anyhow::Result<()> {
+        use std::io::Write;
+        Ok(write!(stream, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n")?)
+    };
+    let answer = |mut stream: std::net::TcpStream| -> anyhow::Result<(u16, String)> {
+        let mut raw = String::new();
+        std::io::Read::read_to_string(&mut stream, &mut raw)?;
+        Ok((raw.split_whitespace().nth(1).and_then(|s| s.parse().ok()).unwrap_or(0), raw))
+    };
+    let get_from = |ip: &str, path: &str| -> anyhow::Result<(u16, String, Duration)> {
+        let started = std::time::Instant::now();
+        let mut stream = connect(ip)?;
+        send(&mut stream, path)?;
+        let (status, raw) = answer(stream)?;
+        Ok((status, raw, started.elapsed()))
+    };
+    // the burst: two seconds' worth (4) at once
+    for _ in 0..4 {
+        let (status, raw, took) = get_from("127.0.0.3", "/api/studies")?;
+        assert!(status == 200 && took < Duration::from_millis(400), "{took:?} {raw}");
+    }
+    // then sixteen at once: ten take the turns of the next five seconds (half a second apart;
+    // one or two more where the bucket refilled meanwhile), the rest are refused, a second
+    // later, saying when to come back
+    let started = std::time::Instant::now();
+    let mut streams = Vec::new();
+    for _ in 0..16 {
+        let mut stream = connect("127.0.0.3")?;
+        send(&mut stream, "/api/studies")?;
+        streams.push(stream);
+        // (in order: each request reaches the budget before the next is sent)
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // meanwhile the page's static files are not counted, another address has its own budget,
+    // and gRPC is not counted
+    let (status, _, took) = get_from("127.0.0.3", "/static/style.css")?;
+    assert!(status == 200 && took < Duration::from_millis(400), "{took:?}");
+    let (status, _, took) = get_from("127.0.0.4", "/api/studies")?;
+    assert!(status == 200 && took < Duration::from_millis(400), "{took:?}");
+    let studies = glissade(Some(&format!("http://{addr}")), &["studies"]);
+    assert!(studies.status.success(), "{}", text(&studies.stderr));
+    let answers: Vec<(u16, String)> = streams.into_iter().map(answer).collect::<Result<_, _>>()?;
+    let took = started.elapsed();
+    let served = answers.iter().filter(|a| a.0 == 200).count();
+    let refused: Vec<&String> = answers.iter().filter(|a| a.0 == 429).map(|a| &a.1).collect();
+    assert!((10..=13).contains(&served) && served + refused.len() == 16, "{answers:?}");
+    for r in refused {
+        assert!(r.to_ascii_lowercase().contains("retry-after: 1"), "{r}");
+        assert!(r.contains("at most 2 a second") && r.contains("--web-reads-per-second"), "{r}");
+    }
+    assert!(took >= Duration::from_millis(4500), "ten turns half a second apart came in {took:?}");
+    Ok(())
+}
