@@ -38,10 +38,10 @@ run_shape() { # NAME POOLS RANKS_PER_POOL
     mpiexec.mpich -n "$per" "$bin/glissade-worker" pool --coordinator "$url" --pool-id "$name-$i" 2> "$work/$name-pool-$i.log" &
     shape_pids+=($!)
   done
-  until "$bin/glissade" --server "$url" show "$study" --json | grep -q '"state":"done"'; do sleep 0.2; done
+  until "$bin/glissade" --server "$url" show "$study" --json | grep -q '"state":"STUDY_STATE_DONE"'; do sleep 0.2; done
   end=$(date +%s.%N)
   local iterations
-  iterations=$("$bin/glissade" --server "$url" show "$study" --json | python3 -c 'import json,sys; print(json.load(sys.stdin)["progress"]["iterations"])')
+  iterations=$("$bin/glissade" --server "$url" show "$study" --json | python3 -c 'import json,sys; print(int(json.load(sys.stdin)["progress"]["iterations"]))')
   printf '%-22s wall %7.1f s   iterations %6d\n' "$pools pool(s) x $per rank(s)" "$(python3 -c "print($end - $start)")" "$iterations"
   for p in "${shape_pids[@]}"; do kill -TERM "$p" 2>/dev/null || true; done
   kill -TERM "$server" 2>/dev/null || true

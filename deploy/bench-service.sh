@@ -43,7 +43,7 @@ study=$("$bin/glissade" "${args[@]}")
 RUST_LOG=glissade_worker::pool=info "$bin/glissade-worker" pool --coordinator "$url" --pool-id bench 2> "$work/pool.log" &
 pids+=($!)
 echo "study $study of $scene (${grid[*]}, tol $tol): solving with one pool..." >&2
-until "$bin/glissade" --server "$url" show "$study" --json | grep -q '"state":"done"'; do
+until "$bin/glissade" --server "$url" show "$study" --json | grep -q '"state":"STUDY_STATE_DONE"'; do
   sleep 1
 done
 python3 - "$work/pool.log" "$work/server.log" "$work/db" <<'PY'

@@ -71,7 +71,8 @@ class Service:
 
 
 def finished(study):
-    return study["state"] in ("done", "cancelled", "failed")
+    # (`show --json` is GetStudy's study in the proto's JSON: enums by name, 64-bit integers as strings)
+    return study["state"] in ("STUDY_STATE_DONE", "STUDY_STATE_CANCELLED", "STUDY_STATE_FAILED")
 
 
 def start(point):
@@ -102,7 +103,7 @@ def measure(bin_dir, scene, reference, sets, qois, name, args, out, shared=None)
         while audit and not finished(service.show(audit["audit_study_id"])):
             time.sleep(1)
         study = service.show(sid, points=True)
-        points = [p for p in study["points"] if p["state"] == "done"]
+        points = [p for p in study["points"] if p["state"] == "POINT_STATE_DONE"]
         params = study["parameters"]
         design = [tuple(p["parameters"][n] for n in params) for p in points]
         # reference points off the design (at a design point the surface interpolates its value)
@@ -121,7 +122,7 @@ def measure(bin_dir, scene, reference, sets, qois, name, args, out, shared=None)
         # how each point began: a later design on a shared service continues or warm-starts
         # from the earlier ones' points
         "starts": {k: sum(start(p) == k for p in points) for k in ("answered", "continued", "warm", "cold")},
-        "wall_s": (study["finished_unix_ms"] - study["created_unix_ms"]) / 1e3,
+        "wall_s": (int(study["finished_unix_ms"]) - int(study["created_unix_ms"])) / 1e3,
         "tolerance": study["tolerance"], "target": study.get("target"),
         "audit": study.get("surface_accuracy"), "judged_on": len(off), "qoi": {},
         # every number the errors come from, to judge again on another measure

@@ -41,13 +41,20 @@ pub async fn user(server: &Server) -> Result<User> {
     Ok(UserClient::with_interceptor(connect(server).await?, WithToken::new(server.token.as_ref())))
 }
 
-/// The study with its points and (when asked) its scene text; errors start with `command ID`.
+/// The study with (when asked) its points, without their eta histories, and its scene text;
+/// errors start with `command ID`.
 pub async fn get_study(client: &mut User, command: &str, id: u64, points: bool, scene: bool) -> Result<v1::Study> {
-    Ok(client
-        .get_study(v1::GetStudyRequest { study_id: id, points, scene })
-        .await
-        .map_err(|s| refused(&format!("{command} {id}"), s))?
-        .into_inner())
+    ask_study(client, command, v1::GetStudyRequest { study_id: id, points, scene, without_eta_histories: true }).await
+}
+
+/// The study with its points and their eta histories.
+pub async fn get_study_with_histories(client: &mut User, command: &str, id: u64) -> Result<v1::Study> {
+    ask_study(client, command, v1::GetStudyRequest { study_id: id, points: true, ..Default::default() }).await
+}
+
+async fn ask_study(client: &mut User, command: &str, request: v1::GetStudyRequest) -> Result<v1::Study> {
+    let id = request.study_id;
+    Ok(client.get_study(request).await.map_err(|s| refused(&format!("{command} {id}"), s))?.into_inner())
 }
 
 /// Connects to `server`, turning transport errors into one line that says what went wrong.

@@ -21,7 +21,7 @@ use commands::studies::{cancel, purge_pool, retry, studies};
 use commands::submit::{SubmitArgs, submit};
 use commands::surface::{SurfaceArgs, surface};
 use commands::watch::watch;
-use glissade_cli::connect::{Server, User, connect, get_study, refused, user};
+use glissade_cli::connect::{Server, User, connect, get_study, get_study_with_histories, refused, user};
 use glissade_cli::fields;
 use glissade_cli::fields::{FieldsArgs, ServerArgs};
 
@@ -72,7 +72,8 @@ enum Command {
     /// List the studies with their state and progress (also `glissade list`).
     #[command(visible_alias = "list")]
     Studies {
-        /// Print one JSON object instead of a table.
+        /// Print the studies as one JSON array instead of a table: ListStudies' `Study` messages
+        /// in the proto's JSON, as the web API's /api/studies serves them.
         #[arg(long)]
         json: bool,
         /// Also list the audits and the pilots' levels as rows of their own (else each is
@@ -87,7 +88,8 @@ enum Command {
         /// List every design point with its parameters, iterations, eta and QoIs.
         #[arg(long)]
         points: bool,
-        /// Print one JSON object instead of text.
+        /// Print one JSON object instead of text: the `Study` GetStudy returns (with --points,
+        /// its points) in the proto's JSON, as the web API's /api/studies/ID serves it.
         #[arg(long)]
         json: bool,
     },

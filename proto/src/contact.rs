@@ -16,6 +16,7 @@ impl From<&ContactActivity> for v1::ContactActivity {
             landings_while_sliding: u32::try_from(a.landings_while_sliding).unwrap_or(u32::MAX),
             peak_normal_force_ratio: a.peak_normal_force_ratio,
             ill_posed: a.ill_posed,
+            chatters: a.chatters(),
         }
     }
 }

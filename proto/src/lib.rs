@@ -1,9 +1,11 @@
 //! The gRPC contract of glissade (generated) and the small domain types both ends share.
 
+pub mod accuracy;
 pub mod auth;
 pub mod chunks;
 pub mod contact;
 pub mod domain;
+pub mod json;
 
 pub use chunks::{Assembler, CHUNK_BYTES, ChunkError, chunks};
 pub use domain::{IdParseError, PointId, StudyId, now_unix_ms};
@@ -13,6 +15,8 @@ use glissade_core::point::{DesignPoint, ParameterError};
 /// of a pool sends its other ranks (`ranks.proto`).
 pub mod v1 {
     tonic::include_proto!("glissade.v1");
+    // their serde: proto3's JSON mapping (build.rs; json.rs says how it reads)
+    include!(concat!(env!("OUT_DIR"), "/glissade.v1.serde.rs"));
 }
 
 /// The encoded protobuf descriptors of `glissade.v1`, for server reflection.

@@ -448,7 +448,8 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
         wall_seconds: r.map_or(0.0, |r| r.wall_seconds),
         error: p.error.clone().unwrap_or_default(),
         lease_deadline_unix_ms: deadline,
-        eta_history: r.map(|r| r.eta_history.values().to_vec()).unwrap_or_default(),
+        // (a view read without its histories has them in the store: none shown)
+        eta_history: r.and_then(|r| r.eta_history.held()).map(<[f64]>::to_vec).unwrap_or_default(),
         work: r.map_or(0.0, |r| r.work),
         contact: r.map(|r| r.contact.iter().map(Into::into).collect()).unwrap_or_default(),
     }
@@ -473,6 +474,12 @@ fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64, check: Option<&He
         })
         .collect();
     v1::StudyToAccuracy {
+        max_time_factor: t.limits.max_time_factor as u32,
+        max_mesh_factor: t.limits.max_mesh_factor as u32,
+        level_time_factors: t.levels.iter().map(|l| l.0 as u32).collect(),
+        level_mesh_factors: t.levels.iter().map(|l| l.1 as u32).collect(),
+        held_out_points: t.held_out_points.clone(),
+        pilots: pilots(t),
         above_time_factors: t.above.iter().map(|a| a.time_factor as u32).collect(),
         above_mesh_factors: t.above.iter().map(|a| a.mesh_factor as u32).collect(),
         above_check_ids: t.above.iter().map(|a| a.check.0).collect(),
@@ -501,9 +508,37 @@ fn to_accuracy(t: &crate::records::ToAccuracy, tolerance: f64, check: Option<&He
     }
 }
 
+/// Each pilot of a study to an accuracy: the levels its ladders asked for, and its report.
+fn pilots(t: &crate::records::ToAccuracy) -> Vec<v1::PilotLadders> {
+    t.pilots
+        .iter()
+        .enumerate()
+        .map(|(i, &point_id)| v1::PilotLadders {
+            point_id,
+            asked: (t.asked.get(i).into_iter().flatten())
+                .map(|&(refinement, k, m)| v1::LevelAsked {
+                    refinement: glissade_proto::accuracy::refinement(refinement).to_owned(),
+                    time_factor: k as u32,
+                    mesh_factor: m as u32,
+                })
+                .collect(),
+            report: t.reports.get(i).and_then(Option::as_ref).map(Into::into),
+        })
+        .collect()
+}
+
+/// The unit of each parameter of the scene that declares one and of each QoI.
+fn units(scene: &glissade_core::scene::Scene) -> BTreeMap<String, String> {
+    let names = scene.parameters.keys().chain(scene.qoi.iter().map(|q| &q.name));
+    names.filter_map(|n| Some((n.clone(), scene.unit(n)?.to_owned()))).collect()
+}
+
+/// A study as GetStudy returns it, and the web API and `show --json` write it
+/// (glissade_proto::json): its leased points with what their pools last reported.
 pub fn study(v: &StudyView) -> v1::Study {
     let r = &v.record;
     v1::Study {
+        units: units(&v.scene),
         verdicts: v.verdicts(),
         to_accuracy: r.to_accuracy.as_ref().map(|t| to_accuracy(t, r.tolerance, v.held_out_check.as_ref())),
         pilot_of: r.pilot_of.map_or(0, |s| s.0),
@@ -545,7 +580,17 @@ pub fn study(v: &StudyView) -> v1::Study {
         progress: Some(progress(v.progress)),
         parameters: r.parameters.clone(),
         created_unix_ms: r.created_unix_ms,
-        points: v.points.iter().map(point).collect(),
+        points: v
+            .points
+            .iter()
+            .map(|p| {
+                let mut status = point(p);
+                if let Some(&(iterations, eta)) = v.solving.get(&p.id) {
+                    (status.iterations, status.error_indicator) = (iterations, eta);
+                }
+                status
+            })
+            .collect(),
         scene: String::new(),
         accuracy: v.accuracy.as_ref().map(|a| v1::StudyAccuracy {
             audit_study_id: a.audit_study.0,
@@ -784,6 +829,8 @@ mod tests {
             landings_while_sliding: 4,
             peak_normal_force_ratio: 3.0,
             ill_posed: true,
+            // (a pool's word for it is not kept: the coordinator recomputes it)
+            chatters: false,
         };
         let header = |contact: Vec<v1::ContactActivity>| v1::CompletePointHeader {
             pool_id: "p".into(),

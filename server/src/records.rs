@@ -507,6 +507,15 @@ impl EtaHistory {
         }
     }
 
+    /// The values where they are held, None where they were left in the store: a view read
+    /// without its histories (GetStudy's `without_eta_histories`, the JSON API) shows none.
+    pub fn held(&self) -> Option<&[f64]> {
+        match self {
+            EtaHistory::Held(values) => Some(values),
+            EtaHistory::Stored(_) => None,
+        }
+    }
+
     /// Leaves the values to the store, keeping their number; returns them (none if empty or
     /// stored already).
     pub fn leave_stored(&mut self) -> Option<Box<[f64]>> {

@@ -78,7 +78,11 @@ impl User for UserService {
         let r = request.into_inner();
         let (id, c) = (StudyId(r.study_id), self.coordinator.clone());
         // (its points' eta histories are read from the store)
-        let view = if r.points { blocking(move || c.study_with_histories(id)).await? } else { c.study(id, false)? };
+        let view = match (r.points, r.without_eta_histories) {
+            (true, false) => blocking(move || c.study_with_histories(id)).await?,
+            (true, true) => blocking(move || c.study(id, true)).await?,
+            (false, _) => c.study(id, false)?,
+        };
         let mut study = convert::study(&view);
         if r.scene {
             study.scene = view.record.scene.clone();

@@ -13,10 +13,12 @@
 //! TOKEN`, or for a browser the HttpOnly cookie that the form at `/login` sets. A token never goes
 //! in a URL (histories and logs keep URLs): `?token=` is refused.
 //!
-//! JSON: `/api/studies`, `/api/studies/ID` (with points, and the running points with the
-//! iterations and eta their pools last reported), `/api/studies/ID/surface` (every QoI of every
-//! point); CSV: `/api/studies/ID/surface.csv`; Prometheus text: `/metrics` (metrics.rs). Any
-//! other path is 404.
+//! JSON: `/api/studies` (a page of ListStudies' studies), `/api/studies/ID` (the study GetStudy
+//! returns with its points, the running ones with the iterations and eta their pools last
+//! reported), `/api/studies/ID/progress` (the same with its running points only), each the
+//! proto's JSON (glissade_proto::json: proto3's mapping, the one rendering of a study);
+//! `/api/studies/ID/surface` (every QoI of every point); CSV: `/api/studies/ID/surface.csv`;
+//! Prometheus text: `/metrics` (metrics.rs). Any other path is 404.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
@@ -29,10 +31,12 @@ use glissade_core::contact::ContactActivity;
 use glissade_core::point::DesignPoint;
 use glissade_proto::StudyId;
 use glissade_proto::auth::Token;
+use glissade_proto::v1;
 use maud::{DOCTYPE, Markup, PreEscaped, html};
 use serde_json::json;
 
 use crate::auth::Tokens;
+use crate::convert;
 use crate::coordinator::{
     AUDIT_WORK_FRACTION, CoordError, Coordinator, StudyState, StudyView, Surface, SurfaceSource, point_state_word,
     state_word,
@@ -41,7 +45,6 @@ use crate::figures::{self, FigureCache};
 use crate::low_priority::{LowPriority, NotBuilt};
 use crate::metrics::{self, Metrics};
 use crate::read_budget::{Admission, MAX_WAIT, REFUSAL_DELAY, ReadBudget};
-use crate::records::{PointRecord, PointState};
 use crate::renderings::{Answer, NotRendered, Rendered, Renderings};
 use axum::body::Bytes;
 use glissade_core::text::{parameter, percent, qoi_digits, qoi_value, same_parameter, utc_minute, wall_time};
@@ -302,6 +305,12 @@ fn not_built_refusal(e: NotBuilt) -> Refusal {
     }
 }
 
+/// A message's JSON (glissade_proto::json: the API's one rendering), serialised where it is
+/// built.
+fn message_response<M: serde::Serialize>(message: &M) -> Response {
+    ([(header::CONTENT_TYPE, "application/json")], glissade_proto::json::to_vec(message)).into_response()
+}
+
 /// JSON, serialised where it is built (a large study's is megabytes).
 fn json_response(value: &serde_json::Value) -> Response {
     match serde_json::to_vec(value) {
@@ -329,102 +338,9 @@ fn study(web: &Web, id: &str, points: bool) -> Result<StudyView, Refusal> {
     web.coordinator.study(study_id(id)?, points).map_err(failed)
 }
 
-fn progress_json(p: crate::coordinator::Progress) -> serde_json::Value {
-    json!({"total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
-           "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations})
-}
-
-fn study_json(v: &StudyView) -> serde_json::Value {
-    let p = v.progress;
-    let r = &v.record;
-    let mut out = json!({
-        "study_id": r.id.0,
-        "label": r.label,
-        "state": state_word(v.state),
-        "tolerance": r.tolerance,
-        "parameters": r.parameters,
-        "strategy": r.strategy.name(),
-        "audit_of": r.audit_of.map(|s| s.0),
-        "verdicts": v.verdicts(),
-        "audits": v.audits.iter().map(|a| json!({
-            "study_id": a.study.0, "what": a.what, "state": state_word(a.state),
-            "done": a.progress.done, "total": a.progress.total, "failed": a.progress.failed,
-            "cancelled": a.progress.cancelled, "why_cancelled": a.why_cancelled,
-        })).collect::<Vec<_>>(),
-        "kind": v.kind,
-        "scene_title": v.scene_title,
-        "created_unix_ms": r.created_unix_ms,
-        "finished_unix_ms": v.finished_unix_ms,
-        "progress": progress_json(p),
-        "accuracy": v.accuracy.as_ref().map(|a| json!({
-            "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "audited": a.audited, "planned": a.planned,
-            "work": a.work, "work_cap": a.work_cap,
-            "qoi": a.qoi.iter().map(|(q, (l, m))| (q.clone(), json!({"largest": l, "mean": m}))).collect::<serde_json::Map<_, _>>(),
-        })),
-        "refines": r.refines.map(|x| json!({"study_id": x.study.0, "factor": x.factor, "refinement": x.refinement})),
-        "held_out": r.held_out.is_some(),
-        "target": r.adaptive.as_ref().and_then(|a| Some(json!({
-            "surface_accuracy": a.target?, "budget": a.budget,
-            "work_budget": a.work_budget, "work": crate::records::work_of(&v.points),
-            "outcome": a.outcome.as_ref().map(crate::convert::target_outcome),
-            "points": a.outcome.as_ref().map(|o| o.validation.points),
-            "qoi": a.outcome.as_ref().map(|o| o.validation.qoi.iter().map(|(q, e)| (q.clone(), json!({
-                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
-                "box_largest": e.box_largest,
-            }))).collect::<serde_json::Map<_, _>>()),
-        }))),
-        "surface_accuracy": v.surface_accuracy.as_ref().map(|a| json!({
-            "audit_study_id": a.audit_study.0, "tolerance": a.tolerance, "validated": a.validated,
-            "planned": a.planned, "fitted": a.fitted, "work": a.work, "work_cap": a.work_cap, "refused": a.refused,
-            "seed": a.seed,
-            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), json!({
-                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.count,
-            }))).collect::<serde_json::Map<_, _>>(),
-        })),
-        "discretisation": v.discretisation.as_ref().map(|d| json!({
-            "level_study_ids": d.levels.iter().map(|(s, _)| s.0).collect::<Vec<_>>(),
-            "factors": d.levels.iter().map(|(_, f)| f).collect::<Vec<_>>(),
-            "audited": d.audited, "planned": d.planned,
-            "work_seconds": d.work_seconds, "study_seconds": d.study_seconds,
-            "qoi": d.qoi.iter().map(|(q, e)| (q.clone(), json!({
-                "change": e.change, "error": e.error, "order": e.order, "order_assumed": e.order_assumed,
-                "erratic": e.erratic, "below_tolerance": e.below_tolerance,
-                "mesh": e.mesh.map(|m| json!({"change": m.change, "error": m.error, "below_tolerance": m.below_tolerance})),
-            }))).collect::<serde_json::Map<_, _>>(),
-            "mesh": d.mesh.as_ref().map(|m| json!({
-                "study_id": m.study.0, "factor": m.factor, "audited": m.audited, "work_seconds": m.work_seconds,
-            })),
-        })),
-        "points": v.points.iter().map(point_json).collect::<Vec<_>>(),
-        "running": running_json(v),
-    });
-    // a study to an accuracy: what was asked, each pilot's ladders and report, the level chosen
-    // (records::ToAccuracy); a level of its pilots names it
-    out["to_accuracy"] = json!(r.to_accuracy);
-    out["pilot_of"] = json!(r.pilot_of.map(|s| s.0));
-    out["held_out_check"] = json!(v.held_out_check);
-    out
-}
-
-/// The leased points of a study's view, with what their pools last reported.
-fn running_json(v: &StudyView) -> Vec<serde_json::Value> {
-    v.points
-        .iter()
-        .filter_map(|p| match &p.state {
-            PointState::Leased { pool, .. } => {
-                let solving = v.solving.get(&p.id);
-                Some(json!({
-                    "point_id": p.id.0, "parameters": BTreeMap::from(p.parameters.clone()), "pool": pool,
-                    "iterations": solving.map(|s| s.0), "eta": solving.map(|s| s.1),
-                }))
-            }
-            _ => None,
-        })
-        .collect()
-}
-
-/// What an open study page polls: its state, its progress and its running points, without the
-/// points done (a whole study's JSON is megabytes on a large one).
+/// What an open study page polls: the study as GetStudy returns it (its JSON,
+/// glissade_proto::json) with its running points only, each with the iterations and eta its pool
+/// last reported: not the points done (a whole study's JSON is megabytes on a large one).
 async fn api_study_progress(
     State(web): State<Web>,
     Path(id): Path<String>,
@@ -440,36 +356,10 @@ async fn api_study_progress(
     };
     let coordinator = web.coordinator.clone();
     match tokio::task::spawn_blocking(move || coordinator.study_running(id)).await {
-        Ok(Ok(v)) => axum::Json(json!({
-            "study_id": v.record.id.0,
-            "state": state_word(v.state),
-            "parameters": v.record.parameters,
-            "progress": progress_json(v.progress),
-            "running": running_json(&v),
-        }))
-        .into_response(),
+        Ok(Ok(v)) => message_response(&convert::study(&v)),
         Ok(Err(e)) => failed(e).into_response(),
         Err(_) => refuse(StatusCode::INTERNAL_SERVER_ERROR, "the progress could not be read").into_response(),
     }
-}
-
-fn point_json(p: &PointRecord) -> serde_json::Value {
-    let r = p.result.as_ref();
-    json!({
-        "point_id": p.id.0,
-        "parameters": BTreeMap::from(p.parameters.clone()),
-        "state": point_state_word(&p.state),
-        "iterations": r.map(|r| r.iterations),
-        "error_indicator": r.and_then(|r| glissade_core::text::measured_eta(r.error_indicator)),
-        "work": r.map(|r| r.work),
-        "started_from": r.and_then(|r| r.started_from.as_ref()).map(|o| BTreeMap::from(o.parameters.clone())),
-        "qoi": r.map(|r| r.qoi.clone()).unwrap_or_default(),
-        // the contacts whose answer moves under refinement whatever the tolerance (docs/verification.md 4d)
-        "flagged_contacts": r.map(|r| r.contact.iter()
-            .filter(|c| c.ill_posed || c.chatters())
-            .map(|c| json!({ "interface": c.interface, "ill_posed": c.ill_posed, "chatters": c.chatters() }))
-            .collect::<Vec<_>>()).unwrap_or_default(),
-    })
 }
 
 async fn api_studies(State(web): State<Web>, headers: HeaderMap, Query(q): Params) -> Response {
@@ -484,7 +374,8 @@ async fn api_studies(State(web): State<Web>, headers: HeaderMap, Query(q): Param
     let coordinator = web.coordinator.clone();
     heavy(&web, move || {
         let (page, more) = coordinator.studies_page(after, limit);
-        let mut response = json_response(&page.iter().map(study_json).collect());
+        let studies: Vec<v1::Study> = page.iter().map(convert::study).collect();
+        let mut response = message_response(&studies);
         let last = page.last().map(|v| v.record.id.0);
         if let Some(next) = next_page("/api/studies", last, more, limit)
             && let Ok(link) = HeaderValue::from_str(&format!("<{next}>; rel=\"next\""))
@@ -539,10 +430,10 @@ async fn api_study(State(web): State<Web>, Path(id): Path<String>, headers: Head
             Err(r) => return r.into_response(),
         };
         let built = w.renderings.get_or_build(id, "json", version, || {
+            // exactly GetStudy's study with its points, without their eta histories
+            // (`without_eta_histories`: a hundred numbers a point, read from the store)
             let v = w.coordinator.study(id, true).map_err(|e| not_rendered(failed(e)))?;
-            let bytes = serde_json::to_vec(&study_json(&v))
-                .map_err(|e| (StatusCode::INTERNAL_SERVER_ERROR, format!("writing the JSON: {e}")))?;
-            Ok(Answer::new("application/json", bytes.into()))
+            Ok(Answer::new("application/json", glissade_proto::json::to_vec(&convert::study(&v)).into()))
         });
         rendered(built, &headers)
     })
@@ -638,23 +529,27 @@ td,th{padding:2px 8px;border-bottom:1px solid #ddd;text-align:right}th{cursor:po
 .surface,.convergence{display:block;margin:0 0 2em 0}circle.point{fill:#000;fill-opacity:0}\
 .point:hover{stroke:#000;stroke-width:2}";
 
-/// The study page's script: progress without reloading while the study runs (from the JSON at
-/// `data-api`, written with `textContent` only), and a sortable points table.
+/// The study page's script: progress without reloading while the study runs (from the study's
+/// JSON at `data-api` + `/progress`: proto3's mapping, its points the running ones; written with
+/// `textContent` only), and a sortable points table.
 const STUDY_JS: &str = "\
 async function poll() {
   const p = document.getElementById('progress');
   if (!p || p.dataset.state !== 'active') return;
   try {
     const s = await (await fetch(p.dataset.api + '/progress')).json(); const g = s.progress;
-    p.textContent = s.state + ': ' + g.done + ' of ' + g.total + ' done, ' + g.leased + ' running, ' + g.pending + ' pending, ' + g.failed + ' failed';
+    const state = s.state.replace('STUDY_STATE_', '').toLowerCase();
+    p.textContent = state + ': ' + g.done + ' of ' + g.total + ' done, ' + g.leased + ' running, ' + g.pending + ' pending, ' + g.failed + ' failed';
     const t = document.getElementById('running');
     if (t) {
       [...t.rows].slice(1).forEach(r => r.remove());
-      s.running.forEach(r => { const row = t.insertRow();
-        [r.point_id, ...s.parameters.map(n => r.parameters[n]), r.pool, r.iterations ?? '', r.eta == null ? '' : r.eta.toExponential(2)]
+      // (iterations and eta 0: its pool has not reported yet)
+      s.points.filter(r => r.state === 'POINT_STATE_LEASED').forEach(r => { const row = t.insertRow();
+        [r.point_id, ...s.parameters.map(n => r.parameters[n]), r.pool_id, r.iterations === '0' ? '' : r.iterations,
+         r.error_indicator ? r.error_indicator.toExponential(2) : '']
           .forEach(x => row.insertCell().textContent = x); });
     }
-    if (s.state !== 'active') location.reload(); else p.dataset.polled = (Number(p.dataset.polled || 0) + 1).toString();
+    if (state !== 'active') location.reload(); else p.dataset.polled = (Number(p.dataset.polled || 0) + 1).toString();
   } catch (e) {}
   // every second at first, then less often: a long study's open tab costs little
   setTimeout(poll, Math.min(5000, 1000 + 250 * Number(p.dataset.polled || 0)));
@@ -1388,6 +1283,7 @@ fn points_table(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::records::PointState;
     use glissade_plot::study::{Picture, Row};
     use std::time::Duration;
 
@@ -1607,7 +1503,10 @@ mod tests {
             }
         }
         let first = json().await;
-        assert_eq!(state(&first), "failed");
+        assert_eq!(state(&first), "STUDY_STATE_FAILED");
+        // the proto's JSON of the study GetStudy returns with its points without their histories
+        let got = crate::convert::study(&c.study(id, true).unwrap());
+        assert_eq!(serde_json::from_str::<serde_json::Value>(&first).unwrap(), glissade_proto::json::study(&got));
         assert_eq!(json().await, first);
         assert_eq!(builds(), 1, "read twice, built once");
         let page = get(format!("/studies/{}", id.0)).await;
@@ -1616,17 +1515,17 @@ mod tests {
         assert_eq!(builds(), 2, "the page too");
         // a retry: the next read is built again, and says so
         c.retry_failed(id).unwrap();
-        assert_eq!(state(&json().await), "active");
+        assert_eq!(state(&json().await), "STUDY_STATE_ACTIVE");
         assert_eq!(builds(), 3);
         // leased: its reports move without a version, so every read is built
         let grant = c.lease("p").unwrap().unwrap();
-        assert_eq!(state(&json().await), "active");
+        assert_eq!(state(&json().await), "STUDY_STATE_ACTIVE");
         json().await;
         assert_eq!(builds(), 3, "none kept while a point is solved");
         let (done, file) = solution_file(&grant, 5e-4, true);
         c.complete(done, file).unwrap();
         let done = json().await;
-        assert_eq!(state(&done), "done");
+        assert_eq!(state(&done), "STUDY_STATE_DONE");
         assert_eq!(json().await, done);
         assert_eq!(builds(), 4);
         // another study's work leaves this one's kept

@@ -53,13 +53,15 @@ while :; do
 import json, sys
 s = json.load(open(sys.argv[1]))
 points = s["points"]
-done = [p for p in points if p["state"] == "done"]
-warm = [p for p in done if p["started_from"]]
+# (the proto's JSON: enums by name, 64-bit integers as strings, an absent message left out)
+done = [p for p in points if p["state"] == "POINT_STATE_DONE"]
+warm = [p for p in done if p.get("started_from")]
 work = sum(p["work"] for p in done)
 secs = sum(p["wall_seconds"] for p in done)
-running = sum(p["iterations"] for p in points if p["state"] == "leased")
+running = sum(int(p["iterations"]) for p in points if p["state"] == "POINT_STATE_LEASED")
+state = s["state"].removeprefix("STUDY_STATE_").lower()
 print(f"{sys.argv[2]} s: {len(done)} of {len(points)} done ({len(warm)} warm), work {work:.1f}, "
-      f"solve wall {secs:.1f} s, {s['progress']['leased']} solving ({running} iterations so far), state {s['state']}")
+      f"solve wall {secs:.1f} s, {s['progress']['leased']} solving ({running} iterations so far), state {state}")
 PY
 ) || line="$elapsed s: (no progress read)"
   echo "$line" | tee -a "$out/progress.txt"

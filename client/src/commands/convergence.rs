@@ -7,7 +7,7 @@ use glissade_cli::names::{describe_parameters, point_state_name};
 use glissade_cli::outln;
 use glissade_plot::{self as plot, ConvergenceSeries};
 
-use crate::{Server, get_study, parse_size, user};
+use crate::{Server, get_study_with_histories, parse_size, user};
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct ConvergenceArgs {
@@ -29,7 +29,7 @@ pub(crate) async fn convergence(server: &Server, args: ConvergenceArgs) -> Resul
         bail!("say where the histories go: --png FILE and/or --json");
     }
     let mut client = user(server).await?;
-    let study = get_study(&mut client, "convergence", args.study, true, false).await?;
+    let study = get_study_with_histories(&mut client, "convergence", args.study).await?;
     let series: Vec<ConvergenceSeries> = study
         .points
         .iter()

@@ -11,16 +11,14 @@ use glissade_proto::v1;
 use crate::{Server, get_study, user};
 
 pub(crate) async fn show(server: &Server, study: u64, points: bool, json: bool) -> Result<()> {
-    // the points always: the work line and the failures come from them (the scene: the QoIs' units)
-    let s = get_study(&mut user(server).await?, "show", study, true, true).await?;
     if json {
-        let mut value = study_json(&s);
-        if points {
-            value["points"] = s.points.iter().map(point_json).collect();
-        }
-        outln!("{value}");
+        // the study as GetStudy returned it, in the proto's JSON: as the web API serves it
+        let s = get_study(&mut user(server).await?, "show", study, points, false).await?;
+        outln!("{}", glissade_proto::json::to_string(&s));
         return Ok(());
     }
+    // the points always: the work line and the failures come from them (the scene: the QoIs' units)
+    let s = get_study(&mut user(server).await?, "show", study, true, true).await?;
     describe(&s);
     let p = s.progress.unwrap_or_default();
     outln!(
@@ -282,148 +280,6 @@ fn point_lines(s: &v1::Study) {
     }
 }
 
-pub(crate) fn study_json(s: &v1::Study) -> serde_json::Value {
-    let p = s.progress.unwrap_or_default();
-    let mut v = serde_json::json!({
-        "study_id": s.study_id,
-        "label": s.label,
-        "scene_hash": s.scene_hash,
-        "state": study_state_name(s.state),
-        "strategy": strategy_name(s.strategy),
-        "order": order_name(s.order),
-        "tolerance": s.tolerance,
-        "max_iterations": s.max_iterations,
-        "parameters": s.parameters,
-        "progress": {
-            "total": p.total, "pending": p.pending, "leased": p.leased, "done": p.done,
-            "failed": p.failed, "cancelled": p.cancelled, "iterations": p.iterations,
-        },
-        "created_unix_ms": s.created_unix_ms,
-        "finished_unix_ms": (s.finished_unix_ms > 0).then_some(s.finished_unix_ms),
-        "kind": s.kind,
-        "scene_title": s.scene_title,
-        "audit_of": (s.audit_of != 0).then_some(s.audit_of),
-        "accuracy": s.accuracy.as_ref().map(|a| serde_json::json!({
-            "audit_study_id": a.audit_study_id,
-            "tolerance": a.tolerance,
-            "audited": a.audited,
-            "planned": a.planned,
-            "work": a.work,
-            "work_cap": a.work_cap,
-            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({"largest": e.largest, "mean": e.mean})))
-                .collect::<serde_json::Map<_, _>>(),
-        })),
-        "refines": (s.refines != 0).then(|| serde_json::json!({"study_id": s.refines, "factor": s.refine_factor})),
-        "held_out": s.held_out,
-        "target": s.target.as_ref().map(|t| serde_json::json!({
-            "surface_accuracy": t.surface_accuracy,
-            "budget": t.budget,
-            "work_budget": (t.work_budget > 0.0).then_some(t.work_budget),
-            "work": t.work,
-            "outcome": (!t.outcome.is_empty()).then_some(&t.outcome),
-            "points": t.points,
-            "refused": t.refused,
-            "qoi": t.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
-                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.points,
-                "box_largest": (e.box_largest > 0.0).then_some(e.box_largest),
-            }))).collect::<serde_json::Map<_, _>>(),
-        })),
-        "surface_accuracy": s.surface_accuracy.as_ref().map(|a| serde_json::json!({
-            "audit_study_id": a.audit_study_id,
-            "tolerance": a.tolerance,
-            "validated": a.validated,
-            "planned": a.planned,
-            "fitted": a.fitted,
-            "work": a.work,
-            "work_cap": a.work_cap,
-            "refused": a.refused,
-            "qoi": a.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
-                "largest": e.largest, "mean": e.mean, "within_2sd": e.within_2sd, "points": e.points,
-            }))).collect::<serde_json::Map<_, _>>(),
-        })),
-        "discretisation": s.discretisation.as_ref().map(|d| serde_json::json!({
-            "level_study_ids": d.level_study_ids,
-            "factors": d.factors,
-            "audited": d.audited,
-            "planned": d.planned,
-            "work_seconds": d.work_seconds,
-            "study_seconds": d.study_seconds,
-            "qoi": d.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
-                "change": e.change, "error": e.error, "order": (e.order > 0.0).then_some(e.order),
-                "order_assumed": e.order_assumed, "erratic": e.erratic, "below_tolerance": e.below_tolerance,
-                "mesh": e.mesh_change.map(|change| serde_json::json!({
-                    "change": change, "error": e.mesh_error, "below_tolerance": e.mesh_below_tolerance,
-                })),
-            }))).collect::<serde_json::Map<_, _>>(),
-            "mesh": (d.mesh_study_id != 0).then(|| serde_json::json!({
-                "study_id": d.mesh_study_id, "factor": d.mesh_factor, "audited": d.mesh_audited,
-                "work_seconds": d.mesh_work_seconds,
-            })),
-        })),
-    });
-    // (apart: one json! of every field passes the macro's recursion limit)
-    v["pilot_of"] = serde_json::json!((s.pilot_of != 0).then_some(s.pilot_of));
-    // each parameter's declared unit and each QoI's (from the kept scene; empty without it)
-    let scene = Scene::parse(&s.scene).ok();
-    let units: std::collections::BTreeMap<&str, &str> = scene
-        .as_ref()
-        .map(|scene| {
-            let names = scene.parameters.keys().map(String::as_str).chain(scene.qoi.iter().map(|q| q.name.as_str()));
-            names.filter_map(|n| Some((n, scene.unit(n)?))).collect()
-        })
-        .unwrap_or_default();
-    v["units"] = serde_json::json!(units);
-    v["to_accuracy"] = serde_json::json!(s.to_accuracy.as_ref().map(to_accuracy_json));
-    v["verdicts"] = serde_json::json!(s.verdicts);
-    v["audits"] = s
-        .audits
-        .iter()
-        .map(|a| {
-            let p = a.progress.unwrap_or_default();
-            serde_json::json!({
-                "study_id": a.study_id, "what": a.what, "state": study_state_name(a.state),
-                "done": p.done, "total": p.total, "failed": p.failed, "cancelled": p.cancelled,
-                "why_cancelled": (!a.why_cancelled.is_empty()).then_some(&a.why_cancelled),
-            })
-        })
-        .collect();
-    v
-}
-
-pub(crate) fn point_json(p: &v1::PointStatus) -> serde_json::Value {
-    serde_json::json!({
-        "point_id": p.point_id,
-        "parameters": p.parameters,
-        "state": point_state_name(p.state),
-        "attempts": p.attempts,
-        "pool_id": p.pool_id,
-        "iterations": p.iterations,
-        "work": p.work,
-        "error_indicator": glissade_core::text::measured_eta(p.error_indicator),
-        "qoi": p.qoi,
-        "answered": p.answered,
-        "wall_seconds": p.wall_seconds,
-        "started_from": p.started_from.as_ref().map(|s| serde_json::json!({
-            "scene_hash": s.scene_hash,
-            "parameters": s.parameters,
-            "study_id": s.study_id,
-            "point_id": s.point_id,
-        })),
-        "error": if p.error.is_empty() { None } else { Some(&p.error) },
-        "contact": p.contact.iter().map(|c| serde_json::json!({
-            "interface": c.interface,
-            "friction": c.friction,
-            "rigid_wall": c.rigid_wall,
-            "contact_nodes": c.contact_nodes,
-            "first_slip_time": c.first_slip_time,
-            "landings_while_sliding": c.landings_while_sliding,
-            "peak_normal_force_ratio": c.peak_normal_force_ratio,
-            "ill_posed": c.ill_posed,
-            "chatters": ContactActivity::try_from(c.clone()).is_ok_and(|a| a.chatters()),
-        })).collect::<Vec<_>>(),
-    })
-}
-
 /// `2 of 2 points re-solved cold at 1e-5 (study 2): slip_A largest 0.0310 % mean 0.0120 %, ...
 /// (of each QoI's largest |value|)`
 pub(crate) fn accuracy_line(a: &v1::StudyAccuracy) -> String {
@@ -444,44 +300,6 @@ pub(crate) fn accuracy_line(a: &v1::StudyAccuracy) -> String {
         if errors.is_empty() { "" } else { ": " },
         errors.join(", ")
     )
-}
-
-/// `7 of 7 held-out points (seed 1234) solved cold at 2e-6 (study 4) against the surface of 121 points:
-/// slip_A largest 1.3e-1 mean 5.0e-3 within 2 sd 86 %, ...`; errors relative to each QoI's spread.
-/// A study to an accuracy in `show --json`.
-fn to_accuracy_json(t: &v1::StudyToAccuracy) -> serde_json::Value {
-    serde_json::json!({
-        "above": t.above_time_factors.iter().zip(&t.above_mesh_factors).zip(&t.above_check_ids)
-            .map(|((k, m), c)| serde_json::json!({"time_factor": k, "mesh_factor": m, "check_study_id": c}))
-            .collect::<Vec<_>>(),
-        "accuracy": t.accuracy,
-        "tolerance": t.tolerance,
-        "pilot_points": t.pilot_points,
-        "pilots_done": t.pilots_done,
-        "chosen": t.chosen,
-        "time_factor": t.chosen.then_some(t.time_factor),
-        "mesh_factor": t.chosen.then_some(t.mesh_factor),
-        "reached": t.reached,
-        "why_not": (!t.why_not.is_empty()).then_some(&t.why_not),
-        "newmark_gamma": t.newmark_gamma,
-        "held_out": (t.held_out_study_id != 0).then(|| serde_json::json!({
-            "study_id": t.held_out_study_id,
-            "time_factor": t.held_out_time_factor,
-            "mesh_factor": t.held_out_mesh_factor,
-            "planned": t.held_out_planned,
-            "done": t.held_out_done,
-            "failed": t.held_out_failed,
-            "difference": t.held_out_difference,
-            "confirmed": t.confirmed,
-        })),
-        "level_study_ids": t.level_study_ids,
-        "pilot_work": t.pilot_work,
-        "pilot_wall_seconds": t.pilot_wall_seconds,
-        "qoi": t.qoi.iter().map(|(q, e)| (q.clone(), serde_json::json!({
-            "total": e.total, "time": e.time, "mesh": (e.mesh >= 0.0).then_some(e.mesh),
-            "joint": e.joint, "iteration": e.iteration, "within": e.within,
-        }))).collect::<serde_json::Map<_, _>>(),
-    })
 }
 
 /// A study to an accuracy: what was asked, what the pilots chose (or why nothing), and per QoI
@@ -560,6 +378,8 @@ pub(crate) fn to_accuracy_lines(t: &v1::StudyToAccuracy) -> Vec<String> {
     lines
 }
 
+/// `7 of 7 held-out points (seed 1234) solved cold at 2e-6 (study 4) against the surface of 121 points:
+/// slip_A largest 1.3e-1 mean 5.0e-3 within 2 sd 86 %, ...`; errors relative to each QoI's spread.
 pub(crate) fn surface_accuracy_line(a: &v1::StudySurfaceAccuracy) -> String {
     let mut parts: Vec<String> = a
         .qoi
@@ -784,10 +604,6 @@ mod tests {
         };
         let lines = to_accuracy_lines(&t);
         assert!(lines.contains(&"  refined   ABOVE at dt / 4, h / 2 (held-out check, study 9): the points were solved again one level finer".to_string()), "{lines:?}");
-        assert_eq!(
-            to_accuracy_json(&t)["above"],
-            serde_json::json!([{"time_factor": 4, "mesh_factor": 2, "check_study_id": 9}])
-        );
     }
 
     /// A QoI read where dt and h were halved together says so: its total is that estimate and
@@ -814,8 +630,10 @@ mod tests {
             "friction_force: 1.55 % (dt and h together 1.05 %, iterations 0.500 %; apart: time step 2.24 %, mesh 1.30 %)"
         );
         assert_eq!(line("slip").trim_start(), "slip: 1.55 % (time step 2.24 %, mesh 1.30 %, iterations 0.500 %)");
-        assert_eq!(to_accuracy_json(&t)["qoi"]["friction_force"]["joint"], serde_json::json!(0.0105));
-        assert_eq!(to_accuracy_json(&t)["qoi"]["slip"]["joint"], serde_json::Value::Null);
+        // in JSON, a QoI not read on the diagonal has no `joint`
+        let json = glissade_proto::json::to_value(&t);
+        assert_eq!(json["qoi"]["friction_force"]["joint"], serde_json::json!(0.0105));
+        assert!(json["qoi"]["slip"].get("joint").is_none(), "{json}");
     }
 
     #[test]

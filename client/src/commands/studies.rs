@@ -5,7 +5,6 @@ use glissade_cli::names::{strategy_name, study_state_name};
 use glissade_cli::outln;
 use glissade_proto::v1;
 
-use super::show::study_json;
 use crate::{Server, refused, user};
 
 pub(crate) async fn studies(server: &Server, json: bool, all: bool) -> Result<()> {
@@ -30,7 +29,8 @@ pub(crate) async fn studies(server: &Server, json: bool, all: bool) -> Result<()
         list.retain(|s| !under(s));
     }
     if json {
-        outln!("{}", serde_json::Value::Array(list.iter().map(study_json).collect()));
+        // ListStudies' studies in the proto's JSON, as the web API's /api/studies serves them
+        outln!("{}", glissade_proto::json::to_string(&list));
         return Ok(());
     }
     if list.is_empty() {

@@ -134,7 +134,7 @@ async fn run(args: Args) -> Result<serde_json::Value, Error> {
     }
     // The final NoWork waits are not dispatch time: the clock stops at the last completion.
     let study = user
-        .get_study(v1::GetStudyRequest { study_id: reply.study_id, points: false, scene: false })
+        .get_study(v1::GetStudyRequest { study_id: reply.study_id, points: false, ..Default::default() })
         .await?
         .into_inner();
     let done = study.progress.map_or(0, |p| p.done);

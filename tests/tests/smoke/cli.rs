@@ -135,21 +135,24 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     assert!(csv.contains("f1,f2,middle_ux,slip_A,slip_B,state"), "{csv}");
     let (status, kind, list) = http_get(&addr, "/api/studies");
     assert_eq!((status, kind.as_str()), (200, "application/json"));
-    assert!(list.contains("\"study_id\":1"), "{list}");
+    // ListStudies' studies in the proto's JSON (64-bit integers as strings)
+    let listed: Vec<v1::Study> = serde_json::from_str(&list)?;
+    assert_eq!(listed.first().map(|s| s.study_id), Some(1), "{list}");
+    assert!(list.contains("\"study_id\":\"1\""), "{list}");
     assert_eq!(http_get(&addr, "/studies/999").0, 404);
     assert_eq!(http_get(&addr, "/").0, 200);
-    // what an open page polls: the progress and the running points, not every point
+    // what an open page polls: the study with its running points only, not every point
     let (status, _, progress) = http_get(&addr, "/api/studies/1/progress");
     assert_eq!(status, 200);
     let progress: serde_json::Value = serde_json::from_str(&progress)?;
     assert_eq!(
         (&progress["state"], &progress["progress"]["done"]),
-        (&serde_json::json!("done"), &serde_json::json!(9))
+        (&serde_json::json!("STUDY_STATE_DONE"), &serde_json::json!(9))
     );
-    assert!(
-        progress["running"].as_array().is_some_and(Vec::is_empty) && progress.get("points").is_none(),
-        "{progress}"
-    );
+    assert!(progress["points"].as_array().is_some_and(Vec::is_empty), "{progress}");
+    // the one rendering: the API's JSON and `show --json` are GetStudy's study (its audits too)
+    let study = assert_one_rendering(&addr, &url, 1)?;
+    assert!(study.accuracy.is_some() && study.points.len() == 9, "{study:?}");
     assert_eq!(http_get(&addr, "/api/studies/999/progress").0, 404);
     assert_eq!(http_get(&addr, "/api/studies/x/progress").0, 404);
     // the list's mean work, read in place: cold and warm of study 1
@@ -200,7 +203,7 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
     // studies / show / cancel
     let out = glissade(Some(&url), &["studies", "--json"]);
     let list: serde_json::Value = serde_json::from_slice(&out.stdout)?;
-    assert_eq!(list[0]["state"], "done", "{list}");
+    assert_eq!(list[0]["state"], "STUDY_STATE_DONE", "{list}");
     let out = glissade(Some(&url), &["cancel", "1"]);
     assert_one_line_error(&out, "FailedPrecondition");
 
@@ -278,7 +281,7 @@ with h5py.File(sys.argv[1], "r") as f:
     assert!(values.iter().all(|v| v.trim_start_matches("0.").len() <= 6), "{listed}");
     let out = glissade(Some(&url), &["show", &id, "--points", "--json"]);
     let shown: serde_json::Value = serde_json::from_slice(&out.stdout)?;
-    assert_eq!((&shown["state"], &shown["progress"]["done"]), (&"done".into(), &6.into()), "{shown}");
+    assert_eq!((&shown["state"], &shown["progress"]["done"]), (&"STUDY_STATE_DONE".into(), &6.into()), "{shown}");
     // each QoI's unit, in the JSON and on each point's line
     assert_eq!(shown["units"]["slip_A"], "m", "{shown}");
     assert!(

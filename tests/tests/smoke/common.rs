@@ -269,7 +269,7 @@ pub async fn watch(
 }
 
 pub async fn study(client: &mut UserClient<Channel>, id: u64) -> anyhow::Result<v1::Study> {
-    Ok(client.get_study(v1::GetStudyRequest { study_id: id, points: true, scene: false }).await?.into_inner())
+    Ok(client.get_study(v1::GetStudyRequest { study_id: id, points: true, ..Default::default() }).await?.into_inner())
 }
 
 /// The `--json` summary of a direct `glissade-worker solve` of the tiny scene at a point.
@@ -474,6 +474,38 @@ pub fn glissade(url: Option<&str>, args: &[&str]) -> std::process::Output {
         cmd.args(["--server", url]);
     }
     run_with_timeout(cmd.args(args), LIMIT)
+}
+
+/// The one rendering of a study (issue 50): `/api/studies/ID` serves the proto's JSON
+/// (glissade_proto::json) of exactly the study GetStudy returns with its points, `glissade show
+/// ID --points --json` prints the same, and it reads back as that message. Read while the study
+/// stays as it is (GetStudy the same before and after: its audits may still be running). Returns
+/// the study.
+pub fn assert_one_rendering(addr: &SocketAddr, url: &str, id: u64) -> anyhow::Result<v1::Study> {
+    let get_study = || {
+        let request = v1::GetStudyRequest { study_id: id, points: true, scene: false, without_eta_histories: true };
+        runtime().block_on(async { anyhow::Ok(user(url).await?.get_study(request).await?.into_inner()) })
+    };
+    let started = std::time::Instant::now();
+    loop {
+        let got = get_study()?;
+        let (status, kind, api) = http_get(addr, &format!("/api/studies/{id}"));
+        assert_eq!((status, kind.as_str()), (200, "application/json"), "{api}");
+        let out = glissade(Some(url), &["show", &id.to_string(), "--points", "--json"]);
+        assert!(out.status.success(), "show: {}", text(&out.stderr));
+        if get_study()? != got {
+            assert!(started.elapsed() < LIMIT, "study {id} never stayed as it was for a read");
+            std::thread::sleep(Duration::from_millis(200));
+            continue;
+        }
+        let expected = serde_json::to_value(&got)?;
+        let api: serde_json::Value = serde_json::from_str(&api)?;
+        assert_eq!(api, expected, "the API's JSON is GetStudy's study");
+        let shown: serde_json::Value = serde_json::from_slice(&out.stdout)?;
+        assert_eq!(shown, expected, "`show --json` prints GetStudy's study");
+        assert_eq!(serde_json::from_value::<v1::Study>(api)?, got, "the JSON reads back as the message");
+        return Ok(got);
+    }
 }
 
 /// A refused command: non-zero exit, exactly one line on stderr that starts with `error:` and

@@ -136,10 +136,11 @@ fn a_discretisation_audit_reports_what_the_refine_command_measures() -> anyhow::
     let (_, _, json) = http_get(&addr, &format!("/api/studies/{}", measured.study_id));
     let json: serde_json::Value = serde_json::from_str(&json)?;
     assert_eq!(json["discretisation"]["factors"], serde_json::json!([2, 4]), "{json}");
-    assert_eq!(json["discretisation"]["mesh"]["factor"], serde_json::json!(2), "{json}");
+    assert_eq!(json["discretisation"]["mesh_factor"], serde_json::json!(2), "{json}");
     // the API's verdicts are show's (and Python's c.verdicts reads the same field)
     let said: Vec<&str> = verdicts.iter().map(|l| l.trim_start_matches("  verdict   ")).collect();
     assert_eq!(json["verdicts"], serde_json::json!(said), "{json}");
+    assert_one_rendering(&addr, &url, measured.study_id)?;
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }

@@ -473,8 +473,8 @@ fn the_lists_of_studies_come_in_pages() -> anyhow::Result<()> {
         anyhow::Ok(())
     })?;
     let ids = |body: &str| -> Vec<u64> {
-        let list: serde_json::Value = serde_json::from_str(body).expect("JSON");
-        list.as_array().expect("an array").iter().map(|s| s["study_id"].as_u64().expect("an id")).collect()
+        let list: Vec<v1::Study> = serde_json::from_str(body).expect("ListStudies' studies in JSON");
+        list.iter().map(|s| s.study_id).collect()
     };
     let get = |path: &str| http_request(&addr, &format!("GET {path} HTTP/1.1\r\n"), "");
     let (status, head, body) = get("/api/studies?limit=2");

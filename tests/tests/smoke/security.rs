@@ -108,7 +108,9 @@ fn tokens_separate_users_from_pools_and_strangers_get_nothing() -> anyhow::Resul
         }
         anyhow::Ok(())
     })?;
-    let s = rt.block_on(user.get_study(v1::GetStudyRequest { study_id: 1, points: true, scene: false }))?.into_inner();
+    let s = rt
+        .block_on(user.get_study(v1::GetStudyRequest { study_id: 1, points: true, ..Default::default() }))?
+        .into_inner();
     assert_eq!(s.state, v1::StudyState::Done as i32, "{s:?}\n{}", log_of(&pool_log));
     Ok(())
 }
@@ -151,7 +153,7 @@ fn tls_serves_https_clients_that_trust_its_authority_and_no_one_else() -> anyhow
     );
     assert!(out.status.success(), "{}", text(&out.stderr));
     let out = glissade(Some(&https), &["--ca-cert", &path("ca.pem"), "show", "1", "--json"]);
-    assert!(text(&out.stdout).contains("\"done\""), "{}{}", text(&out.stdout), text(&out.stderr));
+    assert!(text(&out.stdout).contains("\"STUDY_STATE_DONE\""), "{}{}", text(&out.stdout), text(&out.stderr));
 
     // Without the CA (the system's roots do not know it), and in clear text: nothing.
     let out = glissade(Some(&https), &["health"]);
@@ -189,7 +191,7 @@ fn a_pools_solutions_can_be_purged_and_no_later_point_is_answered_from_them() ->
             synthetic::pool(url.clone(), None, pool.into(), scene.clone(), answer(value))
                 .await
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
-            let request = v1::GetStudyRequest { study_id: id, points: true, scene: false };
+            let request = v1::GetStudyRequest { study_id: id, points: true, ..Default::default() };
             let points = user(&url).await?.get_study(request).await?.into_inner().points;
             Ok(points.iter().map(|p| (p.qoi["middle_ux"], p.answered)).collect())
         })

@@ -158,7 +158,7 @@ fn service_two_pools_solve_each_point_once_like_direct_solves() -> anyhow::Resul
     let shown: serde_json::Value = serde_json::from_slice(&out.stdout)?;
     assert_eq!(
         (&shown["state"], &shown["progress"]["done"], &shown["strategy"]),
-        (&"done".into(), &9.into(), &"cold".into())
+        (&"STUDY_STATE_DONE".into(), &9.into(), &"INIT_STRATEGY_COLD".into())
     );
 
     // The same points solved directly on one process: the same iterations and QoIs (the pools'
@@ -360,7 +360,7 @@ fn service_refuses_bad_input_precisely_and_keeps_what_it_stored() -> anyhow::Res
     );
     // Unknown study ids.
     for status in [
-        rt.block_on(client.get_study(v1::GetStudyRequest { study_id: 42, points: false, scene: false }))
+        rt.block_on(client.get_study(v1::GetStudyRequest { study_id: 42, points: false, ..Default::default() }))
             .map(drop)
             .expect_err("get"),
         rt.block_on(client.watch_study(v1::WatchStudyRequest { study_id: 42 })).map(drop).expect_err("watch"),
@@ -577,22 +577,28 @@ fn the_study_json_shows_the_running_points_with_their_iterations_and_eta() -> an
         )
     })?;
     let api = format!("/api/studies/{id}");
-    let running = |json: &serde_json::Value| json["running"].as_array().cloned().unwrap_or_default();
+    // the study's JSON (the proto's) read back as the message; its leased points, as they are
+    // now, and the same in what an open page polls
+    let running = |path: &str| -> anyhow::Result<Vec<v1::PointStatus>> {
+        let study: v1::Study = serde_json::from_str(&http_get(&addr, path).2)?;
+        Ok(study.points.into_iter().filter(|p| p.state == v1::PointState::Leased as i32).collect())
+    };
+    let progress = format!("{api}/progress");
     // a pool holds a point but has not reported yet: running, without iterations
     let (mut pool, lease) = rt.block_on(fake_pool(&url, "tester"))?;
-    let json: serde_json::Value = serde_json::from_str(&http_get(&addr, &api).2)?;
-    assert_eq!(running(&json).len(), 1, "{json}");
-    assert_eq!(running(&json)[0]["point_id"], lease.point_id, "{json}");
-    assert_eq!(running(&json)[0]["pool"], "tester", "{json}");
-    assert!(running(&json)[0]["iterations"].is_null() && running(&json)[0]["eta"].is_null(), "{json}");
+    let r = running(&api)?;
+    assert_eq!(r.len(), 1, "{r:?}");
+    assert_eq!((r[0].point_id, r[0].pool_id.as_str()), (lease.point_id, "tester"), "{r:?}");
+    assert_eq!((r[0].iterations, r[0].error_indicator), (0, 0.0), "{r:?}");
+    assert_eq!(running(&progress)?, r);
     // its heartbeats report the solve's progress: the latest is what the JSON says
     for (iterations, eta) in [(3, 0.5), (7, 3.2e-2)] {
         rt.block_on(report_progress(&mut pool, "tester", &lease, iterations, eta))?;
     }
-    let json: serde_json::Value = serde_json::from_str(&http_get(&addr, &api).2)?;
-    let r = &running(&json)[0];
-    assert_eq!((r["iterations"].as_u64(), r["eta"].as_f64()), (Some(7), Some(3.2e-2)), "{json}");
-    assert_eq!(r["parameters"]["f1"].as_f64(), lease.parameters.get("f1").copied(), "{json}");
+    let r = running(&api)?;
+    assert_eq!((r[0].iterations, r[0].error_indicator), (7, 3.2e-2), "{r:?}");
+    assert_eq!(r[0].parameters.get("f1"), lease.parameters.get("f1"), "{r:?}");
+    assert_eq!(running(&progress)?, r);
     // given back, it runs no more
     rt.block_on(pool.release_point(v1::ReleasePointRequest {
         pool_id: "tester".into(),
@@ -600,8 +606,7 @@ fn the_study_json_shows_the_running_points_with_their_iterations_and_eta() -> an
         study_id: lease.study_id,
         point_id: lease.point_id,
     }))?;
-    let json: serde_json::Value = serde_json::from_str(&http_get(&addr, &api).2)?;
-    assert!(running(&json).is_empty(), "{json}");
+    assert!(running(&api)?.is_empty() && running(&progress)?.is_empty());
     Ok(())
 }
 
@@ -733,8 +738,9 @@ point = [0.01, 0]
         .as_array()
         .expect("points")
         .iter()
-        .map(|p| (p["flagged_contacts"][0]["chatters"] == true, p["flagged_contacts"][0]["ill_posed"] == true))
+        .map(|p| (p["contact"][0]["chatters"] == true, p["contact"][0]["ill_posed"] == true))
         .collect();
     assert_eq!(flagged, [(true, false), (true, true)], "{api}");
+    assert_one_rendering(&addr, &url, id)?;
     Ok(())
 }

@@ -261,7 +261,7 @@ fn slurm_batch_files_run_the_coordinator_and_pools_under_a_real_one_node_slurm()
     let holder = loop {
         let show: serde_json::Value = serde_json::from_str(&glissade(&["show", "2", "--points", "--json"]))?;
         let point = &show["points"][0];
-        if point["state"] == "leased" || point["state"] == "running" {
+        if point["state"] == "POINT_STATE_LEASED" {
             break point["pool_id"].as_str().expect("pool_id").to_owned();
         }
         assert!(waited.elapsed() < LIMIT, "study 2's point was never leased: {show}\n{}", cluster.logs());

@@ -86,7 +86,9 @@ fn a_surface_audit_reports_the_error_of_the_surface_at_held_out_solves() -> anyh
     let json: serde_json::Value = serde_json::from_str(&json)?;
     let slip = &json["surface_accuracy"]["qoi"]["slip_A"];
     assert_eq!(slip["largest"].as_f64(), Some(s.qoi["slip_A"].largest), "{json}");
-    assert_eq!(json["surface_accuracy"]["seed"].as_u64(), Some(s.seed), "{json}");
+    // (a 64-bit integer: a string in the proto's JSON)
+    assert_eq!(json["surface_accuracy"]["seed"], s.seed.to_string(), "{json}");
+    assert_one_rendering(&addr, &url, measured.study_id)?;
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }

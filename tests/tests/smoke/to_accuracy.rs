@@ -248,12 +248,17 @@ fn a_study_to_an_accuracy_takes_the_level_its_pilots_chose_as_the_worker_does() 
     let reached = format!("REACHED at dt / {}, h / {}", t.time_factor, t.mesh_factor);
     assert!(page.contains("id=\"to-accuracy\"") && page.contains(&reached), "{page}");
     assert!(page.contains("id=\"held-out-check\"") && page.contains("CONFIRMED"), "{page}");
-    // the web API gives each pilot's ladders and report
-    let (status, _, api) = http_get(&addr, &format!("/api/studies/{id}"));
-    assert_eq!(status, 200);
-    let api: serde_json::Value = serde_json::from_str(&api)?;
-    assert_eq!(api["to_accuracy"]["chosen"], serde_json::json!([t.time_factor, t.mesh_factor]), "{api}");
-    assert_eq!(api["to_accuracy"]["reports"].as_array().map(Vec::len), Some(2), "{api}");
+    // the web API and `show --json` give GetStudy's study, each pilot's ladders and report in it
+    let study = assert_one_rendering(&addr, &url, id)?;
+    let a = study.to_accuracy.as_ref().expect("to an accuracy");
+    assert!(a.chosen && (a.time_factor, a.mesh_factor) == (t.time_factor, t.mesh_factor), "{a:?}");
+    assert_eq!(a.pilots.len(), 2, "{a:?}");
+    for pilot in &a.pilots {
+        let report = pilot.report.as_ref().expect("a pilot done has its report");
+        assert!(!pilot.asked.is_empty() && !report.levels.is_empty() && !report.qoi.is_empty(), "{pilot:?}");
+        assert!(report.qoi.iter().all(|q| q.time.as_ref().is_some_and(|l| l.finals.len() >= 2)), "{pilot:?}");
+    }
+    assert_eq!(a.level_study_ids.len(), a.level_time_factors.len(), "{a:?}");
     assert!(terminate(&mut pool.0).success());
     Ok(())
 }
