@@ -205,6 +205,22 @@ fn idle_connections_are_closed_and_their_number_is_bounded() -> anyhow::Result<(
     Ok(())
 }
 
+/// A blocking connection to `addr` from the loopback address `ip` (127.0.0.2 and on: another
+/// client as the coordinator counts them).
+fn connect_from(
+    rt: &tokio::runtime::Runtime,
+    addr: std::net::SocketAddr,
+    ip: &str,
+) -> anyhow::Result<std::net::TcpStream> {
+    rt.block_on(async {
+        let socket = tokio::net::TcpSocket::new_v4()?;
+        socket.bind(format!("{ip}:0").parse()?)?;
+        let stream = socket.connect(addr).await?.into_std()?;
+        stream.set_nonblocking(false)?;
+        anyhow::Ok(stream)
+    })
+}
+
 /// One client address holds at most its share of the connections (issue 48: 800 pinging sockets
 /// from one host locked everyone out): four silent sockets from 127.0.0.2 fill its share of 4,
 /// its fifth is closed at once, the four stay open, and a client from 127.0.0.1 is served.
@@ -215,15 +231,7 @@ fn one_client_cannot_hold_every_connection() -> anyhow::Result<()> {
     let (_server, addr) =
         start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &args);
     let rt = runtime();
-    let from = |ip: &str| -> anyhow::Result<std::net::TcpStream> {
-        rt.block_on(async {
-            let socket = tokio::net::TcpSocket::new_v4()?;
-            socket.bind(format!("{ip}:0").parse()?)?;
-            let stream = socket.connect(addr).await?.into_std()?;
-            stream.set_nonblocking(false)?;
-            anyhow::Ok(stream)
-        })
-    };
+    let from = |ip: &str| connect_from(&rt, addr, ip);
     let mut held: Vec<std::net::TcpStream> = (0..4).map(|_| from("127.0.0.2")).collect::<Result<_, _>>()?;
     std::thread::sleep(Duration::from_millis(200));
     let mut fifth = from("127.0.0.2")?;
@@ -506,15 +514,7 @@ fn a_client_that_reads_the_web_too_fast_waits_and_others_do_not() -> anyhow::Res
     let (_server, addr) =
         start_server_with(&dir.path().join("db"), &dir.path().join("server.log"), "127.0.0.1:0", &args);
     let rt = runtime();
-    let connect = |ip: &str| -> anyhow::Result<std::net::TcpStream> {
-        rt.block_on(async {
-            let socket = tokio::net::TcpSocket::new_v4()?;
-            socket.bind(format!("{ip}:0").parse()?)?;
-            let stream = socket.connect(addr).await?.into_std()?;
-            stream.set_nonblocking(false)?;
-            anyhow::Ok(stream)
-        })
-    };
+    let connect = |ip: &str| connect_from(&rt, addr, ip);
     let send = |stream: &mut std::net::TcpStream, path: &str| -> anyhow::Result<()> {
         use std::io::Write;
         Ok(write!(stream, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n")?)
