@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Issue 49's measurements on a lent 16-core node, as one command inside BUDGET seconds (default
-# 540): strong scaling of three-blocks-paper (multiscale, one thread a rank, each rank's time split
+# 540): the node's memory bandwidth (tools/perf/bandwidth.py), strong scaling of three-blocks-paper (multiscale, one thread a rank, each rank's time split
 # by `solve --profile`), then the paper-size study through the service on one 16-rank pool for
 # what time is left (tools/perf/study-device.sh), then single scale at 16 and 1 ranks and one rank
 # with 16 threads if time remains. Every part keeps what it measured when the time runs out;
@@ -27,6 +27,11 @@ pack() { tar czf "$out/results.tgz" -C "$work" . 2>/dev/null || true; }
 trap pack EXIT
 runs=""; for p in ${RANKS:-16 8 4 2 1}; do runs+="$p:1 "; done
 export HUNG_GRACE=5 RUN_TIMEOUT=150
+
+echo "== the node's memory bandwidth (tools/perf/bandwidth.py)" >&2
+if python3 -c "import numpy" 2>/dev/null; then
+  timeout 90 python3 "$here/bandwidth.py" > "$out/bandwidth.json" || echo "bandwidth: not measured" >&2
+else echo "bandwidth: no numpy, not measured" >&2; fi
 
 echo "== scaling, multiscale: $runs" >&2
 DEADLINE=$(( end - ${STUDY_SECONDS:-300} )) SCALE=multi "$here/mpi-profile-device.sh" "$bundle" "$work/multi" "$runs" || true
