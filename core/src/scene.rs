@@ -350,6 +350,9 @@ pub struct SolverSpec {
 /// cost more; up to 100 steps the whole interval keeps the paper's way and its figures.
 pub const AUTO_WINDOW_ABOVE_STEPS: usize = 100;
 pub const AUTO_TIME_WINDOW: usize = 10;
+/// Without `solver.scale`, a scene with a body cut into more substructures than this is solved
+/// multiscale ([`Scene::scale`]).
+pub const MULTISCALE_ABOVE_SUBSTRUCTURES: usize = 2;
 
 fn default_tolerance() -> f64 {
     2e-4
@@ -887,16 +890,33 @@ impl Scene {
     }
 
     /// The dynamic stage's scale: `solver.scale`, or multiscale where the solver chooses time
-    /// windows ([`Scene::window_steps`]) and single scale elsewhere: in windows of 10 steps the
-    /// macro problem cost nothing on the sliding blocks measured and took one element per
-    /// substructure from 278 to 63 sweeps (docs/performance.md, "Stalled windows and the default
-    /// window"); without windows the paper's single scale keeps the shipped scenes' figures.
+    /// windows ([`Scene::window_steps`]) or where a body is cut into more than
+    /// [`MULTISCALE_ABOVE_SUBSTRUCTURES`] substructures, single scale elsewhere. In windows of 10
+    /// steps the macro problem cost nothing on the sliding blocks measured and took one element
+    /// per substructure from 278 to 63 sweeps (docs/performance.md, "Stalled windows and the
+    /// default window"). Where a body is cut into a chain or a grid of substructures, single
+    /// scale carries equilibrium one substructure an iteration: cold solves at 2e-4 with their
+    /// check took 1.3-3.1 x the sweeps of the macro problem's (docs/performance.md, "The
+    /// default scale"); a body in one or two pieces converges the same either way, and single
+    /// scale's iteration costs less.
     pub fn scale(&self) -> Scale {
-        self.solver.scale.unwrap_or(if self.solver.time_window.is_none() && self.window_steps() > 0 {
-            Scale::Multi
-        } else {
-            Scale::Single
-        })
+        let chosen_windows = self.solver.time_window.is_none() && self.window_steps() > 0;
+        self.solver.scale.unwrap_or(
+            if chosen_windows || self.most_substructures_in_a_body() > MULTISCALE_ABOVE_SUBSTRUCTURES {
+                Scale::Multi
+            } else {
+                Scale::Single
+            },
+        )
+    }
+
+    /// The most substructures any body is cut into (1 for a body not cut).
+    pub fn most_substructures_in_a_body(&self) -> usize {
+        let count = |s: &Substructures| match s {
+            Substructures::PerAxis(p) => p.iter().fold(1usize, |a, &n| a.saturating_mul(n)),
+            Substructures::Count(n) => *n,
+        };
+        self.bodies.iter().filter_map(|b| b.substructures.as_ref().map(count)).max().unwrap_or(1).max(1)
     }
 
     /// Every parameter's value at `point`: the defaults, overridden by `point`'s values; refuses

@@ -1012,8 +1012,8 @@ fn main() -> ExitCode {
                 // Every rank meets here before MPI_Finalize: rank 0 writes and prints after the
                 // others have returned, and on a 16-core node multi-rank solves printed their
                 // answer and then never ended, rank 0 busy while the others waited in
-                // MPI_Finalize (docs/performance.md, "16 ranks on a 16-core node"). A first
-                // remedy, not yet seen on such a node.
+                // MPI_Finalize (docs/notebook/2026-11-28.md). With the barrier every run of a
+                // third node ended by itself (docs/notebook/2026-11-30.md).
                 mpi::traits::CommunicatorCollectives::barrier(&comm.world);
             }
             result
