@@ -43,7 +43,7 @@ pub struct Running {
     pub pool: String,
     pub since_unix_ms: i64,
     /// Last progress a pool reported: (iterations, eta).
-    pub progress: Option<(u64, f64)>,
+    pub progress: Option<(u64, Option<f64>)>,
 }
 
 /// The state of a study as its events tell it.
@@ -136,8 +136,11 @@ impl WatchState {
                 } else {
                     let start = if p.started_from.is_some() { "warm" } else { "cold" };
                     format!(
-                        "{} iterations, work {:.1} ({start}), eta {:.2e}, {:.2} s",
-                        p.iterations, p.work, p.error_indicator, p.wall_seconds
+                        "{} iterations, work {:.1} ({start}), eta {}, {:.2} s",
+                        p.iterations,
+                        p.work,
+                        p.error_indicator.map_or_else(|| "-".to_owned(), glissade_core::text::eta),
+                        p.wall_seconds
                     )
                 };
                 Some(format!("point {id} done ({what}): {how}; {}", self.counts()))
@@ -208,7 +211,8 @@ impl WatchState {
             .map(|(id, r)| {
                 let seconds = (now_unix_ms - r.since_unix_ms).max(0) as f64 / 1e3;
                 let progress = match r.progress {
-                    Some((it, eta)) => format!(" it {it} eta {eta:.1e}"),
+                    Some((it, Some(eta))) => format!(" it {it} eta {eta:.1e}"),
+                    Some((it, None)) => format!(" it {it}"),
                     None => String::new(),
                 };
                 format!("#{id} [{}] {} {seconds:.0}s{progress}", r.pool, r.parameters)

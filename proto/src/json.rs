@@ -52,7 +52,7 @@ mod tests {
             parameters: [("f1".to_owned(), 0.15)].into(),
             state: v1::PointState::Done.into(),
             iterations: 41,
-            error_indicator: 8.5e-5,
+            error_indicator: Some(8.5e-5),
             qoi: [("slip_A".to_owned(), 1.25e-6)].into(),
             started_from: Some(v1::SolutionRef {
                 scene_hash: "ab".repeat(32),
@@ -142,6 +142,11 @@ mod tests {
         assert_eq!(point["started_from"]["point_id"], "1");
         assert_eq!(point["contact"][0]["chatters"], true);
         assert_eq!(point["contact"][0]["first_slip_time"], 4.2e-5);
+        assert_eq!(point["error_indicator"], 8.5e-5);
+        // a point without an error indicator (failed before its first iteration, or leased and
+        // not yet reported) has none in its JSON, where it once read 1.797e308
+        let failed = v1::PointStatus { state: v1::PointState::Failed.into(), ..Default::default() };
+        assert!(to_value(&failed).get("error_indicator").is_none(), "{}", to_value(&failed));
         let t = &json["to_accuracy"];
         assert_eq!(t["confirmed"], true);
         let q = &t["pilots"][0]["report"]["qoi"][0];

@@ -441,7 +441,7 @@ pub fn point(p: &PointRecord) -> v1::PointStatus {
         attempts: p.attempts,
         pool_id: pool,
         iterations: r.map_or(0, |r| r.iterations),
-        error_indicator: r.map_or(0.0, |r| r.error_indicator),
+        error_indicator: r.and_then(|r| glissade_core::text::measured_eta(r.error_indicator)),
         qoi: r.map(|r| r.qoi.clone().into()).unwrap_or_default(),
         started_from: started_from.map(origin),
         answered: r.is_some_and(|r| r.answered),
@@ -586,7 +586,7 @@ pub fn study(v: &StudyView) -> v1::Study {
             .map(|p| {
                 let mut status = point(p);
                 if let Some(&(iterations, eta)) = v.solving.get(&p.id) {
-                    (status.iterations, status.error_indicator) = (iterations, eta);
+                    (status.iterations, status.error_indicator) = (iterations, Some(eta));
                 }
                 status
             })
@@ -720,7 +720,7 @@ pub fn event(e: &Event) -> v1::StudyEvent {
     let mut status = e.point.as_ref().map(point);
     if let (Some(s), Some((iterations, eta))) = (status.as_mut(), e.solving) {
         s.iterations = iterations;
-        s.error_indicator = eta;
+        s.error_indicator = Some(eta);
     }
     v1::StudyEvent {
         kind: kind.into(),

@@ -261,7 +261,7 @@ fn point_lines(s: &v1::Study) {
             point_state_name(point.state),
             point.iterations,
             point.work,
-            glissade_core::text::eta(point.error_indicator),
+            point.error_indicator.map_or_else(|| "-".to_owned(), glissade_core::text::eta),
             qoi.join(" "),
             from,
             if point.error.is_empty() { String::new() } else { format!("  [{}]", point.error) }

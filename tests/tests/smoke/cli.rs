@@ -197,7 +197,7 @@ fn cli_submits_watches_and_reads_surfaces_and_fields() -> anyhow::Result<()> {
         let history = p["eta_history"].as_array().expect("history");
         let last = history.last().and_then(|v| v.as_f64()).expect("a history");
         let point = &stored.points[p["point_id"].as_u64().expect("id") as usize];
-        assert_eq!(last, point.error_indicator, "the history ends at the point's eta");
+        assert_eq!(Some(last), point.error_indicator, "the history ends at the point's eta");
     }
 
     // studies / show / cancel

@@ -86,7 +86,12 @@ fn service_survives_a_killed_pool_and_a_killed_coordinator() -> anyhow::Result<(
     assert_eq!(after.state, v1::StudyState::Done as i32, "{after:?}");
     let lost = &after.points[killed as usize];
     assert!(lost.attempts >= 2, "the killed pool's point was leased {} times: {lost:?}", lost.attempts);
-    assert!(after.points.iter().all(|p| p.state == v1::PointState::Done as i32 && p.error_indicator <= TOL));
+    assert!(
+        after
+            .points
+            .iter()
+            .all(|p| p.state == v1::PointState::Done as i32 && p.error_indicator.is_some_and(|e| e <= TOL))
+    );
     // one stored solution per point: no duplicate
     let surface = rt.block_on(client.query_surface(v1::QuerySurfaceRequest {
         source: Some(v1::query_surface_request::Source::SceneHash(after.scene_hash.clone())),
