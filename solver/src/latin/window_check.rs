@@ -20,6 +20,12 @@ use std::collections::BTreeMap;
 pub const CHECK_ROUNDS: usize = 3;
 /// The tighter member of a pair is iterated to this times the looser one's tolerance.
 pub const TIGHTER: f64 = 0.1;
+/// Where the whole-interval check's first pair parted, the next pair's tighter member is
+/// iterated to this times the looser one's tolerance: the looser member is already ten times
+/// tighter than asked, a third of it bounds its error as well (the distance is about two thirds
+/// of the looser member's error, the tighter member's about half the distance), for about half
+/// the iterations a tenth takes on a slow tail.
+pub const TIGHTER_AFTER_PARTING: f64 = 1.0 / 3.0;
 /// Where a pair parts, the next one's looser member is aimed at this share of the tolerance.
 pub const AIM: f64 = 0.3;
 /// Where a pass does not converge at a tolerance (its iterations stall short of it, the floor),
@@ -521,7 +527,8 @@ impl Tightening {
                 .and_then(|q| Parting::of(&self.check.qoi, &looser[q], &current[q], self.dt));
         }
         // (no tighter than a scene may ask: below it the iterations stall on round-off)
-        let next = (tolerance * TIGHTER).max(MIN_TOLERANCE);
+        let factor = if self.looser.is_some() { TIGHTER_AFTER_PARTING } else { TIGHTER };
+        let next = (tolerance * factor).max(MIN_TOLERANCE);
         if self.looser.is_none() && next >= tolerance {
             // asked at the floor: no tighter pass to compare with (it used to read as "still
             // converging: about 0 more iterations")
@@ -565,6 +572,27 @@ mod tests {
 
     fn series(name: &str, values: &[f64]) -> QoiSeries {
         QoiSeries { name: name.into(), times: (0..values.len()).map(|n| n as f64).collect(), values: values.to_vec() }
+    }
+
+    /// The whole-interval check's pairs: the first answer against one iterated on to a tenth of
+    /// the tolerance; where they part, the next pair's tighter member a third of its looser one
+    /// (already a tenth of the asked tolerance); the answers agreeing end the check.
+    #[test]
+    fn a_parted_pair_is_followed_by_one_a_third_tighter() {
+        use crate::model::{Qoi, QoiTarget};
+        let qois = [Qoi { name: "slip".into(), target: QoiTarget::Slip { interface: 0, node: 0, component: None } }];
+        let answer = |value: f64| vec![vec![1.0, value]];
+        let scales = [0.0];
+        let mut t = Tightening::new(2e-4, 1e-6);
+        assert_eq!(t.reached(50, 2e-4, &answer(1.0), &qois, &scales), Some(2e-5));
+        // 1e-3 apart (relative to the history's norm, about 1.4): parted, on to a third
+        let next = t.reached(90, 2e-5, &answer(1.0 + 1.4e-3), &qois, &scales).expect("on again");
+        assert!((next - 2e-5 / 3.0).abs() < 1e-18, "{next}");
+        assert!(t.check.discrepancy > 2e-4 && t.check.passes == 2, "{:?}", t.check);
+        // 1e-5 apart: agreed, the check is over with the tighter answer
+        assert_eq!(t.reached(120, next, &answer(1.0 + 1.4e-3 + 1.4e-5), &qois, &scales), None);
+        assert_eq!(t.check.outcome, CheckOutcome::Agreed);
+        assert_eq!((t.check.passes, t.check.iteration_tolerance), (2, next));
     }
 
     /// The distance is the worst QoI's, relative to its norm or, for a QoI near zero, to its
