@@ -7,6 +7,7 @@ PACKAGES=(
   build-essential pkg-config ca-certificates
   mpich libmpich-dev          # MPI (hydra mpiexec), rsmpi links against it
   libhdf5-dev                 # HDF5 field output (hdf5-metno finds it through pkg-config)
+  libzstd-dev                 # the stored solutions' compression (zstd-sys links it through pkg-config)
   protobuf-compiler           # protoc for tonic/prost code generation
   libclang-dev                # bindgen, used by mpi-sys
   python3 python3-venv        # the Python gRPC example client (its test pip-installs grpcio,
