@@ -139,7 +139,7 @@ impl WatchState {
                         "{} iterations, work {:.1} ({start}), eta {}, {:.2} s",
                         p.iterations,
                         p.work,
-                        p.error_indicator.map_or_else(|| "-".to_owned(), glissade_core::text::eta),
+                        glissade_core::text::eta_of(p.error_indicator),
                         p.wall_seconds
                     )
                 };

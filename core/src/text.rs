@@ -208,7 +208,12 @@ pub fn qoi_value(value: f64, digits: usize, resolution: f64) -> String {
 /// point that failed before its first iteration is stored with f64::MAX: records are JSON,
 /// which has no NaN).
 pub fn eta(value: f64) -> String {
-    measured_eta(value).map_or_else(|| "-".to_owned(), |e| format!("{e:.2e}"))
+    eta_of(measured_eta(value))
+}
+
+/// A point's error indicator as shown, where a message carries it as optional (`-`: none).
+pub fn eta_of(value: Option<f64>) -> String {
+    value.map_or_else(|| "-".to_owned(), |e| format!("{e:.2e}"))
 }
 
 /// A point's error indicator where it has one (None: failed before its first iteration, stored

@@ -261,7 +261,7 @@ fn point_lines(s: &v1::Study) {
             point_state_name(point.state),
             point.iterations,
             point.work,
-            point.error_indicator.map_or_else(|| "-".to_owned(), glissade_core::text::eta),
+            glissade_core::text::eta_of(point.error_indicator),
             qoi.join(" "),
             from,
             if point.error.is_empty() { String::new() } else { format!("  [{}]", point.error) }
