@@ -24,6 +24,7 @@ mod ticks;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use plotters::coord::Shift;
 use plotters::prelude::*;
 
 pub use convergence::ConvergenceSeries;
@@ -78,6 +79,12 @@ pub enum PlotError {
     NotPng(PathBuf),
     #[error("drawing failed: {0}")]
     Draw(String),
+    #[error("writing {}", .path.display())]
+    Write {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 impl<E: std::error::Error + Send + Sync> From<DrawingAreaErrorKind<E>> for PlotError {
@@ -125,10 +132,7 @@ pub fn surface_png(path: &Path, surface: &Surface, size: (u32, u32)) -> Result<D
     surface.check()?;
     check_target(path, size)?;
     register_bundled_font()?;
-    let root = BitMapBackend::new(path, size).into_drawing_area();
-    let drawn = surface::draw(&root, surface, surface::Raster::Fine)?;
-    root.present()?;
-    Ok(drawn)
+    png_file(path, size, |root| surface::draw(root, surface, surface::Raster::Fine))
 }
 
 /// An SVG document (`<svg ...>...</svg>`) and what was drawn where.
@@ -167,10 +171,7 @@ pub fn convergence_png(
     let lines = convergence::lines(series, usize::MAX)?;
     check_target(path, size)?;
     register_bundled_font()?;
-    let root = BitMapBackend::new(path, size).into_drawing_area();
-    convergence::draw(&root, series, &lines, tolerance, title)?;
-    root.present()?;
-    Ok(())
+    png_file(path, size, |root| convergence::draw(root, series, &lines, tolerance, title))
 }
 
 /// As [`convergence_png`], as SVG text, the histories drawn through at most this many points
@@ -196,9 +197,41 @@ pub fn convergence_svg(
     Ok(text)
 }
 
+/// Draws into an RGB buffer, then writes it to `path` as PNG: plotters' own file output would
+/// build the `image` crate for this one call. The file is created only once the drawing succeeded.
+fn png_file<T>(
+    path: &Path,
+    (w, h): (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<T, PlotError>,
+) -> Result<T, PlotError> {
+    // sizes are checked (at most 10_000 x 10_000): no overflow
+    let mut rgb = vec![0; w as usize * h as usize * 3];
+    let drawn = {
+        let root = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
+        let drawn = draw(&root)?;
+        root.present()?;
+        drawn
+    };
+    let mut bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut bytes, w, h);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    // the settings plotters' encoder (the `image` crate) used: the same files as before
+    encoder.set_compression(png::Compression::Fast);
+    encoder.set_filter(png::FilterType::Sub);
+    encoder.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
+    let encoded = encoder.write_header().and_then(|mut writer| {
+        writer.write_image_data(&rgb)?;
+        writer.finish()
+    });
+    encoded.map_err(|e| PlotError::Draw(format!("PNG encoding: {e}")))?;
+    std::fs::write(path, bytes).map_err(|source| PlotError::Write { path: path.to_path_buf(), source })?;
+    Ok(drawn)
+}
+
 /// Fails before anything is drawn, so that a bad path or size leaves no file behind.
 fn check_target(path: &Path, size: (u32, u32)) -> Result<(), PlotError> {
-    // the backend picks the image format from the extension
+    // the file is PNG whatever its name: refuse a name that says otherwise
     if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
         return Err(PlotError::NotPng(path.to_path_buf()));
     }

@@ -725,6 +725,20 @@ mod tests {
     }
 
     #[test]
+    fn a_convergence_png_decodes_to_what_was_drawn() {
+        let scratch = Scratch::new("convergence");
+        let path = scratch.file("eta.PNG");
+        let series = [crate::ConvergenceSeries { label: "a".into(), history: vec![1.0, 0.1, 0.01, 1e-3] }];
+        crate::convergence_png(&path, &series, Some(2e-3), "t", (640, 400)).unwrap();
+        let mut reader = png::Decoder::new(std::fs::File::open(&path).unwrap()).read_info().unwrap();
+        let mut rgb = vec![0; reader.output_buffer_size()];
+        let info = reader.next_frame(&mut rgb).unwrap();
+        assert_eq!((info.width, info.height, info.color_type), (640, 400, png::ColorType::Rgb));
+        assert_eq!(rgb[..3], [255, 255, 255], "a white background");
+        assert!(rgb.chunks(3).any(|p| p != [255, 255, 255]), "something drawn on it");
+    }
+
+    #[test]
     fn errors() {
         let scratch = Scratch::new("errors");
         let path = scratch.file("error.png");
@@ -753,7 +767,9 @@ mod tests {
         assert!(matches!(surface_png(&path, &one, (100, 480)), Err(PlotError::Size(100, 480))));
         assert!(matches!(surface_png(&path, &one, (70_000, 70_000)), Err(PlotError::Size(..))));
         let nowhere = scratch.file("missing-directory").join("x.png");
-        assert!(matches!(surface_png(&nowhere, &one, size), Err(PlotError::Draw(_))));
+        let err = surface_png(&nowhere, &one, size).unwrap_err();
+        assert!(matches!(&err, PlotError::Write { path, .. } if *path == nowhere), "{err:?}");
+        assert_eq!(err.to_string(), format!("writing {}", nowhere.display()));
         assert!(!path.exists(), "no file is written on error");
     }
 

@@ -19,6 +19,7 @@ use glissade_core::point::DesignPoint;
 use std::path::{Path, PathBuf};
 
 use clap::Parser;
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -166,8 +167,29 @@ fn plot(args: &Args, samples: &[Sample], error: &dyn Fn(&Sample) -> f64) {
     plotters::style::register_font("sans-serif", FontStyle::Normal, include_bytes!("../../assets/DejaVuSans.ttf"))
         .map_err(|_| ())
         .expect("bundled font");
+    const SIZE: (u32, u32) = (1400, 600);
+    let mut rgb = vec![0; SIZE.0 as usize * SIZE.1 as usize * 3];
+    draw(&BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area(), args, samples, error);
+    // the png crate rather than plotters' file output, which would build the `image` crate
+    let mut bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut bytes, SIZE.0, SIZE.1);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    // as plotters' `image` wrote it: adaptive filtering halves the file of the default settings
+    encoder.set_compression(png::Compression::Fast);
+    encoder.set_filter(png::FilterType::Sub);
+    encoder.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
+    let encoded = encoder.write_header().and_then(|mut png| {
+        png.write_image_data(&rgb)?;
+        png.finish()
+    });
+    encoded.expect("encode png");
     let path = args.out.join("accuracy.png");
-    let root = BitMapBackend::new(&path, (1400, 600)).into_drawing_area();
+    std::fs::write(&path, bytes).unwrap_or_else(|e| panic!("writing {}: {e}", path.display()));
+}
+
+/// The two panels: error against wall time and against iterations.
+fn draw(root: &DrawingArea<BitMapBackend<'_>, Shift>, args: &Args, samples: &[Sample], error: &dyn Fn(&Sample) -> f64) {
     root.fill(&WHITE).expect("draw");
     let panels = root.split_evenly((1, 2));
     // the reference itself (error 0) is left out of the plot
@@ -269,7 +291,7 @@ fn plot(args: &Args, samples: &[Sample], error: &dyn Fn(&Sample) -> f64) {
             .draw()
             .expect("legend");
     }
-    root.present().expect("write png");
+    root.present().expect("draw");
 }
 
 /// Richardson extrapolation over the meshes at the tightest tolerance (cold): q(h) = q0 + C h^p with
