@@ -30,7 +30,7 @@ def main():
                         help="swept parameter, e.g. f1=0.1:0.2:3 (repeatable)")
     parser.add_argument("--tol", type=float, help="tolerance on the error indicator (default: the scene's)")
     parser.add_argument("--strategy", choices=["cold", "previous", "nearest", "blend", "linear"],
-                        help="where each point starts (default: the coordinator's, linear with 8 neighbours)")
+                        help="where each point starts (default: the coordinator's, linear with 3 neighbours)")
     parser.add_argument("--timeout", type=float, default=600.0, help="give up after this many seconds")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of CSV")
     parser.add_argument("--token-file", help="file holding the user token of a coordinator that asks for one "

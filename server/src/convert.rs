@@ -785,8 +785,8 @@ mod tests {
     #[test]
     fn a_submission_without_a_strategy_gets_the_default_and_its_neighbours() {
         let unspecified = v1::InitStrategy::Unspecified as i32;
-        assert_eq!(strategy(unspecified, 0).unwrap(), StrategyKind::DEFAULT.with_neighbours(8));
-        assert_eq!(strategy(unspecified, 0).unwrap(), InitStrategy::Linear { k: 8 });
+        assert_eq!(strategy(unspecified, 0).unwrap(), StrategyKind::DEFAULT.with_neighbours(3));
+        assert_eq!(strategy(unspecified, 0).unwrap(), InitStrategy::Linear { k: 3 });
         assert_eq!(strategy(v1::InitStrategy::Blend as i32, 0).unwrap(), InitStrategy::Blend { k: 3 });
         assert_eq!(strategy(v1::InitStrategy::Linear as i32, 5).unwrap(), InitStrategy::Linear { k: 5 });
         assert_eq!(strategy(v1::InitStrategy::Nearest as i32, 0).unwrap(), InitStrategy::Nearest);

@@ -14,7 +14,7 @@ use glissade_core::scene::{Scene, Tolerance};
 use glissade_core::study::order::{Greedy, LexicographicAscending, LexicographicDescending, OrderingPolicy};
 use glissade_core::study::space::{GridAxis, ParameterSpace, design_points};
 use glissade_core::study::store::{MemoryStore, SolutionStore, StoredSolution};
-use glissade_core::study::strategy::{InitStrategy, initialise, interface_law_parameters};
+use glissade_core::study::strategy::{InitStrategy, StrategyKind, initialise, interface_law_parameters};
 use glissade_core::study::{PointRecord, PointStatus, StartKind, StudyOptions, StudyResult, run_study};
 use glissade_solver::latin::stopping::NORM_FLOOR;
 use glissade_solver::run::PointSolver;
@@ -86,6 +86,11 @@ fn assert_same_qois(label: &str, a: &StudyResult, b: &StudyResult, tol: f64) {
     }
 }
 
+/// The strategy a study names none gets, with its neighbours.
+fn default_strategy() -> InitStrategy {
+    StrategyKind::DEFAULT.with_neighbours(StrategyKind::DEFAULT.default_neighbours())
+}
+
 #[test]
 fn warm_starts_reach_the_cold_solution_for_every_strategy() {
     let s = scene(fixtures::THREE_BLOCKS_TINY);
@@ -100,7 +105,7 @@ fn warm_starts_reach_the_cold_solution_for_every_strategy() {
         ("previous desc", InitStrategy::Previous, Box::new(LexicographicDescending)),
         ("nearest greedy", InitStrategy::Nearest, Box::new(Greedy::new(space.clone()))),
         ("blend greedy", InitStrategy::Blend { k: 3 }, Box::new(Greedy::new(space.clone()))),
-        ("linear greedy", InitStrategy::Linear { k: 8 }, Box::new(Greedy::new(space.clone()))),
+        ("linear greedy (the default)", default_strategy(), Box::new(Greedy::new(space.clone()))),
     ];
     for (label, strategy, mut order) in runs {
         let warm = study(&s, &points, options(strategy, tol), order.as_mut(), &mut fresh_store(&s));

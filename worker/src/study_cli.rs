@@ -51,7 +51,7 @@ pub struct StudyArgs {
     /// Where each point's iterations start (default: linear, a fit of the solved neighbours)
     #[arg(long, value_enum)]
     strategy: Option<StrategyKind>,
-    /// Neighbours combined by --strategy blend or linear (default: 3 for blend, 8 for linear)
+    /// Neighbours combined by --strategy blend or linear (default: 3)
     #[arg(long, value_name = "K")]
     k: Option<usize>,
     /// Order of the points

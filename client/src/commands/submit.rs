@@ -57,7 +57,7 @@ pub(crate) struct SubmitArgs {
     /// Where each point's iterations start (default: linear, a fit of the solved neighbours).
     #[arg(long, value_enum)]
     pub(crate) strategy: Option<StrategyKind>,
-    /// Neighbours a blend (or a linear fit) combines (default: 3 for blend, 8 for linear).
+    /// Neighbours a blend (or a linear fit) combines (default: 3).
     #[arg(long, value_name = "K", default_value_t = 0, hide_default_value = true)]
     pub(crate) k: u32,
     /// Which pending point goes to the next free pool.
