@@ -212,21 +212,28 @@ fn png_file<T>(
         root.present()?;
         drawn
     };
+    let bytes = rgb_png(&rgb, (w, h))?;
+    std::fs::write(path, bytes).map_err(|source| PlotError::Write { path: path.to_path_buf(), source })?;
+    Ok(drawn)
+}
+
+/// `rgb` (rows from the top, 3 bytes a pixel) encoded as a PNG file's bytes, with the settings
+/// plotters' encoder (the `image` crate) used: the same files as before, half the size of png's
+/// default settings.
+pub fn rgb_png(rgb: &[u8], (w, h): (u32, u32)) -> Result<Vec<u8>, PlotError> {
     let mut bytes = Vec::new();
     let mut encoder = png::Encoder::new(&mut bytes, w, h);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
-    // the settings plotters' encoder (the `image` crate) used: the same files as before
     encoder.set_compression(png::Compression::Fast);
     encoder.set_filter(png::FilterType::Sub);
     encoder.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
     let encoded = encoder.write_header().and_then(|mut writer| {
-        writer.write_image_data(&rgb)?;
+        writer.write_image_data(rgb)?;
         writer.finish()
     });
     encoded.map_err(|e| PlotError::Draw(format!("PNG encoding: {e}")))?;
-    std::fs::write(path, bytes).map_err(|source| PlotError::Write { path: path.to_path_buf(), source })?;
-    Ok(drawn)
+    Ok(bytes)
 }
 
 /// Fails before anything is drawn, so that a bad path or size leaves no file behind.

@@ -170,20 +170,8 @@ fn plot(args: &Args, samples: &[Sample], error: &dyn Fn(&Sample) -> f64) {
     const SIZE: (u32, u32) = (1400, 600);
     let mut rgb = vec![0; SIZE.0 as usize * SIZE.1 as usize * 3];
     draw(&BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area(), args, samples, error);
-    // the png crate rather than plotters' file output, which would build the `image` crate
-    let mut bytes = Vec::new();
-    let mut encoder = png::Encoder::new(&mut bytes, SIZE.0, SIZE.1);
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Eight);
-    // as plotters' `image` wrote it: adaptive filtering halves the file of the default settings
-    encoder.set_compression(png::Compression::Fast);
-    encoder.set_filter(png::FilterType::Sub);
-    encoder.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
-    let encoded = encoder.write_header().and_then(|mut png| {
-        png.write_image_data(&rgb)?;
-        png.finish()
-    });
-    encoded.expect("encode png");
+    // glissade-plot's encoder rather than plotters' file output, which would build the `image` crate
+    let bytes = glissade_plot::rgb_png(&rgb, SIZE).expect("encode png");
     let path = args.out.join("accuracy.png");
     std::fs::write(&path, bytes).unwrap_or_else(|e| panic!("writing {}: {e}", path.display()));
 }
