@@ -100,7 +100,7 @@ fn strategy(value: i32, blend_neighbours: u32) -> Result<InitStrategy, Invalid> 
     if blend_neighbours > MAX_NEIGHBOURS {
         return Err(Invalid(format!("blend_neighbours {blend_neighbours}: at most {MAX_NEIGHBOURS}")));
     }
-    let k = if blend_neighbours == 0 { kind.default_neighbours() } else { blend_neighbours as usize };
+    let k = if blend_neighbours == 0 { StrategyKind::DEFAULT_NEIGHBOURS } else { blend_neighbours as usize };
     Ok(kind.with_neighbours(k))
 }
 

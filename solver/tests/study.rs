@@ -88,7 +88,7 @@ fn assert_same_qois(label: &str, a: &StudyResult, b: &StudyResult, tol: f64) {
 
 /// The strategy a study names none gets, with its neighbours.
 fn default_strategy() -> InitStrategy {
-    StrategyKind::DEFAULT.with_neighbours(StrategyKind::DEFAULT.default_neighbours())
+    StrategyKind::DEFAULT.with_neighbours(StrategyKind::DEFAULT_NEIGHBOURS)
 }
 
 #[test]

@@ -163,7 +163,7 @@ pub fn study(args: StudyArgs) -> Result<super::Exit> {
         None => given.clone(),
     };
     let kind = args.strategy.unwrap_or(StrategyKind::DEFAULT);
-    let k = args.k.unwrap_or_else(|| kind.default_neighbours());
+    let k = args.k.unwrap_or(StrategyKind::DEFAULT_NEIGHBOURS);
     if k == 0 {
         bail!("--k 0: blend needs at least 1 neighbour");
     }

@@ -87,9 +87,7 @@ impl StrategyKind {
     /// smear their fields into a least-squares plane: three-blocks-tiny 11 x 11 at 2e-4, checked,
     /// 9,801 work with 3 against 13,343 with 8 (cold 20,059), and on a box across a stick / slip
     /// edge 11,163 against 16,214 (docs/performance.md, "Gain at equal accuracy").
-    pub fn default_neighbours(self) -> usize {
-        3
-    }
+    pub const DEFAULT_NEIGHBOURS: usize = 3;
 
     /// The strategy, `Blend` and `Linear` combining `k` neighbours.
     pub fn with_neighbours(self, k: usize) -> InitStrategy {
