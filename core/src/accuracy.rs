@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::point::DesignPoint;
 use crate::refine::{Accuracy, FinestError, RefineError, Refinement, finest_error, refined_scene};
-use crate::scene::{LawSpec, Scene};
+use crate::scene::Scene;
 use crate::study::space::ParameterSpace;
 
 /// The ratio between levels: dt / 2, h / 2.
@@ -46,8 +46,7 @@ pub const CONTACT_GAMMA: f64 = 0.55;
 /// contact or friction interface and no `newmark_gamma` of its own.
 pub fn accuracy_scene(scene: &Scene) -> Scene {
     let mut s = scene.clone();
-    let contact = s.interfaces.iter().any(|i| matches!(i.law, LawSpec::Contact | LawSpec::Friction));
-    if contact && s.time.newmark_gamma.is_none() {
+    if s.has_contact() && s.time.newmark_gamma.is_none() {
         s.time.newmark_gamma = Some(CONTACT_GAMMA);
     }
     s

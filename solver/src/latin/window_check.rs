@@ -505,11 +505,13 @@ impl Tightening {
         scales: &[f64],
     ) -> Option<f64> {
         self.first_answer.get_or_insert(iteration);
+        tracing::debug!(iteration, tolerance, "whole-interval check: a tolerance reached");
         if let Some(looser) = &self.looser {
             let pairs = qois.iter().zip(looser).zip(current).map(|((q, a), b)| (q.name.as_str(), &a[..], &b[..]));
             self.check.distances = distances_of(pairs, scales);
             (self.check.discrepancy, self.check.qoi) = worst(&self.check.distances);
             tracing::info!(
+                iteration,
                 tolerance,
                 discrepancy = self.check.discrepancy,
                 qoi = self.check.qoi,
