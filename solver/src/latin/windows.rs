@@ -73,15 +73,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             };
             let end = self.iterate_window(begin, rule, &window, fields, &mut it)?;
             let mut part = end.report;
-            tracing::debug!(
-                from = window.steps.start,
-                to = window.steps.end,
-                iterations = part.iterations,
-                stalled = part.stalled,
-                estimate = part.error_estimate,
-                eta = part.error_indicator,
-                "a window's iterations ended"
-            );
+            tracing::debug!(steps = ?window.steps, part.iterations, part.stalled, part.error_estimate, "window ended");
             if part.stalled {
                 // accepted for now: judged with the whole histories below
                 stalled.push((window.clone(), spent.len()));
