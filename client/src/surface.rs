@@ -14,6 +14,12 @@ pub enum SurfaceError {
     UnknownQoi { name: String, known: Vec<String> },
     #[error("--fix {name}: `{name}` is not a swept parameter of the study (they are {})", known.join(", "))]
     UnknownParameter { name: String, known: Vec<String> },
+    #[error("--fix {spec}: expected NAME=VALUE, e.g. --fix f2=0.15")]
+    FixSyntax { spec: String },
+    #[error("--fix {spec}: `{value}` is not a number")]
+    FixNotANumber { spec: String, value: String },
+    #[error("--fix {spec}: the value must be finite")]
+    FixNotFinite { spec: String },
 }
 
 /// One point of the surface.
@@ -287,16 +293,18 @@ impl Predictions {
 }
 
 /// Parses `--fix NAME=VALUE` and checks the name against the swept parameters.
-pub fn parse_fixed(spec: &str, swept: &[String]) -> Result<(String, f64), String> {
-    let (name, value) =
-        spec.split_once('=').ok_or_else(|| format!("--fix {spec}: expected NAME=VALUE, e.g. --fix f2=0.15"))?;
+pub fn parse_fixed(spec: &str, swept: &[String]) -> Result<(String, f64), SurfaceError> {
+    let (name, value) = spec.split_once('=').ok_or_else(|| SurfaceError::FixSyntax { spec: spec.to_owned() })?;
     let name = name.trim();
-    let value: f64 = value.trim().parse().map_err(|_| format!("--fix {spec}: `{}` is not a number", value.trim()))?;
+    let value: f64 = value
+        .trim()
+        .parse()
+        .map_err(|_| SurfaceError::FixNotANumber { spec: spec.to_owned(), value: value.trim().to_owned() })?;
     if !value.is_finite() {
-        return Err(format!("--fix {spec}: the value must be finite"));
+        return Err(SurfaceError::FixNotFinite { spec: spec.to_owned() });
     }
     if !swept.iter().any(|s| s == name) {
-        return Err(SurfaceError::UnknownParameter { name: name.to_owned(), known: swept.to_vec() }.to_string());
+        return Err(SurfaceError::UnknownParameter { name: name.to_owned(), known: swept.to_vec() });
     }
     Ok((name.to_owned(), value))
 }
@@ -411,7 +419,7 @@ mod tests {
         assert_eq!(SurfaceTable::new(&reply(), None).unwrap().qoi.len(), 2);
         let swept = ["f1".to_owned(), "f2".to_owned()];
         assert_eq!(parse_fixed("f2=0.15", &swept), Ok(("f2".into(), 0.15)));
-        assert!(parse_fixed("f3=0.1", &swept).unwrap_err().contains("not a swept parameter"));
+        assert!(parse_fixed("f3=0.1", &swept).unwrap_err().to_string().contains("not a swept parameter"));
         assert!(parse_fixed("f2", &swept).is_err());
         assert!(parse_fixed("f2=abc", &swept).is_err());
         assert!(parse_fixed("f2=NaN", &swept).is_err());

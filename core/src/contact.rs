@@ -185,22 +185,31 @@ impl ContactActivity {
 impl ContactActivity {
     /// Whether it is a report the solver could have made: numbers finite and not negative, the
     /// name a short single line.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), ContactReportError> {
         let name = &self.interface;
         if name.is_empty() || name.len() > 256 || name.chars().any(char::is_control) {
-            return Err("contact: an interface name must be 1 to 256 characters, on one line".into());
+            return Err(ContactReportError::Name);
         }
         let numbers = [self.friction, self.peak_normal_force_ratio, self.first_slip_time.unwrap_or(0.0)];
         if numbers.iter().any(|x| !x.is_finite() || *x < 0.0) {
-            return Err(format!("contact on '{name}': friction, times and ratios must be finite and not negative"));
+            return Err(ContactReportError::Numbers { interface: name.clone() });
         }
         if self.ill_posed && !(self.rigid_wall && self.friction > ILL_POSED_FRICTION) {
-            return Err(format!(
-                "contact on '{name}': ill_posed only on a rigid wall above friction {ILL_POSED_FRICTION}"
-            ));
+            return Err(ContactReportError::IllPosed { interface: name.clone() });
         }
         Ok(())
     }
+}
+
+/// A contact report the solver could not have made ([`ContactActivity::check`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ContactReportError {
+    #[error("contact: an interface name must be 1 to 256 characters, on one line")]
+    Name,
+    #[error("contact on '{interface}': friction, times and ratios must be finite and not negative")]
+    Numbers { interface: String },
+    #[error("contact on '{interface}': ill_posed only on a rigid wall above friction {above}", above = ILL_POSED_FRICTION)]
+    IllPosed { interface: String },
 }
 
 #[cfg(test)]

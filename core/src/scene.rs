@@ -491,21 +491,35 @@ pub fn mesh_digest(bytes: &[u8]) -> String {
     Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
 }
 
+/// Why a mesh file could not be read ([`read_mesh_file`]).
+#[derive(Debug, thiserror::Error)]
+pub enum MeshReadError {
+    #[error("cannot open {path}: {source}")]
+    Open { path: std::path::PathBuf, source: std::io::Error },
+    #[error("cannot read {path}: {source}")]
+    Read { path: std::path::PathBuf, source: std::io::Error },
+    #[error("{path} is {len} bytes, more than the {max} allowed", max = MAX_MESH_FILE_BYTES)]
+    TooLarge { path: std::path::PathBuf, len: u64 },
+    #[error("{path} grew past {max} bytes while read", max = MAX_MESH_FILE_BYTES)]
+    Grew { path: std::path::PathBuf },
+}
+
 /// Reads a mesh file named by a scene, its size bounded before it is read.
-pub fn read_mesh_file(path: &std::path::Path) -> Result<Vec<u8>, String> {
+pub fn read_mesh_file(path: &std::path::Path) -> Result<Vec<u8>, MeshReadError> {
     use std::io::Read;
-    let file = std::fs::File::open(path).map_err(|e| format!("cannot open {}: {e}", path.display()))?;
-    let len = file.metadata().map_err(|e| format!("cannot read {}: {e}", path.display()))?.len();
+    let path_buf = || path.to_path_buf();
+    let file = std::fs::File::open(path).map_err(|source| MeshReadError::Open { path: path_buf(), source })?;
+    let len = file.metadata().map_err(|source| MeshReadError::Read { path: path_buf(), source })?.len();
     if len > MAX_MESH_FILE_BYTES {
-        return Err(format!("{} is {len} bytes, more than the {MAX_MESH_FILE_BYTES} allowed", path.display()));
+        return Err(MeshReadError::TooLarge { path: path_buf(), len });
     }
     let mut bytes = Vec::with_capacity(len as usize);
     // take() holds the bound even if the file grows while it is read
     file.take(MAX_MESH_FILE_BYTES + 1)
         .read_to_end(&mut bytes)
-        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        .map_err(|source| MeshReadError::Read { path: path_buf(), source })?;
     if bytes.len() as u64 > MAX_MESH_FILE_BYTES {
-        return Err(format!("{} grew past {MAX_MESH_FILE_BYTES} bytes while read", path.display()));
+        return Err(MeshReadError::Grew { path: path_buf() });
     }
     Ok(bytes)
 }
@@ -628,7 +642,7 @@ impl Scene {
                 && !files.contains_key(&m.file)
             {
                 let bytes = read_mesh_file(&directory.join(&m.file))
-                    .map_err(|e| invalid(format!("bodies[{bi}].mesh.file"), e))?;
+                    .map_err(|e| invalid(format!("bodies[{bi}].mesh.file"), e.to_string()))?;
                 files.insert(m.file.clone(), bytes);
             }
         }
@@ -1107,6 +1121,8 @@ initial_velocity = ["v0"]
         // sparse: no disk used
         std::fs::File::create(&path).unwrap().set_len(MAX_MESH_FILE_BYTES + 1).unwrap();
         let err = read_mesh_file(&path).unwrap_err();
+        assert!(matches!(err, MeshReadError::TooLarge { len, .. } if len == MAX_MESH_FILE_BYTES + 1), "{err:?}");
+        let err = err.to_string();
         assert!(
             err.ends_with(&format!(
                 "is {} bytes, more than the {MAX_MESH_FILE_BYTES} allowed",

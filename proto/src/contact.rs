@@ -1,7 +1,7 @@
 //! A contact report (`glissade_core::contact::ContactActivity`) on the wire: out as the solver
 //! made it, in checked, as from a client that is not ours.
 
-use glissade_core::contact::ContactActivity;
+use glissade_core::contact::{ContactActivity, ContactReportError};
 
 use crate::v1;
 
@@ -23,9 +23,9 @@ impl From<&ContactActivity> for v1::ContactActivity {
 
 impl TryFrom<v1::ContactActivity> for ContactActivity {
     /// what is wrong with it, for the client
-    type Error = String;
+    type Error = ContactReportError;
 
-    fn try_from(m: v1::ContactActivity) -> Result<Self, String> {
+    fn try_from(m: v1::ContactActivity) -> Result<Self, ContactReportError> {
         let a = ContactActivity {
             interface: m.interface,
             friction: m.friction,
@@ -79,7 +79,7 @@ mod tests {
         for (word, spoil) in cases {
             let mut m = out.clone();
             spoil(&mut m);
-            let e = ContactActivity::try_from(m).expect_err(word);
+            let e = ContactActivity::try_from(m).expect_err(word).to_string();
             assert!(e.contains(word), "{e}");
         }
     }

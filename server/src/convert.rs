@@ -320,8 +320,12 @@ impl TryFrom<v1::CompletePointHeader> for Completion {
         if m.contact.len() > MAX_CONTACT_REPORTS {
             return Err(Invalid(format!("contact: at most {MAX_CONTACT_REPORTS} interfaces, got {}", m.contact.len())));
         }
-        let contact =
-            m.contact.into_iter().map(ContactActivity::try_from).collect::<Result<Vec<_>, _>>().map_err(Invalid)?;
+        let contact = m
+            .contact
+            .into_iter()
+            .map(ContactActivity::try_from)
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|e| Invalid(e.to_string()))?;
         // (bounded by the QoIs the solution file names, which check_meta holds to the header's)
         if let Some((name, x)) =
             m.qoi_largest.iter().find(|(n, x)| !(x.is_finite() && **x >= 0.0 && m.qoi.contains_key(*n)))
@@ -781,6 +785,19 @@ pub fn surface(s: Surface) -> v1::QuerySurfaceReply {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An invalid request's status says what its Display says: `field: reason`, or the reason
+    /// alone where it names the field its own way.
+    #[test]
+    fn an_invalid_request_is_invalid_argument_with_its_message() {
+        let e = CoordError::invalid("refine_mesh", "the mesh h / 2: a mesh file");
+        assert_eq!(e.to_string(), "refine_mesh: the mesh h / 2: a mesh file");
+        let s = status(e);
+        assert_eq!((s.code(), s.message()), (Code::InvalidArgument, "refine_mesh: the mesh h / 2: a mesh file"));
+        let e = CoordError::invalid_worded("refine_levels", "refine_levels 4: 2 or 3");
+        assert!(matches!(&e, CoordError::Invalid(r) if r.field == "refine_levels"));
+        assert_eq!(status(e).message(), "refine_levels 4: 2 or 3");
+    }
 
     #[test]
     fn a_submission_without_a_strategy_gets_the_default_and_its_neighbours() {

@@ -143,18 +143,32 @@ impl<const D: usize> Mesh<D> {
     }
 }
 
+/// Why [`Mesh::graph_partition`] found no partition.
+#[derive(Debug, thiserror::Error)]
+pub enum PartitionError {
+    #[error("{elements} elements are too many for METIS's 32-bit indices")]
+    TooMany { elements: usize },
+    #[error("METIS refused the graph: {0}")]
+    Graph(#[source] metis::NewGraphError),
+    #[error("METIS failed: {0}")]
+    Metis(#[source] metis::Error),
+    #[error("METIS left substructure {part} of {parts} empty: ask for fewer")]
+    EmptyPart { part: usize, parts: usize },
+    #[error("substructure {part} is not contiguous (element {element}): is the volume in one piece?")]
+    NotContiguous { part: usize, element: usize },
+}
+
 impl<const D: usize> Mesh<D> {
     /// Partition of the elements into `parts` substructures (element -> part) by METIS k-way on
     /// the dual graph (elements joined by a face): parts balanced (METIS's default 3 %
     /// imbalance) and contiguous, checked here; deterministic (fixed seed).
-    pub fn graph_partition(&self, parts: usize) -> Result<Vec<usize>, String> {
+    pub fn graph_partition(&self, parts: usize) -> Result<Vec<usize>, PartitionError> {
         let n = self.n_elements();
         if parts <= 1 {
             return Ok(vec![0; n]);
         }
         let neighbours = self.dual_graph();
-        let too_big = || format!("{n} elements are too many for METIS's 32-bit indices");
-        let idx = |v: usize| metis::Idx::try_from(v).map_err(|_| too_big());
+        let idx = |v: usize| metis::Idx::try_from(v).map_err(|_| PartitionError::TooMany { elements: n });
         let mut xadj = vec![0];
         let mut adjncy = Vec::new();
         for adj in &neighbours {
@@ -165,17 +179,17 @@ impl<const D: usize> Mesh<D> {
         }
         let mut part = vec![0; n];
         metis::Graph::new(1, idx(parts)?, &xadj, &adjncy)
-            .map_err(|e| format!("METIS refused the graph: {e}"))?
+            .map_err(PartitionError::Graph)?
             .set_option(metis::option::Contig(true))
             .set_option(metis::option::Seed(0))
             .part_kway(&mut part)
-            .map_err(|e| format!("METIS failed: {e}"))?;
+            .map_err(PartitionError::Metis)?;
         let part: Vec<usize> = part.into_iter().map(|p| p as usize).collect();
         // every part present and connected (a disconnected volume cannot be cut contiguously)
         let mut reached = vec![false; n];
         for p in 0..parts {
             let Some(seed) = (0..n).find(|&e| part[e] == p) else {
-                return Err(format!("METIS left substructure {p} of {parts} empty: ask for fewer"));
+                return Err(PartitionError::EmptyPart { part: p, parts });
             };
             let mut stack = vec![seed];
             reached[seed] = true;
@@ -189,10 +203,7 @@ impl<const D: usize> Mesh<D> {
             }
         }
         if let Some(e) = reached.iter().position(|r| !r) {
-            return Err(format!(
-                "substructure {} is not contiguous (element {e}): is the volume in one piece?",
-                part[e]
-            ));
+            return Err(PartitionError::NotContiguous { part: part[e], element: e });
         }
         Ok(part)
     }

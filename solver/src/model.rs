@@ -1154,7 +1154,7 @@ fn body_mesh<const D: usize>(
         if parts == 0 || parts > mesh.n_elements() {
             return Err(invalid(count_key, format!("must be 1 to {} (the elements), got {parts}", mesh.n_elements())));
         }
-        let partition = mesh.graph_partition(parts).map_err(|e| invalid(count_key, e))?;
+        let partition = mesh.graph_partition(parts).map_err(|e| invalid(count_key, e.to_string()))?;
         return Ok((mesh, partition));
     }
     let (Some(size), Some(elements)) = (&b.size, &b.elements) else {

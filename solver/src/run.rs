@@ -15,7 +15,7 @@ use crate::model::Model;
 use glissade_core::field::InterfaceSolution;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{Scale, Scene, SceneError, SolverSpec, Tolerance};
-use glissade_core::study::{PointRequest, PointSolved, SolvePoint};
+use glissade_core::study::{PointRequest, PointSolved, SolvePoint, SolvePointError};
 
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
@@ -325,17 +325,20 @@ impl SolvePoint for PointSolver {
         scene: &Scene,
         request: &PointRequest,
         init: Option<&InterfaceSolution>,
-    ) -> Result<PointSolved, String> {
+    ) -> Result<PointSolved, SolvePointError> {
         let request = SolveRequest {
             point: request.point.clone(),
-            tolerance: Some(Tolerance::new("the study's tolerance", request.tolerance).map_err(|e| e.to_string())?),
+            tolerance: Some(
+                Tolerance::new("the study's tolerance", request.tolerance).map_err(SolvePointError::Tolerance)?,
+            ),
             max_iterations: request.max_iterations,
             scale: request.scale,
             record_fields: false,
             progress: None,
             init_parameters: request.init_point.and_then(|p| scene.parameter_values(p).ok()),
         };
-        let o = PointSolver::solve(self, &crate::comm::Serial, scene, &request, init).map_err(|e| e.to_string())?;
+        let o =
+            PointSolver::solve(self, &crate::comm::Serial, scene, &request, init).map_err(SolvePointError::solver)?;
         let s = o.summary;
         Ok(PointSolved {
             converged: s.converged,

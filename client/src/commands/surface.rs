@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Context, Result, bail};
 use glissade_cli::surface::{Predictions, SurfaceTable, parse_fixed};
 use glissade_cli::{out, outln};
 use glissade_core::scene::Scene;
@@ -58,12 +58,7 @@ pub(crate) async fn surface(server: &Server, args: SurfaceArgs) -> Result<()> {
     let mut client = user(server).await?;
     // the scene's text for the units (the picture's axes; QoIs of one unit set their resolution)
     let study = get_study(&mut client, "surface", args.study, false, true).await?;
-    let fixed = args
-        .fix
-        .iter()
-        .map(|f| parse_fixed(f, &study.parameters))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| anyhow!(e))?;
+    let fixed = args.fix.iter().map(|f| parse_fixed(f, &study.parameters)).collect::<Result<Vec<_>, _>>()?;
     let source = if args.all_solutions {
         v1::query_surface_request::Source::SceneHash(study.scene_hash.clone())
     } else {

@@ -41,14 +41,53 @@ pub const TARGET_BUDGET: usize = 100;
 /// against 85 %; docs/surrogate.md, "Why 121 points left 4-5 %").
 pub const TOLERANCE_PER_TARGET: f64 = 1.0 / 300.0;
 /// A surface accuracy target: a share of each QoI's spread, in (0, 1].
-pub fn check_target(target: f64) -> Result<f64, String> {
-    if target.is_finite() && target > 0.0 && target <= 1.0 {
-        Ok(target)
-    } else {
-        Err(format!(
-            "surface accuracy {target}: give the error aimed at as a share of each QoI's spread, above 0 and at most 1 (0.02: 2 %)"
-        ))
-    }
+pub fn check_target(target: f64) -> Result<f64, TargetError> {
+    if target.is_finite() && target > 0.0 && target <= 1.0 { Ok(target) } else { Err(TargetError { target }) }
+}
+
+/// A surface accuracy target out of (0, 1] ([`check_target`]).
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error(
+    "surface accuracy {target}: give the error aimed at as a share of each QoI's spread, above 0 and at most 1 (0.02: 2 %)"
+)]
+pub struct TargetError {
+    pub target: f64,
+}
+
+/// Why [`AdaptiveDesign::parse`] refuses a design.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DesignError {
+    #[error("a surface accuracy target needs the box of an adaptive study: give ranges NAME=LOW:HIGH")]
+    TargetWithoutRanges,
+    #[error("an adaptive study needs at least one range NAME=LOW:HIGH")]
+    NoRanges,
+    #[error(transparent)]
+    Target(#[from] TargetError),
+    #[error("adaptive budget {budget}: give 2 to {max} points")]
+    Budget { budget: usize, max: usize },
+    /// One `NAME=LOW:HIGH` range (`spec`: an excerpt of it) and what is wrong with it.
+    #[error("range `{spec}`: {problem}")]
+    Range { spec: String, problem: RangeProblem },
+    #[error("{count} ranges: an adaptive study sweeps at most {max}")]
+    TooManyRanges { count: usize, max: usize },
+}
+
+/// What is wrong with one range of an adaptive design ([`DesignError::Range`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RangeProblem {
+    #[error("expected NAME=LOW:HIGH")]
+    Syntax,
+    #[error("LOW and HIGH must be numbers")]
+    NotNumbers,
+    /// `declared`: the scene's parameters, listed.
+    #[error("`{name}` is not a parameter of the scene ({declared})")]
+    UnknownParameter { name: String, declared: String },
+    #[error("LOW must be below HIGH")]
+    Empty,
+    #[error("outside the scene's range [{min}, {max}]")]
+    OutsideScene { min: f64, max: f64 },
+    #[error("`{name}` given twice")]
+    Twice { name: String },
 }
 
 /// The tolerance the points of a study aiming at `target` are solved to: target x
@@ -272,52 +311,41 @@ impl AdaptiveDesign {
         target: Option<f64>,
         space: &ParameterSpace,
         max_points: usize,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, DesignError> {
         if specs.is_empty() {
-            return Err(if target.is_some() {
-                "a surface accuracy target needs the box of an adaptive study: give ranges NAME=LOW:HIGH".into()
-            } else {
-                "an adaptive study needs at least one range NAME=LOW:HIGH".into()
-            });
+            return Err(if target.is_some() { DesignError::TargetWithoutRanges } else { DesignError::NoRanges });
         }
         let target = target.map(check_target).transpose()?;
         if !(2..=max_points).contains(&budget) {
-            return Err(format!("adaptive budget {budget}: give 2 to {max_points} points"));
+            return Err(DesignError::Budget { budget, max: max_points });
         }
         let mut ranges: Vec<(String, f64, f64)> = Vec::new();
         for spec in specs {
-            let shown = crate::text::excerpt(spec, 80);
-            let (name, bounds) =
-                spec.split_once('=').ok_or_else(|| format!("range `{shown}`: expected NAME=LOW:HIGH"))?;
-            let (lo, hi) = bounds.split_once(':').ok_or_else(|| format!("range `{shown}`: expected NAME=LOW:HIGH"))?;
+            let refused = |problem| DesignError::Range { spec: crate::text::excerpt(spec, 80), problem };
+            let (name, bounds) = spec.split_once('=').ok_or_else(|| refused(RangeProblem::Syntax))?;
+            let (lo, hi) = bounds.split_once(':').ok_or_else(|| refused(RangeProblem::Syntax))?;
             let number = |s: &str| s.trim().parse::<f64>().ok().filter(|v| v.is_finite());
             let (Some(lo), Some(hi)) = (number(lo), number(hi)) else {
-                return Err(format!("range `{shown}`: LOW and HIGH must be numbers"));
+                return Err(refused(RangeProblem::NotNumbers));
             };
             let name = name.trim();
             let declared = space.range(name).ok_or_else(|| {
-                format!(
-                    "range `{shown}`: `{name}` is not a parameter of the scene ({})",
-                    space.names().collect::<Vec<_>>().join(", ")
-                )
+                let declared = space.names().collect::<Vec<_>>().join(", ");
+                refused(RangeProblem::UnknownParameter { name: name.to_owned(), declared })
             })?;
             if lo >= hi {
-                return Err(format!("range `{shown}`: LOW must be below HIGH"));
+                return Err(refused(RangeProblem::Empty));
             }
             if declared.declared && (lo < declared.min || hi > declared.max) {
-                return Err(format!("range `{shown}`: outside the scene's range [{}, {}]", declared.min, declared.max));
+                return Err(refused(RangeProblem::OutsideScene { min: declared.min, max: declared.max }));
             }
             if ranges.iter().any(|(n, ..)| n == name) {
-                return Err(format!("range `{shown}`: `{name}` given twice"));
+                return Err(refused(RangeProblem::Twice { name: name.to_owned() }));
             }
             ranges.push((name.to_owned(), lo, hi));
         }
         if ranges.len() > super::surrogate::MAX_DIMENSION {
-            return Err(format!(
-                "{} ranges: an adaptive study sweeps at most {}",
-                ranges.len(),
-                super::surrogate::MAX_DIMENSION
-            ));
+            return Err(DesignError::TooManyRanges { count: ranges.len(), max: super::surrogate::MAX_DIMENSION });
         }
         ranges.sort_by(|a, b| a.0.cmp(&b.0));
         Ok(Self { ranges, budget, target })
@@ -697,10 +725,13 @@ mod tests {
         assert_eq!(parsed.target, Some(0.02));
         for bad in [0.0, -0.01, 1.5, f64::NAN, f64::INFINITY] {
             let e = AdaptiveDesign::parse(&ranges, 30, Some(bad), &space, 1000).unwrap_err();
+            assert!(matches!(e, DesignError::Target(TargetError { .. })), "{bad}: {e:?}");
+            let e = e.to_string();
             assert!(e.contains("surface accuracy") && e.contains("at most 1"), "{bad}: {e}");
         }
         let e = AdaptiveDesign::parse(&[], 30, Some(0.02), &space, 1000).unwrap_err();
-        assert!(e.contains("target needs the box"), "{e}");
+        assert_eq!(e, DesignError::TargetWithoutRanges);
+        assert!(e.to_string().contains("target needs the box"), "{e}");
         // the tolerance follows the target, within the bounds
         assert!((point_tolerance(0.02) - 0.02 / 300.0).abs() < 1e-18);
         assert!(point_tolerance(0.002) < point_tolerance(0.02));

@@ -376,7 +376,26 @@ pub trait SolvePoint {
         scene: &Scene,
         request: &PointRequest,
         init: Option<&InterfaceSolution>,
-    ) -> Result<PointSolved, String>;
+    ) -> Result<PointSolved, SolvePointError>;
+}
+
+/// Why [`SolvePoint::solve`] gave no outcome for a point. Its message is the point record's
+/// `error`; the solver's own error is kept whole, with its sources.
+#[derive(Debug, thiserror::Error)]
+pub enum SolvePointError {
+    /// The study's tolerance is not one a solve accepts.
+    #[error(transparent)]
+    Tolerance(crate::scene::SceneError),
+    /// The solve failed (the solver's error: its scene, its numerics).
+    #[error(transparent)]
+    Solver(Box<dyn std::error::Error + Send + Sync>),
+}
+
+impl SolvePointError {
+    /// The solver's own error, kept whole.
+    pub fn solver(e: impl std::error::Error + Send + Sync + 'static) -> Self {
+        Self::Solver(Box::new(e))
+    }
 }
 
 /// Runs a study of `points` of `scene` serially: asks `order` for the next point, lets the
@@ -491,7 +510,7 @@ fn solve_point(
     record.sources = init.sources;
     match outcome {
         Err(e) => {
-            record.error = Some(e);
+            record.error = Some(e.to_string());
         }
         Ok(o) => {
             record.converged = o.converged;
@@ -560,6 +579,19 @@ pub fn shown(value: f64, resolution: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A solver's error crosses the seam whole: the record's text is its message, and its
+    /// sources are still there.
+    #[test]
+    fn a_solver_error_keeps_its_message_and_its_sources() {
+        use std::error::Error;
+        #[derive(Debug, thiserror::Error)]
+        #[error("the solve failed: {0}")]
+        struct Failed(#[source] std::io::Error);
+        let e = SolvePointError::solver(Failed(std::io::Error::other("disk full")));
+        assert_eq!(e.to_string(), "the solve failed: disk full");
+        assert_eq!(e.source().map(|s| s.to_string()).as_deref(), Some("disk full"));
+    }
 
     #[test]
     fn a_stuck_slip_below_the_resolution_shows_as_zero() {

@@ -416,6 +416,26 @@ fn latin_hypercube(members: &[&GridAxis], samples: usize, seed: u64) -> Result<V
     Ok(points)
 }
 
+/// Why the design points of a submission ([`submission_points`], [`check_grid`]) are refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PointsError {
+    /// An explicit list longer than the study may be.
+    #[error("{count} points, more than the {max} accepted")]
+    TooManyListed { count: usize, max: usize },
+    /// A grid spec, the grid's size, or a point's parameter the scene does not have.
+    #[error(transparent)]
+    Space(#[from] SpaceError),
+    #[error("empty study: the grid or point list gives no design point")]
+    Empty,
+    /// Point `index` (`point`, shown) leaves out some of the `swept` parameters.
+    #[error("point {index} ({point}) does not give every swept parameter ({})", swept.join(", "))]
+    Incomplete { index: usize, point: String, swept: Vec<String> },
+    #[error("point {index}: {name} = {value} is outside the scene's range [{min}, {max}]")]
+    OutsideScene { index: usize, name: String, value: f64, min: f64, max: f64 },
+    #[error("the grid gives more than 2^64 design points")]
+    Uncountable,
+}
+
 /// The design points of a study submission: a grid (`NAME=SPEC` axes, Cartesian product) or an
 /// explicit list, each checked against the scene's parameters and their declared ranges, at most
 /// `max_points` of them (counted before any is built). Returns the swept names (sorted) and the
@@ -425,35 +445,33 @@ pub fn submission_points(
     grid: &[String],
     points: &[DesignPoint],
     max_points: usize,
-) -> Result<(Vec<String>, Vec<DesignPoint>), String> {
+) -> Result<(Vec<String>, Vec<DesignPoint>), PointsError> {
     let space = ParameterSpace::from_scene(scene);
     let design: Vec<DesignPoint> = if grid.is_empty() {
         if points.len() > max_points {
-            return Err(format!("{} points, more than the {max_points} accepted", points.len()));
+            return Err(PointsError::TooManyListed { count: points.len(), max: max_points });
         }
         points.to_vec()
     } else {
-        let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
-        design_points(&axes.map_err(|e| e.to_string())?, max_points).map_err(|e| e.to_string())?
+        let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>()?;
+        design_points(&axes, max_points)?
     };
     if design.is_empty() {
-        return Err("empty study: the grid or point list gives no design point".into());
+        return Err(PointsError::Empty);
     }
     let mut names: Vec<String> = design.iter().flat_map(|p| p.iter().map(|(k, _)| k.to_owned())).collect();
     names.sort();
     names.dedup();
     for (i, p) in design.iter().enumerate() {
-        space.complete(p).map_err(|e| e.to_string())?;
+        space.complete(p)?;
         if p.len() != names.len() {
-            return Err(format!("point {i} ({p}) does not give every swept parameter ({})", names.join(", ")));
+            return Err(PointsError::Incomplete { index: i, point: p.to_string(), swept: names });
         }
         for (name, value) in p.iter() {
             let range = space.range(name).expect("complete() checked the name");
             if range.declared && !(range.min..=range.max).contains(&value) {
-                return Err(format!(
-                    "point {i}: {name} = {value} is outside the scene's range [{}, {}]",
-                    range.min, range.max
-                ));
+                let (name, min, max) = (name.to_owned(), range.min, range.max);
+                return Err(PointsError::OutsideScene { index: i, name, value, min, max });
             }
         }
     }
@@ -464,17 +482,16 @@ pub fn submission_points(
 /// and the number of design points (the CLI refuses a bad grid before it connects). The points
 /// are counted from the specs; a grid above [`DEFAULT_MAX_POINTS`] is not expanded here (the
 /// coordinator's own `--max-points` decides).
-pub fn check_grid(scene: &Scene, grid: &[String]) -> Result<(Vec<String>, usize), String> {
+pub fn check_grid(scene: &Scene, grid: &[String]) -> Result<(Vec<String>, usize), PointsError> {
     let space = ParameterSpace::from_scene(scene);
-    let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>();
-    let axes = axes.map_err(|e| e.to_string())?;
-    match point_count(&axes).map_err(|e| e.to_string())? {
+    let axes = grid.iter().map(|spec| GridAxis::parse(spec, &space)).collect::<Result<Vec<_>, _>>()?;
+    match point_count(&axes)? {
         Some(n) if n > DEFAULT_MAX_POINTS => {
             let mut names: Vec<String> = axes.into_iter().map(|a| a.name).collect();
             names.sort();
             Ok((names, n))
         }
-        None => Err("the grid gives more than 2^64 design points".into()),
+        None => Err(PointsError::Uncountable),
         Some(_) => submission_points(scene, grid, &[], DEFAULT_MAX_POINTS).map(|(names, points)| (names, points.len())),
     }
 }

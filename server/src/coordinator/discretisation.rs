@@ -48,18 +48,24 @@ pub(super) fn plan(
         0 => 2,
         n if (2..=MAX_REFINE_LEVELS).contains(&n) => n,
         n => {
-            return Err(CoordError::Invalid(format!(
-                "refine_levels {n}: 2 (the time step halved) or {MAX_REFINE_LEVELS} (halved and quartered), the study's own level included"
-            )));
+            return Err(CoordError::invalid_worded(
+                "refine_levels",
+                format!(
+                    "refine_levels {n}: 2 (the time step halved) or {MAX_REFINE_LEVELS} (halved and quartered), the study's own level included"
+                ),
+            ));
         }
     };
     let asked = match submission.refine_points {
         None => DEFAULT_REFINE_POINTS,
         Some(n) if n > MAX_REFINE_POINTS => {
-            return Err(CoordError::Invalid(format!(
-                "refine_points {n}: at most {MAX_REFINE_POINTS} (each costs {} of the study's points)",
-                (1..levels).map(|k| RATIO.pow(k)).sum::<u32>()
-            )));
+            return Err(CoordError::invalid_worded(
+                "refine_points",
+                format!(
+                    "refine_points {n}: at most {MAX_REFINE_POINTS} (each costs {} of the study's points)",
+                    (1..levels).map(|k| RATIO.pow(k)).sum::<u32>()
+                ),
+            ));
         }
         Some(n) => n,
     };
@@ -76,7 +82,7 @@ pub(super) fn plan(
                 tracing::info!(error = %e, "no discretisation audit for this study");
                 return Ok((0, Vec::new()));
             }
-            Err(e) => return Err(CoordError::Invalid(format!("refine_points: {e}"))),
+            Err(e) => return Err(CoordError::invalid("refine_points", e)),
         }
     }
     // the mesh, asked for explicitly (a level costs about 2^dim x a point, and more): refused
@@ -84,7 +90,7 @@ pub(super) fn plan(
     if submission.refine_mesh {
         refined.push(
             level(scene, Refinement::Mesh, RATIO, max_scene_bytes)
-                .map_err(|e| CoordError::Invalid(format!("refine_mesh: {e}")))?,
+                .map_err(|e| CoordError::invalid("refine_mesh", e))?,
         );
     }
     Ok((n, refined))

@@ -1068,7 +1068,7 @@ impl Coordinator {
         let started = std::time::Instant::now();
         let (meta, solution) = solution_file::read_from(&file[..]).map_err(|e| match e {
             SolutionFileError::Checksum => CoordError::Corrupt(format!("solution of point {}: {e}", c.point)),
-            e => CoordError::Invalid(format!("solution of point {}: {e}", c.point)),
+            e => CoordError::invalid_worded("solution", format_args!("solution of point {}: {e}", c.point)),
         })?;
         let (study_hash, full) = {
             let state = self.lock();
@@ -1082,7 +1082,8 @@ impl Coordinator {
         check_meta(&meta, &c, &study_hash, &full)?;
         let checked = started.elapsed();
         // Compress outside the lock: it is the costly part.
-        let compressed = records::encode_fields(&file).map_err(|e| CoordError::Invalid(format!("compressing: {e}")))?;
+        let compressed = records::encode_fields(&file)
+            .map_err(|e| CoordError::invalid_worded("solution", format_args!("compressing: {e}")))?;
         let compressed_at = started.elapsed();
 
         let mut state = self.lock();
@@ -1403,7 +1404,7 @@ fn adaptive_choice(entry: &StudyEntry) -> Result<AdaptiveChoice, CoordError> {
     Ok(match next {
         Some(next) => {
             // (a point the plan cannot complete is refused before anything is stored)
-            entry.plan.space().complete(&next).map_err(|e| CoordError::Invalid(e.to_string()))?;
+            entry.plan.space().complete(&next).map_err(|e| CoordError::invalid_worded("ranges", e))?;
             AdaptiveChoice::Point(next)
         }
         None => {
@@ -1605,47 +1606,62 @@ fn leased_from(point: &PointRecord) -> Option<Box<SolutionOrigin>> {
 fn check_meta(meta: &SolutionMeta, c: &Completion, scene_hash: &str, full: &DesignPoint) -> Result<(), CoordError> {
     let point = format!("point {} of study {}", c.point, c.study);
     if meta.scene_hash != scene_hash {
-        return Err(CoordError::Invalid(format!(
-            "solution is for scene {}, {point} is of scene {scene_hash}",
-            meta.scene_hash
-        )));
+        return Err(CoordError::invalid_worded(
+            "solution",
+            format_args!("solution is for scene {}, {point} is of scene {scene_hash}", meta.scene_hash),
+        ));
     }
     let parameters = &meta.parameters;
     let same_point = parameters.len() == full.len()
         && full.iter().all(|(name, v)| parameters.get(name).is_some_and(|w| same_number(v, w)));
     if !same_point {
-        return Err(CoordError::Invalid(format!("solution is for parameters {parameters}, {point} is at {full}")));
+        return Err(CoordError::invalid_worded(
+            "solution",
+            format_args!("solution is for parameters {parameters}, {point} is at {full}"),
+        ));
     }
     // The QoIs a study reports are the header's: they must be the solve's own, bit for bit.
     let same_qoi = meta.qoi.len() == c.qoi.len()
         && meta.qoi.iter().all(|(name, v)| c.qoi.get(name).is_some_and(|w| w.to_bits() == v.to_bits()));
     if !same_qoi {
-        return Err(CoordError::Invalid(format!(
-            "the QoIs of the header for {point} are not those of its solution file ({})",
-            if meta.qoi.is_empty() {
-                "which has none: written by a solver before 0.2.0?".to_string()
-            } else {
-                format!("{:?}", meta.qoi)
-            }
-        )));
+        return Err(CoordError::invalid_worded(
+            "qoi",
+            format_args!(
+                "the QoIs of the header for {point} are not those of its solution file ({})",
+                if meta.qoi.is_empty() {
+                    "which has none: written by a solver before 0.2.0?".to_string()
+                } else {
+                    format!("{:?}", meta.qoi)
+                }
+            ),
+        ));
     }
     if meta.converged != c.converged || meta.iterations as u64 != c.iterations {
-        return Err(CoordError::Invalid(format!(
-            "solution for {point} says converged = {} after {} iterations, the header {} after {}",
-            meta.converged, meta.iterations, c.converged, c.iterations
-        )));
+        return Err(CoordError::invalid_worded(
+            if meta.converged != c.converged { "converged" } else { "iterations" },
+            format_args!(
+                "solution for {point} says converged = {} after {} iterations, the header {} after {}",
+                meta.converged, meta.iterations, c.converged, c.iterations
+            ),
+        ));
     }
     if !same_number(meta.error_indicator, c.error_indicator) {
-        return Err(CoordError::Invalid(format!(
-            "solution for {point} has eta = {:e}, the header {:e}",
-            meta.error_indicator, c.error_indicator
-        )));
+        return Err(CoordError::invalid_worded(
+            "error_indicator",
+            format_args!(
+                "solution for {point} has eta = {:e}, the header {:e}",
+                meta.error_indicator, c.error_indicator
+            ),
+        ));
     }
     if let Some((name, v)) = c.qoi.iter().find(|(_, v)| !v.is_finite()) {
-        return Err(CoordError::Invalid(format!("QoI `{name}` of {point} is not finite: {v}")));
+        return Err(CoordError::invalid_worded("qoi", format_args!("QoI `{name}` of {point} is not finite: {v}")));
     }
     if !(c.wall_seconds.is_finite() && c.wall_seconds >= 0.0) {
-        return Err(CoordError::Invalid(format!("wall_seconds of {point} is {}", c.wall_seconds)));
+        return Err(CoordError::invalid_worded(
+            "wall_seconds",
+            format_args!("wall_seconds of {point} is {}", c.wall_seconds),
+        ));
     }
     Ok(())
 }

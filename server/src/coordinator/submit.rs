@@ -3,7 +3,7 @@
 
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{MeshFileError, Scene, SceneError, Tolerance, mesh_digest};
-use glissade_core::study::adaptive::{AdaptiveDesign, TARGET_BUDGET, check_target, point_tolerance};
+use glissade_core::study::adaptive::{AdaptiveDesign, DesignError, TARGET_BUDGET, check_target, point_tolerance};
 use glissade_core::study::space::{ParameterSpace, submission_points};
 use glissade_core::study::strategy::InitStrategy;
 use glissade_core::text::one_line;
@@ -77,15 +77,17 @@ impl Coordinator {
         // an adaptive study with a target solves its points to the tolerance the target needs,
         // unless told (core::study::adaptive::point_tolerance)
         if submission.work_budget.is_some() && submission.adaptive.is_none() {
-            return Err(CoordError::Invalid(
-                "work_budget: a work budget is for an adaptive study: give its ranges (NAME=LOW:HIGH)".into(),
+            return Err(CoordError::invalid(
+                "work_budget",
+                "a work budget is for an adaptive study: give its ranges (NAME=LOW:HIGH)",
             ));
         }
         if let Some(target) = submission.surface_accuracy {
-            check_target(target).map_err(CoordError::Invalid)?;
+            check_target(target).map_err(|e| CoordError::invalid_worded("surface_accuracy", e))?;
             if submission.adaptive.is_none() {
-                return Err(CoordError::Invalid(
-                    "surface_accuracy: a target is for an adaptive study: give its ranges (NAME=LOW:HIGH)".into(),
+                return Err(CoordError::invalid(
+                    "surface_accuracy",
+                    "a target is for an adaptive study: give its ranges (NAME=LOW:HIGH)",
                 ));
             }
         }
@@ -93,29 +95,33 @@ impl Coordinator {
         let derived = match (submission.tolerance, submission.surface_accuracy) {
             (None, Some(target)) => Some(
                 Tolerance::new("surface_accuracy", point_tolerance(target))
-                    .map_err(|e| CoordError::Invalid(e.to_string()))?,
+                    .map_err(|e| CoordError::invalid_worded("surface_accuracy", e))?,
             ),
             _ => None,
         };
         let (names, points, adaptive) = self.design(submission, &scene)?;
         let to_accuracy = super::to_accuracy::admit(submission, &scene, &points)?;
         let derived = match &to_accuracy {
-            Some((_, accuracy)) => {
-                Some(Tolerance::new("accuracy", accuracy.tolerance()).map_err(|e| CoordError::Invalid(e.to_string()))?)
-            }
+            Some((_, accuracy)) => Some(
+                Tolerance::new("accuracy", accuracy.tolerance())
+                    .map_err(|e| CoordError::invalid_worded("accuracy", e))?,
+            ),
             None => derived,
         };
         let tolerance = Tolerance::or_scene(submission.tolerance.or(derived), &scene);
         let max_iterations = match submission.max_iterations {
             Some(n) => glissade_core::scene::check_max_iterations("max_iterations", n.into())
-                .map_err(|e| CoordError::Invalid(e.to_string()))? as u32,
+                .map_err(|e| CoordError::invalid_worded("max_iterations", e))? as u32,
             // (the scene's was checked as it parsed)
             None => scene.solver.max_iterations as u32,
         };
         if submission.strategy != InitStrategy::Cold {
             // The index refuses scenes of too many parameters: say so now, not at the first lease.
-            SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone())
-                .map_err(|e| CoordError::Invalid(format!("strategy {}: {e}", submission.strategy.name())))?;
+            SceneSolutions::new(scene_hash.clone(), ParameterSpace::from_scene(&scene), self.store.clone()).map_err(
+                |e| {
+                    CoordError::invalid_worded("strategy", format_args!("strategy {}: {e}", submission.strategy.name()))
+                },
+            )?;
         }
         let new_meshes = self.new_meshes(&scene)?;
         // A study to an accuracy solves at the level its pilots choose, which the audits, written
@@ -170,10 +176,13 @@ impl Coordinator {
             None => default_surface_audit_points(study_points),
             Some(0) => 0,
             Some(_) if study_points > glissade_core::study::surrogate::MAX_POINTS => {
-                return Err(CoordError::Invalid(format!(
-                    "surface_audit_points: a response surface is fitted to at most {} points, this study has {study_points}",
-                    glissade_core::study::surrogate::MAX_POINTS
-                )));
+                return Err(CoordError::invalid(
+                    "surface_audit_points",
+                    format_args!(
+                        "a response surface is fitted to at most {} points, this study has {study_points}",
+                        glissade_core::study::surrogate::MAX_POINTS
+                    ),
+                ));
             }
             Some(n) => (n as usize).min(study_points),
         };
@@ -183,28 +192,31 @@ impl Coordinator {
     /// The submission's scene parsed, with its mesh files (each as announced, exactly those
     /// named, bounded: core's one rule) and within the coordinator's size.
     fn admit_scene(&self, submission: &mut Submission) -> Result<Scene, CoordError> {
-        let mut scene = Scene::parse(&submission.scene_text)
-            .map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
+        let mut scene =
+            Scene::parse(&submission.scene_text).map_err(|e| CoordError::invalid("scene", one_line(&e.to_string())))?;
         for m in &submission.meshes {
             let actual = mesh_digest(&m.data);
             if !m.sha256.is_empty() && m.sha256 != actual {
                 let e = MeshFileError::DigestMismatch { file: m.file.clone(), expected: m.sha256.clone(), actual };
-                return Err(CoordError::Invalid(format!("meshes: {}", one_line(&e.to_string()))));
+                return Err(CoordError::invalid("meshes", one_line(&e.to_string())));
             }
         }
         let uploads = std::mem::take(&mut submission.meshes);
         scene
             .attach_mesh_bytes(uploads.into_iter().map(|m| (m.file, m.data)))
-            .map_err(|e| CoordError::Invalid(format!("meshes: {}", one_line(&e.to_string()))))?;
-        let size = scene.size().map_err(|e| CoordError::Invalid(format!("scene: {}", one_line(&e.to_string()))))?;
+            .map_err(|e| CoordError::invalid("meshes", one_line(&e.to_string())))?;
+        let size = scene.size().map_err(|e| CoordError::invalid("scene", one_line(&e.to_string())))?;
         if size.bytes() > self.config.max_scene_bytes {
-            return Err(CoordError::Invalid(format!(
-                "scene: a solve would need about {} MiB ({} dofs, {} steps, estimated from the text and meshes), more than the {} MiB accepted (glissade-server --max-scene-mib)",
-                size.bytes() >> 20,
-                size.dofs,
-                size.steps,
-                self.config.max_scene_bytes >> 20
-            )));
+            return Err(CoordError::invalid(
+                "scene",
+                format_args!(
+                    "a solve would need about {} MiB ({} dofs, {} steps, estimated from the text and meshes), more than the {} MiB accepted (glissade-server --max-scene-mib)",
+                    size.bytes() >> 20,
+                    size.dofs,
+                    size.steps,
+                    self.config.max_scene_bytes >> 20
+                ),
+            ));
         }
         // What a pool checks before it solves, checked now (core::check): its message, at once.
         scene.check_meshes().map_err(scene_refused)?;
@@ -214,15 +226,17 @@ impl Coordinator {
     /// The study's swept names and points (none yet for an adaptive study, whose spec comes
     /// back instead), each point checked as a pool will check it.
     fn design(&self, submission: &Submission, scene: &Scene) -> Result<Design, CoordError> {
+        // the field of the points: a grid, else a list
+        let listed = if submission.grid.is_empty() { "points" } else { "grid" };
         let (names, points, adaptive) = match &submission.adaptive {
             None => {
                 let (names, points) =
                     submission_points(scene, &submission.grid, &submission.points, self.config.max_points)
-                        .map_err(CoordError::Invalid)?;
+                        .map_err(|e| CoordError::invalid_worded(listed, e))?;
                 (names, points, None)
             }
             Some(_) if !submission.grid.is_empty() || !submission.points.is_empty() => {
-                return Err(CoordError::Invalid("an adaptive study takes ranges, not a grid or points".into()));
+                return Err(CoordError::invalid_worded(listed, "an adaptive study takes ranges, not a grid or points"));
             }
             Some((ranges, budget)) => {
                 let space = ParameterSpace::from_scene(scene);
@@ -232,11 +246,14 @@ impl Coordinator {
                     (n, _) => n,
                 };
                 let design = AdaptiveDesign::parse(ranges, budget as usize, target, &space, self.config.max_points)
-                    .map_err(CoordError::Invalid)?;
+                    .map_err(design_refused)?;
                 let names = design.ranges.iter().map(|(n, ..)| n.clone()).collect();
                 let work_budget = submission.work_budget;
                 if let Some(w) = work_budget.filter(|w| !(w.is_finite() && *w > 0.0)) {
-                    return Err(CoordError::Invalid(format!("work_budget: {w}: must be a finite number above 0")));
+                    return Err(CoordError::invalid(
+                        "work_budget",
+                        format_args!("{w}: must be a finite number above 0"),
+                    ));
                 }
                 let spec = AdaptiveSpec { ranges: design.ranges, budget, target, outcome: None, work_budget };
                 (names, Vec::new(), Some(spec))
@@ -244,7 +261,10 @@ impl Coordinator {
         };
         for (i, point) in points.iter().enumerate() {
             check_point(scene, point).map_err(|e| {
-                CoordError::Invalid(format!("scene at point {i} ({point}): {}", one_line(&e.to_string())))
+                CoordError::invalid_worded(
+                    "scene",
+                    format_args!("scene at point {i} ({point}): {}", one_line(&e.to_string())),
+                )
             })?;
         }
         if let Some(a) = &adaptive {
@@ -255,7 +275,7 @@ impl Coordinator {
                     .iter()
                     .enumerate()
                     .map(|(k, (n, lo, hi))| (n, if (corner >> k) & 1 == 1 { *hi } else { *lo }));
-                let at = DesignPoint::from_pairs(at).map_err(|e| CoordError::Invalid(e.to_string()))?;
+                let at = DesignPoint::from_pairs(at).map_err(|e| CoordError::invalid_worded("ranges", e))?;
                 check_point(scene, &at).map_err(scene_refused)?;
             }
         }
@@ -270,7 +290,7 @@ impl Coordinator {
         for (file, digest) in &scene.mesh_digests {
             if self.store.get(Tree::Meshes, digest.as_bytes())?.is_none() {
                 let compressed = records::encode_fields(&scene.meshes[file])
-                    .map_err(|e| CoordError::Invalid(format!("compressing mesh {file}: {e}")))?;
+                    .map_err(|e| CoordError::invalid_worded("meshes", format_args!("compressing mesh {file}: {e}")))?;
                 new_meshes.push((digest.clone(), compressed));
             }
         }
@@ -341,7 +361,7 @@ impl Coordinator {
     ) -> Result<(), CoordError> {
         // (a discretisation audit's level has its own, refined scene)
         let scene = admitted.refined.iter().find(|l| l.hash == record.scene_hash).map_or(&admitted.scene, |l| &l.scene);
-        let plan = StudyPlan::new(scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        let plan = StudyPlan::new(scene, &record, &points).map_err(plan_refused)?;
         self.index_scene(state, &record.scene_hash, plan.space());
         // (the parsed scene kept without its mesh bytes, as a reopened database has it)
         let mut kept = scene.clone();
@@ -473,5 +493,26 @@ fn check_point(scene: &Scene, point: &DesignPoint) -> Result<(), SceneError> {
 
 /// A scene the checks refuse: its message, on one line.
 fn scene_refused(e: SceneError) -> CoordError {
-    CoordError::Invalid(format!("scene: {}", one_line(&e.to_string())))
+    CoordError::invalid("scene", one_line(&e.to_string()))
+}
+
+/// An adaptive design refused: the field at fault (the target, the budget, else the ranges) and
+/// core's message.
+fn design_refused(e: DesignError) -> CoordError {
+    let field = match &e {
+        DesignError::Target(_) => "surface_accuracy",
+        DesignError::Budget { .. } => "adaptive_points",
+        _ => "ranges",
+    };
+    CoordError::invalid_worded(field, e)
+}
+
+/// A study's plan refused: core's check of its tolerance and its points (both checked as they
+/// entered: only a stored record of another version fails it), named by the key of the check.
+pub(super) fn plan_refused(e: SceneError) -> CoordError {
+    let field = match &e {
+        SceneError::Invalid { key, .. } if key.ends_with("points") => "points",
+        _ => "tolerance",
+    };
+    CoordError::invalid_worded(field, e)
 }

@@ -29,10 +29,10 @@ fn predict(
         .enumerate()
         .map(|(i, point)| {
             if let Some(name) = point.names().find(|k| !names.iter().any(|n| n == k)) {
-                return Err(CoordError::Invalid(format!(
-                    "predict_at[{i}]: `{name}` is not a parameter of these points ({})",
-                    names.join(", ")
-                )));
+                return Err(CoordError::invalid(
+                    format!("predict_at[{i}]"),
+                    format_args!("`{name}` is not a parameter of these points ({})", names.join(", ")),
+                ));
             }
             let predicted = surfaces
                 .iter()
@@ -42,10 +42,24 @@ fn predict(
                     s.predict_within(point).map(|p| QoiPredicted { prediction: p, fitted: s.len(), band: band(p) })
                 })
                 .collect::<Result<Vec<_>, _>>()
-                .map_err(|e| CoordError::Invalid(format!("predict_at[{i}]: {e}")))?;
+                .map_err(|e| CoordError::invalid(format!("predict_at[{i}]"), e))?;
             Ok(PointPrediction { at: point.clone(), qoi: predicted })
         })
         .collect()
+}
+
+/// Every fixed parameter is one of the points' (`names`).
+fn check_fixed(fixed: &DesignPoint, names: &[String]) -> Result<(), CoordError> {
+    match fixed.names().find(|name| !names.iter().any(|n| n == name)) {
+        Some(name) => Err(CoordError::invalid_worded(
+            "fixed",
+            format_args!(
+                "fixed parameter `{name}` is not a parameter of these points (they have: {})",
+                names.join(", ")
+            ),
+        )),
+        None => Ok(()),
+    }
 }
 
 impl Coordinator {
@@ -99,7 +113,10 @@ impl Coordinator {
                     })
                     .collect::<Vec<_>>();
                 if rows.is_empty() && self.store.get(Tree::Scenes, hash.as_bytes())?.is_none() {
-                    return Err(CoordError::Invalid(format!("no scene with hash `{hash}` was ever submitted")));
+                    return Err(CoordError::invalid_worded(
+                        "scene_hash",
+                        format_args!("no scene with hash `{hash}` was ever submitted"),
+                    ));
                 }
                 (hash.clone(), rows)
             }
@@ -111,13 +128,8 @@ impl Coordinator {
             n.dedup();
             n
         };
-        for (name, _) in fixed.iter() {
-            if !names.iter().any(|n| n == name) && !rows.is_empty() {
-                return Err(CoordError::Invalid(format!(
-                    "fixed parameter `{name}` is not a parameter of these points (they have: {})",
-                    names.join(", ")
-                )));
-            }
+        if !rows.is_empty() {
+            check_fixed(fixed, &names)?;
         }
         rows.retain(|r| {
             fixed
@@ -132,10 +144,10 @@ impl Coordinator {
         if !qoi.is_empty() {
             for q in qoi {
                 if !qoi_names.contains(q) && !rows.iter().all(|r| r.qoi.is_empty()) {
-                    return Err(CoordError::Invalid(format!(
-                        "no QoI `{q}` in these results (they have: {})",
-                        qoi_names.join(", ")
-                    )));
+                    return Err(CoordError::invalid_worded(
+                        "qoi",
+                        format_args!("no QoI `{q}` in these results (they have: {})", qoi_names.join(", ")),
+                    ));
                 }
             }
             for r in &mut rows {

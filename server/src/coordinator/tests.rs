@@ -102,10 +102,10 @@ fn base(scene: &str, grid: &[&str]) -> Submission {
     }
 }
 
-fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> String {
+fn refused(c: &Coordinator, scene: &str, grid: &[&str]) -> InvalidRequest {
     let submission = Submission { refine_points: Some(0), surface_audit_points: Some(0), ..base(scene, grid) };
     match c.submit(submission) {
-        Err(CoordError::Invalid(message)) => message,
+        Err(CoordError::Invalid(e)) => e,
         other => panic!("{grid:?} must be refused as invalid, got {:?}", other.map(|r| r.1)),
     }
 }
@@ -119,11 +119,11 @@ fn a_header_whose_qois_are_not_its_files_is_refused() {
     let grant = c.lease("p").unwrap().unwrap();
     let (mut forged, bytes) = solution_file(&grant, 5e-4, true);
     forged.qoi.insert("slip_A".into(), 999.0);
-    let message = match c.complete(forged, bytes.clone()) {
-        Err(CoordError::Invalid(m)) => m,
+    let e = match c.complete(forged, bytes.clone()) {
+        Err(CoordError::Invalid(e)) => e,
         other => panic!("must be refused: {:?}", other.map(|p| p.state)),
     };
-    assert!(message.contains("not those of its solution file"), "{message}");
+    assert!(e.field == "qoi" && e.to_string().contains("not those of its solution file"), "{e:?}");
     // the point is still held, and the true header completes it
     let (honest, bytes) = solution_file(&grant, 5e-4, true);
     assert_eq!(c.complete(honest, bytes).unwrap().state, PointState::Done);
@@ -141,25 +141,26 @@ fn huge_grids_and_scenes_are_refused_before_anything_is_allocated() {
         &["f1=0.1:0.2:1000", "f2=0.1:0.2:1000"],
         &["f1=0.1:0.2:18446744073709551615", "f2=0.1:0.2:3"],
     ] {
-        let message = refused(&c, TINY, grid);
-        assert!(message.contains("design points, more than the 100000 accepted"), "{message}");
+        let e = refused(&c, TINY, grid);
+        assert!(e.field == "grid" && e.reason.contains("design points, more than the 100000 accepted"), "{e:?}");
     }
     // 10^7 elements in a kilobyte of text
     let poison = TINY.replacen("elements = [2, 2, 4]", "elements = [200, 200, 250]", 1);
-    let message = refused(&c, &poison, &["f1=0.1"]);
-    assert!(message.contains("MiB") && message.contains("--max-scene-mib"), "{message}");
+    let e = refused(&c, &poison, &["f1=0.1"]);
+    assert!(e.field == "scene" && e.reason.contains("MiB") && e.reason.contains("--max-scene-mib"), "{e:?}");
     // a mesh body whose file is not in the submission
     let meshed =
         TINY.replacen("elements = [2, 2, 4]", "elements = [2, 2, 4]\nmesh = { file = \"a.msh\", volume = \"v\" }", 1);
-    let message = refused(&c, &meshed, &["f1=0.1"]);
-    assert_eq!(message, "meshes: mesh file 'a.msh' is named by the scene but was not given");
+    let e = refused(&c, &meshed, &["f1=0.1"]);
+    assert_eq!(e.field, "meshes");
+    assert_eq!(e.to_string(), "meshes: mesh file 'a.msh' is named by the scene but was not given");
     assert!(started.elapsed() < Duration::from_secs(2), "refusals must not build anything");
     // nothing was stored, and a proper study still goes through
     assert!(c.studies().is_empty());
     submit(&c, &["f1=0.1:0.2:3"], 1e-3, InitStrategy::Nearest);
     // a 10 kB name comes back as a bounded excerpt
     let name = "n".repeat(10_000);
-    let message = refused(&c, TINY, &[&format!("{name}=0.1")]);
+    let message = refused(&c, TINY, &[&format!("{name}=0.1")]).to_string();
     assert!(message.len() < 1000, "{} bytes", message.len());
 }
 
@@ -961,7 +962,7 @@ fn a_mesh_level_measures_the_mesh_error_beside_the_time_step() {
     // the time level's size: that level passes, the mesh's does not)
     let joint = joint_submission(vec![joint_mesh(JOINT_MESH.to_vec(), "")]);
     match c.submit(Submission { refine_mesh: true, refine_points: Some(1), ..joint }) {
-        Err(CoordError::Invalid(m)) => assert!(m.contains("refine_mesh") && m.contains("mesh file"), "{m}"),
+        Err(CoordError::Invalid(e)) => assert!(e.field == "refine_mesh" && e.reason.contains("mesh file"), "{e:?}"),
         other => panic!("must be refused: {other:?}"),
     }
     let tiny = Scene::parse(TINY).unwrap();
@@ -978,7 +979,10 @@ fn a_mesh_level_measures_the_mesh_error_beside_the_time_step() {
     .unwrap();
     assert!(c.submit(submission(TINY, false)).is_ok());
     match c.submit(submission(TINY, true)) {
-        Err(CoordError::Invalid(m)) => assert!(m.contains("refine_mesh: the mesh h / 2") && m.contains("MiB"), "{m}"),
+        Err(CoordError::Invalid(e)) => {
+            assert!(e.field == "refine_mesh" && e.reason.contains("MiB"), "{e:?}");
+            assert!(e.to_string().starts_with("refine_mesh: the mesh h / 2"), "{e}");
+        }
         other => panic!("must be refused: {other:?}"),
     }
 }
@@ -1129,20 +1133,21 @@ fn a_discretisation_audit_measures_the_time_step_error_a_study_got() {
 
     // bounds: too many points or levels, a refined scene past the step limit, refused when asked
     // for; the default audit is dropped instead
-    for (points, levels, expect) in [
-        (Some(MAX_REFINE_POINTS + 1), 2, "refine_points 9: at most 8"),
-        (Some(2), 4, "refine_levels 4: 2"),
-        (Some(u32::MAX), 2, "at most 8"),
+    for (points, levels, field, expect) in [
+        (Some(MAX_REFINE_POINTS + 1), 2, "refine_points", "refine_points 9: at most 8"),
+        (Some(2), 4, "refine_levels", "refine_levels 4: 2"),
+        (Some(u32::MAX), 2, "refine_points", "at most 8"),
     ] {
         match submit_refined(&c, TINY, &["f1=0.1"], points, levels) {
-            Err(CoordError::Invalid(m)) => assert!(m.contains(expect), "{m}"),
+            Err(CoordError::Invalid(e)) => assert!(e.field == field && e.to_string().contains(expect), "{e:?}"),
             other => panic!("must be refused: {other:?}"),
         }
     }
     let long = TINY.replacen("steps = 50", "steps = 150000", 1);
     match submit_refined(&c, &long, &["f1=0.1"], Some(1), 2) {
-        Err(CoordError::Invalid(m)) => {
-            assert!(m.contains("refine_points: the time step / 2") && m.contains("200000"), "{m}")
+        Err(CoordError::Invalid(e)) => {
+            assert!(e.field == "refine_points" && e.reason.contains("200000"), "{e:?}");
+            assert!(e.to_string().contains("refine_points: the time step / 2"), "{e}");
         }
         other => panic!("must be refused: {other:?}"),
     }
@@ -1357,7 +1362,10 @@ fn mesh_files_are_checked_stored_once_by_digest_and_kept_across_a_restart() {
         ];
         for (meshes, expected) in refusals {
             match c.submit(joint_submission(meshes)) {
-                Err(CoordError::Invalid(m)) => assert!(m.starts_with(&expected), "expected {expected}, got {m}"),
+                Err(CoordError::Invalid(e)) => {
+                    assert!(expected.starts_with(&format!("{}: ", e.field)), "the field of {expected}: {e:?}");
+                    assert!(e.to_string().starts_with(&expected), "expected {expected}, got {e}");
+                }
                 other => panic!("must be refused: {:?}", other.map(|r| r.1)),
             }
         }
@@ -1852,14 +1860,16 @@ fn an_adaptive_study_stops_at_its_work_budget() {
             (s.adaptive, s.grid) = (None, vec!["f1=0.1:0.2:3".into()]);
         }
         match c.submit(s) {
-            Err(CoordError::Invalid(why)) => why,
+            Err(CoordError::Invalid(e)) => e,
             other => panic!("{work_budget}, adaptive {adaptive}: {other:?}"),
         }
     };
     for bad in [0.0, -5.0, f64::NAN, f64::INFINITY] {
-        assert!(refused(bad, true).starts_with("work_budget: "), "{bad}");
+        let e = refused(bad, true);
+        assert!(e.field == "work_budget" && e.to_string().starts_with("work_budget: "), "{bad}: {e:?}");
     }
-    assert!(refused(100.0, false).contains("a work budget is for an adaptive study"));
+    let e = refused(100.0, false);
+    assert!(e.field == "work_budget" && e.reason.contains("a work budget is for an adaptive study"), "{e:?}");
 }
 
 /// A target out of (0, 1], or without a box, is refused before anything is stored; the
@@ -1870,13 +1880,17 @@ fn a_bad_target_is_refused_and_the_tolerance_follows_the_target() {
     let c = open(dir.path(), 60_000, 3);
     for bad in [0.0, -0.02, 1.5, f64::NAN, f64::INFINITY] {
         match submit_target(&c, bad, 20, None) {
-            Err(CoordError::Invalid(why)) => assert!(why.contains("surface accuracy"), "{bad}: {why}"),
+            Err(CoordError::Invalid(e)) => {
+                assert!(e.field == "surface_accuracy" && e.reason.contains("surface accuracy"), "{bad}: {e:?}")
+            }
             other => panic!("{bad}: {other:?}"),
         }
     }
     let mut grid = Submission { adaptive: None, grid: vec!["f1=0.1:0.2:3".into()], ..submission_of_target(0.02) };
     match c.submit(grid.clone()) {
-        Err(CoordError::Invalid(why)) => assert!(why.contains("a target is for an adaptive study"), "{why}"),
+        Err(CoordError::Invalid(e)) => {
+            assert!(e.field == "surface_accuracy" && e.reason.contains("a target is for an adaptive study"), "{e:?}")
+        }
         other => panic!("{other:?}"),
     }
     grid.surface_accuracy = None;
@@ -1938,22 +1952,23 @@ fn a_submission_to_an_accuracy_is_checked_and_its_points_wait_for_its_pilots() {
     let c = open(dir.path(), 60_000, 3);
     let base = to_accuracy(0.05, None);
     let cases = [
-        (Submission { accuracy: Some(f64::NAN), ..base.clone() }, "give an accuracy between"),
-        (Submission { accuracy: Some(1e300), ..base.clone() }, "give an accuracy between"),
-        (Submission { accuracy: Some(0.0), ..base.clone() }, "give an accuracy between"),
-        (Submission { accuracy_pilots: Some(0), ..base.clone() }, "accuracy_pilots 0: from 1 to 16"),
-        (Submission { accuracy_pilots: Some(u32::MAX), ..base.clone() }, "from 1 to 16"),
-        (Submission { tolerance: Some(tolerance(1e-4)), ..base.clone() }, "not with a tolerance"),
-        (Submission { refine_mesh: true, ..base.clone() }, "not with a discretisation audit"),
-        (Submission { audit_points: Some(2), ..base.clone() }, "no iteration or surface audit"),
+        (Submission { accuracy: Some(f64::NAN), ..base.clone() }, "accuracy", "give an accuracy between"),
+        (Submission { accuracy: Some(1e300), ..base.clone() }, "accuracy", "give an accuracy between"),
+        (Submission { accuracy: Some(0.0), ..base.clone() }, "accuracy", "give an accuracy between"),
+        (Submission { accuracy_pilots: Some(0), ..base.clone() }, "accuracy_pilots", "accuracy_pilots 0: from 1 to 16"),
+        (Submission { accuracy_pilots: Some(u32::MAX), ..base.clone() }, "accuracy_pilots", "from 1 to 16"),
+        (Submission { tolerance: Some(tolerance(1e-4)), ..base.clone() }, "accuracy", "not with a tolerance"),
+        (Submission { refine_mesh: true, ..base.clone() }, "accuracy", "not with a discretisation audit"),
+        (Submission { audit_points: Some(2), ..base.clone() }, "accuracy", "no iteration or surface audit"),
         (
             Submission { accuracy: None, accuracy_pilots: Some(2), ..base.clone() },
+            "accuracy_pilots",
             "pilots are for a study to an accuracy",
         ),
     ];
-    for (bad, needle) in cases {
+    for (bad, field, needle) in cases {
         match c.submit(bad) {
-            Err(CoordError::Invalid(m)) => assert!(m.contains(needle), "{m}"),
+            Err(CoordError::Invalid(e)) => assert!(e.field == field && e.to_string().contains(needle), "{e:?}"),
             other => panic!("{needle}: must be refused, got {:?}", other.map(|r| r.0)),
         }
     }

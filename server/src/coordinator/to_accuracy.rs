@@ -19,6 +19,7 @@ use glissade_core::study::space::ParameterSpace;
 use glissade_core::text::one_line;
 use glissade_proto::{PointId, StudyId};
 
+use super::submit::plan_refused;
 use super::transitions::{Transition, apply};
 use super::{CoordError, Coordinator, State, StudyEntry, Submission, now_unix_ms};
 use crate::records::{
@@ -38,13 +39,13 @@ pub(super) fn admit(
 ) -> Result<Option<(ToAccuracy, Accuracy)>, CoordError> {
     let Some(asked) = submission.accuracy else {
         if submission.accuracy_pilots.is_some() {
-            return Err(CoordError::Invalid("accuracy_pilots: pilots are for a study to an accuracy".into()));
+            return Err(CoordError::invalid("accuracy_pilots", "pilots are for a study to an accuracy"));
         }
         return Ok(None);
     };
-    let accuracy = Accuracy::new("accuracy", asked).map_err(|e| CoordError::Invalid(e.to_string()))?;
+    let accuracy = Accuracy::new("accuracy", asked).map_err(|e| CoordError::invalid_worded("accuracy", e))?;
     let refused = |what: &str| {
-        Err(CoordError::Invalid(format!("accuracy: {what}: an accuracy chooses the tolerance, dt and h itself")))
+        Err(CoordError::invalid("accuracy", format_args!("{what}: an accuracy chooses the tolerance, dt and h itself")))
     };
     if submission.tolerance.is_some() {
         return refused("not with a tolerance");
@@ -57,19 +58,26 @@ pub(super) fn admit(
         return refused("not with a discretisation audit");
     }
     if submission.audit_points.is_some_and(|n| n > 0) || submission.surface_audit_points.is_some_and(|n| n > 0) {
-        return Err(CoordError::Invalid(
-            "accuracy: a study to an accuracy has no iteration or surface audit yet (they would run at the scene as given, not at the level its pilots choose)".into(),
+        return Err(CoordError::invalid(
+            "accuracy",
+            "a study to an accuracy has no iteration or surface audit yet (they would run at the scene as given, not at the level its pilots choose)",
         ));
     }
     if !scene.mesh_digests.is_empty() {
-        return Err(CoordError::Invalid(
-            "accuracy: the scene reads a mesh file, which cannot be refined: its mesh error would be in no estimate (give box bodies, or solve at a tolerance)".into(),
+        return Err(CoordError::invalid(
+            "accuracy",
+            "the scene reads a mesh file, which cannot be refined: its mesh error would be in no estimate (give box bodies, or solve at a tolerance)",
         ));
     }
     let n = match submission.accuracy_pilots {
         None => DEFAULT_PILOTS,
         Some(n) if (1..=MAX_PILOTS as u32).contains(&n) => n as usize,
-        Some(n) => return Err(CoordError::Invalid(format!("accuracy_pilots {n}: from 1 to {MAX_PILOTS}"))),
+        Some(n) => {
+            return Err(CoordError::invalid_worded(
+                "accuracy_pilots",
+                format_args!("accuracy_pilots {n}: from 1 to {MAX_PILOTS}"),
+            ));
+        }
     };
     // the pilots span the box; the held-out points lie between them
     let order = spread_order(points, &ParameterSpace::from_scene(scene), n + DEFAULT_HELD_OUT);
@@ -166,7 +174,8 @@ impl Coordinator {
         let entry = &state.studies[&id];
         let mut spec = entry.record.to_accuracy.clone().expect("listed by the caller");
         let given = entry.scene.clone();
-        let accuracy = Accuracy::new("accuracy", spec.accuracy).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        let accuracy =
+            Accuracy::new("accuracy", spec.accuracy).map_err(|e| CoordError::invalid_worded("accuracy", e))?;
         let mut changed = false;
         // (pilot, level) pairs to solve next
         let mut wanted: Vec<(usize, usize, usize)> = Vec::new();
@@ -261,7 +270,7 @@ impl Coordinator {
                     let level = &state.studies[&sid];
                     let n = level.points.len() + added.iter().filter(|(s, ..)| *s == sid).count();
                     // (a point the plan cannot complete is refused before anything is stored)
-                    level.plan.space().complete(&at).map_err(|e| CoordError::Invalid(e.to_string()))?;
+                    level.plan.space().complete(&at).map_err(|e| CoordError::invalid_worded("points", e))?;
                     let point = PointRecord::pending(sid, PointId(n as u64), at);
                     batch.put(Tree::Points, point_key(sid, point.id), encode(&point));
                     added.push((sid, point));
@@ -314,7 +323,7 @@ impl Coordinator {
     /// A level's study in the state, with its plan and its scene's index.
     fn enter_level(&self, state: &mut State, level: NewLevel) -> Result<(), CoordError> {
         let NewLevel { record, points, scene } = level;
-        let plan = StudyPlan::new(&scene, &record, &points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        let plan = StudyPlan::new(&scene, &record, &points).map_err(plan_refused)?;
         self.index_scene(state, &record.scene_hash, plan.space());
         let id = record.id;
         state.studies.insert(id, StudyEntry { record, points, plan, scene: Arc::new(scene) });
@@ -340,9 +349,10 @@ impl Coordinator {
         given: &Scene,
         (k, m): (usize, usize),
     ) -> Result<(), CoordError> {
-        let text = scene_text_at(given, k, m).map_err(|e| CoordError::Invalid(format!("accuracy: {e}")))?;
-        let scene = Scene::parse(&text)
-            .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;
+        let text = scene_text_at(given, k, m).map_err(|e| CoordError::invalid("accuracy", e))?;
+        let scene = Scene::parse(&text).map_err(|e| {
+            CoordError::invalid("accuracy", format_args!("the level's scene: {}", one_line(&e.to_string())))
+        })?;
         spec.chosen = Some((k, m));
         let entry = &state.studies[&id];
         // the held-out check, one level finer, opened now (an audit: leased once the study ended)
@@ -371,7 +381,7 @@ impl Coordinator {
         record.scene_hash = scene.content_hash();
         record.scene = text;
         record.to_accuracy = Some(spec);
-        let plan = StudyPlan::new(&scene, &record, &entry.points).map_err(|e| CoordError::Invalid(e.to_string()))?;
+        let plan = StudyPlan::new(&scene, &record, &entry.points).map_err(plan_refused)?;
         if self.store.get(Tree::Scenes, record.scene_hash.as_bytes())?.is_none() {
             batch.put(Tree::Scenes, record.scene_hash.as_bytes(), record.scene.as_bytes());
         }
@@ -468,9 +478,10 @@ fn new_level(
     at: Vec<DesignPoint>,
     role: Role,
 ) -> Result<NewLevel, CoordError> {
-    let text = scene_text_at(given, k, m).map_err(|e| CoordError::Invalid(format!("accuracy: {e}")))?;
-    let scene = Scene::parse(&text)
-        .map_err(|e| CoordError::Invalid(format!("accuracy: the level's scene: {}", one_line(&e.to_string()))))?;
+    let text = scene_text_at(given, k, m).map_err(|e| CoordError::invalid("accuracy", e))?;
+    let scene = Scene::parse(&text).map_err(|e| {
+        CoordError::invalid("accuracy", format_args!("the level's scene: {}", one_line(&e.to_string())))
+    })?;
     let (label, pilot_of, confirms) = match role {
         Role::Pilots => (format!("pilots of study {}: dt / {k}, h / {m}", study.id), Some(study.id), None),
         Role::HeldOut => (format!("held-out check of study {}: dt / {k}, h / {m}", study.id), None, Some(study.id)),

@@ -45,9 +45,9 @@ pub struct Config {
 /// to one gRPC status code.
 #[derive(Debug, thiserror::Error)]
 pub enum CoordError {
-    /// A request that can never succeed as sent (INVALID_ARGUMENT).
+    /// A request that can never succeed as sent (INVALID_ARGUMENT): the field at fault and why.
     #[error("{0}")]
-    Invalid(String),
+    Invalid(InvalidRequest),
     #[error("no study {0}")]
     UnknownStudy(StudyId),
     #[error("study {study} has no point {point}")]
@@ -74,6 +74,52 @@ pub enum CoordError {
     #[error("solution index: {0}")]
     Index(#[from] glissade_core::study::store::StoreError),
 }
+
+impl CoordError {
+    /// An invalid request whose message is `field: reason` (`refine_mesh: the mesh h / 2 ...`).
+    pub fn invalid(field: impl Into<String>, reason: impl std::fmt::Display) -> Self {
+        CoordError::Invalid(InvalidRequest::new(field, reason))
+    }
+
+    /// An invalid request whose message names its field in its own words and is read as given
+    /// (`refine_levels 4: ...`, `no scene with hash ...`).
+    pub fn invalid_worded(field: impl Into<String>, message: impl std::fmt::Display) -> Self {
+        CoordError::Invalid(InvalidRequest::worded(field, message))
+    }
+}
+
+/// Why a request can never succeed as sent: the request field at fault, named as the API names
+/// it (`scene`, `meshes`, `work_budget`, `refine_mesh`, `predict_at[3]`, `accuracy_pilots`,
+/// `strategy`, `solution`, ...), and the reason, in words for its user. Its message (Display,
+/// and the INVALID_ARGUMENT status's) is `field: reason`, or the reason alone where that names
+/// the field its own way.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct InvalidRequest {
+    pub field: String,
+    pub reason: String,
+    /// The message is `reason` alone (which names the field in its own words).
+    pub worded: bool,
+}
+
+impl InvalidRequest {
+    /// The message `field: reason`.
+    pub fn new(field: impl Into<String>, reason: impl std::fmt::Display) -> Self {
+        Self { field: field.into(), reason: reason.to_string(), worded: false }
+    }
+
+    /// The message `message`, which names `field` its own way.
+    pub fn worded(field: impl Into<String>, message: impl std::fmt::Display) -> Self {
+        Self { field: field.into(), reason: message.to_string(), worded: true }
+    }
+}
+
+impl std::fmt::Display for InvalidRequest {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.worded { f.write_str(&self.reason) } else { write!(f, "{}: {}", self.field, self.reason) }
+    }
+}
+
+impl std::error::Error for InvalidRequest {}
 
 impl From<transitions::IllegalTransition> for CoordError {
     fn from(e: transitions::IllegalTransition) -> Self {
