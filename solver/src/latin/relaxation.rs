@@ -6,7 +6,7 @@
 //! back and forth by the same amount and eta stands still (a contraction factor of -1). With
 //! mu = 0.8 the cycle survives; lowering mu damps it (mu = 0.5 takes a factor -1 to 0).
 
-use super::stopping::{NORM_FLOOR, QoiUnit, UnitScales};
+use super::stopping::{NORM_FLOOR, QoiUnit, UnitScales, WindowNorms};
 
 /// mu is multiplied by this when the iterates oscillate...
 const DECREASE: f64 = 0.75;
@@ -27,11 +27,30 @@ pub struct Relaxation {
     /// this update's change (a buffer, swapped into `last_change`)
     change: Vec<f64>,
     flips: usize,
+    /// the histories' norms, and where they may change (a window's first step)
+    window: WindowNorms,
+    norms: Vec<f64>,
 }
 
 impl Relaxation {
     pub fn new(mu: f64, units: Vec<QoiUnit>) -> Self {
-        Self { mu, units, previous: None, last_change: None, change: Vec::new(), flips: 0 }
+        Self {
+            mu,
+            units,
+            previous: None,
+            last_change: None,
+            change: Vec::new(),
+            flips: 0,
+            window: WindowNorms::default(),
+            norms: Vec::new(),
+        }
+    }
+
+    /// The same, for a window whose histories change from value `from` on only (the changes
+    /// before it are zeros, which add nothing to the cosine).
+    pub fn from_step(mut self, from: usize) -> Self {
+        self.window = WindowNorms::from_step(from);
+        self
     }
 
     /// The coefficient for the next relaxation.
@@ -45,11 +64,15 @@ impl Relaxation {
         let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
         let c = &mut self.change;
         c.clear();
+        let from = self.window.from();
+        let norms = &mut self.norms;
         let changed = self.previous.as_ref().is_some_and(|prev| {
-            for ((now, before), unit) in series.iter().zip(prev).zip(&self.units) {
+            self.window.norms(series, norms);
+            for (((now, before), unit), n) in series.iter().zip(prev).zip(&self.units).zip(norms.iter()) {
                 // each QoI relative to its norm, a near-zero one to a floor of its unit's scale
-                let scale = norm(now).max(NORM_FLOOR * scales.of(*unit));
+                let scale = n.max(NORM_FLOOR * scales.of(*unit));
                 if scale > 0.0 {
+                    let (now, before) = (&now[from.min(now.len())..], &before[from.min(before.len())..]);
                     c.extend(now.iter().zip(before).map(|(a, b)| (a - b) / scale));
                 }
             }
@@ -75,7 +98,7 @@ impl Relaxation {
         } else {
             self.last_change = None;
         }
-        super::copy_rows(self.previous.get_or_insert_with(Vec::new), series);
+        self.window.copy(&mut self.previous, series);
     }
 }
 

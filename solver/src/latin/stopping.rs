@@ -60,6 +60,57 @@ impl UnitScales {
     }
 }
 
+/// The QoI histories of a window's iterates agree before its first step (the fields there do
+/// not change while it is iterated): each history's norm continues the sum of squares over those
+/// steps, taken once, and its change is measured from `from` on. The sums run in the same order
+/// as over the whole history, so the results are the same to the bit; over the whole interval
+/// `from` is 0.
+#[derive(Debug, Clone, Default)]
+pub(super) struct WindowNorms {
+    from: usize,
+    /// per QoI, the sum of squares of its values before `from` (taken at the first update)
+    before: Option<Vec<f64>>,
+}
+
+impl WindowNorms {
+    pub(super) fn from_step(from: usize) -> Self {
+        Self { from, before: None }
+    }
+
+    /// The first value that may change between iterates.
+    pub(super) fn from(&self) -> usize {
+        self.from
+    }
+
+    /// The L2 norm of each of `series`, in `out`.
+    pub(super) fn norms(&mut self, series: &[Vec<f64>], out: &mut Vec<f64>) {
+        let from = self.from;
+        let before = self.before.get_or_insert_with(|| {
+            series.iter().map(|v| v[..from.min(v.len())].iter().fold(-0.0, |a, x| a + x * x)).collect()
+        });
+        out.clear();
+        out.extend(
+            series
+                .iter()
+                .zip(before.iter())
+                .map(|(v, &b)| v[from.min(v.len())..].iter().fold(b, |a, x| a + x * x).sqrt()),
+        );
+    }
+
+    /// Copies `series` into `to`: only from `from` on where `to` holds the same histories' rows.
+    pub(super) fn copy(&self, to: &mut Option<Vec<Vec<f64>>>, series: &[Vec<f64>]) {
+        match to {
+            Some(rows) if rows.len() == series.len() && rows.iter().zip(series).all(|(r, s)| r.len() == s.len()) => {
+                for (r, s) in rows.iter_mut().zip(series) {
+                    let from = self.from.min(s.len());
+                    r[from..].copy_from_slice(&s[from..]);
+                }
+            }
+            _ => super::copy_rows(to.get_or_insert_with(Vec::new), series),
+        }
+    }
+}
+
 /// Follows the QoI histories of successive iterates and estimates their remaining error.
 #[derive(Debug, Clone)]
 pub struct ErrorEstimator {
@@ -71,12 +122,29 @@ pub struct ErrorEstimator {
     floors: Vec<f64>,
     /// per QoI, the norm its last change was measured against
     scales: Vec<f64>,
+    /// the histories' norms, and where they may change (a window's first step)
+    window: WindowNorms,
+    norms: Vec<f64>,
 }
 
 impl ErrorEstimator {
     /// An estimator of QoIs with these units; with none, it follows eta's sequence instead.
     pub fn new(units: Vec<QoiUnit>) -> Self {
-        Self { units, previous: None, changes: Vec::new(), floors: Vec::new(), scales: Vec::new() }
+        Self {
+            units,
+            previous: None,
+            changes: Vec::new(),
+            floors: Vec::new(),
+            scales: Vec::new(),
+            window: WindowNorms::default(),
+            norms: Vec::new(),
+        }
+    }
+
+    /// The same, for a window whose histories change from value `from` on only.
+    pub fn from_step(mut self, from: usize) -> Self {
+        self.window = WindowNorms::from_step(from);
+        self
     }
 
     /// The same, measuring each QoI against at least `floors[q]` (a time window redone with the
@@ -100,7 +168,8 @@ impl ErrorEstimator {
             return self.estimate();
         }
         let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
-        let norms: Vec<f64> = series.iter().map(|v| norm(v)).collect();
+        self.window.norms(series, &mut self.norms);
+        let norms = &self.norms;
         let largest = |unit: QoiUnit| {
             norms.iter().zip(&self.units).filter(|(_, u)| **u == unit).map(|(n, _)| *n).fold(scales.of(unit), f64::max)
         };
@@ -112,12 +181,14 @@ impl ErrorEstimator {
             .map(|(q, (&n, &unit))| n.max(NORM_FLOOR * largest(unit)).max(floors.get(q).copied().unwrap_or(0.0)))
             .collect();
         if let Some(prev) = &self.previous {
+            let from = self.window.from();
             let change = series
                 .iter()
                 .zip(prev)
                 .zip(self.scales.iter_mut())
                 .map(|((now, before), scale)| {
-                    let diff = now.iter().zip(before).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
+                    let (changed, was) = (&now[from.min(now.len())..], &before[from.min(before.len())..]);
+                    let diff = changed.iter().zip(was).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
                     if *scale == 0.0 {
                         // everything of this unit just fell to zero: measure against before
                         *scale = norm(before);
@@ -127,7 +198,7 @@ impl ErrorEstimator {
                 .collect();
             self.changes.push(change);
         }
-        super::copy_rows(self.previous.get_or_insert_with(Vec::new), series);
+        self.window.copy(&mut self.previous, series);
         self.estimate()
     }
 
@@ -260,6 +331,41 @@ mod tests {
             last = scaled.update(&[vec![1e-24 * (k % 2) as f64]], &scales, 1.0);
         }
         assert!(last < 1e-12, "noise against the fields' lengths: {last}");
+    }
+
+    /// A window's estimate, which sums only the values from its first step on (those before it do
+    /// not change while it is iterated), is that of the whole histories to the bit; its norms too.
+    #[test]
+    fn a_windows_estimate_is_that_of_the_whole_histories() {
+        let from = 30;
+        let iterate = |k: usize| -> Vec<Vec<f64>> {
+            (0..2)
+                .map(|q| {
+                    (0..80)
+                        .map(|n| {
+                            let settled = (n as f64 * 0.21 + q as f64).sin() * 1e-3;
+                            if n < from { settled } else { settled * (1.0 + 0.3 * 0.8f64.powi(k as i32)) }
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let units = vec![QoiUnit::Length, QoiUnit::Velocity];
+        let (mut whole, mut window) = (ErrorEstimator::new(units.clone()), ErrorEstimator::new(units).from_step(from));
+        for k in 0..40 {
+            let series = iterate(k);
+            let (a, b) = (
+                whole.update(&series, &UnitScales::default(), 1.0),
+                window.update(&series, &UnitScales::default(), 1.0),
+            );
+            assert_eq!(a.to_bits(), b.to_bits(), "iteration {k}: {a} against {b}");
+            assert_eq!(whole.scales(), window.scales());
+        }
+        let series = iterate(0);
+        let mut norms = Vec::new();
+        WindowNorms::from_step(from).norms(&series, &mut norms);
+        let full: Vec<f64> = series.iter().map(|v| v.iter().map(|x| x * x).sum::<f64>().sqrt()).collect();
+        assert_eq!(norms, full);
     }
 
     #[test]

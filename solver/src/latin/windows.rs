@@ -160,15 +160,12 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let StageStart { stage, u0, statics, .. } = *begin;
         let WindowRule { mut tolerance, mut estimate_tolerance, stall_at, floors, budget, tighten } = rule;
         let mut tightening = tighten.then(|| Tightening::new(tolerance, m.dt));
-        let settings = &m.settings;
         let progress = it.options.progress.as_deref();
         let mut report = StageReport::default();
         let stage_name = stage.name();
-        let mut estimator = ErrorEstimator::new(m.qois.iter().map(|q| q.target.unit()).collect())
-            .with_floors(floors.map(<[f64]>::to_vec).unwrap_or_default());
+        let (mut estimator, mut relaxation) = Self::followers(m, window, floors, it);
         // the interface with the largest share of eta at the last iteration
         let mut worst = None;
-        let mut relaxation = Relaxation::new(settings.relaxation, m.qois.iter().map(|q| q.target.unit()).collect());
         // the QoIs are followed up to the window's end (later steps are not computed yet)
         let known = window.steps.end + 1;
         let at = Self::window_values(m, &window.steps);
@@ -220,7 +217,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             // The static stage is one step, converged far tighter than asked; the dynamic stage
             // stops on the QoIs' estimated error (stopping.rs).
             report.error_estimate = if dynamic {
-                let scales = self.qoi_values(fields, statics, &it.body, &mut it.qois);
+                let scales = self.qoi_values(fields, statics, &it.body, &window.steps, &mut it.qois);
                 let series = &mut it.qois.values;
                 // a non-finite QoI would pass the estimate's comparisons (NaN changes): refuse it
                 // (a non-finite eta is reported below, as such)
@@ -267,6 +264,25 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         }
         report.relaxation = relaxation.mu();
         Ok(self.window_end(report, worst, tightening, &estimator, it))
+    }
+
+    /// What follows a window's QoIs from iteration to iteration: the stopping test's estimator and
+    /// the relaxation. The QoIs' values before the window's first step do not change while it is
+    /// iterated: both sum from there on, and the fields' sums outside it are taken once.
+    fn followers(
+        m: &Model<D>,
+        window: &Window,
+        floors: Option<&[f64]>,
+        it: &mut Iterations,
+    ) -> (ErrorEstimator, Relaxation) {
+        let units = || m.qois.iter().map(|q| q.target.unit()).collect::<Vec<_>>();
+        it.qois.new_window();
+        (
+            ErrorEstimator::new(units())
+                .with_floors(floors.map(<[f64]>::to_vec).unwrap_or_default())
+                .from_step(window.steps.start),
+            Relaxation::new(m.settings.relaxation, units()).from_step(window.steps.start),
+        )
     }
 
     /// Each interface's values of the window's steps: what an iteration changes.
