@@ -240,7 +240,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             if let Some(p) = progress {
                 p.record(eta);
             }
-            tracing::debug!(stage = stage_name, iteration, eta, "LATIN iteration");
+            tracing::debug!(stage = stage_name, iteration, eta, estimate = report.error_estimate, "LATIN iteration");
             if !eta.is_finite() {
                 return Err(SolverError::NonFinite { stage: stage_name, iteration, eta });
             }
