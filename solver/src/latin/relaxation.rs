@@ -64,7 +64,6 @@ impl Relaxation {
         let norm = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
         let c = &mut self.change;
         c.clear();
-        let from = self.window.from();
         let norms = &mut self.norms;
         let changed = self.previous.as_ref().is_some_and(|prev| {
             self.window.norms(series, norms);
@@ -72,7 +71,7 @@ impl Relaxation {
                 // each QoI relative to its norm, a near-zero one to a floor of its unit's scale
                 let scale = n.max(NORM_FLOOR * scales.of(*unit));
                 if scale > 0.0 {
-                    let (now, before) = (&now[from.min(now.len())..], &before[from.min(before.len())..]);
+                    let (now, before) = (self.window.changing(now), self.window.changing(before));
                     c.extend(now.iter().zip(before).map(|(a, b)| (a - b) / scale));
                 }
             }

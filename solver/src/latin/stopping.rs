@@ -77,9 +77,9 @@ impl WindowNorms {
         Self { from, before: None }
     }
 
-    /// The first value that may change between iterates.
-    pub(super) fn from(&self) -> usize {
-        self.from
+    /// The values of `v` that may change between iterates (from `from` on).
+    pub(super) fn changing<'v>(&self, v: &'v [f64]) -> &'v [f64] {
+        &v[self.from.min(v.len())..]
     }
 
     /// The L2 norm of each of `series`, in `out`.
@@ -103,7 +103,7 @@ impl WindowNorms {
             Some(rows) if rows.len() == series.len() && rows.iter().zip(series).all(|(r, s)| r.len() == s.len()) => {
                 for (r, s) in rows.iter_mut().zip(series) {
                     let from = self.from.min(s.len());
-                    r[from..].copy_from_slice(&s[from..]);
+                    r[from..].copy_from_slice(self.changing(s));
                 }
             }
             _ => super::copy_rows(to.get_or_insert_with(Vec::new), series),
@@ -181,13 +181,13 @@ impl ErrorEstimator {
             .map(|(q, (&n, &unit))| n.max(NORM_FLOOR * largest(unit)).max(floors.get(q).copied().unwrap_or(0.0)))
             .collect();
         if let Some(prev) = &self.previous {
-            let from = self.window.from();
+            let window = &self.window;
             let change = series
                 .iter()
                 .zip(prev)
                 .zip(self.scales.iter_mut())
                 .map(|((now, before), scale)| {
-                    let (changed, was) = (&now[from.min(now.len())..], &before[from.min(before.len())..]);
+                    let (changed, was) = (window.changing(now), window.changing(before));
                     let diff = changed.iter().zip(was).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
                     if *scale == 0.0 {
                         // everything of this unit just fell to zero: measure against before
