@@ -996,6 +996,20 @@ pub(crate) fn relative_displacement<const D: usize>(
     interface: usize,
     node: usize,
 ) -> Vec<[f64; D]> {
+    relative_displacement_over(m, f, interface, node, 0..m.steps + 1, [0.0; D])
+}
+
+/// [`relative_displacement`]'s values `values` (indices from 0, the initial state), from
+/// `before`, the value at `values.start - 1` (unused where `values` starts at 0): the same sums
+/// in the same order, so a window's iterations may take the values before it once.
+pub(crate) fn relative_displacement_over<const D: usize>(
+    m: &Model<D>,
+    f: &InterfaceField,
+    interface: usize,
+    node: usize,
+    values: Range<usize>,
+    before: [f64; D],
+) -> Vec<[f64; D]> {
     let itf = &m.interfaces[interface];
     let n = itf.n_nodes();
     let velocity = |step: Option<usize>| -> [f64; D] {
@@ -1011,17 +1025,20 @@ pub(crate) fn relative_displacement<const D: usize>(
             }
         })
     };
-    let mut rel = [0.0; D];
-    let mut out = Vec::with_capacity(m.steps + 1);
-    out.push(rel);
-    let mut prev = velocity(None);
-    for step in 0..m.steps {
-        let cur = velocity(Some(step));
-        for c in 0..D {
-            rel[c] += m.newmark.displacement_increment(m.dt, prev[c], cur[c]);
+    let mut rel = before;
+    let mut out = Vec::with_capacity(values.len());
+    for value in values {
+        if value == 0 {
+            rel = [0.0; D];
+        } else {
+            // value j is the end of step j - 1, which starts from the end of step j - 2
+            let step = value - 1;
+            let (prev, cur) = (velocity(step.checked_sub(1)), velocity(Some(step)));
+            for c in 0..D {
+                rel[c] += m.newmark.displacement_increment(m.dt, prev[c], cur[c]);
+            }
         }
         out.push(rel);
-        prev = cur;
     }
     out
 }

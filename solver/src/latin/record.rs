@@ -104,23 +104,54 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     ) -> UnitScales {
         let m = self.model;
         let len = m.steps + 1;
-        let QoiValues { blocks, values: series, outside } = out;
+        let whole = steps.start == 0 && steps.end >= m.steps;
+        let QoiValues { blocks, values: series, outside, slips_before, computed } = out;
+        // The values a window's iterations may change are its own, `steps.start + 1 ..=
+        // steps.end`: after its first call only those are computed (over every step, the QoIs
+        // took most of a solve in windows of one step); over the whole interval, all.
+        let sized = series.len() == m.qois.len() && series.iter().all(|v| v.len() > steps.end.min(m.steps));
+        let values = match (whole, outside.is_some() && sized) {
+            (true, _) => 0..len,
+            (false, false) => 0..steps.end.min(m.steps) + 1,
+            (false, true) => steps.start + 1..steps.end.min(m.steps) + 1,
+        };
+        let first = values.start == 0;
+        if first {
+            slips_before.clear();
+        }
+        let width = values.len();
         blocks.clear();
-        // Interface QoIs: computed by each interface's owner, as blocks of steps + 1 values
+        // Interface QoIs: computed by each interface's owner, as blocks of the values computed
         // (one block per part for forces), then summed over ranks.
+        let mut slip = 0;
         for (q, qoi) in m.qois.iter().enumerate() {
             match qoi.target {
                 QoiTarget::Slip { interface, node, component } => {
                     if self.dist.owns_interface(interface) {
-                        slip_history(m, &fields[interface], interface, node, component, blocks);
+                        // (the relative displacement at the window's first value, kept from its
+                        // first call: a slip sums every step before)
+                        let before = slips_before
+                            .get(slip)
+                            .filter(|b| b.len() == D)
+                            .map_or([0.0; D], |b| std::array::from_fn(|c| b[c]));
+                        let rel =
+                            relative_displacement_over(m, &fields[interface], interface, node, values.clone(), before);
+                        if first {
+                            slips_before.push(rel.get(steps.start).map_or(vec![0.0; D], |r| r.to_vec()));
+                        }
+                        slip_history::<D>(m, interface, node, component, &rel, blocks);
                     } else {
-                        blocks.extend(std::iter::repeat_n(0.0, len));
+                        if first {
+                            slips_before.push(Vec::new());
+                        }
+                        blocks.extend(std::iter::repeat_n(0.0, width));
                     }
+                    slip += 1;
                 }
                 QoiTarget::Force { ref interfaces, component } => {
                     for i in interfaces.clone() {
                         if !self.dist.owns_interface(i) {
-                            blocks.extend(std::iter::repeat_n(0.0, len));
+                            blocks.extend(std::iter::repeat_n(0.0, width));
                             continue;
                         }
                         let itf = &m.interfaces[i];
@@ -128,11 +159,14 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                         let resultant = |force: &[f64], step: usize| -> f64 {
                             (0..n).map(|j| itf.area[j] * force[(step * n + j) * D + component]).sum::<f64>()
                         };
-                        blocks.push(statics.map_or(0.0, |st| resultant(&st.interfaces[i].hat[0].force, 0)));
-                        blocks.extend((0..m.steps).map(|step| resultant(&fields[i].hat[0].force, step)));
+                        // value 0 is the prestress's, value j the end of step j - 1
+                        blocks.extend(values.clone().map(|value| match value {
+                            0 => statics.map_or(0.0, |st| resultant(&st.interfaces[i].hat[0].force, 0)),
+                            _ => resultant(&fields[i].hat[0].force, value - 1),
+                        }));
                     }
                 }
-                _ => blocks.extend_from_slice(&body.values[q]),
+                _ => blocks.extend_from_slice(&body.values[q][values.clone()]),
             }
         }
         // Area-weighted sums of squares over every side, step and node of the local-stage
@@ -182,20 +216,25 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let scales = UnitScales::from_sums(&sums, m.steps, m.dt);
         series.resize_with(m.qois.len(), Vec::new);
         let mut at = 0;
-        for (qoi, values) in m.qois.iter().zip(series.iter_mut()) {
+        for (qoi, series) in m.qois.iter().zip(series.iter_mut()) {
             let parts = match qoi.target {
                 QoiTarget::Force { ref interfaces, .. } => interfaces.len(),
                 _ => 1,
             };
-            values.clear();
-            values.resize(len, 0.0);
-            for part in blocks[at..at + parts * len].chunks(len) {
-                for (v, p) in values.iter_mut().zip(part) {
+            if first {
+                series.clear();
+                series.resize(values.end, 0.0);
+            }
+            let mine = &mut series[values.clone()];
+            mine.fill(0.0);
+            for part in blocks[at..at + parts * width].chunks(width) {
+                for (v, p) in mine.iter_mut().zip(part) {
                     *v += p;
                 }
             }
-            at += parts * len;
+            at += parts * width;
         }
+        *computed = values;
         scales
     }
 }
@@ -215,6 +254,11 @@ pub(super) struct QoiValues {
     /// outside the window iterated (summed again at every iteration, they took 41 % of a
     /// windowed solve's time at 2000 steps)
     outside: Option<Vec<[f64; 2]>>,
+    /// per slip QoI of an interface this rank owns, the relative displacement at the window's
+    /// first value (taken at its first call)
+    slips_before: Vec<Vec<f64>>,
+    /// the values the last call computed (those before were computed earlier in the window)
+    pub(super) computed: Range<usize>,
 }
 
 impl QoiValues {
@@ -262,24 +306,77 @@ impl BodyQois {
     }
 }
 
-/// Slip at an interface node: the tangential part of its sides' relative displacement
+/// Slip at an interface node: the tangential part of its sides' relative displacement `rel`
 /// ([`relative_displacement`]); its norm, or its `component` along an axis, with its sign;
-/// appended to `out` (steps + 1 values).
+/// appended to `out`, a value for each of `rel`.
 pub(super) fn slip_history<const D: usize>(
     m: &Model<D>,
-    f: &InterfaceField,
     interface: usize,
     node: usize,
     component: Option<usize>,
+    rel: &[[f64; D]],
     out: &mut Vec<f64>,
 ) {
     let nrm = m.interfaces[interface].normal[node];
-    for rel in relative_displacement(m, f, interface, node) {
+    for rel in rel {
         let rn: f64 = (0..D).map(|c| rel[c] * nrm[c]).sum();
         let slip: [f64; D] = std::array::from_fn(|c| rel[c] - rn * nrm[c]);
         out.push(match component {
             Some(c) => slip[c],
             None => slip.iter().map(|x| x * x).sum::<f64>().sqrt(),
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::comm::Serial;
+    use glissade_core::scene::Scene;
+
+    /// After a window's first call, the QoIs are computed over the window's values only (the
+    /// slips from the relative displacement kept at its first value): with fields changed inside
+    /// the window, they are those a call over every value gives, to the bit.
+    #[test]
+    fn a_windows_later_calls_compute_its_values_as_a_whole_call_does() {
+        let text = include_str!("../../../scenes/sliding-block-2d.toml").replace("steps = 100", "steps = 40");
+        let scene = Scene::parse(&text).expect("scene");
+        let values = scene.parameter_values(&Default::default()).expect("defaults");
+        let model = Model::<2>::build(&scene, &values).expect("model");
+        let solver = LatinSolver::new(&model, &Serial).expect("solver");
+        // fields that vary over steps, nodes and sides
+        let mut fields: Vec<InterfaceField> =
+            model.interfaces.iter().map(|itf| InterfaceField::zeros(itf.sides.len(), 40 * itf.n_nodes() * 2)).collect();
+        let wave = |x: usize, k: usize, bump: f64| ((x as f64) * 0.37 + k as f64).sin() * (1.0 + bump);
+        let fill = |fields: &mut [InterfaceField], from: usize, bump: f64| {
+            for f in fields.iter_mut() {
+                let per_step = f.hat[0].velocity.len() / 40;
+                for (k, side) in f.hat.iter_mut().enumerate() {
+                    for x in from * per_step..side.velocity.len() {
+                        side.velocity[x] = wave(x, k, bump);
+                        side.force[x] = 1e6 * wave(x + 3, k, bump);
+                    }
+                }
+            }
+        };
+        fill(&mut fields, 0, 0.0);
+        let window = 12..20;
+        let body = BodyQois::new(&model);
+        let mut kept = QoiValues::default();
+        solver.qoi_values(&fields, None, &body, &window, &mut kept);
+        assert_eq!(kept.computed, 0..21);
+        let before = kept.values.clone();
+        // an iteration changes the window's values (and those after it, which are not read)
+        fill(&mut fields, window.start, 0.25);
+        solver.qoi_values(&fields, None, &body, &window, &mut kept);
+        assert_eq!(kept.computed, 13..21);
+        let mut whole = QoiValues::default();
+        solver.qoi_values(&fields, None, &body, &(0..40), &mut whole);
+        assert!(model.qois.iter().any(|q| matches!(q.target, QoiTarget::Slip { .. })));
+        for (q, (a, b)) in kept.values.iter().zip(&whole.values).enumerate() {
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&a[..21]), bits(&b[..21]), "QoI {}", model.qois[q].name);
+            assert!(a[13..21].iter().zip(&before[q][13..21]).all(|(x, y)| x != y), "the window's values moved");
+        }
     }
 }

@@ -176,7 +176,11 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             let t = Instant::now();
             it.keep_previous(fields, &at);
-            it.body.copy_from(&window.body);
+            // (the linear stage records every value of the window at each iteration: the
+            // values before it are the window's from its first)
+            if iteration == 1 {
+                it.body.copy_from(&window.body);
+            }
             let body = &mut it.body;
             let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
             let dynamic = stage == Stage::Dynamic;
@@ -222,7 +226,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 // a non-finite QoI would pass the estimate's comparisons (NaN changes): refuse it
                 // (a non-finite eta is reported below, as such)
                 if eta.is_finite()
-                    && let Some(q) = series.iter().position(|v| v[..known].iter().any(|v| !v.is_finite()))
+                    && let Some(q) =
+                        series.iter().position(|v| v[it.qois.computed.clone()].iter().any(|v| !v.is_finite()))
                 {
                     let qoi = m.qois[q].name.clone();
                     return Err(SolverError::NonFiniteQoi { stage: stage_name, iteration, qoi });
