@@ -129,17 +129,33 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     pub(super) fn next_window(
         &mut self,
         stage: Stage,
-        fields: &[InterfaceField],
+        fields: &mut [InterfaceField],
         u0: &[Option<Vec<f64>>],
         window: &Window,
         memory: Vec<Vec<NodeMemory>>,
         next: Range<usize>,
     ) -> Window {
-        let mut scratch = fields.to_vec();
+        // The sweep writes the window's `s` values: they are kept and put back (a copy of every
+        // field for each window cost O(steps) a window, most of a solve in windows of one step).
+        let at = Self::window_values(self.model, &window.steps);
+        let kept: Vec<Vec<[Vec<f64>; 2]>> = fields
+            .iter()
+            .zip(&at)
+            .map(|(f, at)| {
+                let part = |v: &[f64]| v.get(at.clone()).map_or_else(Vec::new, <[f64]>::to_vec);
+                f.s.iter().map(|side| [part(&side.force), part(&side.velocity)]).collect()
+            })
+            .collect();
         let mut body = window.body.clone();
         let mut record = |s: usize, step: usize, u: &[f64], v: &[f64]| body.record(s, step, u, v);
         let range = window.steps.clone();
-        self.linear_stage(stage, &mut scratch, u0, Some(&mut record), range, window.states.as_deref());
+        self.linear_stage(stage, fields, u0, Some(&mut record), range, window.states.as_deref());
+        for ((f, at), kept) in fields.iter_mut().zip(&at).zip(kept) {
+            for (side, [force, velocity]) in f.s.iter_mut().zip(kept).filter(|(_, [force, _])| !force.is_empty()) {
+                side.force[at.clone()].copy_from_slice(&force);
+                side.velocity[at.clone()].copy_from_slice(&velocity);
+            }
+        }
         let states = self.ops.iter().map(|o| o.as_ref().map(SubstructureOperators::save)).collect();
         Window { steps: next, states: Some(states), memory, body }
     }
