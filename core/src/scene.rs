@@ -346,12 +346,14 @@ pub struct SolverSpec {
 /// steps is iterated in windows of [`AUTO_TIME_WINDOW`] steps, any other whole (docs/method.md,
 /// "Time windows"): a sliding history, or an impact's front, settles a fraction of a step per
 /// whole-interval iteration, so those iterations grow with the steps while a window's do not (a
-/// bar's impact: 198 sweeps whole and 38.5 in windows at 400 steps, not converged whole at 1600);
+/// bar's impact: 198 sweeps whole and 22.0 in windows of one step at 400 steps, not converged
+/// whole at 1600; windows of one step took the fewest sweeps of 1, 2, 4 and 10 on every contact
+/// and friction scene measured);
 /// on perfect interfaces alone the whole interval's do not grow (a pulled bar: 71 iterations at
 /// 1600 and 6400 steps) and short windows cost more; up to 100 steps the whole interval keeps the
 /// paper's way and its figures.
 pub const AUTO_WINDOW_ABOVE_STEPS: usize = 100;
-pub const AUTO_TIME_WINDOW: usize = 10;
+pub const AUTO_TIME_WINDOW: usize = 1;
 /// Without `solver.scale`, a scene with a body cut into more substructures than this is solved
 /// multiscale ([`Scene::scale`]).
 pub const MULTISCALE_ABOVE_SUBSTRUCTURES: usize = 2;
@@ -911,8 +913,8 @@ impl Scene {
     /// windows ([`Scene::window_steps`]) or where a body is cut into more than
     /// [`MULTISCALE_ABOVE_SUBSTRUCTURES`] substructures, single scale elsewhere. In windows of 10
     /// steps the macro problem cost nothing on the sliding blocks measured and took one element
-    /// per substructure from 278 to 63 sweeps (docs/performance.md, "Stalled windows and the
-    /// default window"). Where a body is cut into a chain or a grid of substructures, single
+    /// per substructure from 278 to 63 sweeps (docs/performance.md, "The default window: one
+    /// step"). Where a body is cut into a chain or a grid of substructures, single
     /// scale carries equilibrium one substructure an iteration: cold solves at 2e-4 with their
     /// check took 1.3-3.1 x the sweeps of the macro problem's (docs/performance.md, "The
     /// default scale"); a body in one or two pieces converges the same either way, and single

@@ -197,7 +197,7 @@ impl StageReport {
         let windows = if self.sweeps < self.iterations as f64 {
             "another solver.time_window (twice or half this one)"
         } else {
-            "time windows (solver.time_window = 10)"
+            "time windows (solver.time_window = 1)"
         };
         let place =
             self.worst_interface.as_ref().map_or(String::new(), |i| format!(", largest residual on interface '{i}'"));
@@ -579,7 +579,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let checked = m.settings.window_check && m.settings.time_window > 0 && !m.qois.is_empty();
         let mut report = self.dynamic_stage(
             prestress.as_ref(),
-            (tolerance, m.settings.time_window, init.is_none()),
+            (tolerance, m.settings.time_window, if init.is_none() { Start::Cold } else { Start::Warm }),
             &mut dynamic.interfaces,
             &mut timings,
             options,
@@ -656,7 +656,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             gaps: (&start, &[]),
             u0: &u0,
             statics: None,
-            cold,
+            start: if cold { Start::Cold } else { Start::Warm },
             window: 0,
         };
         let report = self.iterate(&begin, &mut st.interfaces, timings, options)?;
@@ -708,11 +708,11 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
     }
 
     /// The dynamic stage's iterations from `fields` after `prestress`, to `tolerance` in
-    /// windows of `window` steps (0: the whole interval); `cold`: no initial solution was given.
+    /// windows of `window` steps (0: the whole interval), the fields holding `start`.
     fn dynamic_stage(
         &mut self,
         prestress: Option<&Prestress>,
-        (tolerance, window, cold): (f64, usize, bool),
+        (tolerance, window, start): (f64, usize, Start),
         fields: &mut [InterfaceField],
         timings: &mut Timings,
         options: &SolveOptions,
@@ -723,7 +723,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let u0 = prestress.map_or(&none, |p| &p.u0);
         let (gap_start, vn_start) = self.dynamic_initial_gaps(statics);
         let begin =
-            StageStart { stage: Stage::Dynamic, tolerance, gaps: (&gap_start, &vn_start), u0, statics, cold, window };
+            StageStart { stage: Stage::Dynamic, tolerance, gaps: (&gap_start, &vn_start), u0, statics, start, window };
         self.iterate(&begin, fields, timings, options)
     }
 
@@ -972,10 +972,24 @@ struct StageStart<'a> {
     u0: &'a [Option<Vec<f64>>],
     /// the static stage's solution (the force QoIs' values at t_0)
     statics: Option<&'a StageSolution>,
-    /// no initial solution was given: a later time window starts from the last converged step
-    cold: bool,
+    /// what the fields hold at the start: where a later time window starts
+    start: Start,
     /// steps per time window (0: the whole interval at once)
     window: usize,
+}
+
+/// What a stage's fields hold when its iterations start, which decides where a later time
+/// window starts (the windows before it converged; its own steps still hold the start's values).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Start {
+    /// zero fields: the window starts from the last converged step, held
+    Cold,
+    /// another solution's histories (a neighbour's, or one saved): the window starts from the
+    /// last converged step moved as that solution moves over the window (from the solution's
+    /// own values the window started 1.12 x the work of a cold start, in windows of one step)
+    Warm,
+    /// an answer being iterated on (a check's pass): the window starts from its values
+    Continued,
 }
 
 /// Copies `from` into `to`, keeping `to`'s buffers where they are long enough.

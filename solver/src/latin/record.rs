@@ -116,59 +116,9 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             (false, true) => steps.start + 1..steps.end.min(m.steps) + 1,
         };
         let first = values.start == 0;
-        if first {
-            slips_before.clear();
-        }
         let width = values.len();
         blocks.clear();
-        // Interface QoIs: computed by each interface's owner, as blocks of the values computed
-        // (one block per part for forces), then summed over ranks.
-        let mut slip = 0;
-        for (q, qoi) in m.qois.iter().enumerate() {
-            match qoi.target {
-                QoiTarget::Slip { interface, node, component } => {
-                    if self.dist.owns_interface(interface) {
-                        // (the relative displacement at the window's first value, kept from its
-                        // first call: a slip sums every step before)
-                        let before = slips_before
-                            .get(slip)
-                            .filter(|b| b.len() == D)
-                            .map_or([0.0; D], |b| std::array::from_fn(|c| b[c]));
-                        let rel =
-                            relative_displacement_over(m, &fields[interface], interface, node, values.clone(), before);
-                        if first {
-                            slips_before.push(rel.get(steps.start).map_or(vec![0.0; D], |r| r.to_vec()));
-                        }
-                        slip_history::<D>(m, interface, node, component, &rel, blocks);
-                    } else {
-                        if first {
-                            slips_before.push(Vec::new());
-                        }
-                        blocks.extend(std::iter::repeat_n(0.0, width));
-                    }
-                    slip += 1;
-                }
-                QoiTarget::Force { ref interfaces, component } => {
-                    for i in interfaces.clone() {
-                        if !self.dist.owns_interface(i) {
-                            blocks.extend(std::iter::repeat_n(0.0, width));
-                            continue;
-                        }
-                        let itf = &m.interfaces[i];
-                        let n = itf.n_nodes();
-                        let resultant = |force: &[f64], step: usize| -> f64 {
-                            (0..n).map(|j| itf.area[j] * force[(step * n + j) * D + component]).sum::<f64>()
-                        };
-                        // value 0 is the prestress's, value j the end of step j - 1
-                        blocks.extend(values.clone().map(|value| match value {
-                            0 => statics.map_or(0.0, |st| resultant(&st.interfaces[i].hat[0].force, 0)),
-                            _ => resultant(&fields[i].hat[0].force, value - 1),
-                        }));
-                    }
-                }
-                _ => blocks.extend_from_slice(&body.values[q][values.clone()]),
-            }
-        }
+        self.qoi_blocks(fields, statics, body, (steps.start, &values), slips_before, blocks);
         // Area-weighted sums of squares over every side, step and node of the local-stage
         // velocities, forces and static displacements, and the area they cover.
         // One block of five per interface, from its owner, added up in interface order after
@@ -236,6 +186,76 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         }
         *computed = values;
         scales
+    }
+
+    /// The QoIs' `values` (indices from 0, the initial state), as blocks of `values.len()` (one
+    /// block per part for forces) for the reduction over ranks: the interface QoIs from their
+    /// owner, zeros elsewhere; the body QoIs from `body`. A slip sums every step before: its
+    /// relative displacement at `first_step` (the window's first value) is kept in `slips_before`
+    /// at a call from value 0 and taken up at the later ones.
+    fn qoi_blocks(
+        &self,
+        fields: &[InterfaceField],
+        statics: Option<&StageSolution>,
+        body: &BodyQois,
+        (first_step, values): (usize, &Range<usize>),
+        slips_before: &mut Vec<Vec<f64>>,
+        blocks: &mut Vec<f64>,
+    ) {
+        let m = self.model;
+        let first = values.start == 0;
+        if first {
+            slips_before.clear();
+        }
+        let width = values.len();
+        // Interface QoIs: computed by each interface's owner, as blocks of the values computed
+        // (one block per part for forces), then summed over ranks.
+        let mut slip = 0;
+        for (q, qoi) in m.qois.iter().enumerate() {
+            match qoi.target {
+                QoiTarget::Slip { interface, node, component } => {
+                    if self.dist.owns_interface(interface) {
+                        // (the relative displacement at the window's first value, kept from its
+                        // first call: a slip sums every step before)
+                        let before = slips_before
+                            .get(slip)
+                            .filter(|b| b.len() == D)
+                            .map_or([0.0; D], |b| std::array::from_fn(|c| b[c]));
+                        let rel =
+                            relative_displacement_over(m, &fields[interface], interface, node, values.clone(), before);
+                        if first {
+                            slips_before.push(rel.get(first_step).map_or(vec![0.0; D], |r| r.to_vec()));
+                        }
+                        slip_history::<D>(m, interface, node, component, &rel, blocks);
+                    } else {
+                        if first {
+                            slips_before.push(Vec::new());
+                        }
+                        blocks.extend(std::iter::repeat_n(0.0, width));
+                    }
+                    slip += 1;
+                }
+                QoiTarget::Force { ref interfaces, component } => {
+                    for i in interfaces.clone() {
+                        if !self.dist.owns_interface(i) {
+                            blocks.extend(std::iter::repeat_n(0.0, width));
+                            continue;
+                        }
+                        let itf = &m.interfaces[i];
+                        let n = itf.n_nodes();
+                        let resultant = |force: &[f64], step: usize| -> f64 {
+                            (0..n).map(|j| itf.area[j] * force[(step * n + j) * D + component]).sum::<f64>()
+                        };
+                        // value 0 is the prestress's, value j the end of step j - 1
+                        blocks.extend(values.clone().map(|value| match value {
+                            0 => statics.map_or(0.0, |st| resultant(&st.interfaces[i].hat[0].force, 0)),
+                            _ => resultant(&fields[i].hat[0].force, value - 1),
+                        }));
+                    }
+                }
+                _ => blocks.extend_from_slice(&body.values[q][values.clone()]),
+            }
+        }
     }
 }
 

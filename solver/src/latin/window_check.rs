@@ -376,8 +376,13 @@ impl<const D: usize> LatinSolver<'_, D> {
                 return Ok(Err(report.error_estimate));
             }
         }
-        let outcome =
-            self.dynamic_stage(pass.prestress.as_ref(), (tolerance, window, false), pass.fields, timings, quiet)?;
+        let outcome = self.dynamic_stage(
+            pass.prestress.as_ref(),
+            (tolerance, window, Start::Continued),
+            pass.fields,
+            timings,
+            quiet,
+        )?;
         tracing::info!(
             window,
             tolerance,

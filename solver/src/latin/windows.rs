@@ -16,7 +16,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         options: &SolveOptions,
     ) -> Result<StageReport, SolverError> {
         let m = self.model;
-        let StageStart { stage, tolerance, gaps: (gap_start, vn_start), u0, cold, .. } = *begin;
+        let StageStart { stage, tolerance, gaps: (gap_start, vn_start), u0, start, .. } = *begin;
         let steps = stage.steps(m);
         let length = match begin.window {
             0 => steps,
@@ -30,6 +30,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         };
         let mut report = StageReport::default();
         let mut it = Iterations::new(m, fields, timings, options);
+        // a warm start's histories, which each later window's start follows
+        let initial = (start == Start::Warm && length < steps).then(|| fields.to_vec());
         // Each window's error is carried to the end of the interval and adds to the later
         // windows' (a slip is a sum): the QoI estimate's tolerance is shared out between the
         // windows (a share by the square root of their number let the brass block's histories
@@ -115,9 +117,13 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let ended = window.steps.end;
             let next = ended..(ended + length).min(steps);
             window = self.next_window(stage, fields, u0, &window, end.memory, next.clone());
-            // (a window iterated again starts the next from its converged fields, not held ones)
-            if cold && floors.is_none() {
-                hold_last_step(fields, steps, ended, next.end);
+            // (a window iterated again starts the next from its converged fields, not moved ones)
+            if floors.is_none() {
+                match initial.as_deref() {
+                    Some(initial) => follow_increments(fields, initial, steps, ended, next.end),
+                    None if start == Start::Cold => hold_last_step(fields, steps, ended, next.end),
+                    None => {}
+                }
             }
             it.timings.linear_stage += t.elapsed().as_secs_f64();
         }
@@ -192,8 +198,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             }
             let t = Instant::now();
             it.keep_previous(fields, &at);
-            // (the linear stage records every value of the window at each iteration: the
-            // values before it are the window's from its first)
+            // (the linear stage records all the window's values at each iteration)
             if iteration == 1 {
                 it.body.copy_from(&window.body);
             }
@@ -242,8 +247,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                 // a non-finite QoI would pass the estimate's comparisons (NaN changes): refuse it
                 // (a non-finite eta is reported below, as such)
                 if eta.is_finite()
-                    && let Some(q) =
-                        series.iter().position(|v| v[it.qois.computed.clone()].iter().any(|v| !v.is_finite()))
+                    && let Some(q) = first_non_finite(series, &it.qois.computed)
                 {
                     let qoi = m.qois[q].name.clone();
                     return Err(SolverError::NonFiniteQoi { stage: stage_name, iteration, qoi });
@@ -448,6 +452,40 @@ pub(super) fn within_budget(budget: Option<(f64, &[f64])>, estimator: &ErrorEsti
 
 /// Fills steps `from..to` of every field with its values at step `from - 1`: a cold start's next
 /// window begins from the state the last one converged to rather than from zero forces.
+/// The first of `series` with a value in `values` that is not finite.
+fn first_non_finite(series: &[Vec<f64>], values: &Range<usize>) -> Option<usize> {
+    series.iter().position(|v| v[values.clone()].iter().any(|v| !v.is_finite()))
+}
+
+/// Fills steps `from..to` of every field with its values at step `from - 1` moved by what
+/// `initial` (a warm start's histories, which those steps still hold) changes from step
+/// `from - 1` to each: the window starts where the converged steps left it, and moves as the
+/// other solution does.
+pub(super) fn follow_increments(
+    fields: &mut [InterfaceField],
+    initial: &[InterfaceField],
+    steps: usize,
+    from: usize,
+    to: usize,
+) {
+    for (f, g) in fields.iter_mut().zip(initial).filter(|(f, _)| !f.is_empty() && from > 0) {
+        let per_step = f.len() / steps;
+        for (side, first) in f.s.iter_mut().chain(f.hat.iter_mut()).zip(g.s.iter().chain(g.hat.iter())) {
+            for (v, w) in [(&mut side.force, &first.force), (&mut side.velocity, &first.velocity)] {
+                let (done, rest) = v.split_at_mut(from * per_step);
+                let last = &done[(from - 1) * per_step..];
+                let was = &w[(from - 1) * per_step..from * per_step];
+                for (k, chunk) in rest[..(to - from) * per_step].chunks_mut(per_step).enumerate() {
+                    let guess = &w[(from + k) * per_step..(from + k + 1) * per_step];
+                    for (((x, g), l), o) in chunk.iter_mut().zip(guess).zip(last).zip(was) {
+                        *x = g + (l - o);
+                    }
+                }
+            }
+        }
+    }
+}
+
 pub(super) fn hold_last_step(fields: &mut [InterfaceField], steps: usize, from: usize, to: usize) {
     for f in fields.iter_mut().filter(|f| !f.is_empty() && from > 0) {
         let per_step = f.len() / steps;
