@@ -289,8 +289,8 @@ fn refine_refuses_bad_ladders_at_once() {
 }
 
 /// A windowed solve says so, with its work in sweeps of the interval (its iterations each sweep
-/// a window only, so their count alone would overstate the work 8 times here), and says how its
-/// check against another windowing went.
+/// a window of one step only, so their count alone would overstate the work 200 times here), and
+/// says how its check against another windowing went.
 #[test]
 fn the_cli_reports_a_windowed_solves_work_in_sweeps() {
     let out = std::process::Command::new(worker_bin())
@@ -300,14 +300,14 @@ fn the_cli_reports_a_windowed_solves_work_in_sweeps() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(out.status.success(), "{text}{}", String::from_utf8_lossy(&out.stderr));
     let line = text.lines().find(|l| l.contains("time windows:")).unwrap_or_else(|| panic!("no windows line: {text}"));
-    assert!(line.contains("8 of 25 steps") && line.contains("sweeps of the interval"), "{line}");
+    assert!(line.contains("200 of 1 steps") && line.contains("sweeps of the interval"), "{line}");
     let sweeps: f64 = line.split("work ").nth(1).and_then(|r| r.split(' ').next()).unwrap().parse().unwrap();
     let iterations: f64 = text.split("after ").nth(1).and_then(|r| r.split(' ').next()).unwrap().parse().unwrap();
-    assert!(sweeps > 0.0 && sweeps < iterations / 4.0, "{sweeps} sweeps for {iterations} iterations");
+    assert!(sweeps > 0.0 && sweeps < iterations / 100.0, "{sweeps} sweeps for {iterations} iterations");
     // and that it was checked against another windowing, whose work the sweeps include
     let check =
         text.lines().find(|l| l.contains("checked in windows of")).unwrap_or_else(|| panic!("no check: {text}"));
-    assert!(check.contains("25 and 38 steps") && check.contains("the answers agree by"), "{check}");
+    assert!(check.contains("1 and 2 steps") && check.contains("the answers agree by"), "{check}");
 }
 
 /// A magnesium block of our own pushed along a rigid floor at f = 0.4: its contact lands while it
