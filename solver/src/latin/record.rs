@@ -105,7 +105,7 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         let m = self.model;
         let len = m.steps + 1;
         let whole = steps.start == 0 && steps.end >= m.steps;
-        let QoiValues { blocks, values: series, outside, slips_before, computed } = out;
+        let QoiValues { blocks, values: series, outside, before, slips_before, computed } = out;
         // The values a window's iterations may change are its own, `steps.start + 1 ..=
         // steps.end`: after its first call only those are computed (over every step, the QoIs
         // took most of a solve in windows of one step); over the whole interval, all.
@@ -141,8 +141,25 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
                     let ((vel, vel_out), (force, force_out)) =
                         (split_window(&side.velocity, &inside), split_window(&side.force, &inside));
                     if fresh {
-                        let out = |parts: [&[f64]; 2]| parts.iter().map(|p| weighted(p)).sum::<f64>();
-                        kept.push([out(vel_out), out(force_out)]);
+                        // the sums before the window continue those the last window began with,
+                        // over the values converged since (the same additions in the same order)
+                        let to = vel_out[0].len();
+                        if before.len() <= side_at {
+                            before.push((0, [-0.0; 2]));
+                        }
+                        let (from, sums) = &mut before[side_at];
+                        if *from > to {
+                            (*from, *sums) = (0, [-0.0; 2]);
+                        }
+                        for (sum, v) in sums.iter_mut().zip([&side.velocity, &side.force]) {
+                            *sum = v[*from..to]
+                                .iter()
+                                .enumerate()
+                                .fold(*sum, |a, (x, y)| a + itf.area[((*from + x) / D) % n] * y * y);
+                        }
+                        *from = to;
+                        let out = |sum: f64, after: &[f64]| [sum, weighted(after)].into_iter().sum::<f64>();
+                        kept.push([out(sums[0], vel_out[1]), out(sums[1], force_out[1])]);
                     }
                     let [vel_outside, force_outside] = kept[side_at];
                     side_at += 1;
@@ -274,6 +291,9 @@ pub(super) struct QoiValues {
     /// outside the window iterated (summed again at every iteration, they took 41 % of a
     /// windowed solve's time at 2000 steps)
     outside: Option<Vec<[f64; 2]>>,
+    /// per interface side this rank owns, the value its sums before the last window began at
+    /// reach, and those sums (velocity, force): a window's first call continues them
+    before: Vec<(usize, [f64; 2])>,
     /// per slip QoI of an interface this rank owns, the relative displacement at the window's
     /// first value (taken at its first call)
     slips_before: Vec<Vec<f64>>,
@@ -397,6 +417,19 @@ mod tests {
             let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert_eq!(bits(&a[..21]), bits(&b[..21]), "QoI {}", model.qois[q].name);
             assert!(a[13..21].iter().zip(&before[q][13..21]).all(|(x, y)| x != y), "the window's values moved");
+        }
+        // The fields' sums before a window continue those its last began with: the next window's
+        // scales, and those of a window iterated again before it, are a fresh call's to the bit.
+        for next in [20..28, 4..12, 28..40] {
+            fill(&mut fields, next.start, 0.5 + next.start as f64);
+            kept.new_window();
+            let a = solver.qoi_values(&fields, None, &body, &next, &mut kept);
+            let b = solver.qoi_values(&fields, None, &body, &next, &mut QoiValues::default());
+            assert_eq!(
+                [a.length, a.velocity, a.force].map(f64::to_bits),
+                [b.length, b.velocity, b.force].map(f64::to_bits)
+            );
+            assert!(a.velocity > 0.0 && a.force > 0.0);
         }
     }
 }
