@@ -1041,18 +1041,21 @@ pub(crate) fn relative_displacement_over<const D: usize>(
     };
     let mut rel = before;
     let mut out = Vec::with_capacity(values.len());
+    // value j is the end of step j - 1, which starts from the end of step j - 2 (value 0, the
+    // initial state, from the initial velocities)
+    let mut prev = velocity(values.start.checked_sub(2));
     for value in values {
         if value == 0 {
             rel = [0.0; D];
-        } else {
-            // value j is the end of step j - 1, which starts from the end of step j - 2
-            let step = value - 1;
-            let (prev, cur) = (velocity(step.checked_sub(1)), velocity(Some(step)));
-            for c in 0..D {
-                rel[c] += m.newmark.displacement_increment(m.dt, prev[c], cur[c]);
-            }
+            out.push(rel);
+            continue;
+        }
+        let cur = velocity(Some(value - 1));
+        for c in 0..D {
+            rel[c] += m.newmark.displacement_increment(m.dt, prev[c], cur[c]);
         }
         out.push(rel);
+        prev = cur;
     }
     out
 }

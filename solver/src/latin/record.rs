@@ -125,7 +125,6 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
         // the reduction (as eta's parts: the result does not depend on the ranks).
         // In a window, a side's sums over the steps outside it are taken at its first iteration
         // and kept (0 over the whole interval, where the sums are those of every step in order).
-        let whole = steps.start == 0 && steps.end >= m.steps;
         let fresh = outside.is_none();
         let kept = outside.get_or_insert_with(Vec::new);
         let mut side_at = 0;

@@ -118,12 +118,8 @@ impl<'m, const D: usize> LatinSolver<'m, D> {
             let next = ended..(ended + length).min(steps);
             window = self.next_window(stage, fields, u0, &window, end.memory, next.clone());
             // (a window iterated again starts the next from its converged fields, not moved ones)
-            if floors.is_none() {
-                match initial.as_deref() {
-                    Some(initial) => follow_increments(fields, initial, steps, ended, next.end),
-                    None if start == Start::Cold => hold_last_step(fields, steps, ended, next.end),
-                    None => {}
-                }
+            if floors.is_none() && (initial.is_some() || start == Start::Cold) {
+                start_window(fields, initial.as_deref(), steps, ended, next.end);
             }
             it.timings.linear_stage += t.elapsed().as_secs_f64();
         }
@@ -450,51 +446,44 @@ pub(super) fn within_budget(budget: Option<(f64, &[f64])>, estimator: &ErrorEsti
     })
 }
 
-/// Fills steps `from..to` of every field with its values at step `from - 1`: a cold start's next
-/// window begins from the state the last one converged to rather than from zero forces.
 /// The first of `series` with a value in `values` that is not finite.
 fn first_non_finite(series: &[Vec<f64>], values: &Range<usize>) -> Option<usize> {
     series.iter().position(|v| v[values.clone()].iter().any(|v| !v.is_finite()))
 }
 
-/// Fills steps `from..to` of every field with its values at step `from - 1` moved by what
-/// `initial` (a warm start's histories, which those steps still hold) changes from step
-/// `from - 1` to each: the window starts where the converged steps left it, and moves as the
-/// other solution does.
-pub(super) fn follow_increments(
+/// Fills steps `from..to` of every field with its values at step `from - 1`: the next window
+/// begins from the state the last one converged to. With `initial` (a warm start's histories,
+/// which those steps still hold) they are moved by what `initial` changes from step `from - 1`
+/// to each, so the window moves as the other solution does; without it (a cold start) they are
+/// held, rather than starting from zero forces.
+pub(super) fn start_window(
     fields: &mut [InterfaceField],
-    initial: &[InterfaceField],
+    initial: Option<&[InterfaceField]>,
     steps: usize,
     from: usize,
     to: usize,
 ) {
-    for (f, g) in fields.iter_mut().zip(initial).filter(|(f, _)| !f.is_empty() && from > 0) {
+    for (i, f) in fields.iter_mut().enumerate().filter(|(_, f)| !f.is_empty() && from > 0) {
         let per_step = f.len() / steps;
-        for (side, first) in f.s.iter_mut().chain(f.hat.iter_mut()).zip(g.s.iter().chain(g.hat.iter())) {
-            for (v, w) in [(&mut side.force, &first.force), (&mut side.velocity, &first.velocity)] {
-                let (done, rest) = v.split_at_mut(from * per_step);
-                let last = &done[(from - 1) * per_step..];
-                let was = &w[(from - 1) * per_step..from * per_step];
-                for (k, chunk) in rest[..(to - from) * per_step].chunks_mut(per_step).enumerate() {
-                    let guess = &w[(from + k) * per_step..(from + k + 1) * per_step];
-                    for (((x, g), l), o) in chunk.iter_mut().zip(guess).zip(last).zip(was) {
-                        *x = g + (l - o);
-                    }
-                }
-            }
-        }
-    }
-}
-
-pub(super) fn hold_last_step(fields: &mut [InterfaceField], steps: usize, from: usize, to: usize) {
-    for f in fields.iter_mut().filter(|f| !f.is_empty() && from > 0) {
-        let per_step = f.len() / steps;
+        let sides = initial.map(|g| g[i].s.iter().chain(g[i].hat.iter()));
+        let mut sides = sides.into_iter().flatten();
         for side in f.s.iter_mut().chain(f.hat.iter_mut()) {
-            for v in [&mut side.force, &mut side.velocity] {
+            let first = sides.next();
+            for (k, v) in [&mut side.force, &mut side.velocity].into_iter().enumerate() {
                 let (done, rest) = v.split_at_mut(from * per_step);
                 let last = &done[(from - 1) * per_step..];
-                for chunk in rest[..(to - from) * per_step].chunks_mut(per_step) {
-                    chunk.copy_from_slice(last);
+                let w = first.map(|g| if k == 0 { &g.force } else { &g.velocity });
+                for (n, chunk) in rest[..(to - from) * per_step].chunks_mut(per_step).enumerate() {
+                    match w {
+                        None => chunk.copy_from_slice(last),
+                        Some(w) => {
+                            let was = &w[(from - 1) * per_step..from * per_step];
+                            let guess = &w[(from + n) * per_step..(from + n + 1) * per_step];
+                            for (((x, g), l), o) in chunk.iter_mut().zip(guess).zip(last).zip(was) {
+                                *x = g + (l - o);
+                            }
+                        }
+                    }
                 }
             }
         }
