@@ -13,7 +13,6 @@ pub use glissade_proto::now_unix_ms;
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
-use std::time::Instant;
 
 use glissade_core::io::solution_file::{self, SolutionFileError, SolutionMeta};
 use glissade_core::point::DesignPoint;
@@ -35,10 +34,12 @@ mod discretisation;
 mod held_out;
 mod submit;
 mod surface;
+mod tables;
 mod to_accuracy;
 mod transitions;
 mod types;
-use crate::study::{PointStart, SceneSolutions, StudyPlan, WarmStart};
+use crate::study::{PointStart, StudyPlan, WarmStart};
+use tables::{Leases, Pools, Solutions};
 use transitions::{Transition, apply};
 pub use types::*;
 
@@ -160,22 +161,11 @@ impl Studies {
 #[derive(Default)]
 struct State {
     studies: Studies,
-    /// Metadata of every stored solution (shared with its scene's index).
-    solutions: HashMap<SolutionKey, Arc<SolutionRecord>>,
-    /// Nearest-neighbour index of the converged solutions, per scene hash.
-    by_scene: HashMap<String, SceneSolutions>,
-    /// Lease id -> the point holding it.
-    leases: HashMap<u64, (StudyId, PointId)>,
-    /// Lease id -> the last progress its pool reported (iterations, eta): what is known of a
-    /// point whose pool then vanished.
-    lease_progress: HashMap<u64, (u64, f64)>,
-    /// Lease id -> when it was granted (or found at start): the per-point budget runs from it.
-    lease_since: HashMap<u64, Instant>,
+    solutions: Solutions,
+    leases: Leases,
+    pools: Pools,
     /// Surface audits whose predictions a lease call is making (outside the lock).
     predicting: std::collections::HashSet<StudyId>,
-    pools: HashMap<String, PoolInfo>,
-    /// Pool id -> when it last called (registration, lease call, heartbeat): who is connected.
-    pools_seen: HashMap<String, Instant>,
     next_study: u64,
     next_finish_seq: u64,
 }
@@ -209,7 +199,7 @@ impl Coordinator {
             let record: SolutionRecord = decode("solutions", &key, &value)?;
             let key = SolutionKey::new(&record.scene_hash, &record.parameters);
             in_key_order.push(key.clone());
-            state.solutions.insert(key, Arc::new(record));
+            state.solutions.load(key, record);
         }
         let deadline = now_unix_ms() + config.lease.as_millis() as i64;
         let mut batch = Batch::new();
@@ -225,8 +215,7 @@ impl Coordinator {
                 let mut point: PointRecord = decode("points", &pkey, &pvalue)?;
                 if let PointState::Leased { lease_id, deadline_unix_ms, .. } = &mut point.state {
                     *deadline_unix_ms = (*deadline_unix_ms).max(deadline);
-                    state.leases.insert(*lease_id, (point.study, point.id));
-                    state.lease_since.insert(*lease_id, Instant::now());
+                    state.leases.grant(*lease_id, point.study, point.id);
                     batch.put(Tree::Points, pkey.clone(), encode(&point));
                 }
                 // (its record keeps the history: read back when shown)
@@ -243,23 +232,14 @@ impl Coordinator {
                 key: record.id.to_string(),
                 message: format!("stored study: {e}"),
             })?;
-            if !state.by_scene.contains_key(&record.scene_hash) {
-                match SceneSolutions::new(record.scene_hash.clone(), plan.space().clone(), store.clone()) {
-                    Ok(index) => drop(state.by_scene.insert(record.scene_hash.clone(), index)),
-                    Err(e) => tracing::warn!(study = %record.id, error = %e, "no warm starts for this scene"),
-                }
+            if let Err(e) = state.solutions.index_scene(&record.scene_hash, plan.space(), &store) {
+                tracing::warn!(study = %record.id, error = %e, "no warm starts for this scene");
             }
             state.studies.insert(record.id, StudyEntry { record, points, plan, scene: Arc::new(scene) });
         }
         store.commit(batch)?;
         // The nearest-neighbour indexes, rebuilt from the records (the fields stay on disk).
-        let State { solutions, by_scene, .. } = &mut state;
-        for key in in_key_order {
-            let record = &solutions[&key];
-            if let (true, Some(index)) = (record.converged, by_scene.get_mut(&*record.scene_hash)) {
-                index.index(key, record)?;
-            }
-        }
+        state.solutions.index_loaded(&in_key_order)?;
         tracing::info!(
             studies = state.studies.len(),
             solutions = state.solutions.len(),
@@ -445,7 +425,7 @@ impl Coordinator {
             .points
             .iter()
             .filter_map(|p| match p.state {
-                PointState::Leased { lease_id, .. } => Some((p.id, *state.lease_progress.get(&lease_id)?)),
+                PointState::Leased { lease_id, .. } => Some((p.id, state.leases.progress(lease_id)?)),
                 _ => None,
             })
             .collect();
@@ -517,7 +497,7 @@ impl Coordinator {
             return Err(CoordError::UnknownStudy(id));
         }
         // the leases held (a few per pool), not the study's points (up to millions)
-        let leased = state.leases.values().any(|(study, _)| *study == id);
+        let leased = state.leases.any_of(id);
         Ok(state.studies.version(id, leased))
     }
 
@@ -690,8 +670,7 @@ impl Coordinator {
     pub fn register_pool(&self, id: String, info: PoolInfo) {
         tracing::info!(pool = %id, ranks = info.ranks, host = %info.host, version = %info.solver_version, "pool registered");
         let mut state = self.lock();
-        state.pools_seen.insert(id.clone(), Instant::now());
-        state.pools.insert(id, info);
+        state.pools.register(id, info);
     }
 
     /// Counts of studies, points, leases and pools now; walks every point under the lock, so
@@ -703,7 +682,7 @@ impl Coordinator {
             leases_expired: self.leases_expired.load(Ordering::Relaxed),
             ..Gauges::default()
         };
-        let mut state = self.lock();
+        let state = self.lock();
         for entry in state.studies.values() {
             *g.studies.entry(state_word(entry.state())).or_default() += 1;
             g.pending += u64::from(entry.progress().pending);
@@ -712,9 +691,7 @@ impl Coordinator {
             }
         }
         g.leases = state.leases.len() as u64;
-        let lease = self.config.lease;
-        state.pools_seen.retain(|_, seen| seen.elapsed() <= lease);
-        g.pools_connected = state.pools_seen.len() as u64;
+        g.pools_connected = state.pools.connected(self.config.lease) as u64;
         g
     }
 
@@ -731,15 +708,14 @@ impl Coordinator {
         self.predict_held_out()?;
         let mut state = self.lock();
         self.advance_to_accuracy(&mut state)?;
-        let version =
-            state.pools.get(pool).ok_or_else(|| CoordError::UnknownPool(pool.to_owned()))?.solver_version.clone();
-        state.pools_seen.insert(pool.to_owned(), Instant::now());
+        let version = state.pools.solver_version(pool)?.to_owned();
+        state.pools.seen(pool);
         // audits when nothing else is pending: they measure, they answer no one
         let mut ids: Vec<StudyId> = state.studies.keys().copied().collect();
         ids.sort_by_key(|id| (state.studies[id].record.audit_of.is_some(), *id));
         for id in ids {
             loop {
-                let State { studies, solutions, by_scene, .. } = &mut *state;
+                let State { studies, solutions, .. } = &mut *state;
                 // an audit waits for its study's end, solves one point at a time, and stops at its cap
                 let audit_budget = match studies[&id].record.audit_of {
                     None => None,
@@ -784,14 +760,14 @@ impl Coordinator {
                 let start = entry.plan.start(
                     &entry.record,
                     &entry.points[i],
-                    by_scene.get(&entry.record.scene_hash),
+                    solutions.scene(&entry.record.scene_hash),
                     entry.previous().as_ref(),
                     &version,
                 );
                 let init = match start {
                     // a good enough stored solution is the answer (within any audit's cap: it costs nothing)
                     PointStart::Answer(key) => {
-                        let answer = solutions.get(&key).expect("indexed solutions have records").clone();
+                        let answer = solutions.indexed(&key);
                         self.answer(&mut state, id, i, &answer)?;
                         continue;
                     }
@@ -802,7 +778,7 @@ impl Coordinator {
                     }
                     PointStart::Solve(init) => init,
                 };
-                let lease_id = new_lease_id(&state.leases);
+                let lease_id = state.leases.new_id();
                 let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
                 let entry = state.studies.get_mut(&id).expect("id listed above");
                 let max_iterations = match audit_budget {
@@ -832,8 +808,7 @@ impl Coordinator {
                 };
                 self.commit(entry, vec![(point, Some(EventKind::Started))], None, Batch::new())?;
                 tracing::info!(study = %id, point = i, pool, lease_id, "leased");
-                state.leases.insert(lease_id, (id, PointId(i as u64)));
-                state.lease_since.insert(lease_id, Instant::now());
+                state.leases.grant(lease_id, id, PointId(i as u64));
                 return Ok(Some(grant));
             }
         }
@@ -966,7 +941,7 @@ impl Coordinator {
     /// a pool of this coordinator's solver version (the one its pools run).
     fn answer_stored(&self, state: &mut State, id: StudyId) -> Result<(), CoordError> {
         let entry = &state.studies[&id];
-        let solutions = state.by_scene.get(&entry.record.scene_hash);
+        let solutions = state.solutions.scene(&entry.record.scene_hash);
         let answers: Vec<(usize, SolutionKey)> = entry
             .points
             .iter()
@@ -975,7 +950,7 @@ impl Coordinator {
             .filter_map(|(i, p)| Some((i, entry.plan.answer(p, solutions, &self.config.solver_version)?)))
             .collect();
         for (i, key) in answers {
-            let answer = state.solutions.get(&key).expect("indexed solutions have records").clone();
+            let answer = state.solutions.indexed(&key);
             self.answer(state, id, i, &answer)?;
         }
         Ok(())
@@ -1143,17 +1118,9 @@ impl Coordinator {
         if converged {
             state.next_finish_seq = seq + 1;
         }
-        state.leases.remove(&c.lease_id);
-        state.lease_progress.remove(&c.lease_id);
+        state.leases.end(c.lease_id);
         if keep {
-            let record = Arc::new(record);
-            let index = state.by_scene.get_mut(&*record.scene_hash).filter(|_| record.converged);
-            if let Some(index) = index {
-                // The next point's warm start is likely this one: keep it decoded.
-                index.index(key.clone(), &record)?;
-                index.remember(&key, file, solution);
-            }
-            state.solutions.insert(key, record);
+            state.solutions.insert(key, record, file, solution)?;
         }
         Ok(point)
     }
@@ -1164,8 +1131,7 @@ impl Coordinator {
     /// point starts from one of its solutions or is answered by one. Returns how many.
     pub fn purge_pool(&self, pool: &str) -> Result<usize, CoordError> {
         let mut state = self.lock();
-        let keys: Vec<SolutionKey> =
-            state.solutions.iter().filter(|(_, r)| r.pool == pool).map(|(k, _)| k.clone()).collect();
+        let keys = state.solutions.of_pool(pool);
         if keys.is_empty() {
             return Ok(0);
         }
@@ -1175,17 +1141,7 @@ impl Coordinator {
             batch.delete(Tree::Solutions, bytes.clone()).delete(Tree::SolutionFields, bytes);
         }
         self.store.commit(batch)?;
-        let scenes: std::collections::BTreeSet<String> =
-            keys.iter().filter_map(|k| state.solutions.remove(k)).map(|r| r.scene_hash.to_string()).collect();
-        // each scene's index again, from what is left
-        for hash in scenes {
-            let Some(old) = state.by_scene.remove(&hash) else { continue };
-            let mut index = SceneSolutions::new(hash.clone(), old.space().clone(), self.store.clone())?;
-            for (key, record) in state.solutions.iter().filter(|(_, r)| *r.scene_hash == *hash && r.converged) {
-                index.index(key.clone(), record)?;
-            }
-            state.by_scene.insert(hash, index);
-        }
+        state.solutions.remove(&keys, &self.store)?;
         tracing::warn!(pool, purged = keys.len(), "purged the solutions of a pool");
         Ok(keys.len())
     }
@@ -1213,8 +1169,7 @@ impl Coordinator {
         let point = apply(&entry.points[i], Transition::Fail { result, error: error.clone() })?;
         self.commit(entry, vec![(point.clone(), Some(EventKind::Failed))], None, Batch::new())?;
         tracing::warn!(study = %f.study, point = i, pool = %f.pool, error = %error, "point failed");
-        state.leases.remove(&f.lease_id);
-        state.lease_progress.remove(&f.lease_id);
+        state.leases.end(f.lease_id);
         Ok(point)
     }
 
@@ -1233,8 +1188,7 @@ impl Coordinator {
         self.with_history(&mut p)?;
         self.commit(entry, vec![(p.clone(), Some(EventKind::Requeued))], None, Batch::new())?;
         tracing::info!(study = %study, point = i, pool, "released");
-        state.leases.remove(&lease_id);
-        state.lease_progress.remove(&lease_id);
+        state.leases.end(lease_id);
         drop(state);
         self.work.notify_waiters();
         Ok(p)
@@ -1246,16 +1200,15 @@ impl Coordinator {
     pub fn heartbeat(&self, pool: &str, lease_ids: &[u64], progress: &[(u64, u64, f64)]) -> Vec<Option<(i64, bool)>> {
         let mut state = self.lock();
         // only registered pools: the ids seen stay as many as the pools
-        if state.pools.contains_key(pool) {
-            state.pools_seen.insert(pool.to_owned(), Instant::now());
-        }
+        state.pools.seen(pool);
         let deadline = now_unix_ms() + self.config.lease.as_millis() as i64;
-        let State { studies, leases, lease_progress, .. } = &mut *state;
+        let State { studies, leases, .. } = &mut *state;
         let deadlines: Vec<Option<(i64, bool)>> = lease_ids
             .iter()
             .map(|lease_id| {
-                let (study, point) = leases.get(lease_id)?;
-                let entry = studies.get_mut(study)?;
+                let lease = leases.get(*lease_id)?;
+                let (study, point) = (lease.study, lease.point);
+                let entry = studies.get_mut(&study)?;
                 let cancelled = entry.record.cancelled;
                 let p = entry.points.get_mut(point.0 as usize)?;
                 match &mut p.state {
@@ -1273,10 +1226,10 @@ impl Coordinator {
         let held = |id: u64| lease_ids.iter().zip(&deadlines).any(|(&l, d)| l == id && d.is_some());
         for &(lease_id, iterations, eta) in progress.iter().filter(|p| p.2.is_finite() && held(p.0)) {
             // a heartbeat that finds the solve where the last one left it tells watchers nothing
-            if lease_progress.insert(lease_id, (iterations, eta)).is_some_and(|(before, _)| before == iterations) {
+            if !leases.report(lease_id, iterations, eta) {
                 continue;
             }
-            let (study, point) = leases[&lease_id];
+            let Some(&tables::Lease { study, point, .. }) = leases.get(lease_id) else { continue };
             let entry = &studies[&study];
             // (a point solved again after a retry shows its last result, its history with it)
             let mut shown = entry.points[point.0 as usize].clone();
@@ -1296,8 +1249,7 @@ impl Coordinator {
     pub fn expire_leases(&self) -> Result<usize, CoordError> {
         let now = now_unix_ms();
         let mut state = self.lock();
-        let State { studies, leases, lease_progress, lease_since, .. } = &mut *state;
-        lease_since.retain(|id, _| leases.contains_key(id));
+        let State { studies, leases, .. } = &mut *state;
         let mut expired = 0;
         let ids: Vec<StudyId> = studies.keys().copied().collect();
         for id in ids {
@@ -1307,12 +1259,11 @@ impl Coordinator {
             let mut lost = Vec::new();
             for (i, p) in entry.points.iter().enumerate() {
                 let PointState::Leased { pool, lease_id, deadline_unix_ms, .. } = &p.state else { continue };
-                let held = lease_since.get(lease_id).map(Instant::elapsed).unwrap_or_default();
-                let over_budget = held > self.config.point_budget;
+                let over_budget = leases.held_for(*lease_id) > self.config.point_budget;
                 if *deadline_unix_ms > now && !over_budget {
                     continue;
                 }
-                let last = match lease_progress.get(lease_id) {
+                let last = match leases.progress(*lease_id) {
                     Some((iterations, eta)) => format!("last heard solving at iteration {iterations}, eta {eta:.2e}"),
                     None => "it never reported progress: the pool may have died building the model (memory?)".into(),
                 };
@@ -1337,8 +1288,7 @@ impl Coordinator {
             expired += changes.len();
             self.commit(studies.get_mut(&id).expect("listed above"), changes, None, Batch::new())?;
             for lease_id in lost {
-                leases.remove(&lease_id);
-                lease_progress.remove(&lease_id);
+                leases.end(lease_id);
             }
         }
         drop(state);
@@ -1668,17 +1618,6 @@ fn check_meta(meta: &SolutionMeta, c: &Completion, scene_hash: &str, full: &Desi
 
 /// Equal but for the last bits: the solution file's header is JSON, and serde_json's default
 /// float parsing is not exactly round-trip (it may move the last bit).
-/// A lease id nobody can guess (64 random bits from the OS-seeded generator), unused and not 0:
-/// a lease id is what lets a pool complete, fail or release a point.
-fn new_lease_id(leases: &HashMap<u64, (StudyId, PointId)>) -> u64 {
-    loop {
-        let id: u64 = rand::random();
-        if id != 0 && !leases.contains_key(&id) {
-            return id;
-        }
-    }
-}
-
 fn same_number(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-12 * a.abs().max(b.abs())
 }

@@ -344,11 +344,8 @@ impl Coordinator {
     /// The warm-start index of a scene, if it has none yet (none for a scene of too many
     /// parameters: its studies are cold, checked at submit).
     pub(super) fn index_scene(&self, state: &mut State, hash: &str, space: &ParameterSpace) {
-        if !state.by_scene.contains_key(hash)
-            && let Ok(index) = SceneSolutions::new(hash.to_owned(), space.clone(), self.store.clone())
-        {
-            state.by_scene.insert(hash.to_owned(), index);
-        }
+        // (an error here is a scene its studies solve cold)
+        let _ = state.solutions.index_scene(hash, space, &self.store);
     }
 
     /// A stored study in the coordinator's state, with its plan and its scene's index.

@@ -100,8 +100,7 @@ impl Coordinator {
             SurfaceSource::Scene(hash) => {
                 let rows = state
                     .solutions
-                    .values()
-                    .filter(|s| *s.scene_hash == **hash)
+                    .of_scene(hash)
                     .map(|s| SurfaceRow {
                         parameters: s.parameters.clone(),
                         qoi: s.qoi.clone().into(),
