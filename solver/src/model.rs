@@ -6,7 +6,9 @@ use std::collections::{BTreeMap, HashMap};
 
 use crate::element::{ElementKind, Material, face_area_and_normal};
 use crate::mesh::{Face, Mesh};
-use crate::search_direction::{SearchDirection, dynamic_search_direction, static_search_direction};
+use crate::search_direction::{
+    SearchDirection, dynamic_search_direction, inertia_search_direction, static_search_direction,
+};
 use crate::sparse::CsrMatrix;
 use glissade_core::point::DesignPoint;
 use glissade_core::scene::{
@@ -343,10 +345,11 @@ impl<const D: usize> Model<D> {
 
     /// Where a contact or friction interface meets a time step far shorter than a wave takes to
     /// cross its elements (c dt / h below [`SHORT_STEP`]), the advice to refine the mesh with
-    /// the step. The contact's iterations grow about as h / (c dt) while the mesh stays and dt
-    /// falls, and stay flat when both fall together; measured (docs/notebook/2026-11-29.md,
-    /// "Refine dt and h together"): the impact bar under gamma 0.55 takes 35 iterations at
-    /// every level of dt and h halved together, 35 / 61 / 108 / 306 as dt alone falls to dt / 10.
+    /// the step. A sliding contact's iterations may grow about as h / (c dt) while the mesh stays
+    /// and dt falls, and stay flat when both fall together; measured (docs/notebook/2026-11-29.md,
+    /// "Refine dt and h together"): the impact bar under gamma 0.55 took 35 iterations at every
+    /// level of dt and h halved together, 35 / 61 / 108 / 306 as dt alone fell to dt / 10 (in
+    /// windows of one step its work is now flat: [`crate::search_direction::inertia_search_direction`]).
     pub fn short_step_advice(&self) -> Option<String> {
         let (name, ratio) = self
             .interfaces
@@ -357,7 +360,7 @@ impl<const D: usize> Model<D> {
         (ratio < SHORT_STEP).then(|| {
             format!(
                 "the time step is {:.0} x shorter than a wave takes to cross the elements at interface '{name}' \
-                 (c dt / h = {ratio:.2}): a contact's iterations grow about in proportion; refine the mesh across the \
+                 (c dt / h = {ratio:.2}): a sliding contact's iterations may grow about in proportion; refine the mesh across the \
                  interface with the step (c dt / h near 1), or take a longer step (docs/accuracy.md, \"Refine dt and h \
                  together\")",
                 1.0 / ratio
@@ -471,7 +474,11 @@ impl<const D: usize> Model<D> {
         let qois =
             quantities_of_interest(scene, &r, &bodies, &interfaces, &interface_index, &substructures, &local_of)?;
         let dt = duration / scene.time.steps as f64;
-        set_search_directions(&mut interfaces, &substructures, (k0_factor, tangential_factor), assembly_size, dt);
+        let newmark = scene.time.newmark_gamma.map_or(Newmark::TRAPEZOIDAL, Newmark::with_gamma);
+        // (a window's duration: the inertia a side opposes is the nodes' over the steps iterated together)
+        let window = if settings.time_window > 0 { settings.time_window } else { scene.time.steps };
+        let step = (dt, dt * window as f64, newmark.gamma);
+        set_search_directions(&mut interfaces, &substructures, (k0_factor, tangential_factor), assembly_size, step);
 
         let shared_wall_nodes = if settings.joint_wall_nodes {
             shared_wall_nodes(&interfaces, &interface_index, assembly_size)
@@ -487,7 +494,7 @@ impl<const D: usize> Model<D> {
             interfaces,
             histories,
             dt,
-            newmark: scene.time.newmark_gamma.map_or(Newmark::TRAPEZOIDAL, Newmark::with_gamma),
+            newmark,
             steps: scene.time.steps,
             qois,
             settings,
@@ -974,13 +981,14 @@ fn quantities_of_interest<const D: usize>(
 }
 
 /// Every interface side's search directions, static and dynamic (docs/method.md 3), from the
-/// materials and sizes on either side; `factors`: the scene's k0 and tangential factors.
+/// materials and sizes on either side; `factors`: the scene's k0 and tangential factors; `step`:
+/// dt, the duration of a time window (the whole interval's without windows) and Newmark's gamma.
 fn set_search_directions<const D: usize>(
     interfaces: &mut [Interface<D>],
     substructures: &[Substructure<D>],
     (k0_factor, tangential_factor): (f64, f64),
     assembly_size: f64,
-    dt: f64,
+    (dt, window, gamma): (f64, f64, f64),
 ) {
     for itf in interfaces.iter_mut() {
         let normal = itf.mean_normal();
@@ -998,14 +1006,26 @@ fn set_search_directions<const D: usize>(
                     sub.depth_along(&normal),
                     dt,
                 );
+            let inertia = inertia_search_direction(side_mass_per_measure(sub, &side.nodes, &itf.area), gamma, window);
             // a contact's slip history converges at a rate set by k_t (docs/performance.md)
             let tangential = match itf.law {
                 InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => k,
                 InterfaceLaw::Contact | InterfaceLaw::Friction { .. } => k * tangential_factor,
             };
-            side.k_dynamic = SearchDirection { normal: k, tangential };
+            side.k_dynamic = SearchDirection { normal: k.max(k0_factor * inertia), tangential };
         }
     }
+}
+
+/// The diagonal of a substructure's mass at a side's interface nodes (the mean over each node's
+/// dofs), per unit of the interface's measure `area` (per interface node, in the side's order).
+fn side_mass_per_measure<const D: usize>(sub: &Substructure<D>, nodes: &[usize], area: &[f64]) -> f64 {
+    let measure: f64 = area.iter().sum();
+    if measure <= 0.0 {
+        return 0.0;
+    }
+    let mass: f64 = nodes.iter().map(|&n| (0..D).map(|c| sub.mass.diagonal(n * D + c)).sum::<f64>() / D as f64).sum();
+    mass / measure
 }
 
 /// The search direction's part from node to node ([`InterfaceSide::k_along`]) on perfect

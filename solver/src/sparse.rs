@@ -97,6 +97,12 @@ impl CsrMatrix {
         Self { n, row_ptr, col, val }
     }
 
+    /// The diagonal entry of row `i` (0 where the row stores none).
+    pub fn diagonal(&self, i: usize) -> f64 {
+        let row = self.row_ptr[i]..self.row_ptr[i + 1];
+        self.col[row.clone()].iter().position(|&c| c == i).map_or(0.0, |k| self.val[row.start + k])
+    }
+
     /// y += alpha * A x
     pub fn mul_add(&self, alpha: f64, x: &[f64], y: &mut [f64]) {
         for (i, yi) in y.iter_mut().enumerate().take(self.n) {

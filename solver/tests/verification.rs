@@ -397,6 +397,66 @@ fn an_impact_over_many_steps_is_solved_in_windows_and_matches_the_whole_interval
     );
 }
 
+/// A titanium bar of our own (0.09 m, 45 elements in 3 substructures, 2 m/s; 120 steps: c dt / h
+/// = 1.0, and 1200: 0.1). In windows of one step a side's normal search direction is at least
+/// its interface nodes' inertia over the step (`search_direction::inertia_search_direction`), so
+/// the iterations do not grow as dt falls with the mesh kept: the work at dt / 10 within 1.3 x
+/// that at dt (it was 3-7 x on the impact bars: docs/notebook/2026-11-30.md, "The nodes' inertia
+/// in the search direction"), both obeying d'Alembert, every QoI history at dt / 10 within the
+/// tolerance of a solve 10,000 x tighter, and the check a fraction of the solve.
+#[test]
+fn a_bars_impact_costs_about_the_same_at_a_tenth_of_the_step() {
+    let text = |steps: usize| {
+        ALUMINIUM_BAR_IMPACT
+            .replace("duration = 1e-4", "duration = 4.85e-5")
+            .replace("steps = 200", &format!("steps = {steps}"))
+            .replace("[materials.alu]\nE = 70e9\nrho = 2700", "[materials.alu]\nE = 110e9\nrho = 4500")
+            .replace("size = [0.15]", "size = [0.09]")
+            .replace("elements = [60]", "elements = [45]")
+            .replace("initial_velocity = [3.0]", "initial_velocity = [2.0]")
+            .replace("point = [0.15]", "point = [0.09]")
+    };
+    assert!(text(1).contains("E = 110e9") && text(1).contains("point = [0.09]"));
+    let (coarse, at_dt) = check_bar_impact::<1>(&text(120), 1.0, (0.09, 2.0));
+    // (at dt / 10 the mesh's error rules: the contact lasts 2 L / c within two elements' transit)
+    let fine = build::<1>(&text(1200), &[]);
+    let at_tenth = solve(&fine, false);
+    let force = &at_tenth.qoi.iter().find(|q| q.name == "wall_force").expect("wall_force").values;
+    let material = fine.substructures[0].material;
+    let touching: Vec<usize> = (0..force.len()).filter(|&n| force[n] != 0.0).collect();
+    let contact = (touching[touching.len() - 1] - touching[0] + 1) as f64 * fine.dt;
+    let transit = 0.09 / 45.0 / material.bar_wave_speed();
+    eprintln!("dt / 10: contact {:.3} us, 2 L / c {:.3} us", contact * 1e6, 2.0 * 45.0 * transit * 1e6);
+    assert!((contact - 90.0 * transit).abs() <= 2.0 * transit);
+    // (the trapezoidal rule's force alternates from step to step: its mean over the contact)
+    let mean = force.iter().sum::<f64>() * fine.dt / contact;
+    eprintln!("dt / 10: mean force {mean:.4e}, rho c A v0 = {:.4e}", material.impedance() * 2.0);
+    assert!((mean.abs() / (material.impedance() * 2.0) - 1.0).abs() < 0.05 && mean < 0.0, "mean force {mean}");
+    assert_eq!((coarse.settings.time_window, fine.settings.time_window), (1, 1));
+    let side = &fine.interfaces.iter().find(|i| i.name == "impact").expect("impact").sides[0];
+    let impedance = fine.substructures[side.substructure].material.impedance();
+    eprintln!("k_n at dt / 10: {:.2} x the impedance", side.k_dynamic.normal / impedance);
+    assert!(side.k_dynamic.normal > 5.0 * impedance, "the nodes' inertia over a step rules at c dt / h = 0.1");
+    assert_eq!(
+        side.k_dynamic.tangential,
+        glissade_core::scene::TANGENTIAL_FACTOR * impedance,
+        "the tangential part keeps the impedance's"
+    );
+    let work = |r: &SolveReport| (r.dynamic.sweeps, r.dynamic.window_check.as_ref().map_or(0.0, |c| c.sweeps));
+    eprintln!("sweeps (the check's): dt {:?}, dt / 10 {:?}", work(&at_dt), work(&at_tenth));
+    assert!(work(&at_tenth).0 <= 1.3 * work(&at_dt).0);
+    assert!(work(&at_tenth).1 <= 0.5 * (work(&at_tenth).0 - work(&at_tenth).1));
+    let mut tight = fine.clone();
+    tight.settings.tolerance = fine.settings.tolerance * 1e-4;
+    let reference = solve(&tight, false);
+    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    for (q, r) in at_tenth.qoi.iter().zip(&reference.qoi) {
+        let error = norm(&mut q.values.iter().zip(&r.values).map(|(a, b)| a - b)) / norm(&mut r.values.iter().copied());
+        eprintln!("{}: {error:.2e} from the solve at 1e-4 x the tolerance", q.name);
+        assert!(error <= fine.settings.tolerance, "{}: {error:.2e}", q.name);
+    }
+}
+
 const ALUMINIUM_BAR_IMPACT: &str = r#"
 title = "an aluminium bar hits a rigid wall at 3 m/s"
 dimension = 1
