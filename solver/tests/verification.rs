@@ -368,7 +368,7 @@ fn bar_impact_3d_nu0_matches_dalembert() {
 /// An aluminium bar of our own (0.15 m, 60 elements in 3 substructures, 3 m/s, 200 steps: c dt
 /// / h = 1.02): a contact scene over more than 100 steps is iterated in windows by default.
 /// Whole, its iterations grow with the steps as the impact's front settles (120 sweeps here, 385
-/// at 400 steps, no convergence in 1000 at 2000); in windows 35.5, 55.5 and 702
+/// at 400 steps, no convergence in 1000 at 2000); in windows of one step 22.3, 22.1 and 32.4
 /// (docs/performance.md, "Impacts as dt falls"). The windowed answer obeys d'Alembert and lies
 /// within the tolerance of a whole-interval solve 1000 x tighter, every QoI's history.
 #[test]
