@@ -1007,12 +1007,15 @@ fn set_search_directions<const D: usize>(
                     dt,
                 );
             let inertia = inertia_search_direction(side_mass_per_measure(sub, &side.nodes, &itf.area), gamma, window);
-            // a contact's slip history converges at a rate set by k_t (docs/performance.md)
+            // the nodes' inertia is the same along every direction: it bounds the tangential part
+            // too where the interface carries the tangential velocity (perfect), not where a law
+            // sets it (a contact's slip history converges at a rate set by k_t, docs/performance.md)
+            let k_n = k.max(k0_factor * inertia);
             let tangential = match itf.law {
-                InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => k,
+                InterfaceLaw::Perfect | InterfaceLaw::Prestress { .. } => k_n,
                 InterfaceLaw::Contact | InterfaceLaw::Friction { .. } => k * tangential_factor,
             };
-            side.k_dynamic = SearchDirection { normal: k.max(k0_factor * inertia), tangential };
+            side.k_dynamic = SearchDirection { normal: k_n, tangential };
         }
     }
 }

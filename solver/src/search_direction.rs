@@ -108,8 +108,9 @@ pub fn dynamic_search_direction(impedance: f64, wave_speed: f64, depth: f64, dt:
 /// meets the nodes' inertia before any wave; over a long window or the whole interval it is
 /// negligible and the impedance rules. Measured (docs/notebook/2026-11-30.md, "The nodes'
 /// inertia in the search direction"): the 1D impact bar's work flat from dt to dt / 10 (22.0,
-/// 21.9, 22.7, 22.8 sweeps; 71.6 at dt / 10 before); the tangential part keeps the impedance
-/// (friction at dt / 10 was neutral to worse with it).
+/// 21.9, 22.7, 22.8 sweeps; 71.6 at dt / 10 before). It bounds the tangential part too on perfect
+/// interfaces (our dropped copper block at dt / 10: 87.2 -> 50.7 sweeps), not on contact and
+/// friction ones, whose law sets it (friction at dt / 10 was neutral to worse with it).
 pub fn inertia_search_direction(mass_per_measure: f64, gamma: f64, window: f64) -> f64 {
     mass_per_measure / (gamma * window)
 }

@@ -442,6 +442,10 @@ fn a_bars_impact_costs_about_the_same_at_a_tenth_of_the_step() {
         glissade_core::scene::TANGENTIAL_FACTOR * impedance,
         "the tangential part keeps the impedance's"
     );
+    for cut in fine.interfaces.iter().filter(|i| i.name != "impact") {
+        let k = cut.sides[0].k_dynamic;
+        assert!(k.normal > 5.0 * impedance && k.tangential == k.normal, "a perfect interface: {k:?}");
+    }
     let work = |r: &SolveReport| (r.dynamic.sweeps, r.dynamic.window_check.as_ref().map_or(0.0, |c| c.sweeps));
     eprintln!("sweeps (the check's): dt {:?}, dt / 10 {:?}", work(&at_dt), work(&at_tenth));
     assert!(work(&at_tenth).0 <= 1.3 * work(&at_dt).0);
