@@ -359,7 +359,7 @@ fn pool(args: PoolArgs) -> Result<bool> {
         options.idle_exit = Some(std::time::Duration::from_secs_f64(s));
     }
     let Some(universe) = mpi::initialize() else { bail!("MPI could not be initialised") };
-    let comm = Mpi { world: universe.world() };
+    let comm = Mpi::new(universe.world())?;
     check_launcher(comm.size())?;
     if comm.size() == 1 {
         run_pool(options, &mut SerialPoolSolver::default())?;
@@ -991,7 +991,13 @@ fn main() -> ExitCode {
                 eprintln!("error: MPI could not be initialised");
                 return ExitCode::FAILURE;
             };
-            let comm = Mpi { world: universe.world() };
+            let comm = match Mpi::new(universe.world()) {
+                Ok(comm) => comm,
+                Err(e) => {
+                    eprintln!("error: {e}");
+                    return ExitCode::FAILURE;
+                }
+            };
             if let Err(e) = check_launcher(comm.size()) {
                 eprintln!("error: {e}");
                 return ExitCode::FAILURE;

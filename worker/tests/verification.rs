@@ -13,10 +13,16 @@ fn scene_path(name: &str) -> String {
 
 /// Runs `mpiexec ARGS` (each rank a real process) with a time limit, so a hang fails the test.
 fn mpiexec(args: &[&str]) -> std::process::Output {
+    mpiexec_with(&[], args)
+}
+
+/// `mpiexec ARGS` with the environment variables `env` set for every rank.
+fn mpiexec_with(env: &[(&str, &str)], args: &[&str]) -> std::process::Output {
     std::process::Command::new("timeout")
         .arg("120")
         .arg("mpiexec.mpich")
         .args(args)
+        .envs(env.iter().copied())
         .output()
         .expect("mpiexec runs (deploy/install-deps.sh installs MPICH)")
 }
@@ -27,7 +33,9 @@ fn worker_bin() -> &'static str {
 
 /// P = 1, 2, 3 ranks give bitwise identical results: same iterations, same QoIs, and the same
 /// saved interface solution byte for byte (every reduction has one or two contributions per
-/// entry, so the order of the sum does not matter).
+/// entry, so the order of the sum does not matter). Three ranks wait yielding their core
+/// (`GLISSADE_MPI_YIELD=1`, what a node with fewer cores than ranks does by itself: mpi_comm.rs),
+/// two as the node decides (spinning on two cores or more): both ways give the same bits.
 #[test]
 fn mpi_ranks_give_bitwise_identical_solutions() {
     let dir = tempfile::tempdir().unwrap();
@@ -85,21 +93,26 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
         let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
         for np in ["1", "2", "3"] {
             let save = dir.path().join(format!("{scale}-{}-{np}.sol", scene.len()));
-            let out = mpiexec(&[
-                "-n",
-                np,
-                worker_bin(),
-                "solve",
-                scene,
-                "--scale",
-                scale,
-                "--tol",
-                // 3 ranks share 2 cores in CI, and MPICH's ranks spin while they wait
-                "1e-2",
-                "--json",
-                "--save",
-                save.to_str().unwrap(),
-            ]);
+            let yielding = if np == "3" { "1" } else { "" };
+            let env: &[(&str, &str)] = if yielding.is_empty() { &[] } else { &[("GLISSADE_MPI_YIELD", yielding)] };
+            let out = mpiexec_with(
+                env,
+                &[
+                    "-n",
+                    np,
+                    worker_bin(),
+                    "solve",
+                    scene,
+                    "--scale",
+                    scale,
+                    "--tol",
+                    // 3 ranks share 2 cores in CI, and MPICH's ranks spin while they wait
+                    "1e-2",
+                    "--json",
+                    "--save",
+                    save.to_str().unwrap(),
+                ],
+            );
             assert!(out.status.success(), "P = {np}: {}", String::from_utf8_lossy(&out.stderr));
             let stdout = String::from_utf8(out.stdout).unwrap();
             assert_eq!(stdout.lines().count(), 1, "only rank 0 prints: {stdout}");
@@ -587,6 +600,22 @@ fn worker(args: &[&str]) -> (i32, String, String) {
         String::from_utf8_lossy(&out.stdout).into(),
         String::from_utf8_lossy(&out.stderr).into(),
     )
+}
+
+/// A rank's way of waiting is set by `GLISSADE_MPI_YIELD` as 1 or 0; anything else is refused
+/// before any work, in one line that names the variable.
+#[test]
+fn a_bad_yield_setting_is_refused_in_one_line() {
+    let out = Command::new(worker_bin())
+        .args(["solve", &scene_path("three-blocks-tiny.toml")])
+        .env("GLISSADE_MPI_YIELD", "sometimes")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(out.stdout.is_empty());
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(stderr.contains("GLISSADE_MPI_YIELD=\"sometimes\"") && stderr.contains("give 1"), "{stderr}");
 }
 
 #[test]

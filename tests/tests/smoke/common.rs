@@ -132,10 +132,12 @@ pub fn tiny_scene() -> String {
 pub const STUDY_TOL: f64 = 1e-3;
 
 /// Starts a pool of two MPI ranks, `mpiexec -n 2 glissade-worker pool`, against `url`, logging to
-/// `log`. Killing mpiexec (SIGKILL) ends its ranks too; SIGTERM reaches all of them.
+/// `log`. Killing mpiexec (SIGKILL) ends its ranks too; SIGTERM reaches all of them. Its ranks
+/// yield their core while they wait (`GLISSADE_MPI_YIELD=1`): they share the machine's cores
+/// with the coordinator, another pool and the tests beside them.
 pub fn start_pool(url: &str, id: &str, log: &Path) -> ServerGuard {
     let mut cmd = command(Path::new("mpiexec.mpich"));
-    cmd.args(["-n", "2"]).arg(workspace_bin("glissade-worker"));
+    cmd.env("GLISSADE_MPI_YIELD", "1").args(["-n", "2"]).arg(workspace_bin("glissade-worker"));
     spawn_pool(cmd, url, id, log)
 }
 
