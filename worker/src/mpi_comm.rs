@@ -3,6 +3,7 @@
 
 use glissade_solver::comm::Communicator;
 use mpi::collective::SystemOperation;
+use mpi::datatype::Equivalence;
 use mpi::point_to_point::{Destination, MatchedReceiveVec, Source};
 use mpi::request::{Request, Scope};
 use mpi::topology::{Communicator as _, SimpleCommunicator};
@@ -49,6 +50,16 @@ impl Mpi {
             tracing::debug!(ranks = on_node, cores, "a waiting rank yields its core");
         }
         Ok(Self { world, yielding })
+    }
+
+    /// Rank 0's `buf` into every rank's.
+    fn broadcast_into<T: Equivalence>(&self, buf: &mut [T]) {
+        let root = self.world.process_at_rank(0);
+        if self.yielding {
+            mpi::request::scope(|scope| wait_yielding(root.immediate_broadcast_into(scope, buf)));
+        } else {
+            root.broadcast_into(buf);
+        }
     }
 }
 
@@ -148,16 +159,9 @@ impl Communicator for Mpi {
         if self.size() == 1 {
             return;
         }
-        let root = self.world.process_at_rank(0);
         let mut len = [bytes.len() as u64];
-        if self.yielding {
-            mpi::request::scope(|scope| wait_yielding(root.immediate_broadcast_into(scope, &mut len[..])));
-            bytes.resize(len[0] as usize, 0);
-            mpi::request::scope(|scope| wait_yielding(root.immediate_broadcast_into(scope, &mut bytes[..])));
-        } else {
-            root.broadcast_into(&mut len[..]);
-            bytes.resize(len[0] as usize, 0);
-            root.broadcast_into(&mut bytes[..]);
-        }
+        self.broadcast_into(&mut len[..]);
+        bytes.resize(len[0] as usize, 0);
+        self.broadcast_into(&mut bytes[..]);
     }
 }

@@ -93,8 +93,7 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
         let mut reference: Option<(serde_json::Value, Vec<u8>)> = None;
         for np in ["1", "2", "3"] {
             let save = dir.path().join(format!("{scale}-{}-{np}.sol", scene.len()));
-            let yielding = if np == "3" { "1" } else { "" };
-            let env: &[(&str, &str)] = if yielding.is_empty() { &[] } else { &[("GLISSADE_MPI_YIELD", yielding)] };
+            let env: &[(&str, &str)] = if np == "3" { &[("GLISSADE_MPI_YIELD", "1")] } else { &[] };
             let out = mpiexec_with(
                 env,
                 &[
@@ -106,7 +105,7 @@ fn mpi_ranks_give_bitwise_identical_solutions() {
                     "--scale",
                     scale,
                     "--tol",
-                    // 3 ranks share 2 cores in CI, and MPICH's ranks spin while they wait
+                    // (a loose tolerance keeps the 21 runs short: the identity holds at any)
                     "1e-2",
                     "--json",
                     "--save",
