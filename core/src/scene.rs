@@ -4,7 +4,7 @@
 //! design point's values and checks every physical constraint, naming the offending key.
 
 use crate::point::{DesignPoint, MAX_PARAMETERS};
-use crate::text::{MAX_NAME_CHARS, excerpt, is_plain_name, is_plain_text};
+use crate::text::{MAX_NAME_CHARS, excerpt, is_plain_name, is_plain_text, one_line};
 use std::collections::BTreeMap;
 
 use serde::{Deserialize, Serialize};
@@ -20,6 +20,18 @@ pub enum SceneError {
     UndeclaredParameter { key: String, name: String },
     #[error("--set {name}: no parameter of that name in the scene (declared: {declared})")]
     UnknownParameter { name: String, declared: String },
+}
+
+/// A TOML error in one line, its position first ("line 3, column 7: ..."): toml's own rendering
+/// spans several lines with the offending source quoted, which a log or an RPC status garbles.
+fn toml_error_line(e: &toml::de::Error, text: &str) -> String {
+    let at = e.span().map(|span| {
+        let before = &text[..span.start.min(text.len())];
+        let line = before.matches('\n').count() + 1;
+        let column = before[before.rfind('\n').map_or(0, |i| i + 1)..].chars().count() + 1;
+        format!("line {line}, column {column}: ")
+    });
+    format!("{}{}", at.unwrap_or_default(), one_line(e.message()))
 }
 
 pub fn invalid(key: impl Into<String>, message: impl Into<String>) -> SceneError {
@@ -540,7 +552,7 @@ pub const MAX_PARTS: usize = 1000;
 impl Scene {
     /// Parses TOML text; errors carry the TOML key path and line.
     pub fn parse(text: &str) -> Result<Self, SceneError> {
-        let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse(e.to_string()))?;
+        let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse(toml_error_line(&e, text)))?;
         if !(1..=3).contains(&scene.dimension) {
             return Err(invalid("dimension", format!("must be 1, 2 or 3, got {}", scene.dimension)));
         }
@@ -1088,6 +1100,14 @@ mod tests {
         assert_eq!(h.at(0.5), 1.0);
         assert_eq!(h.at(1.5), 1.0);
         assert_eq!(h.at(5.0), 0.0);
+    }
+
+    #[test]
+    fn a_toml_error_is_one_line_with_its_position() {
+        // line 3; the column counts characters, not bytes ("é" is two)
+        let err = Scene::parse("dimension = 1\n# é\nname = \"é\" x\n").unwrap_err().to_string();
+        assert!(err.starts_with("cannot parse scene: line 3, column 12: "), "{err}");
+        assert!(!err.contains('\n'), "{err}");
     }
 
     #[test]

@@ -11,7 +11,7 @@ use serde::Serialize;
 
 use glissade_core::io::solution_file;
 use glissade_core::point::DesignPoint;
-use glissade_core::scene::{Scale, Scene, SceneError, Tolerance};
+use glissade_core::scene::{Scale, Scene, Tolerance};
 use glissade_solver::accuracy::{AccuracyLimits, AccuracyReport, solve_to_accuracy};
 use glissade_solver::comm::Communicator;
 use glissade_solver::profile::{Profile, Profiled};
@@ -557,23 +557,7 @@ fn parse_scene(text: &str, path: &Path) -> Result<Scene> {
 }
 
 fn parse_scene_text(text: &str, path: &Path) -> Result<Scene> {
-    Scene::parse(text).map_err(|e| {
-        let detail = match (&e, toml::from_str::<Scene>(text)) {
-            // Scene::parse keeps only toml's multi-line rendering: redo the parse for the parts
-            (SceneError::Parse(_), Err(te)) => {
-                let at = te.span().map(|span| {
-                    let before = &text[..span.start.min(text.len())];
-                    let line = before.matches('\n').count() + 1;
-                    let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
-                    format!("line {line}, column {column}: ")
-                });
-                let message: Vec<&str> = te.message().lines().map(str::trim).filter(|l| !l.is_empty()).collect();
-                format!("{}{}", at.unwrap_or_default(), message.join("; "))
-            }
-            _ => e.to_string(),
-        };
-        anyhow!("scene {}: {detail}", path.display())
-    })
+    Scene::parse(text).map_err(|e| anyhow!("scene {}: {e}", path.display()))
 }
 
 /// Refuses before a long solve to write where it could not (missing directory, clashing names).
