@@ -26,7 +26,9 @@ pub enum SceneError {
 /// spans several lines with the offending source quoted, which a log or an RPC status garbles.
 fn toml_error_line(e: &toml::de::Error, text: &str) -> String {
     let at = e.span().map(|span| {
-        let before = &text[..span.start.min(text.len())];
+        // (a span that does not fall on a character's start is taken back to one: no panic)
+        let end = (0..=span.start.min(text.len())).rev().find(|&i| text.is_char_boundary(i)).unwrap_or(0);
+        let before = &text[..end];
         let line = before.matches('\n').count() + 1;
         let column = before[before.rfind('\n').map_or(0, |i| i + 1)..].chars().count() + 1;
         format!("line {line}, column {column}: ")
@@ -550,7 +552,7 @@ pub const MAX_QOIS: usize = 64;
 pub const MAX_PARTS: usize = 1000;
 
 impl Scene {
-    /// Parses TOML text; errors carry the TOML key path and line.
+    /// Parses TOML text; a TOML error is one line with its line and column ([`toml_error_line`]).
     pub fn parse(text: &str) -> Result<Self, SceneError> {
         let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse(toml_error_line(&e, text)))?;
         if !(1..=3).contains(&scene.dimension) {
