@@ -552,7 +552,7 @@ pub const MAX_QOIS: usize = 64;
 pub const MAX_PARTS: usize = 1000;
 
 impl Scene {
-    /// Parses TOML text; a TOML error is one line with its line and column ([`toml_error_line`]).
+    /// Parses TOML text; a TOML error is one line with its line and column.
     pub fn parse(text: &str) -> Result<Self, SceneError> {
         let scene: Scene = toml::from_str(text).map_err(|e| SceneError::Parse(toml_error_line(&e, text)))?;
         if !(1..=3).contains(&scene.dimension) {
