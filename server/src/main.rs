@@ -12,7 +12,9 @@ use clap::Parser;
 use glissade_proto::auth::Token;
 use glissade_server::ServerOptions;
 use glissade_server::auth::Tokens;
-use tracing_subscriber::EnvFilter;
+use tracing_subscriber::filter::{LevelFilter, Targets};
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
 
 /// Coordinator of glissade parametric studies: serves the gRPC API (services glissade.v1.User,
 /// glissade.v1.Pool, glissade.v1.Health, and server reflection) and keeps studies and solutions
@@ -101,10 +103,16 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    // RUST_LOG as `target=level` directives (a filter without regular expressions to build)
+    let filter = std::env::var("RUST_LOG")
+        .ok()
+        .and_then(|v| v.parse::<Targets>().ok())
+        .unwrap_or_else(|| Targets::new().with_default(LevelFilter::INFO));
     tracing_subscriber::fmt()
-        .with_env_filter(EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info")))
         .with_writer(std::io::stderr)
         .with_ansi(std::io::stderr().is_terminal())
+        .finish()
+        .with(filter)
         .init();
     let result =
         tokio::runtime::Runtime::new().context("starting the tokio runtime").and_then(|rt| rt.block_on(run(args)));

@@ -949,13 +949,18 @@ fn print_profile(p: &Profile) {
 }
 
 fn main() -> ExitCode {
+    use tracing_subscriber::filter::{LevelFilter, Targets};
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    // RUST_LOG as `target=level` directives (a filter without regular expressions to build)
+    let filter = std::env::var("RUST_LOG").ok().and_then(|v| v.parse::<Targets>().ok()).unwrap_or_else(|| {
+        Targets::new().with_default(LevelFilter::WARN).with_target("glissade_worker::pool", LevelFilter::INFO)
+    });
     tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| "warn,glissade_worker::pool=info".into()),
-        )
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .finish()
+        .with(filter)
         .init();
     let cli = Cli::parse();
     // one thread a rank unless asked (glissade_solver::sparse::set_solver_threads says why)
