@@ -62,7 +62,7 @@ pub async fn connect(server: &Server) -> Result<Channel> {
     let endpoint =
         glissade_proto::auth::endpoint(&server.url, server.ca_cert.as_deref())?.connect_timeout(CONNECT_TIMEOUT);
     tracing::debug!(server = %server, "connecting");
-    endpoint.connect().await.map_err(|e| {
+    glissade_proto::auth::connect(endpoint).await.map_err(|e| {
         tracing::debug!(error = ?e, "connect failed");
         anyhow!("cannot reach glissade server at {server}: {}", root_cause(&e))
     })

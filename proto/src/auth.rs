@@ -141,6 +141,15 @@ pub enum EndpointError {
     Tls { url: String, source: tonic::transport::Error },
 }
 
+/// A channel to `endpoint`. Boxed at this crate's edge so that the connection's machinery
+/// (hyper, h2, rustls: the future's body and the tasks it spawns) is compiled once, here, and
+/// not again in every crate that awaits a connection.
+pub fn connect(
+    endpoint: tonic::transport::Endpoint,
+) -> std::pin::Pin<Box<dyn Future<Output = Result<tonic::transport::Channel, tonic::transport::Error>> + Send>> {
+    Box::pin(async move { endpoint.connect().await })
+}
+
 /// The endpoint of a coordinator URL: plain for `http://`, TLS for `https://` (verified against
 /// the CA file given, else `GLISSADE_CA_CERT`, else the system's roots).
 pub fn endpoint(url: &str, ca_file: Option<&Path>) -> Result<tonic::transport::Endpoint, EndpointError> {

@@ -377,7 +377,7 @@ async fn connect(options: &PoolOptions, pool_id: Option<&str>) -> Result<Session
     let endpoint = glissade_proto::auth::endpoint(&options.coordinator, options.ca_cert.as_deref())?
         .connect_timeout(Duration::from_secs(5))
         .tcp_keepalive(Some(Duration::from_secs(30)));
-    let channel = endpoint.connect().await.context("connecting")?;
+    let channel = glissade_proto::auth::connect(endpoint).await.context("connecting")?;
     let mut client = PoolClient::with_interceptor(channel, WithToken::new(options.token.as_ref()));
     let reply = client
         .register_pool(v1::RegisterPoolRequest {
