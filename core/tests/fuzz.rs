@@ -29,6 +29,9 @@ $Nodes\n1 12 1 12\n3 1 0 12\n1\n2\n3\n4\n5\n6\n7\n8\n9\n10\n11\n12\n\
 0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n2 0 0\n2 1 0\n2 0 1\n2 1 1\n$EndNodes\n\
 $Elements\n3 3 1 3\n2 1 3 1\n1 1 4 8 5\n3 1 5 1\n2 1 2 3 4 5 6 7 8\n3 2 5 1\n3 2 9 10 3 6 11 12 7\n$EndElements\n";
 
+/// A bar in two physical volumes, as Gmsh writes it in binary (the solver's test mesh).
+const BAR_TET_BINARY: &[u8] = include_bytes!("../../solver/tests/data/bar-tet-bin.msh");
+
 /// Characters that matter to TOML and to numbers: replacing bytes with these keeps the text
 /// near enough to a scene to reach its validation.
 const SIGNIFICANT: &[u8] = b"[]{}=\"'.,:-+e0123456789 \n#nainf";
@@ -111,6 +114,17 @@ proptest! {
         if let Ok(msh) = Msh::parse(&bytes) {
             let _ = msh.volume("left");
             let _ = msh.volume("right");
+        }
+    }
+
+    /// A binary file written by Gmsh with any bytes replaced: its counts and tags become any
+    /// 4- or 8-byte values.
+    #[test]
+    fn msh_binary_mutated(edits in prop::collection::vec((any::<usize>(), any::<u8>()), 1..8), keep in 0.0..=1.0f64) {
+        let bytes = mutate(BAR_TET_BINARY, &edits, keep);
+        if let Ok(msh) = Msh::parse(&bytes) {
+            let _ = msh.volume("lower");
+            let _ = msh.volume("upper");
         }
     }
 
