@@ -78,9 +78,15 @@ const QUA4: i32 = 3;
 const TET4: i32 = 4;
 const HEX8: i32 = 5;
 
+/// Gmsh's element type `element_type`: its short name and node count, if it is one of 1-31.
+fn element_type(element_type: i32) -> Option<(&'static str, usize)> {
+    let index = usize::try_from(element_type).ok()?.checked_sub(1)?;
+    ELEMENT_TYPES.get(index).copied()
+}
+
 /// "Tet10 (Gmsh type 11)": an element type as errors name it.
 fn element_type_name(element_type: i32) -> String {
-    let name = usize::try_from(element_type - 1).ok().and_then(|i| ELEMENT_TYPES.get(i)).map_or("?", |t| t.0);
+    let name = self::element_type(element_type).map_or("?", |t| t.0);
     format!("{name} (Gmsh type {element_type})")
 }
 
@@ -360,16 +366,11 @@ impl<'a> Cursor<'a> {
         }
     }
 
-    /// A count of items: read one by one, so that no count allocates anything by itself.
-    fn count(&mut self, what: &str) -> Result<u64, GmshError> {
-        self.size(what)
-    }
-
     /// A count of items of `values` values each, which the rest of the file must be able to
     /// hold (a value takes 2 bytes at least in text, 4 in binary) before anything is allocated
     /// for them: a parsed mesh then takes at most a few times its file.
     fn bounded_count(&mut self, values: usize, what: &str) -> Result<usize, GmshError> {
-        let count = self.count(what)?;
+        let count = self.size(what)?;
         let least = values * if self.format()?.binary { 4 } else { 2 };
         let room = (self.bytes.len() - self.at) / least;
         match usize::try_from(count) {
@@ -424,7 +425,7 @@ impl<'a> Cursor<'a> {
     fn entities(&mut self) -> Result<HashMap<(i32, i32), Vec<i32>>, GmshError> {
         let mut counts = [0u64; 4];
         for (dim, c) in counts.iter_mut().enumerate() {
-            *c = self.count(&format!("the count of entities of dimension {dim}"))?;
+            *c = self.size(&format!("the count of entities of dimension {dim}"))?;
         }
         let mut physical = HashMap::new();
         for (dim, &count) in (0i32..).zip(&counts) {
@@ -434,11 +435,11 @@ impl<'a> Cursor<'a> {
                     self.real("an entity's bounds")?;
                 }
                 let mut tags = Vec::new();
-                for _ in 0..self.count("a count of physical tags")? {
+                for _ in 0..self.size("a count of physical tags")? {
                     tags.push(self.int("a physical tag")?);
                 }
                 if dim > 0 {
-                    for _ in 0..self.count("a count of bounding entities")? {
+                    for _ in 0..self.size("a count of bounding entities")? {
                         self.int("a bounding entity")?;
                     }
                 }
@@ -448,12 +449,19 @@ impl<'a> Cursor<'a> {
         Ok(physical)
     }
 
+    /// The count of blocks that opens `$Nodes` and `$Elements` (of `item`s), past the three
+    /// sizes after it: the count of items, their smallest and largest tags (not needed here).
+    fn blocks(&mut self, item: &str) -> Result<u64, GmshError> {
+        let blocks = self.size(&format!("the count of {item} blocks"))?;
+        self.size(&format!("the count of {item}s"))?;
+        self.size(&format!("the smallest {item} tag"))?;
+        self.size(&format!("the largest {item} tag"))?;
+        Ok(blocks)
+    }
+
     /// `$Nodes`: every node's tag and coordinates.
     fn nodes(&mut self) -> Result<Vec<(u64, [f64; 3])>, GmshError> {
-        let blocks = self.count("the count of node blocks")?;
-        for what in ["the count of nodes", "the smallest node tag", "the largest node tag"] {
-            self.size(what)?;
-        }
+        let blocks = self.blocks("node")?;
         let mut nodes = Vec::new();
         for _ in 0..blocks {
             let dim = self.int("a node block's entity dimension")?;
@@ -479,16 +487,12 @@ impl<'a> Cursor<'a> {
 
     /// `$Elements`: every block, of any of Gmsh's types 1-31.
     fn elements(&mut self) -> Result<Vec<ElementBlock>, GmshError> {
-        let count = self.count("the count of element blocks")?;
-        for what in ["the count of elements", "the smallest element tag", "the largest element tag"] {
-            self.size(what)?;
-        }
         let mut blocks = Vec::new();
-        for _ in 0..count {
+        for _ in 0..self.blocks("element")? {
             let entity_dim = self.int("an element block's entity dimension")?;
             let entity_tag = self.int("an element block's entity tag")?;
             let element_type = self.int("an element block's type")?;
-            let per = usize::try_from(element_type - 1).ok().and_then(|i| ELEMENT_TYPES.get(i)).map(|t| t.1);
+            let per = self::element_type(element_type).map(|t| t.1);
             let per = per.ok_or_else(|| self.error(format!("element type {element_type} (this reader knows 1-31)")))?;
             let count = self.bounded_count(1 + per, "an element block's count")?;
             let (tags, nodes) = (Vec::with_capacity(count), Vec::with_capacity(count * per));
@@ -564,6 +568,8 @@ $Elements\n2 2 1 2\n2 3 2 1\n7 1 3 2\n3 5 4 1\n8 1 2 3 4\n$EndElements\n";
         assert!(e.ends_with("$MeshFormat: version '2.2': only MSH 4.1 is read (Gmsh: -format msh41)"), "{e}");
         let e = parse(&TET.replace("3 5 4 1\n", "3 5 99 1\n"));
         assert!(e.ends_with("$Elements: element type 99 (this reader knows 1-31)"), "{e}");
+        let e = parse(&TET.replace("3 5 4 1\n", "3 5 -2147483648 1\n"));
+        assert!(e.ends_with("$Elements: element type -2147483648 (this reader knows 1-31)"), "{e}");
         let e = parse(&TET.replace("8 1 2 3 4\n$EndElements", "8 1 2 3\n$EndElements"));
         assert!(e.contains("$Elements: an element's node '$EndElements' is not a number"), "{e}");
         let e = parse(&TET.replace("$EndNodes", "$EndNode"));
