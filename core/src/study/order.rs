@@ -85,9 +85,10 @@ const TIE: f64 = 1e-9;
 
 /// The pending point nearest (normalised distance) to the set of done and in-flight points, so
 /// every solve can warm-start from a close neighbour; ties (within rounding, [`TIE`]) go to the
-/// lexicographically smaller point; the first, the lexicographically smallest pending point (for friction studies: the most
-/// slip, from which the sweep moves towards stick, the cheaper direction in the paper). Cost per call
-/// O(|pending| x |done + in flight|): a second for about 10^4 x 10^4 points.
+/// lexicographically smaller point; the first, the lexicographically smallest pending point (for
+/// friction studies: the most slip, from which the sweep moves towards stick, the cheaper
+/// direction in the paper). Cost per call O(|pending| x |done + in flight|): a second for about
+/// 10^4 x 10^4 points.
 #[derive(Debug, Clone)]
 pub struct Greedy {
     space: ParameterSpace,
@@ -128,15 +129,10 @@ impl OrderingPolicy for Greedy {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::study::space::ParameterRange;
+    use crate::study::space::friction_box;
 
     fn grid() -> (ParameterSpace, Vec<DesignPoint>) {
-        let space = ParameterSpace::new(
-            ["f1", "f2"]
-                .iter()
-                .map(|n| ParameterRange { name: n.to_string(), default: 0.0, min: 0.0, max: 1.0, declared: true })
-                .collect(),
-        );
+        let space = friction_box(0.0, 1.0);
         let mut pts = Vec::new();
         for i in 0..3 {
             for j in 0..3 {
@@ -183,12 +179,7 @@ mod tests {
     /// the values' rounding broke the ties (the paper's grid: 9,801 work against 9,351).
     #[test]
     fn greedy_breaks_ties_of_rounded_grids_lexicographically() {
-        let space = ParameterSpace::new(
-            ["f1", "f2"]
-                .iter()
-                .map(|n| ParameterRange { name: n.to_string(), default: 0.1, min: 0.1, max: 0.2, declared: true })
-                .collect(),
-        );
+        let space = friction_box(0.1, 0.2);
         let value = |k: usize| 0.1 + k as f64 * (0.2 - 0.1) / 10.0;
         let pts: Vec<DesignPoint> = (0..11)
             .flat_map(|i| (0..11).map(move |j| (i, j)))

@@ -522,6 +522,17 @@ pub fn slice_miss<'a>(fixed: &[(String, f64)], points: impl IntoIterator<Item = 
     format!("no point has {all} together")
 }
 
+/// Tests' box: f1 and f2 over [min, max], each defaulting to min.
+#[cfg(test)]
+pub(crate) fn friction_box(min: f64, max: f64) -> ParameterSpace {
+    ParameterSpace::new(
+        ["f1", "f2"]
+            .iter()
+            .map(|n| ParameterRange { name: n.to_string(), default: min, min, max, declared: true })
+            .collect(),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

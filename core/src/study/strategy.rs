@@ -401,13 +401,8 @@ k0_factor = "k"
 
     #[test]
     fn linear_weights_extrapolate_a_sweep_and_interpolate_a_square() {
-        use crate::study::space::ParameterRange;
-        let space = ParameterSpace::new(
-            ["f1", "f2"]
-                .iter()
-                .map(|n| ParameterRange { name: n.to_string(), default: 0.0, min: 0.0, max: 1.0, declared: true })
-                .collect(),
-        );
+        use crate::study::space::friction_box;
+        let space = friction_box(0.0, 1.0);
         let p = |a: f64, b: f64| DesignPoint::from_pairs([("f1", a), ("f2", b)]).unwrap();
         let x = p(0.3, 0.5);
         let (a, b) = (p(0.2, 0.5), p(0.1, 0.5));
