@@ -1,5 +1,5 @@
 //! `glissade demo`: the whole service on this machine with nothing to set up. It starts a
-//! coordinator (`glissade-server`) on a temporary database and one pool (`glissade-worker pool`)
+//! coordinator (`glissade-server`) on a temporary database and a pool a core (`glissade-worker pool`)
 //! as processes, as a deployment runs them, and the CLI's own commands submit a study of the
 //! shipped `three-blocks` `tiny` scene, watch it, print its response surface and draw its
 //! pictures; then a study of the shipped `sliding-block-2d` asked for an accuracy, whose time step
@@ -7,6 +7,7 @@
 
 use glissade_cli::outln;
 use glissade_core::scene::check_tolerance;
+use std::future::Future;
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::Duration;
@@ -44,6 +45,9 @@ pub struct DemoArgs {
     /// Tolerance on the error indicator (default: the scene's, 2e-4).
     #[arg(long, value_name = "T")]
     tol: Option<f64>,
+    /// Pools of one rank each that solve the points side by side (default: one a core, at most 4).
+    #[arg(long, value_name = "P", value_parser = clap::value_parser!(u32).range(1..=16))]
+    pools: Option<u32>,
     /// Directory for the pictures and the CSV (created if missing).
     #[arg(long, value_name = "DIR", default_value = "glissade-demo")]
     out: PathBuf,
@@ -60,22 +64,49 @@ pub async fn demo(args: DemoArgs) -> Result<Outcome> {
     let (mut coordinator, addr) = start_coordinator(&server_bin, &data.path().join("db")).await?;
     let url = format!("http://{addr}");
     outln!("coordinator on {url} (database in {}, removed at the end)", data.path().display());
-    let mut pool = own_environment(Command::new(&worker_bin));
-    pool.args(["pool", "--coordinator", &url, "--pool-id", "demo-pool", "--spool"])
-        .arg(data.path().join("spool"))
-        .stdin(Stdio::null())
-        .kill_on_drop(true);
-    let mut pool = pool.spawn().with_context(|| format!("starting the pool ({})", worker_bin.display()))?;
+    let mut pools = Vec::new();
+    for k in 1..=args.pools.unwrap_or_else(default_pools) {
+        let mut pool = own_environment(Command::new(&worker_bin));
+        pool.args(["pool", "--coordinator", &url, "--pool-id", &format!("demo-pool-{k}"), "--spool"])
+            .arg(data.path().join(format!("spool-{k}")))
+            .stdin(Stdio::null())
+            .kill_on_drop(true);
+        pools.push(pool.spawn().with_context(|| format!("starting pool {k} ({})", worker_bin.display()))?);
+    }
+    outln!("{} pools of one rank each", pools.len());
 
     let outcome = tokio::select! {
         outcome = run_study(&url, &args) => outcome,
         ended = coordinator.wait() => Err(ended_early("the coordinator", ended)),
-        ended = pool.wait() => Err(ended_early("the pool", ended)),
+        ended = any_ended(&mut pools) => Err(ended_early("a pool", ended)),
     };
-    // the study has ended (or failed): the two processes have nothing left to keep
-    let _ = pool.kill().await;
+    // the study has ended (or failed): the processes have nothing left to keep
+    for pool in &mut pools {
+        let _ = pool.kill().await;
+    }
     let _ = coordinator.kill().await;
     outcome
+}
+
+/// One pool a core, at most four: each solves a point on one rank, so the study's points run side
+/// by side as they do under a deployment's pools.
+fn default_pools() -> u32 {
+    std::thread::available_parallelism().map_or(1, |n| n.get().min(4) as u32)
+}
+
+/// The first of the pools to stop (they are not expected to before the demo ends).
+async fn any_ended(pools: &mut [Child]) -> std::io::Result<std::process::ExitStatus> {
+    let mut waits: Vec<_> = pools.iter_mut().map(|pool| Box::pin(pool.wait())).collect();
+    std::future::poll_fn(|cx| {
+        waits
+            .iter_mut()
+            .find_map(|wait| match wait.as_mut().poll(cx) {
+                std::task::Poll::Ready(ended) => Some(ended),
+                std::task::Poll::Pending => None,
+            })
+            .map_or(std::task::Poll::Pending, std::task::Poll::Ready)
+    })
+    .await
 }
 
 /// A child of the demo with none of the user's GLISSADE_ settings (a token file, a data
