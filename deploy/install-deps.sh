@@ -8,8 +8,6 @@ PACKAGES=(
   mpich libmpich-dev          # MPI (hydra mpiexec), rsmpi links against it
   libhdf5-dev                 # HDF5 field output (hdf5-metno finds it through pkg-config)
   libzstd-dev                 # the stored solutions' compression (zstd-sys links it through pkg-config)
-  libmetis-dev                # METIS: substructures of Gmsh meshes, the factors' nested dissection
-                              # (metis-sys's bundled copy cost every build 60 C files)
   protobuf-compiler           # protoc for tonic/prost code generation
   libclang-dev                # bindgen, used by mpi-sys
   python3 python3-venv        # the Python gRPC example client (its test pip-installs grpcio,
@@ -72,7 +70,6 @@ for daemon in munged slurmctld slurmd; do
     { echo "install-deps: '$daemon' not found after install" >&2; exit 1; }
 done
 pkg-config --exists hdf5 || { echo "install-deps: pkg-config cannot find hdf5" >&2; exit 1; }
-[[ -e /usr/include/metis.h ]] || { echo "install-deps: metis.h not found after install" >&2; exit 1; }
 # Hydra's `mpiexec --version` starts with "HYDRA build details:"; the MPI version is on its
 # "Version:" line.
 mpi_version=$(mpiexec --version 2>/dev/null | awk '$1 == "Version:" {print $2; exit}')

@@ -1,6 +1,6 @@
 //! glissade-solver: the LATIN solver, pure computation (no MPI, HDF5 or network).
 //!
-//! Layout: `element`, `mesh` (with `metis`, its two METIS calls), `gmsh`, `sparse`, `newmark` (discretisation); `search_direction`
+//! Layout: `element`, `mesh`, `gmsh`, `sparse`, `newmark` (discretisation); `search_direction`
 //! and `model` (the decomposed problem of one design point, from a
 //! `glissade_core::scene::Scene`); `latin` (the iterative solver), with `comm` (the communicator
 //! seam: [`comm::Serial`] here, MPI in glissade-worker); `monolithic` and `explicit`
@@ -16,7 +16,6 @@ pub mod explicit;
 pub mod gmsh;
 pub mod latin;
 pub mod mesh;
-pub mod metis;
 pub mod model;
 pub mod monolithic;
 pub mod newmark;

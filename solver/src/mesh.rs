@@ -146,8 +146,12 @@ impl<const D: usize> Mesh<D> {
 /// Why [`Mesh::graph_partition`] found no partition.
 #[derive(Debug, thiserror::Error)]
 pub enum PartitionError {
-    #[error("partitioning the elements' graph: {0}")]
-    Metis(#[from] crate::metis::MetisError),
+    #[error("{elements} elements are too many for METIS's 32-bit indices")]
+    TooMany { elements: usize },
+    #[error("METIS refused the graph: {0}")]
+    Graph(#[source] metis::NewGraphError),
+    #[error("METIS failed: {0}")]
+    Metis(#[source] metis::Error),
     #[error("METIS left substructure {part} of {parts} empty: ask for fewer")]
     EmptyPart { part: usize, parts: usize },
     #[error("substructure {part} is not contiguous (element {element}): is the volume in one piece?")]
@@ -164,7 +168,23 @@ impl<const D: usize> Mesh<D> {
             return Ok(vec![0; n]);
         }
         let neighbours = self.dual_graph();
-        let part = crate::metis::Graph::new(&neighbours).and_then(|g| g.part_kway(parts))?;
+        let idx = |v: usize| metis::Idx::try_from(v).map_err(|_| PartitionError::TooMany { elements: n });
+        let mut xadj = vec![0];
+        let mut adjncy = Vec::new();
+        for adj in &neighbours {
+            for &e in adj {
+                adjncy.push(idx(e)?);
+            }
+            xadj.push(idx(adjncy.len())?);
+        }
+        let mut part = vec![0; n];
+        metis::Graph::new(1, idx(parts)?, &xadj, &adjncy)
+            .map_err(PartitionError::Graph)?
+            .set_option(metis::option::Contig(true))
+            .set_option(metis::option::Seed(0))
+            .part_kway(&mut part)
+            .map_err(PartitionError::Metis)?;
+        let part: Vec<usize> = part.into_iter().map(|p| p as usize).collect();
         // every part present and connected (a disconnected volume cannot be cut contiguously)
         let mut reached = vec![false; n];
         for p in 0..parts {

@@ -17,18 +17,39 @@ pub enum SparseError {
 /// METIS's nested dissection of the graph of a symmetric matrix given by its lower triangle's
 /// triplets: (perm, iperm), or None where METIS fails.
 fn nested_dissection(m: usize, lower: &[Triplet<usize, usize, f64>]) -> Option<(Vec<usize>, Vec<usize>)> {
-    let mut neighbours: Vec<Vec<usize>> = vec![Vec::new(); m];
+    let mut neighbours: Vec<Vec<i32>> = vec![Vec::new(); m];
     for t in lower {
         if t.row != t.col {
-            neighbours[t.row].push(t.col);
-            neighbours[t.col].push(t.row);
+            neighbours[t.row].push(i32::try_from(t.col).ok()?);
+            neighbours[t.col].push(i32::try_from(t.row).ok()?);
         }
     }
-    for n in &mut neighbours {
+    let mut xadj = Vec::with_capacity(m + 1);
+    xadj.push(0i32);
+    let mut adjncy = Vec::new();
+    for mut n in neighbours {
         n.sort_unstable();
         n.dedup();
+        adjncy.extend(n);
+        xadj.push(i32::try_from(adjncy.len()).ok()?);
     }
-    crate::metis::Graph::new(&neighbours).and_then(|g| g.nested_dissection()).ok()
+    let mut nvtxs = i32::try_from(m).ok()?;
+    let (mut perm, mut iperm) = (vec![0i32; m], vec![0i32; m]);
+    // SAFETY: xadj has nvtxs + 1 entries and adjncy xadj[nvtxs]; perm and iperm hold nvtxs;
+    // null weights and options are METIS's defaults
+    let status = unsafe {
+        metis_sys::METIS_NodeND(
+            &mut nvtxs,
+            xadj.as_mut_ptr(),
+            adjncy.as_mut_ptr(),
+            std::ptr::null_mut(),
+            std::ptr::null_mut(),
+            perm.as_mut_ptr(),
+            iperm.as_mut_ptr(),
+        )
+    };
+    (status == metis_sys::rstatus_et_METIS_OK)
+        .then(|| (perm.into_iter().map(|p| p as usize).collect(), iperm.into_iter().map(|p| p as usize).collect()))
 }
 
 /// Threads that factorisations and solves (sparse and the dense macro problem's) may use, for
