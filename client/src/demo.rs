@@ -73,7 +73,10 @@ pub async fn demo(args: DemoArgs) -> Result<Outcome> {
             .kill_on_drop(true);
         pools.push(pool.spawn().with_context(|| format!("starting pool {k} ({})", worker_bin.display()))?);
     }
-    outln!("{} pools of one rank each", pools.len());
+    match pools.len() {
+        1 => outln!("one pool of one rank"),
+        n => outln!("{n} pools of one rank each"),
+    }
 
     let outcome = tokio::select! {
         outcome = run_study(&url, &args) => outcome,
