@@ -113,8 +113,11 @@ async fn any_ended(pools: &mut [Child]) -> std::io::Result<std::process::ExitSta
 }
 
 /// A child of the demo with none of the user's GLISSADE_ settings (a token file, a data
-/// directory, an address): the demo's coordinator and pool are its own. They say only what goes
-/// wrong, unless RUST_LOG asks for more.
+/// directory, an address): the demo's coordinator and pools are its own. They say only what goes
+/// wrong, unless RUST_LOG asks for more. They end with the demo however it ends: the kernel kills
+/// each when the thread that started it exits (the demo runs on the main thread, under
+/// `block_on`), so `glissade demo | head`, which exits at the closed pipe without unwinding and so
+/// without `kill_on_drop`, leaves no coordinator or pool behind.
 fn own_environment(mut command: Command) -> Command {
     for (key, _) in std::env::vars_os() {
         if key.to_string_lossy().starts_with("GLISSADE_") {
@@ -123,6 +126,16 @@ fn own_environment(mut command: Command) -> Command {
     }
     if std::env::var_os("RUST_LOG").is_none() {
         command.env("RUST_LOG", "warn");
+    }
+    // SAFETY: the closure runs in the child between fork and exec and calls only prctl, which
+    // is async-signal-safe and changes the child's own state
+    unsafe {
+        command.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
     }
     command
 }
