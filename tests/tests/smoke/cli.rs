@@ -305,35 +305,33 @@ with h5py.File(sys.argv[1], "r") as f:
 /// with it (PR_SET_PDEATHSIG), or they run on, orphaned, on the user's machine.
 #[test]
 fn a_demo_whose_reader_goes_away_leaves_no_coordinator_behind() -> anyhow::Result<()> {
-    use std::io::BufRead;
     let dir = tempfile::tempdir()?;
-    let mut demo = command(&workspace_bin("glissade"))
+    let token = child_token();
+    let child = command(&workspace_bin("glissade"))
         .args(["demo", "--grid", "2", "--out"])
         .arg(dir.path().join("demo"))
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
         .spawn()?;
-    let mut lines = std::io::BufReader::new(demo.stdout.take().expect("piped"));
+    // killed and reaped should an assertion below fail first
+    let mut demo = ServerGuard(child, token);
+    let mut lines = BufReader::new(demo.0.stdout.take().expect("piped"));
     let mut first = String::new();
     lines.read_line(&mut first)?;
     // "coordinator on http://127.0.0.1:PORT (database in ...)"
-    let addr: std::net::SocketAddr = first
+    let addr: SocketAddr = first
         .strip_prefix("coordinator on http://")
         .and_then(|rest| rest.split_whitespace().next())
         .and_then(|a| a.parse().ok())
         .unwrap_or_else(|| panic!("no address in {first:?}"));
     assert!(std::net::TcpStream::connect(addr).is_ok(), "the coordinator listens while the demo runs");
     drop(lines);
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
-    while demo.try_wait()?.is_none() {
-        assert!(std::time::Instant::now() < deadline, "the demo did not end when its reader went away");
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
+    assert!(wait_with_timeout(&mut demo.0, LIMIT).is_some(), "the demo did not end when its reader went away");
     // its coordinator went with it: the port refuses (a SIGKILLed process's socket closes at once)
-    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
     while std::net::TcpStream::connect(addr).is_ok() {
         assert!(std::time::Instant::now() < deadline, "the demo's coordinator on {addr} outlived it");
-        std::thread::sleep(std::time::Duration::from_millis(50));
+        std::thread::sleep(Duration::from_millis(50));
     }
     Ok(())
 }
