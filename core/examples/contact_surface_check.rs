@@ -24,7 +24,7 @@ use glissade_core::point::DesignPoint;
 use glissade_core::scene::Scene;
 use glissade_core::study::StudyResult;
 use glissade_core::study::holdout::{SurfaceErrors, spread, surface_errors};
-use glissade_core::study::space::ParameterSpace;
+use glissade_core::study::space::{Axis, ParameterSpace};
 use glissade_core::study::surrogate::{Prediction, ResponseSurface};
 use rand::SeedableRng;
 use rand::seq::index::sample;
@@ -221,9 +221,9 @@ fn latent(space: &ParameterSpace, names: &[String], samples: &[Sample]) -> Predi
         return plain(space, names, samples, true);
     }
     // distances in the scene's scaling of the parameters (the surface's)
-    let scales: Vec<f64> = names.iter().map(|n| space.range(n).expect("a parameter").scale()).collect();
+    let axes: Vec<Axis> = names.iter().map(|n| Axis::of(space.range(n).expect("a parameter"))).collect();
     let distance = |a: &[f64], b: &[f64]| -> f64 {
-        a.iter().zip(b).zip(&scales).map(|((x, y), s)| ((x - y) / s).powi(2)).sum::<f64>().sqrt()
+        a.iter().zip(b).zip(&axes).map(|((x, y), axis)| (axis.unit(*x) - axis.unit(*y)).powi(2)).sum::<f64>().sqrt()
     };
     let nearest = |x: &[f64], sticking: bool| -> f64 {
         samples

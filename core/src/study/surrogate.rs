@@ -22,7 +22,7 @@
 //! Cost: O(n^3) per likelihood evaluation, about 80 of them, on at most [`SEARCH_POINTS`] points,
 //! then one on all; fits are refused above [`MAX_POINTS`] points before anything is allocated.
 
-use super::space::ParameterSpace;
+use super::space::{Axis, ParameterSpace};
 use crate::point::DesignPoint;
 
 /// The most points a surface is fitted to (an n x n matrix: 32 MB at this size).
@@ -272,8 +272,8 @@ impl Surrogate {
 #[derive(Debug, Clone)]
 pub struct ResponseSurface {
     names: Vec<String>,
-    origins: Vec<f64>,
-    scales: Vec<f64>,
+    /// each parameter's map to the unit box ([`Axis`], of the scene's range)
+    axes: Vec<Axis>,
     /// (lowest, highest) of each parameter where the surface predicts
     bounds: Vec<(f64, f64)>,
     process: Surrogate,
@@ -287,16 +287,11 @@ impl ResponseSurface {
         if samples.len() > MAX_POINTS {
             return Err(SurrogateError::TooManyPoints { count: samples.len(), max: MAX_POINTS });
         }
-        let mut origins = Vec::with_capacity(names.len());
-        let mut scales = Vec::with_capacity(names.len());
-        for name in names {
-            let range = space.range(name).ok_or_else(|| SurrogateError::UnknownParameter(name.clone()))?;
-            origins.push(range.min);
-            scales.push(range.scale());
-        }
-        let scaled =
-            |x: &[f64]| -> Vec<f64> { x.iter().zip(&origins).zip(&scales).map(|((v, o), s)| (v - o) / s).collect() };
-        let points: Vec<Vec<f64>> = samples.iter().map(|(x, _)| scaled(x)).collect();
+        let axes = names
+            .iter()
+            .map(|name| space.range(name).map(Axis::of).ok_or_else(|| SurrogateError::UnknownParameter(name.clone())))
+            .collect::<Result<Vec<_>, _>>()?;
+        let points: Vec<Vec<f64>> = samples.iter().map(|(x, _)| unit(&axes, x)).collect();
         let values: Vec<f64> = samples.iter().map(|(_, v)| *v).collect();
         let process = Surrogate::fit(&points, &values)?;
         // the box: the scene's range, widened to the points (a parameter without a range in
@@ -309,7 +304,7 @@ impl ResponseSurface {
                 samples.iter().fold((range.min, range.max), |(lo, hi), (x, _)| (lo.min(x[k]), hi.max(x[k])))
             })
             .collect();
-        Ok(Self { names: names.to_vec(), origins, scales, bounds, process, non_negative: false })
+        Ok(Self { names: names.to_vec(), axes, bounds, process, non_negative: false })
     }
 
     /// The surface of a QoI that cannot be negative (a slip's norm): a mean below zero, which the
@@ -331,7 +326,7 @@ impl ResponseSurface {
         &self.names
     }
 
-    /// The process's length scale of each parameter (in units of its range in the scene).
+    /// The process's length scale of each parameter (in units of its [`Axis`] over the scene's range).
     pub fn lengths(&self) -> &[f64] {
         self.process.lengths()
     }
@@ -374,18 +369,17 @@ impl ResponseSurface {
 
     /// Values of [`Self::names`] (in that order) as the process sees them.
     fn scale(&self, x: &[f64]) -> Vec<f64> {
-        x.iter().zip(&self.origins).zip(&self.scales).map(|((v, o), s)| (v - o) / s).collect()
+        unit(&self.axes, x)
     }
 
-    /// `point`'s coordinates as the process sees them (each parameter scaled over its range).
+    /// `point`'s coordinates as the process sees them (each parameter on its [`Axis`]).
     fn scaled(&self, point: &DesignPoint) -> Result<Vec<f64>, SurrogateError> {
         self.names
             .iter()
-            .zip(&self.origins)
-            .zip(&self.scales)
-            .map(|((name, o), s)| {
+            .zip(&self.axes)
+            .map(|(name, axis)| {
                 let v = point.get(name).ok_or_else(|| SurrogateError::MissingParameter(name.clone()))?;
-                if v.is_finite() { Ok((v - o) / s) } else { Err(SurrogateError::NotFinite { index: 0 }) }
+                if v.is_finite() { Ok(axis.unit(v)) } else { Err(SurrogateError::NotFinite { index: 0 }) }
             })
             .collect()
     }
@@ -399,6 +393,11 @@ impl ResponseSurface {
         }
         Ok(p)
     }
+}
+
+/// `x` (one value per axis) in the unit box.
+fn unit(axes: &[Axis], x: &[f64]) -> Vec<f64> {
+    x.iter().zip(axes).map(|(v, a)| a.unit(*v)).collect()
 }
 
 /// The surface a QoI is read from: its own process, or, for a norm whose signed components the
