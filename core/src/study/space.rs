@@ -63,7 +63,8 @@ impl Axis {
     /// range is linear of width 1 (distinct values never look identical).
     pub fn new(lo: f64, hi: f64) -> Self {
         if lo > 0.0 && hi >= LOG_SPAN * lo && hi.is_finite() {
-            Self { lo, hi, width: (hi / lo).ln(), logarithmic: true }
+            // (logarithms apart, not of the ratio: 1e300 / 5e-324 overflows)
+            Self { lo, hi, width: hi.ln() - lo.ln(), logarithmic: true }
         } else {
             Self { lo, hi, width: if hi > lo { hi - lo } else { 1.0 }, logarithmic: false }
         }
@@ -84,7 +85,7 @@ impl Axis {
     pub fn unit(&self, x: f64) -> f64 {
         match self.logarithmic {
             false => (x - self.lo) / self.width,
-            true if x >= self.lo => (x / self.lo).ln() / self.width,
+            true if x >= self.lo => (x.ln() - self.lo.ln()) / self.width,
             true => (x - self.lo) / (self.lo * self.width),
         }
     }
@@ -97,7 +98,7 @@ impl Axis {
         }
         let x = match self.logarithmic {
             false => self.lo + u * self.width,
-            true if u >= 0.0 => self.lo * (u * self.width).exp(),
+            true if u >= 0.0 => (self.lo.ln() + u * self.width).exp(),
             true => self.lo + u * self.lo * self.width,
         };
         if (0.0..=1.0).contains(&u) && self.hi > self.lo { x.clamp(self.lo, self.hi) } else { x }
@@ -636,6 +637,13 @@ mod tests {
         assert!(!point.is_logarithmic());
         assert_eq!((point.unit(4.0), point.value(-2.0)), (1.0, 1.0));
         assert!(Axis::new(0.1, 1.0).is_logarithmic() && !Axis::new(0.1, 0.999).is_logarithmic());
+        // the extremes of a scene's finite ranges: every coordinate finite, the map inverts
+        let wide = Axis::new(5e-324, 1e308);
+        for x in [5e-324, 1e-300, 1.0, 1e300, 1e308] {
+            let u = wide.unit(x);
+            assert!(u.is_finite() && (0.0..=1.0).contains(&u), "{x}: {u}");
+            assert!((wide.value(u) / x - 1.0).abs() < 1e-9 || x == 5e-324, "{x}: {}", wide.value(u));
+        }
     }
 
     #[test]
