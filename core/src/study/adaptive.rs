@@ -653,9 +653,20 @@ mod tests {
         n: usize,
         check: impl Fn(&super::super::surrogate::Prediction, (f64, f64)),
     ) -> f64 {
-        let grid: Vec<(f64, f64)> = (0..=n)
-            .flat_map(|i| (0..=n).map(move |j| (0.1 + 0.1 * i as f64 / n as f64, 0.1 + 0.1 * j as f64 / n as f64)))
-            .collect();
+        largest_over_box(surface, law, (0.1, 0.2), n, check)
+    }
+
+    /// [`largest_over_grid`] over the box `lo..hi` in both parameters, the grid evenly spaced in
+    /// the parameters' own values (as a user reads the box).
+    fn largest_over_box(
+        surface: &QoiSurface,
+        law: &dyn Fn(f64, f64) -> f64,
+        (lo, hi): (f64, f64),
+        n: usize,
+        check: impl Fn(&super::super::surrogate::Prediction, (f64, f64)),
+    ) -> f64 {
+        let at = |i: usize| lo + (hi - lo) * i as f64 / n as f64;
+        let grid: Vec<(f64, f64)> = (0..=n).flat_map(|i| (0..=n).map(move |j| (at(i), at(j)))).collect();
         let truth: Vec<f64> = grid.iter().map(|(a, b)| law(*a, *b)).collect();
         let spread = holdout::spread(truth.iter().copied());
         grid.iter()
@@ -937,7 +948,7 @@ mod tests {
 
     /// A study to `target` of `law` over `lo..hi` in both parameters (named f1, f2), budget
     /// 150: the points it took, the largest error of its surface over a 61 x 61 grid of the box
-    /// (evenly spaced in the parameters' own values, as a user reads the box), and its estimate.
+    /// ([`largest_over_box`]), and its estimate.
     fn to_target(law: &dyn Fn(f64, f64) -> f64, lo: f64, hi: f64, target: f64) -> (usize, f64, f64) {
         let range = |name: &str| ParameterRange { name: name.into(), default: lo, min: lo, max: hi, declared: true };
         let space = ParameterSpace::new(vec![range("f1"), range("f2")]);
@@ -955,19 +966,7 @@ mod tests {
             let q = law(p.get("f1").unwrap(), p.get("f2").unwrap());
             chosen.push((p, [("q".to_string(), q)].into()));
         };
-        let n = 60;
-        let at = |i: usize| lo + (hi - lo) * i as f64 / n as f64;
-        let grid: Vec<(f64, f64)> = (0..=n).flat_map(|i| (0..=n).map(move |j| (at(i), at(j)))).collect();
-        let truth: Vec<f64> = grid.iter().map(|(a, b)| law(*a, *b)).collect();
-        let spread = holdout::spread(truth.iter().copied());
-        let largest = grid
-            .iter()
-            .zip(&truth)
-            .map(|((a, b), t)| {
-                let p = surfaces.fitted[0].1.predict(&DesignPoint::from_pairs([("f1", *a), ("f2", *b)]).unwrap());
-                (p.unwrap().mean - t).abs() / spread
-            })
-            .fold(0.0f64, f64::max);
+        let largest = largest_over_box(&surfaces.fitted[0].1, law, (lo, hi), 60, |_, _| ());
         (chosen.len(), largest, cv.qoi["q"].box_largest.unwrap())
     }
 
