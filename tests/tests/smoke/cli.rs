@@ -13,8 +13,11 @@ fn cli_demo_runs_a_study_and_draws_its_pictures() -> anyhow::Result<()> {
     // discretisation audit's 2), the summary, the surface table, the measured accuracy and time
     // step's error, and which dominates
     // the study's points, its audit's, its dt / 2 level's and those held out of its surface (a
-    // quarter of 9 at most)
-    assert_eq!(stdout.matches("done (f1=").count(), 9 + 2 + 2 + 2, "{stdout}");
+    // quarter of 9 at most); with a pool a core the held-out points may end before the demo
+    // watches them ("study 4 done ... watched 0.0 s": their lines are then not printed, their
+    // summary below is)
+    let lines = stdout.matches("done (f1=").count();
+    assert!(lines == 9 + 2 + 2 + 2 || (lines == 9 + 2 + 2 && stdout.contains("watched 0.0 s")), "{lines}: {stdout}");
     assert!(
         stdout.contains("surface accuracy (errors relative to each QoI's spread): 2 of 2 held-out points (seed ")
             && stdout.contains(") solved cold at 2e-6"),
